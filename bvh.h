@@ -1,0 +1,1648 @@
+/* bvh.h - v0.1.0 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
+
+   WHAT
+     Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
+     and traces rays through them on the CPU. Five builders, from the study "Comparison of BVH
+     construction methods" (Kedadry): baseline top-down (object median), baseline bottom-up
+     (Morton-order pairwise aggregation), SAH-guided top-down with mid-point split partitioning,
+     PLOC (Meister & Bittner 2018) and PLOC on pthreads. The node layout is a flat array of
+     32-byte nodes that cl/trace.cl reads as-is on any OpenCL device.
+
+   HOW TO INCLUDE
+     In exactly ONE .c or .cpp file:
+         #define BVH_IMPLEMENTATION
+         #include "bvh.h"
+     Everywhere else just #include "bvh.h". Link with -lm -lpthread.
+
+   EXAMPLE
+         float v[] = { 0,0,0,  1,0,0,  0,1,0,    0,0,1,  1,0,1,  0,1,1 };  // two triangles
+         bvh_build_desc desc = {0};                   // zero = sensible defaults
+         desc.builder = BVH_BUILDER_PLOC;             // or TOP_DOWN, BOTTOM_UP, SAH_MIDPOINT...
+         desc.triangles.positions = v;                // stride 0 = tightly packed xyz floats
+         desc.triangles.vertex_count = 6;
+         desc.triangles.triangle_count = 2;           // indices NULL = 3 vertices per triangle
+         bvh_tree tree;
+         bvh_result r = bvh_build(&tree, &desc);
+         if (r != BVH_SUCCESS) { printf("%s\n", bvh_result_string(r)); return 1; }
+         bvh_ray ray = { {0.2f, 0.2f, -1}, 0.0f, {0, 0, 1}, BVH_INF };
+         bvh_hit hit;
+         if (bvh_intersect(&tree, &ray, &hit))
+             printf("hit triangle %u at t=%g (u=%g v=%g)\n", hit.prim, hit.t, hit.u, hit.v);
+         bvh_free(&tree);
+
+   CONFIGURATION (define before including the implementation)
+     BVH_MALLOC(size, user) / BVH_FREE(ptr, user)  default allocator (malloc/free); a per-build
+                           allocator with a user pointer goes in bvh_build_desc.allocator
+     BVH_ASSERT(c)         internal consistency checks (default: assert from <assert.h>)
+     BVH_STATIC            make every function static (private copy per translation unit)
+     BVH_API               decoration of every public function (default extern, or static)
+     BVH_NO_THREADS        no pthreads: parallel builders and batch tracing run on one thread
+     BVH_MAX_DEPTH         traversal stack depth; builders never produce a deeper tree (64)
+
+   ERRORS
+     Every call that can fail returns a bvh_result; bvh_result_string() names it. The library
+     never aborts, exits or prints. Bad geometry (NaN/Inf vertices, indices out of range) is
+     refused with a code, or skipped and counted when desc.skip_invalid is set.
+
+   THREADS
+     No global mutable state: any function may be called from several threads on different trees.
+     Parallel builders create their worker threads once per build, never per iteration.
+
+   LICENSE
+     MIT, see the end of this file.
+
+   CHANGELOG
+     0.1.0  first release: types, SAH evaluator, validator, CPU traversal, baseline builders.
+*/
+#ifndef BVH_H_INCLUDED
+#define BVH_H_INCLUDED
+
+#define BVH_VERSION_MAJOR 0
+#define BVH_VERSION_MINOR 1
+#define BVH_VERSION_PATCH 0
+
+#include <math.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#ifndef BVH_API
+#ifdef BVH_STATIC
+#define BVH_API static
+#else
+#define BVH_API extern
+#endif
+#endif
+
+#ifndef BVH_MAX_DEPTH
+#define BVH_MAX_DEPTH 64
+#endif
+
+#define BVH_INF HUGE_VALF
+#define BVH_INVALID 0xFFFFFFFFu
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- results ------------------------------------------------------------------------------ */
+typedef enum bvh_result {
+    BVH_SUCCESS = 0,
+    BVH_ERROR_INVALID_ARGUMENT,    /* NULL pointer, option out of range, stride < 12 ... */
+    BVH_ERROR_INVALID_GEOMETRY,    /* NaN or Inf in a vertex or box (see skip_invalid) */
+    BVH_ERROR_INDEX_OUT_OF_RANGE,  /* a triangle index >= vertex_count */
+    BVH_ERROR_TOO_MANY_PRIMITIVES, /* count does not fit the 32-bit reference budget */
+    BVH_ERROR_OUT_OF_MEMORY,       /* an allocation failed; nothing leaked, tree left empty */
+    BVH_ERROR_THREAD,              /* a worker thread could not be created */
+    BVH_ERROR_INVALID_TREE,        /* the validator found a defect (see bvh_validation) */
+    BVH_ERROR_NO_TRIANGLES,        /* traversal asked of a tree built from boxes only */
+    BVH_RESULT_COUNT
+} bvh_result;
+
+/* ---- builders ----------------------------------------------------------------------------- */
+typedef enum bvh_builder {
+    BVH_BUILDER_DEFAULT = 0,   /* = BVH_BUILDER_PLOC_PARALLEL */
+    BVH_BUILDER_TOP_DOWN,      /* "top-down": object median on the longest centroid axis */
+    BVH_BUILDER_BOTTOM_UP,     /* "bottom-up": Morton order, pairwise aggregation per level */
+    BVH_BUILDER_SAH_MIDPOINT,  /* "sah-midpoint": SAH-guided mid-point split partitioning */
+    BVH_BUILDER_PLOC,          /* "ploc": Meister & Bittner 2018, one thread */
+    BVH_BUILDER_PLOC_PARALLEL, /* "ploc-parallel": the same tree, built on a pthread pool */
+    BVH_BUILDER_COUNT
+} bvh_builder;
+
+/* ---- math types --------------------------------------------------------------------------- */
+typedef struct bvh_vec3 { float x, y, z; } bvh_vec3;
+typedef struct bvh_aabb { bvh_vec3 min, max; } bvh_aabb; /* empty: min = +inf, max = -inf */
+
+/* A node: 32 bytes. count == 0: interior node whose children are nodes[index] and
+   nodes[index + 1]. count > 0: leaf referencing tree.prims[index .. index + count - 1].
+   The root is nodes[0]. cl/trace.cl reads this array as-is. */
+typedef struct bvh_node {
+    bvh_vec3 min;
+    uint32_t index;
+    bvh_vec3 max;
+    uint32_t count;
+} bvh_node;
+
+typedef struct bvh_ray {
+    bvh_vec3 origin;
+    float tmin;   /* hits with tmin <= t <= tmax count */
+    bvh_vec3 dir; /* need not be normalised; t is in units of dir */
+    float tmax;
+} bvh_ray;
+
+typedef struct bvh_hit {
+    float t, u, v; /* distance and barycentrics: p = (1-u-v)*v0 + u*v1 + v*v2 */
+    uint32_t prim; /* original triangle/primitive index, BVH_INVALID for a miss */
+} bvh_hit;
+
+/* ---- build description -------------------------------------------------------------------- */
+typedef struct bvh_allocator {
+    void *(*alloc)(size_t size, void *user); /* NULL: BVH_MALLOC */
+    void (*free)(void *ptr, void *user);     /* NULL: BVH_FREE */
+    void *user;
+} bvh_allocator;
+
+/* SAH costs: traversal of an interior node, of a leaf, and one primitive intersection.
+   All zero means the default (1, 0, 1), the convention all figures of this project use. */
+typedef struct bvh_costs { float interior, leaf, triangle; } bvh_costs;
+
+typedef struct bvh_triangles {
+    const float *positions;   /* x, y, z floats of vertex i at (char*)positions + i*stride */
+    size_t stride;            /* bytes between vertices; 0 = 12 (tightly packed); else >= 12 */
+    uint32_t vertex_count;
+    const uint32_t *indices;  /* 3 per triangle; NULL: triangle i is vertices 3i, 3i+1, 3i+2 */
+    uint32_t triangle_count;
+} bvh_triangles;
+
+typedef struct bvh_build_desc {
+    bvh_builder builder;
+    bvh_triangles triangles;  /* either triangles ... */
+    const bvh_aabb *boxes;    /* ... or one box per custom primitive (then set box_count) */
+    uint32_t box_count;
+    uint32_t max_leaf_size;   /* 0 = 4 (top-down, bottom-up) or 8 (SAH-collapsed builders);
+                                 above 255: BVH_ERROR_INVALID_ARGUMENT */
+    uint32_t threads;         /* ploc-parallel: 0 = all online CPUs; above 256 clamped to 256 */
+    uint32_t ploc_radius;     /* PLOC search radius in Morton order; 0 = 16; above 256 refused */
+    float split_budget;       /* sah-midpoint: extra references allowed, as a fraction of the
+                                 primitive count; 0 = 0.3; negative = no splits; above 1 refused */
+    bvh_costs costs;          /* build-time SAH costs, zero = (1, 0, 1); negative/NaN refused */
+    int skip_invalid;         /* 0: NaN/Inf geometry is refused with BVH_ERROR_INVALID_GEOMETRY;
+                                 1: such primitives are left out and counted in tree.excluded */
+    int keep_triangles;       /* reserved, 0 */
+    bvh_allocator allocator;
+} bvh_build_desc;
+
+/* ---- the tree ------------------------------------------------------------------------------ */
+typedef struct bvh_tree {
+    bvh_node *nodes;        /* node_count nodes, root at 0 (node_count 0: empty tree) */
+    uint32_t node_count;
+    uint32_t *prims;        /* ref_count original primitive indices, leaves index into this */
+    uint32_t ref_count;     /* == prim_count - excluded unless the builder splits references */
+    float *tris;            /* triangle builds: 9 floats (v0, v1, v2) per reference, in reference
+                               order, for traversal; NULL for box builds */
+    uint32_t prim_count;    /* primitives given */
+    uint32_t excluded;      /* primitives left out by skip_invalid */
+    bvh_builder builder;
+    bvh_allocator allocator;
+} bvh_tree;
+
+typedef struct bvh_stats {
+    uint32_t nodes, leaves, refs, max_depth, max_leaf_size;
+    size_t bytes;          /* nodes + reference indices */
+    size_t triangle_bytes; /* reference-ordered triangle copy used by traversal */
+} bvh_stats;
+
+typedef struct bvh_validation {
+    uint32_t node;      /* first offending node, BVH_INVALID if none or not node-specific */
+    char message[160];  /* what is wrong, "ok" when valid */
+} bvh_validation;
+
+/* The standard camera of the examples and benchmarks: pinhole at the centre of `bounds` +
+   normalize(1, 0.6, 1.3) * 1.5 * diagonal, looking at the centre, up (0,1,0), vertical fov 60. */
+typedef struct bvh_camera {
+    bvh_vec3 eye, forward, right, up; /* right and up are scaled by tan(fov/2) (and aspect) */
+    uint32_t width, height;
+} bvh_camera;
+
+/* ---- API ----------------------------------------------------------------------------------- */
+BVH_API const char *bvh_result_string(bvh_result r);
+BVH_API const char *bvh_builder_name(bvh_builder b); /* "top-down", "ploc"... */
+BVH_API bvh_result bvh_builder_from_name(const char *name, bvh_builder *out);
+
+/* Builds a tree. On failure *tree is zeroed and nothing is leaked. */
+BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc);
+BVH_API void bvh_free(bvh_tree *tree);
+
+/* SAH = Ci * sum_I A(n)/A(root) + Cl * sum_L A(n)/A(root) + Ct * sum_L A(n) N(n)/A(root).
+   costs NULL or all zero = (1, 0, 1). A tree whose root has zero area uses A(n)/A(root) = 1. */
+BVH_API bvh_result bvh_sah(const bvh_tree *tree, const bvh_costs *costs, double *out_cost);
+
+/* Checks the structure: every node reached once, children inside parents, leaves contain their
+   primitives (prim_boxes, or the tree's triangles when NULL; for split references: overlap),
+   every primitive referenced (exactly once unless the builder splits), depth <= BVH_MAX_DEPTH. */
+BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes,
+                                bvh_validation *report);
+BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *out);
+
+/* Closest hit (returns 1 and fills *hit) or 0 with hit->prim = BVH_INVALID. Rays with NaN, a
+   zero direction, tmin > tmax or a non-finite origin hit nothing. Ties in t go to the lowest
+   primitive index, so that any builder gives exactly the hits of a brute-force loop. */
+BVH_API int bvh_intersect(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit);
+/* Any hit in [tmin, tmax]: 1 if the ray is blocked. */
+BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray);
+/* Same as bvh_intersect, counting nodes visited (for heat maps and statistics). */
+BVH_API int bvh_intersect_counted(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
+                                  uint32_t *nodes_visited);
+/* Traces count rays on `threads` threads (0 = all online CPUs). */
+BVH_API bvh_result bvh_intersect_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits,
+                                       size_t count, uint32_t threads);
+BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays,
+                                      uint8_t *occluded, size_t count, uint32_t threads);
+
+/* Watertight ray/triangle test (Woop, Benthin & Wald 2013), the one traversal uses. */
+BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const float v1[3],
+                                   const float v2[3], bvh_hit *hit);
+
+/* The tree's bounds (empty box for an empty tree). */
+BVH_API bvh_aabb bvh_tree_bounds(const bvh_tree *tree);
+
+BVH_API bvh_camera bvh_camera_standard(bvh_aabb bounds, uint32_t width, uint32_t height);
+/* Primary ray through the centre of pixel (x, y), y = 0 at the top; unit direction. */
+BVH_API bvh_ray bvh_camera_ray(const bvh_camera *cam, uint32_t x, uint32_t y);
+
+/* AABB helpers */
+BVH_API bvh_aabb bvh_aabb_empty(void);
+BVH_API void bvh_aabb_grow(bvh_aabb *box, bvh_vec3 p);
+BVH_API bvh_aabb bvh_aabb_merge(bvh_aabb a, bvh_aabb b);
+BVH_API float bvh_aabb_area(bvh_aabb box); /* 0 for an empty box */
+BVH_API bvh_vec3 bvh_aabb_centroid(bvh_aabb box);
+BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* BVH_H_INCLUDED */
+
+/* ============================================================================================ */
+/*                                      IMPLEMENTATION                                          */
+/* ============================================================================================ */
+#ifdef BVH_IMPLEMENTATION
+#ifndef BVH_IMPLEMENTATION_DONE
+#define BVH_IMPLEMENTATION_DONE
+
+#include <float.h>
+#include <string.h>
+#ifndef BVH_ASSERT
+#include <assert.h>
+#define BVH_ASSERT(c) assert(c)
+#endif
+#ifndef BVH_MALLOC
+#include <stdlib.h>
+#define BVH_MALLOC(size, user) ((void)(user), malloc(size))
+#define BVH_FREE(ptr, user) ((void)(user), free(ptr))
+#endif
+#ifndef BVH_NO_THREADS
+#include <pthread.h>
+#include <unistd.h>
+#endif
+
+#ifdef __cplusplus
+#define BVH__CAST(T, x) static_cast<T>(x)
+#else
+#define BVH__CAST(T, x) ((T)(x))
+#endif
+
+#define BVH__MAX_PRIMS (1u << 30) /* keeps 2n nodes and split references inside uint32 */
+#define BVH__MAX_LEAF 255u
+#define BVH__MAX_THREADS 256u
+
+/* ============================================================================================ */
+/* == math and AABB ============================================================================ */
+/* ============================================================================================ */
+static float bvh__minf(float a, float b) { return a < b ? a : b; }
+static float bvh__maxf(float a, float b) { return a > b ? a : b; }
+static float bvh__get(bvh_vec3 v, int axis) { return axis == 0 ? v.x : axis == 1 ? v.y : v.z; }
+static int bvh__finite3(const float *p) { return isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2]); }
+
+BVH_API bvh_aabb bvh_aabb_empty(void) {
+    bvh_aabb b;
+    b.min.x = b.min.y = b.min.z = BVH_INF;
+    b.max.x = b.max.y = b.max.z = -BVH_INF;
+    return b;
+}
+BVH_API void bvh_aabb_grow(bvh_aabb *b, bvh_vec3 p) {
+    b->min.x = bvh__minf(b->min.x, p.x); b->max.x = bvh__maxf(b->max.x, p.x);
+    b->min.y = bvh__minf(b->min.y, p.y); b->max.y = bvh__maxf(b->max.y, p.y);
+    b->min.z = bvh__minf(b->min.z, p.z); b->max.z = bvh__maxf(b->max.z, p.z);
+}
+BVH_API bvh_aabb bvh_aabb_merge(bvh_aabb a, bvh_aabb b) {
+    bvh_aabb r;
+    r.min.x = bvh__minf(a.min.x, b.min.x); r.max.x = bvh__maxf(a.max.x, b.max.x);
+    r.min.y = bvh__minf(a.min.y, b.min.y); r.max.y = bvh__maxf(a.max.y, b.max.y);
+    r.min.z = bvh__minf(a.min.z, b.min.z); r.max.z = bvh__maxf(a.max.z, b.max.z);
+    return r;
+}
+static float bvh__half_area(bvh_aabb b) {
+    float dx = b.max.x - b.min.x, dy = b.max.y - b.min.y, dz = b.max.z - b.min.z;
+    if (!(dx >= 0.0f && dy >= 0.0f && dz >= 0.0f)) return 0.0f; /* empty (or NaN) box */
+    return dx * dy + dy * dz + dz * dx;
+}
+BVH_API float bvh_aabb_area(bvh_aabb b) { return 2.0f * bvh__half_area(b); }
+BVH_API bvh_vec3 bvh_aabb_centroid(bvh_aabb b) {
+    bvh_vec3 c;
+    c.x = 0.5f * (b.min.x + b.max.x); c.y = 0.5f * (b.min.y + b.max.y); c.z = 0.5f * (b.min.z + b.max.z);
+    return c;
+}
+BVH_API int bvh_aabb_contains(bvh_aabb o, bvh_aabb i) {
+    return o.min.x <= i.min.x && o.min.y <= i.min.y && o.min.z <= i.min.z &&
+           o.max.x >= i.max.x && o.max.y >= i.max.y && o.max.z >= i.max.z;
+}
+static bvh_aabb bvh__node_box(const bvh_node *n) {
+    bvh_aabb b;
+    b.min = n->min; b.max = n->max;
+    return b;
+}
+static void bvh__set_box(bvh_node *n, bvh_aabb b) { n->min = b.min; n->max = b.max; }
+static bvh_aabb bvh__tri_box(const float *t) {
+    bvh_aabb b;
+    b.min.x = bvh__minf(bvh__minf(t[0], t[3]), t[6]); b.max.x = bvh__maxf(bvh__maxf(t[0], t[3]), t[6]);
+    b.min.y = bvh__minf(bvh__minf(t[1], t[4]), t[7]); b.max.y = bvh__maxf(bvh__maxf(t[1], t[4]), t[7]);
+    b.min.z = bvh__minf(bvh__minf(t[2], t[5]), t[8]); b.max.z = bvh__maxf(bvh__maxf(t[2], t[5]), t[8]);
+    return b;
+}
+
+/* ============================================================================================ */
+/* == names ===================================================================================== */
+/* ============================================================================================ */
+BVH_API const char *bvh_result_string(bvh_result r) {
+    switch (r) {
+    case BVH_SUCCESS: return "success";
+    case BVH_ERROR_INVALID_ARGUMENT: return "invalid argument (NULL pointer or option out of range)";
+    case BVH_ERROR_INVALID_GEOMETRY: return "invalid geometry (NaN or Inf coordinate, or inverted box)";
+    case BVH_ERROR_INDEX_OUT_OF_RANGE: return "triangle index out of range of the vertex count";
+    case BVH_ERROR_TOO_MANY_PRIMITIVES: return "too many primitives for 32-bit references";
+    case BVH_ERROR_OUT_OF_MEMORY: return "out of memory";
+    case BVH_ERROR_THREAD: return "could not create a worker thread";
+    case BVH_ERROR_INVALID_TREE: return "invalid tree (see the validation report)";
+    case BVH_ERROR_NO_TRIANGLES: return "the tree was built from boxes and has no triangles to trace";
+    default: return "unknown result code";
+    }
+}
+static const char *const bvh__builder_names[BVH_BUILDER_COUNT] = {
+    "default", "top-down", "bottom-up", "sah-midpoint", "ploc", "ploc-parallel"};
+BVH_API const char *bvh_builder_name(bvh_builder b) {
+    return (unsigned)b < BVH_BUILDER_COUNT ? bvh__builder_names[b] : "unknown";
+}
+BVH_API bvh_result bvh_builder_from_name(const char *name, bvh_builder *out) {
+    int i;
+    if (!name || !out) return BVH_ERROR_INVALID_ARGUMENT;
+    for (i = 0; i < BVH_BUILDER_COUNT; i++)
+        if (strcmp(name, bvh__builder_names[i]) == 0) { *out = BVH__CAST(bvh_builder, i); return BVH_SUCCESS; }
+    return BVH_ERROR_INVALID_ARGUMENT;
+}
+
+/* ============================================================================================ */
+/* == memory ==================================================================================== */
+/* ============================================================================================ */
+static void *bvh__alloc(const bvh_allocator *al, size_t count, size_t elem) {
+    size_t size;
+    if (count == 0) count = 1;
+    if (count > (size_t)-1 / elem) return NULL;
+    size = count * elem;
+    return al->alloc ? al->alloc(size, al->user) : BVH_MALLOC(size, al->user);
+}
+static void bvh__free(const bvh_allocator *al, void *p) {
+    if (!p) return;
+    if (al->free) al->free(p, al->user);
+    else BVH_FREE(p, al->user);
+}
+#define BVH__ALLOC(al, T, n) BVH__CAST(T *, bvh__alloc((al), (size_t)(n), sizeof(T)))
+
+/* ============================================================================================ */
+/* == threads =================================================================================== */
+/* A team runs one function on n threads (the caller is thread 0) that meet at barriers; threads
+   are created once per call, never per iteration. If a thread cannot be created the team runs
+   with the threads it has (the work is split by the final count, so results do not change). */
+/* ============================================================================================ */
+typedef struct bvh__team bvh__team;
+typedef void (*bvh__team_fn)(void *arg, uint32_t tid, uint32_t nthreads, bvh__team *team);
+struct bvh__team {
+    bvh__team_fn fn;
+    void *arg;
+    uint32_t n;
+#ifndef BVH_NO_THREADS
+    pthread_mutex_t mutex;
+    pthread_cond_t cond;
+    uint32_t waiting, generation, started;
+#endif
+};
+typedef struct bvh__worker { bvh__team *team; uint32_t tid; } bvh__worker;
+
+static uint32_t bvh__cpu_count(void) {
+#ifndef BVH_NO_THREADS
+    long n = sysconf(_SC_NPROCESSORS_ONLN);
+    if (n < 1) return 1;
+    return n > (long)BVH__MAX_THREADS ? BVH__MAX_THREADS : (uint32_t)n;
+#else
+    return 1;
+#endif
+}
+static uint32_t bvh__resolve_threads(uint32_t t) {
+    if (t == 0) return bvh__cpu_count();
+    return t > BVH__MAX_THREADS ? BVH__MAX_THREADS : t;
+}
+
+static void bvh__team_sync(bvh__team *team) {
+#ifndef BVH_NO_THREADS
+    uint32_t gen;
+    if (team->n <= 1) return;
+    pthread_mutex_lock(&team->mutex);
+    gen = team->generation;
+    if (++team->waiting == team->n) {
+        team->waiting = 0;
+        team->generation++;
+        pthread_cond_broadcast(&team->cond);
+    } else {
+        while (gen == team->generation) pthread_cond_wait(&team->cond, &team->mutex);
+    }
+    pthread_mutex_unlock(&team->mutex);
+#else
+    (void)team;
+#endif
+}
+
+#ifndef BVH_NO_THREADS
+static void *bvh__worker_main(void *p) {
+    bvh__worker *w = BVH__CAST(bvh__worker *, p);
+    bvh__team *team = w->team;
+    /* wait until the creator knows how many threads it got */
+    pthread_mutex_lock(&team->mutex);
+    while (!team->started) pthread_cond_wait(&team->cond, &team->mutex);
+    pthread_mutex_unlock(&team->mutex);
+    if (w->tid < team->n) team->fn(team->arg, w->tid, team->n, team);
+    return NULL;
+}
+#endif
+
+/* Runs fn on up to `want` threads. Returns BVH_ERROR_OUT_OF_MEMORY only when the bookkeeping
+   cannot be allocated; thread creation failures reduce the team instead. */
+static bvh_result bvh__team_run(const bvh_allocator *al, uint32_t want, bvh__team_fn fn, void *arg) {
+    bvh__team team;
+    team.fn = fn; team.arg = arg; team.n = 1;
+#ifndef BVH_NO_THREADS
+    if (want > 1) {
+        uint32_t i, made = 0;
+        pthread_t *th = BVH__ALLOC(al, pthread_t, want);
+        bvh__worker *ws = BVH__ALLOC(al, bvh__worker, want);
+        if (!th || !ws) { bvh__free(al, th); bvh__free(al, ws); return BVH_ERROR_OUT_OF_MEMORY; }
+        pthread_mutex_init(&team.mutex, NULL);
+        pthread_cond_init(&team.cond, NULL);
+        team.waiting = team.generation = team.started = 0;
+        team.n = want;
+        for (i = 1; i < want; i++) {
+            ws[i].team = &team; ws[i].tid = i;
+            if (pthread_create(&th[i], NULL, bvh__worker_main, &ws[i]) != 0) break;
+            made++;
+        }
+        pthread_mutex_lock(&team.mutex);
+        team.n = made + 1; /* workers with tid >= n return at once */
+        team.started = 1;
+        pthread_cond_broadcast(&team.cond);
+        pthread_mutex_unlock(&team.mutex);
+        fn(arg, 0, team.n, &team);
+        for (i = 1; i <= made; i++) pthread_join(th[i], NULL);
+        pthread_cond_destroy(&team.cond);
+        pthread_mutex_destroy(&team.mutex);
+        bvh__free(al, th); bvh__free(al, ws);
+        return BVH_SUCCESS;
+    }
+#else
+    (void)want; (void)al;
+#endif
+    fn(arg, 0, 1, &team);
+    return BVH_SUCCESS;
+}
+/* Even split of [0, count) for thread tid of n. */
+static void bvh__range(size_t count, uint32_t tid, uint32_t n, size_t *b, size_t *e) {
+    *b = count * tid / n;
+    *e = count * (tid + 1) / n;
+}
+
+/* ============================================================================================ */
+/* == Morton codes and radix sort ================================================================ */
+/* ============================================================================================ */
+static uint64_t bvh__expand21(uint64_t v) { /* spreads 21 bits to every third bit */
+    v &= 0x1fffff;
+    v = (v | v << 32) & 0x1f00000000ffffULL;
+    v = (v | v << 16) & 0x1f0000ff0000ffULL;
+    v = (v | v << 8) & 0x100f00f00f00f00fULL;
+    v = (v | v << 4) & 0x10c30c30c30c30c3ULL;
+    v = (v | v << 2) & 0x1249249249249249ULL;
+    return v;
+}
+/* 63-bit Morton code of p inside box b (21 bits per axis). */
+static uint64_t bvh__morton(bvh_vec3 p, bvh_vec3 lo, bvh_vec3 scale) {
+    float f[3];
+    uint64_t q[3];
+    int a;
+    f[0] = (p.x - lo.x) * scale.x; f[1] = (p.y - lo.y) * scale.y; f[2] = (p.z - lo.z) * scale.z;
+    for (a = 0; a < 3; a++) {
+        float x = f[a] < 0.0f ? 0.0f : f[a] > 2097151.0f ? 2097151.0f : f[a];
+        q[a] = (uint64_t)x;
+    }
+    return bvh__expand21(q[0]) << 2 | bvh__expand21(q[1]) << 1 | bvh__expand21(q[2]);
+}
+static bvh_vec3 bvh__morton_scale(bvh_aabb cb) {
+    bvh_vec3 s;
+    float dx = cb.max.x - cb.min.x, dy = cb.max.y - cb.min.y, dz = cb.max.z - cb.min.z;
+    s.x = dx > 0.0f ? 2097151.0f / dx : 0.0f;
+    s.y = dy > 0.0f ? 2097151.0f / dy : 0.0f;
+    s.z = dz > 0.0f ? 2097151.0f / dz : 0.0f;
+    return s;
+}
+
+/* LSD radix sort of (key, value) pairs, 11-bit digits, stable: equal keys keep value order.
+   Passes whose digit is the same for every key are skipped. Parallel over the team: each thread
+   histograms and scatters its own contiguous chunk, so the result is the same for any count. */
+#define BVH__RADIX_BITS 11
+#define BVH__RADIX_SIZE (1u << BVH__RADIX_BITS)
+typedef struct bvh__sort {
+    uint64_t *keys, *keys_tmp;
+    uint32_t *vals, *vals_tmp;
+    size_t n;
+    uint32_t *hist; /* nthreads * BVH__RADIX_SIZE */
+} bvh__sort;
+/* Called by every thread of a team; on return the sorted data is in keys/vals. */
+static void bvh__radix_sort_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team) {
+    int shift;
+    size_t b, e, i;
+    bvh__range(s->n, tid, nt, &b, &e);
+    for (shift = 0; shift < 64; shift += BVH__RADIX_BITS) {
+        uint32_t *h = s->hist + (size_t)tid * BVH__RADIX_SIZE;
+        uint32_t d, t, all_same = 0;
+        size_t sum;
+        memset(h, 0, BVH__RADIX_SIZE * sizeof(uint32_t));
+        for (i = b; i < e; i++) h[(s->keys[i] >> shift) & (BVH__RADIX_SIZE - 1)]++;
+        bvh__team_sync(team);
+        /* every thread computes the same offsets; skip the pass if one digit holds everything */
+        for (d = 0; d < BVH__RADIX_SIZE && !all_same; d++) {
+            size_t tot = 0;
+            for (t = 0; t < nt; t++) tot += s->hist[(size_t)t * BVH__RADIX_SIZE + d];
+            if (tot == s->n) all_same = 1;
+            if (tot != 0) break;
+        }
+        if (all_same) { bvh__team_sync(team); continue; }
+        /* offset of (digit d, thread tid) = keys with a smaller digit + same digit, earlier threads */
+        sum = 0;
+        {
+            uint32_t local[BVH__RADIX_SIZE];
+            for (d = 0; d < BVH__RADIX_SIZE; d++) {
+                for (t = 0; t < nt; t++) {
+                    uint32_t c = s->hist[(size_t)t * BVH__RADIX_SIZE + d];
+                    if (t == tid) local[d] = (uint32_t)sum;
+                    sum += c;
+                }
+            }
+            bvh__team_sync(team); /* everyone has read the histograms */
+            for (i = b; i < e; i++) {
+                uint64_t k = s->keys[i];
+                uint32_t pos = local[(k >> shift) & (BVH__RADIX_SIZE - 1)]++;
+                s->keys_tmp[pos] = k;
+                s->vals_tmp[pos] = s->vals[i];
+            }
+        }
+        bvh__team_sync(team);
+        if (tid == 0) {
+            uint64_t *tk = s->keys; uint32_t *tv = s->vals;
+            s->keys = s->keys_tmp; s->vals = s->vals_tmp;
+            s->keys_tmp = tk; s->vals_tmp = tv;
+        }
+        bvh__team_sync(team);
+    }
+}
+
+/* ============================================================================================ */
+/* == build context and output ================================================================== */
+/* Every builder reads the context (primitive boxes and centroids in "local" order, the resolved
+   options) and writes a bvh__out: nodes with the root at 0 and children adjacent, and references
+   as local primitive ids. The front-end (bvh_build) maps them to the caller's indices. */
+/* ============================================================================================ */
+typedef struct bvh__ctx {
+    bvh_allocator al;
+    uint32_t n;            /* primitives taking part (n >= 1 inside builders) */
+    bvh_aabb *boxes;       /* n boxes */
+    bvh_vec3 *centroids;   /* n centroids (box centres) */
+    const float *tris;     /* n * 9 floats (v0, v1, v2) or NULL for box input */
+    bvh_aabb bounds, cbounds;
+    uint32_t max_leaf, threads, radius;
+    float ci, cl, ct, split_budget;
+} bvh__ctx;
+
+typedef struct bvh__out {
+    bvh_node *nodes;
+    uint32_t node_count, node_cap;
+    uint32_t *refs;
+    uint32_t ref_count, ref_cap;
+} bvh__out;
+
+static void bvh__out_free(const bvh__ctx *c, bvh__out *o) {
+    bvh__free(&c->al, o->nodes);
+    bvh__free(&c->al, o->refs);
+    memset(o, 0, sizeof *o);
+}
+static bvh_result bvh__out_init(const bvh__ctx *c, bvh__out *o, uint32_t node_cap, uint32_t ref_cap) {
+    memset(o, 0, sizeof *o);
+    o->nodes = BVH__ALLOC(&c->al, bvh_node, node_cap);
+    o->refs = BVH__ALLOC(&c->al, uint32_t, ref_cap);
+    if (!o->nodes || !o->refs) { bvh__out_free(c, o); return BVH_ERROR_OUT_OF_MEMORY; }
+    o->node_cap = node_cap;
+    o->ref_cap = ref_cap;
+    return BVH_SUCCESS;
+}
+
+/* Sorts all primitives by the Morton code of their centroid; *out_ids gets the local ids in
+   Morton order (ties in index order). Runs on the context's team if one is given. */
+typedef struct bvh__morton_job {
+    const bvh__ctx *c;
+    bvh__sort sort;
+    bvh_vec3 lo, scale;
+} bvh__morton_job;
+static void bvh__morton_codes_team(bvh__morton_job *j, uint32_t tid, uint32_t nt, bvh__team *team) {
+    size_t b, e, i;
+    bvh__range(j->c->n, tid, nt, &b, &e);
+    for (i = b; i < e; i++) {
+        j->sort.keys[i] = bvh__morton(j->c->centroids[i], j->lo, j->scale);
+        j->sort.vals[i] = (uint32_t)i;
+    }
+    bvh__team_sync(team);
+    bvh__radix_sort_team(&j->sort, tid, nt, team);
+}
+static void bvh__morton_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__morton_codes_team(BVH__CAST(bvh__morton_job *, arg), tid, nt, team);
+}
+static bvh_result bvh__morton_job_init(const bvh__ctx *c, bvh__morton_job *j, uint32_t nthreads) {
+    memset(j, 0, sizeof *j);
+    j->c = c;
+    j->sort.n = c->n;
+    j->sort.keys = BVH__ALLOC(&c->al, uint64_t, c->n);
+    j->sort.keys_tmp = BVH__ALLOC(&c->al, uint64_t, c->n);
+    j->sort.vals = BVH__ALLOC(&c->al, uint32_t, c->n);
+    j->sort.vals_tmp = BVH__ALLOC(&c->al, uint32_t, c->n);
+    j->sort.hist = BVH__ALLOC(&c->al, uint32_t, (size_t)nthreads * BVH__RADIX_SIZE);
+    j->lo = c->cbounds.min;
+    j->scale = bvh__morton_scale(c->cbounds);
+    if (!j->sort.keys || !j->sort.keys_tmp || !j->sort.vals || !j->sort.vals_tmp || !j->sort.hist)
+        return BVH_ERROR_OUT_OF_MEMORY;
+    return BVH_SUCCESS;
+}
+static void bvh__morton_job_free(const bvh__ctx *c, bvh__morton_job *j) {
+    bvh__free(&c->al, j->sort.keys); bvh__free(&c->al, j->sort.keys_tmp);
+    bvh__free(&c->al, j->sort.vals); bvh__free(&c->al, j->sort.vals_tmp);
+    bvh__free(&c->al, j->sort.hist);
+    memset(&j->sort, 0, sizeof j->sort);
+}
+
+/* ============================================================================================ */
+/* == object-median top-down (the study's baseline top-down builder) ============================= */
+/* Splits the longest axis of the node's centroid bounds at the object median (quickselect, O(n)
+   per level, so O(n log n) in all), leaf at max_leaf primitives or fewer. Also used to rebuild
+   any subtree of another builder that would exceed BVH_MAX_DEPTH: its depth is ceil(log2(n)). */
+/* ============================================================================================ */
+static float bvh__key(const bvh__ctx *c, uint32_t id, int axis) { return bvh__get(c->centroids[id], axis); }
+
+/* Rearranges ids[0..n) so that ids[k] has the k-th smallest key, smaller keys before it. */
+static void bvh__select(const bvh__ctx *c, uint32_t *ids, uint32_t n, uint32_t k, int axis) {
+    uint32_t lo = 0, hi = n - 1;
+    while (hi > lo) {
+        uint32_t i = lo, j = hi, mid = lo + (hi - lo) / 2, t;
+        float a = bvh__key(c, ids[lo], axis), b = bvh__key(c, ids[mid], axis), d = bvh__key(c, ids[hi], axis);
+        float pivot = a < b ? (b < d ? b : (a < d ? d : a)) : (a < d ? a : (b < d ? d : b));
+        for (;;) { /* Hoare partition: equal keys split evenly */
+            while (bvh__key(c, ids[i], axis) < pivot) i++;
+            while (bvh__key(c, ids[j], axis) > pivot) j--;
+            if (i >= j) break;
+            t = ids[i]; ids[i] = ids[j]; ids[j] = t;
+            i++; j--;
+        }
+        /* now [lo, j] <= pivot <= [j+1, hi] (when i > j) or ids[i] == pivot (i == j) */
+        if (i == j) { if (k == i) return; if (k < i) hi = i - 1; else lo = i + 1; }
+        else if (k <= j) hi = j;
+        else lo = j + 1;
+    }
+}
+
+/* Builds a median tree over o->refs[first .. first+count) with its root in node `root`. */
+static void bvh__median_build(const bvh__ctx *c, bvh__out *o, uint32_t root, uint32_t first, uint32_t count) {
+    uint32_t stack[3 * (BVH_MAX_DEPTH + 2)];
+    uint32_t sp = 0;
+    stack[sp++] = root; stack[sp++] = first; stack[sp++] = count;
+    while (sp) {
+        uint32_t m = stack[--sp], b = stack[--sp], ni = stack[--sp], i, half;
+        bvh_node *node = &o->nodes[ni];
+        bvh_aabb box = bvh_aabb_empty(), cb = bvh_aabb_empty();
+        float ex, ey, ez;
+        int axis;
+        for (i = b; i < b + m; i++) {
+            uint32_t id = o->refs[i];
+            box = bvh_aabb_merge(box, c->boxes[id]);
+            bvh_aabb_grow(&cb, c->centroids[id]);
+        }
+        bvh__set_box(node, box);
+        if (m <= c->max_leaf) { node->index = b; node->count = m; continue; }
+        ex = cb.max.x - cb.min.x; ey = cb.max.y - cb.min.y; ez = cb.max.z - cb.min.z;
+        axis = ex >= ey && ex >= ez ? 0 : ey >= ez ? 1 : 2;
+        half = m / 2;
+        if (ex > 0.0f || ey > 0.0f || ez > 0.0f) bvh__select(c, o->refs + b, m, half, axis);
+        /* else: all centroids equal, any split in half is as good (and keeps the depth bounded) */
+        node->index = o->node_count;
+        node->count = 0;
+        o->node_count += 2;
+        stack[sp++] = node->index + 1; stack[sp++] = b + half; stack[sp++] = m - half;
+        stack[sp++] = node->index; stack[sp++] = b; stack[sp++] = half;
+    }
+}
+
+static bvh_result bvh__build_top_down(const bvh__ctx *c, bvh__out *o) {
+    uint32_t i;
+    bvh_result r = bvh__out_init(c, o, 2 * c->n - 1, c->n);
+    if (r != BVH_SUCCESS) return r;
+    for (i = 0; i < c->n; i++) o->refs[i] = i;
+    o->ref_count = c->n;
+    o->node_count = 1;
+    bvh__median_build(c, o, 0, 0, c->n);
+    return BVH_SUCCESS;
+}
+
+/* ============================================================================================ */
+/* == tree post-processing: depth-first emission, SAH collapse, depth bound ====================== */
+/* Bottom-up builders produce a "source" tree: nodes whose children are adjacent and always stored
+   before their parent, the root last, leaves indexing a `map` of local ids. bvh__emit writes it
+   to a bvh__out in depth-first order (root at 0, left subtree right after its parent), optionally
+   collapsing subtrees into leaves where the SAH says a leaf is cheaper (Meister & Bittner 2018,
+   Sec. 4.3; their reference code collapses the same way), and rebuilds with the median builder any
+   subtree that would make the tree deeper than BVH_MAX_DEPTH. */
+/* ============================================================================================ */
+#define BVH__COLLAPSE_BIT 0x80000000u
+static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src_count, const uint32_t *map,
+                            int collapse, bvh__out *o) {
+    uint32_t *cnt = BVH__ALLOC(&c->al, uint32_t, src_count); /* prims below; top bit: collapsed */
+    uint8_t *height = BVH__ALLOC(&c->al, uint8_t, src_count); /* after collapsing, capped at 255 */
+    float *cost = collapse ? BVH__ALLOC(&c->al, float, src_count) : NULL;
+    uint32_t *stack = NULL, i, sp = 0;
+    bvh_result r = BVH_SUCCESS;
+    if (!cnt || !height || (collapse && !cost)) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    for (i = 0; i < src_count; i++) {
+        const bvh_node *s = &src[i];
+        if (s->count) {
+            cnt[i] = s->count; height[i] = 0;
+            if (cost) cost[i] = bvh__half_area(bvh__node_box(s)) * (c->cl + c->ct * (float)s->count);
+        } else {
+            uint32_t l = s->index, n = (cnt[l] & ~BVH__COLLAPSE_BIT) + (cnt[l + 1] & ~BVH__COLLAPSE_BIT);
+            uint32_t h = height[l] > height[l + 1] ? height[l] : height[l + 1];
+            cnt[i] = n;
+            height[i] = (uint8_t)(h >= 255 ? 255 : h + 1);
+            if (cost) {
+                float a = bvh__half_area(bvh__node_box(s));
+                float split = c->ci * a + cost[l] + cost[l + 1];
+                float leaf = a * (c->cl + c->ct * (float)n);
+                if (n <= c->max_leaf && leaf <= split) { cost[i] = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; }
+                else cost[i] = split;
+            }
+        }
+    }
+    r = bvh__out_init(c, o, 2 * (cnt[src_count - 1] & ~BVH__COLLAPSE_BIT) - 1, cnt[src_count - 1] & ~BVH__COLLAPSE_BIT);
+    if (r != BVH_SUCCESS) goto done;
+    stack = BVH__ALLOC(&c->al, uint32_t, 3 * (size_t)src_count); /* (src, dst, depth) */
+    if (!stack) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    o->node_count = 1;
+    stack[sp++] = src_count - 1; stack[sp++] = 0; stack[sp++] = 0;
+    while (sp) {
+        uint32_t depth = stack[--sp], di = stack[--sp], si = stack[--sp];
+        const bvh_node *s = &src[si];
+        bvh_node *d = &o->nodes[di];
+        int flatten = s->count || (cnt[si] & BVH__COLLAPSE_BIT);
+        int too_deep = !flatten && depth <= BVH_MAX_DEPTH / 2 - 1 && depth + height[si] > BVH_MAX_DEPTH - 1;
+        if (flatten || too_deep) {
+            /* gather every primitive below si (a small subtree unless too deep) */
+            uint32_t first = o->ref_count, gsp = sp, n = cnt[si] & ~BVH__COLLAPSE_BIT;
+            stack[gsp++] = si;
+            while (gsp > sp) {
+                const bvh_node *g = &src[stack[--gsp]];
+                if (g->count) {
+                    uint32_t k;
+                    for (k = 0; k < g->count; k++) o->refs[o->ref_count++] = map[g->index + k];
+                } else {
+                    stack[gsp++] = g->index + 1;
+                    stack[gsp++] = g->index;
+                }
+            }
+            if (too_deep) { bvh__median_build(c, o, di, first, n); continue; }
+            d->min = s->min; d->max = s->max;
+            d->index = first; d->count = n;
+            continue;
+        }
+        d->min = s->min; d->max = s->max;
+        d->count = 0;
+        d->index = o->node_count;
+        o->node_count += 2;
+        stack[sp++] = s->index + 1; stack[sp++] = d->index + 1; stack[sp++] = depth + 1;
+        stack[sp++] = s->index; stack[sp++] = d->index; stack[sp++] = depth + 1;
+    }
+done:
+    if (r != BVH_SUCCESS) bvh__out_free(c, o);
+    bvh__free(&c->al, stack);
+    bvh__free(&c->al, cost);
+    bvh__free(&c->al, height);
+    bvh__free(&c->al, cnt);
+    return r;
+}
+
+/* ============================================================================================ */
+/* == baseline bottom-up ("AABB aggregation", the study's second builder) ========================= */
+/* Primitives in Morton order of their centroids; runs of max_leaf of them become the leaves (the
+   same as merging one cluster per primitive pairwise for log2(max_leaf) levels); then neighbours
+   are merged pairwise, level by level, until one root remains. O(n log n) for the radix sort,
+   O(n) for the aggregation; the tree is balanced, depth ceil(log2(n / max_leaf)). */
+/* ============================================================================================ */
+static bvh_result bvh__build_bottom_up(const bvh__ctx *c, bvh__out *o) {
+    bvh__morton_job job;
+    bvh_node *src = NULL;
+    uint32_t leaves = (c->n + c->max_leaf - 1) / c->max_leaf, cap = 2 * leaves + 64, count = 0, level, len, i;
+    bvh_result r = bvh__morton_job_init(c, &job, 1);
+    if (r == BVH_SUCCESS && !(src = BVH__ALLOC(&c->al, bvh_node, cap))) r = BVH_ERROR_OUT_OF_MEMORY;
+    if (r != BVH_SUCCESS) goto done;
+    bvh__team_run(&c->al, 1, bvh__morton_team_fn, &job);
+    for (i = 0; i < leaves; i++) {
+        uint32_t b = i * c->max_leaf, e = b + c->max_leaf < c->n ? b + c->max_leaf : c->n, k;
+        bvh_aabb box = bvh_aabb_empty();
+        for (k = b; k < e; k++) box = bvh_aabb_merge(box, c->boxes[job.sort.vals[k]]);
+        bvh__set_box(&src[count], box);
+        src[count].index = b;
+        src[count].count = e - b;
+        count++;
+    }
+    level = 0; len = leaves;
+    while (len > 1) {
+        uint32_t next = count;
+        for (i = 0; i + 1 < len; i += 2) {
+            bvh_node *p = &src[count++];
+            bvh__set_box(p, bvh_aabb_merge(bvh__node_box(&src[level + i]), bvh__node_box(&src[level + i + 1])));
+            p->index = level + i;
+            p->count = 0;
+        }
+        if (len & 1) src[count++] = src[level + len - 1]; /* the odd one moves up unchanged */
+        level = next;
+        len = count - next;
+    }
+    r = bvh__emit(c, src, count, job.sort.vals, 0, o);
+done:
+    bvh__free(&c->al, src);
+    bvh__morton_job_free(c, &job);
+    return r;
+}
+
+/* ============================================================================================ */
+/* == PLOC: Parallel Locally-Ordered Clustering (Meister & Bittner 2018, Alg. 1) ================= */
+/* Clusters start as one leaf per primitive in Morton order (63-bit codes, ties by index). Each
+   iteration: every cluster finds its nearest neighbour within `radius` positions, by the surface
+   area of the merged box; mutual nearest neighbours merge; a prefix scan compacts the survivors.
+   Ties in distance go to the nearest position, then to the pair (2k, 2k+1), so that equal boxes
+   still halve the cluster count each iteration. Distances are computed once per pair (each
+   cluster scans only to its right and updates both ends). Then bvh__emit collapses subtrees into
+   leaves where the SAH says so. One code path for `ploc` (a team of one, no thread created) and
+   `ploc-parallel` (a team of pthreads meeting at barriers, 4 per iteration): every phase splits
+   the clusters by the thread count and every result is independent of it, so both give exactly
+   the same tree. Differences from the paper: CPU threads instead of GPU work groups; the merged
+   node is written back in place of the left cluster before compaction, as the study's
+   pseudo-code does. */
+/* ============================================================================================ */
+typedef struct bvh__ploc {
+    const bvh__ctx *c;
+    bvh__morton_job mj;
+    bvh_node *cin, *cout, *src;
+    uint32_t *nn;
+    float *nd;
+    float *bnd_d;      /* per thread, radius entries: best distance found for the next chunk */
+    uint32_t *bnd_i;
+    uint32_t *merges, *survivors; /* per thread */
+    uint32_t radius, root;
+} bvh__ploc;
+
+static float bvh__merged_half_area(const bvh_node *a, const bvh_node *b) {
+    float dx = bvh__maxf(a->max.x, b->max.x) - bvh__minf(a->min.x, b->min.x);
+    float dy = bvh__maxf(a->max.y, b->max.y) - bvh__minf(a->min.y, b->min.y);
+    float dz = bvh__maxf(a->max.z, b->max.z) - bvh__minf(a->min.z, b->min.z);
+    return dx * dy + dy * dz + dz * dx;
+}
+static uint32_t bvh__ploc_key(uint32_t i, uint32_t j) {
+    uint32_t lo = i < j ? i : j, dist = i < j ? j - i : i - j;
+    return dist << 2 | (lo & 1u) << 1 | (j > i ? 1u : 0u);
+}
+static void bvh__ploc_offer(bvh__ploc *p, uint32_t i, uint32_t j, float d) {
+    float bd = p->nd[i];
+    if (d < bd || (d == bd && bvh__ploc_key(i, j) < bvh__ploc_key(i, p->nn[i]))) { p->nd[i] = d; p->nn[i] = j; }
+}
+
+static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__ploc *p = BVH__CAST(bvh__ploc *, arg);
+    const bvh__ctx *c = p->c;
+    bvh_node *cin = p->cin, *cout = p->cout;
+    uint32_t r = p->radius, count = c->n, slots = 0, t;
+    size_t b, e, i;
+    bvh__morton_codes_team(&p->mj, tid, nt, team);
+    bvh__range(c->n, tid, nt, &b, &e);
+    for (i = b; i < e; i++) {
+        uint32_t id = p->mj.sort.vals[i];
+        bvh__set_box(&cin[i], c->boxes[id]);
+        cin[i].index = (uint32_t)i;
+        cin[i].count = 1;
+    }
+    bvh__team_sync(team);
+    while (count > 1) {
+        uint32_t active = count / (4 * r + 256), pos = 0, slot = 0, total_surv = 0, total_merge = 0;
+        float *bd = p->bnd_d + (size_t)tid * r;
+        uint32_t *bi = p->bnd_i + (size_t)tid * r;
+        if (active < 1) active = 1;
+        if (active > nt) active = nt;
+        if (tid < active) bvh__range(count, tid, active, &b, &e);
+        else b = e = 0;
+        /* nearest neighbour search: pairs (i, j), i < j <= i + r, each computed once */
+        for (i = b; i < e; i++) { p->nd[i] = BVH_INF; p->nn[i] = BVH_INVALID; }
+        for (t = 0; t < r; t++) { bd[t] = BVH_INF; bi[t] = BVH_INVALID; }
+        for (i = b; i < e; i++) {
+            size_t j, last = i + r < (size_t)count - 1 ? i + r : (size_t)count - 1;
+            const bvh_node *ci = &cin[i];
+            for (j = i + 1; j <= last; j++) {
+                float d = bvh__merged_half_area(ci, &cin[j]);
+                bvh__ploc_offer(p, (uint32_t)i, (uint32_t)j, d);
+                if (j < e) bvh__ploc_offer(p, (uint32_t)j, (uint32_t)i, d);
+                else {
+                    size_t k = j - e;
+                    if (d < bd[k] || (d == bd[k] && bvh__ploc_key((uint32_t)j, (uint32_t)i) < bvh__ploc_key((uint32_t)j, bi[k]))) {
+                        bd[k] = d; bi[k] = (uint32_t)i;
+                    }
+                }
+            }
+        }
+        bvh__team_sync(team);
+        if (tid > 0 && tid < active) { /* pairs that start in the previous chunk */
+            const float *pd = p->bnd_d + (size_t)(tid - 1) * r;
+            const uint32_t *pi = p->bnd_i + (size_t)(tid - 1) * r;
+            for (t = 0; t < r && b + t < e; t++)
+                if (pi[t] != BVH_INVALID) bvh__ploc_offer(p, (uint32_t)(b + t), pi[t], pd[t]);
+        }
+        bvh__team_sync(team);
+        /* merging decisions: count merges and survivors per chunk */
+        {
+            uint32_t m = 0, s = 0;
+            for (i = b; i < e; i++) {
+                uint32_t j = p->nn[i];
+                int mutual = p->nn[j] == i;
+                if (!(mutual && j < i)) s++;
+                if (mutual && i < j) m++;
+            }
+            p->merges[tid] = m;
+            p->survivors[tid] = s;
+        }
+        bvh__team_sync(team);
+        for (t = 0; t < nt; t++) {
+            if (t < tid) { pos += p->survivors[t]; slot += 2 * p->merges[t]; }
+            total_surv += p->survivors[t];
+            total_merge += p->merges[t];
+        }
+        slot += slots;
+        /* merge and compact (prefix scan positions computed above) */
+        for (i = b; i < e; i++) {
+            uint32_t j = p->nn[i];
+            if (p->nn[j] == i) {
+                if (i < j) {
+                    bvh_node *n = &cout[pos++];
+                    p->src[slot] = cin[i];
+                    p->src[slot + 1] = cin[j];
+                    bvh__set_box(n, bvh_aabb_merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[j])));
+                    n->index = slot;
+                    n->count = 0;
+                    slot += 2;
+                }
+            } else {
+                cout[pos++] = cin[i];
+            }
+        }
+        bvh__team_sync(team);
+        slots += 2 * total_merge;
+        count = total_surv;
+        { bvh_node *tmp = cin; cin = cout; cout = tmp; }
+    }
+    if (tid == 0) { p->src[slots] = cin[0]; p->root = slots; }
+}
+
+static bvh_result bvh__build_ploc(const bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
+    bvh__ploc p;
+    bvh_result r;
+    size_t n = c->n;
+    memset(&p, 0, sizeof p);
+    p.c = c;
+    p.radius = c->radius;
+    r = bvh__morton_job_init(c, &p.mj, nthreads);
+    p.cin = BVH__ALLOC(&c->al, bvh_node, n);
+    p.cout = BVH__ALLOC(&c->al, bvh_node, n);
+    p.src = BVH__ALLOC(&c->al, bvh_node, 2 * n - 1);
+    p.nn = BVH__ALLOC(&c->al, uint32_t, n);
+    p.nd = BVH__ALLOC(&c->al, float, n);
+    p.bnd_d = BVH__ALLOC(&c->al, float, (size_t)nthreads * p.radius);
+    p.bnd_i = BVH__ALLOC(&c->al, uint32_t, (size_t)nthreads * p.radius);
+    p.merges = BVH__ALLOC(&c->al, uint32_t, nthreads);
+    p.survivors = BVH__ALLOC(&c->al, uint32_t, nthreads);
+    if (r == BVH_SUCCESS && (!p.cin || !p.cout || !p.src || !p.nn || !p.nd || !p.bnd_d || !p.bnd_i || !p.merges || !p.survivors))
+        r = BVH_ERROR_OUT_OF_MEMORY;
+    if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
+    /* release the clustering scratch before emission, which needs its own */
+    bvh__free(&c->al, p.cin); bvh__free(&c->al, p.cout);
+    bvh__free(&c->al, p.nn); bvh__free(&c->al, p.nd);
+    bvh__free(&c->al, p.bnd_d); bvh__free(&c->al, p.bnd_i);
+    bvh__free(&c->al, p.merges); bvh__free(&c->al, p.survivors);
+    bvh__free(&c->al, p.mj.sort.keys); bvh__free(&c->al, p.mj.sort.keys_tmp);
+    bvh__free(&c->al, p.mj.sort.vals_tmp); bvh__free(&c->al, p.mj.sort.hist);
+    if (r == BVH_SUCCESS) r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, o);
+    bvh__free(&c->al, p.mj.sort.vals);
+    bvh__free(&c->al, p.src);
+    return r;
+}
+
+/* ============================================================================================ */
+/* == SAH-guided top-down with mid-point split partitioning ====================================== */
+/* ============================================================================================ */
+#ifdef BVH__HAVE_SAH_MIDPOINT_WIP
+#include "wip/sah_midpoint.inc"
+#else
+static bvh_result bvh__build_sah_midpoint(const bvh__ctx *c, bvh__out *o) {
+    return bvh__build_top_down(c, o); /* placeholder until the builder lands */
+}
+#endif
+
+/* ============================================================================================ */
+/* == build front-end ============================================================================ */
+/* Checks the description, turns triangles (or caller boxes) into boxes and centroids, leaves out
+   or refuses invalid primitives, runs the builder and maps its references back. */
+/* ============================================================================================ */
+static const float *bvh__vertex(const bvh_triangles *t, uint32_t v) {
+    size_t stride = t->stride ? t->stride : 3 * sizeof(float);
+    return BVH__CAST(const float *, BVH__CAST(const void *, BVH__CAST(const char *, BVH__CAST(const void *, t->positions)) + (size_t)v * stride));
+}
+static void bvh__fetch_triangle(const bvh_triangles *t, uint32_t i, float out[9]) {
+    int k;
+    for (k = 0; k < 3; k++) {
+        uint32_t v = t->indices ? t->indices[3 * (size_t)i + k] : (uint32_t)(3 * (size_t)i + k);
+        const float *p = bvh__vertex(t, v);
+        out[3 * k] = p[0]; out[3 * k + 1] = p[1]; out[3 * k + 2] = p[2];
+    }
+}
+static int bvh__costs_valid(const bvh_costs *k) {
+    return isfinite(k->interior) && isfinite(k->leaf) && isfinite(k->triangle) &&
+           k->interior >= 0.0f && k->leaf >= 0.0f && k->triangle >= 0.0f;
+}
+static bvh_result bvh__check_desc(const bvh_build_desc *d, uint32_t *count) {
+    const bvh_triangles *t = &d->triangles;
+    uint32_t i;
+    if ((unsigned)d->builder >= BVH_BUILDER_COUNT) return BVH_ERROR_INVALID_ARGUMENT;
+    if (d->max_leaf_size > BVH__MAX_LEAF || d->ploc_radius > 256) return BVH_ERROR_INVALID_ARGUMENT;
+    if (!bvh__costs_valid(&d->costs) || d->split_budget != d->split_budget || d->split_budget > 1.0f)
+        return BVH_ERROR_INVALID_ARGUMENT;
+    if (t->triangle_count && (d->boxes || d->box_count)) return BVH_ERROR_INVALID_ARGUMENT;
+    if (d->box_count) {
+        if (!d->boxes) return BVH_ERROR_INVALID_ARGUMENT;
+        if (d->box_count > BVH__MAX_PRIMS) return BVH_ERROR_TOO_MANY_PRIMITIVES;
+        *count = d->box_count;
+        return BVH_SUCCESS;
+    }
+    *count = t->triangle_count;
+    if (!t->triangle_count) return BVH_SUCCESS;
+    if (!t->positions) return BVH_ERROR_INVALID_ARGUMENT;
+    if (t->stride != 0 && t->stride < 3 * sizeof(float)) return BVH_ERROR_INVALID_ARGUMENT;
+    if (t->triangle_count > BVH__MAX_PRIMS) return BVH_ERROR_TOO_MANY_PRIMITIVES;
+    if (!t->indices) {
+        if ((uint64_t)t->vertex_count < 3 * (uint64_t)t->triangle_count) return BVH_ERROR_INDEX_OUT_OF_RANGE;
+    } else {
+        for (i = 0; i < 3 * t->triangle_count; i++)
+            if (t->indices[i] >= t->vertex_count) return BVH_ERROR_INDEX_OUT_OF_RANGE;
+    }
+    return BVH_SUCCESS;
+}
+
+BVH_API void bvh_free(bvh_tree *tree) {
+    bvh_allocator al;
+    if (!tree) return;
+    al = tree->allocator;
+    bvh__free(&al, tree->nodes);
+    bvh__free(&al, tree->prims);
+    bvh__free(&al, tree->tris);
+    memset(tree, 0, sizeof *tree);
+    tree->allocator = al;
+}
+
+BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
+    bvh__ctx c;
+    bvh__out o;
+    uint32_t count = 0, i, n = 0, *orig = NULL;
+    float *tris = NULL, tri[9];
+    bvh_result r;
+    bvh_builder builder;
+    if (!tree) return BVH_ERROR_INVALID_ARGUMENT;
+    memset(tree, 0, sizeof *tree);
+    if (!desc) return BVH_ERROR_INVALID_ARGUMENT;
+    tree->allocator = desc->allocator;
+    r = bvh__check_desc(desc, &count);
+    if (r != BVH_SUCCESS) return r;
+    builder = desc->builder == BVH_BUILDER_DEFAULT ? BVH_BUILDER_PLOC_PARALLEL : desc->builder;
+    tree->builder = builder;
+    tree->prim_count = count;
+    memset(&c, 0, sizeof c);
+    memset(&o, 0, sizeof o);
+    c.al = desc->allocator;
+    {
+        int sah_based = builder == BVH_BUILDER_SAH_MIDPOINT || builder == BVH_BUILDER_PLOC || builder == BVH_BUILDER_PLOC_PARALLEL;
+        c.max_leaf = desc->max_leaf_size ? desc->max_leaf_size : sah_based ? 8 : 4;
+    }
+    c.threads = builder == BVH_BUILDER_PLOC_PARALLEL ? bvh__resolve_threads(desc->threads) : 1;
+    c.radius = desc->ploc_radius ? desc->ploc_radius : 16;
+    if (desc->costs.interior == 0.0f && desc->costs.leaf == 0.0f && desc->costs.triangle == 0.0f) {
+        c.ci = 1.0f; c.cl = 0.0f; c.ct = 1.0f;
+    } else {
+        c.ci = desc->costs.interior; c.cl = desc->costs.leaf; c.ct = desc->costs.triangle;
+    }
+    c.split_budget = desc->split_budget == 0.0f ? 0.3f : desc->split_budget < 0.0f ? 0.0f : desc->split_budget;
+    if (count == 0) return BVH_SUCCESS; /* an empty tree: node_count 0, every ray misses */
+
+    c.boxes = BVH__ALLOC(&c.al, bvh_aabb, count);
+    c.centroids = BVH__ALLOC(&c.al, bvh_vec3, count);
+    if (!desc->boxes) tris = BVH__ALLOC(&c.al, float, 9 * (size_t)count);
+    if (!c.boxes || !c.centroids || (!desc->boxes && !tris)) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
+    c.bounds = bvh_aabb_empty();
+    c.cbounds = bvh_aabb_empty();
+    for (i = 0; i < count; i++) {
+        bvh_aabb box;
+        int ok;
+        if (desc->boxes) {
+            box = desc->boxes[i];
+            ok = bvh__finite3(&box.min.x) && bvh__finite3(&box.max.x) && box.min.x <= box.max.x &&
+                 box.min.y <= box.max.y && box.min.z <= box.max.z;
+        } else {
+            bvh__fetch_triangle(&desc->triangles, i, tri);
+            ok = bvh__finite3(tri) && bvh__finite3(tri + 3) && bvh__finite3(tri + 6);
+            box = bvh__tri_box(tri);
+        }
+        if (!ok) {
+            if (!desc->skip_invalid) { r = BVH_ERROR_INVALID_GEOMETRY; goto fail; }
+            if (!orig) {
+                uint32_t k;
+                orig = BVH__ALLOC(&c.al, uint32_t, count);
+                if (!orig) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
+                for (k = 0; k < n; k++) orig[k] = k;
+            }
+            continue;
+        }
+        if (orig) orig[n] = i;
+        if (tris) memcpy(tris + 9 * (size_t)n, tri, sizeof tri);
+        c.boxes[n] = box;
+        c.centroids[n] = bvh_aabb_centroid(box);
+        c.bounds = bvh_aabb_merge(c.bounds, box);
+        bvh_aabb_grow(&c.cbounds, c.centroids[n]);
+        n++;
+    }
+    tree->excluded = count - n;
+    c.n = n;
+    c.tris = tris;
+    if (n == 0) goto empty;
+
+    switch (builder) {
+    case BVH_BUILDER_TOP_DOWN: r = bvh__build_top_down(&c, &o); break;
+    case BVH_BUILDER_BOTTOM_UP: r = bvh__build_bottom_up(&c, &o); break;
+    case BVH_BUILDER_SAH_MIDPOINT: r = bvh__build_sah_midpoint(&c, &o); break;
+    case BVH_BUILDER_PLOC: r = bvh__build_ploc(&c, &o, 1); break;
+    default: r = bvh__build_ploc(&c, &o, c.threads); break;
+    }
+    if (r != BVH_SUCCESS) goto fail;
+    bvh__free(&c.al, c.boxes); c.boxes = NULL;
+    bvh__free(&c.al, c.centroids); c.centroids = NULL;
+
+    /* exact-size outputs: nodes, references mapped to caller indices, triangles in reference order */
+    tree->nodes = BVH__ALLOC(&c.al, bvh_node, o.node_count);
+    tree->prims = BVH__ALLOC(&c.al, uint32_t, o.ref_count);
+    if (tris) tree->tris = BVH__ALLOC(&c.al, float, 9 * (size_t)o.ref_count);
+    if (!tree->nodes || !tree->prims || (tris && !tree->tris)) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
+    memcpy(tree->nodes, o.nodes, (size_t)o.node_count * sizeof(bvh_node));
+    tree->node_count = o.node_count;
+    tree->ref_count = o.ref_count;
+    for (i = 0; i < o.ref_count; i++) {
+        uint32_t local = o.refs[i];
+        tree->prims[i] = orig ? orig[local] : local;
+        if (tris) memcpy(tree->tris + 9 * (size_t)i, tris + 9 * (size_t)local, 9 * sizeof(float));
+    }
+empty:
+    bvh__out_free(&c, &o);
+    bvh__free(&c.al, tris);
+    bvh__free(&c.al, orig);
+    bvh__free(&c.al, c.boxes);
+    bvh__free(&c.al, c.centroids);
+    return BVH_SUCCESS;
+fail:
+    bvh__out_free(&c, &o);
+    bvh__free(&c.al, tris);
+    bvh__free(&c.al, orig);
+    bvh__free(&c.al, c.boxes);
+    bvh__free(&c.al, c.centroids);
+    bvh_free(tree);
+    tree->builder = BVH_BUILDER_DEFAULT;
+    return r;
+}
+
+/* ============================================================================================ */
+/* == SAH, statistics, validation ================================================================ */
+/* ============================================================================================ */
+BVH_API bvh_aabb bvh_tree_bounds(const bvh_tree *tree) {
+    if (!tree || !tree->node_count) return bvh_aabb_empty();
+    return bvh__node_box(&tree->nodes[0]);
+}
+
+BVH_API bvh_result bvh_sah(const bvh_tree *tree, const bvh_costs *costs, double *out) {
+    double ci = 1.0, cl = 0.0, ct = 1.0, si = 0.0, sl = 0.0, st = 0.0, root;
+    uint32_t i;
+    if (!tree || !out) return BVH_ERROR_INVALID_ARGUMENT;
+    if (costs && !bvh__costs_valid(costs)) return BVH_ERROR_INVALID_ARGUMENT;
+    if (costs && (costs->interior != 0.0f || costs->leaf != 0.0f || costs->triangle != 0.0f)) {
+        ci = costs->interior; cl = costs->leaf; ct = costs->triangle;
+    }
+    *out = 0.0;
+    if (!tree->node_count) return BVH_SUCCESS;
+    root = bvh__half_area(bvh__node_box(&tree->nodes[0]));
+    for (i = 0; i < tree->node_count; i++) {
+        const bvh_node *n = &tree->nodes[i];
+        double a = root > 0.0 ? bvh__half_area(bvh__node_box(n)) / root : 1.0;
+        if (n->count) { sl += a; st += a * n->count; }
+        else si += a;
+    }
+    *out = ci * si + cl * sl + ct * st;
+    return BVH_SUCCESS;
+}
+
+BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *s) {
+    uint32_t stack[2 * BVH_MAX_DEPTH + 2], sp = 0;
+    if (!tree || !s) return BVH_ERROR_INVALID_ARGUMENT;
+    memset(s, 0, sizeof *s);
+    s->nodes = tree->node_count;
+    s->refs = tree->ref_count;
+    s->bytes = (size_t)tree->node_count * sizeof(bvh_node) + (size_t)tree->ref_count * sizeof(uint32_t);
+    s->triangle_bytes = tree->tris ? (size_t)tree->ref_count * 9 * sizeof(float) : 0;
+    if (!tree->node_count) return BVH_SUCCESS;
+    stack[sp++] = 0; stack[sp++] = 1;
+    while (sp) {
+        uint32_t depth = stack[--sp], ni = stack[--sp];
+        const bvh_node *n = &tree->nodes[ni];
+        if (depth > s->max_depth) s->max_depth = depth;
+        if (n->count) {
+            s->leaves++;
+            if (n->count > s->max_leaf_size) s->max_leaf_size = n->count;
+            continue;
+        }
+        if (depth > BVH_MAX_DEPTH || n->index + 1 >= tree->node_count || sp + 4 > 2 * BVH_MAX_DEPTH + 2)
+            return BVH_ERROR_INVALID_TREE;
+        stack[sp++] = n->index; stack[sp++] = depth + 1;
+        stack[sp++] = n->index + 1; stack[sp++] = depth + 1;
+    }
+    return BVH_SUCCESS;
+}
+
+static bvh_result bvh__invalid(bvh_validation *rep, uint32_t node, const char *msg) {
+    if (rep) {
+        size_t l = strlen(msg);
+        if (l >= sizeof rep->message) l = sizeof rep->message - 1;
+        memcpy(rep->message, msg, l);
+        rep->message[l] = 0;
+        rep->node = node;
+    }
+    return BVH_ERROR_INVALID_TREE;
+}
+
+BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes, bvh_validation *rep) {
+    bvh_allocator al;
+    uint8_t *seen = NULL, *used = NULL;
+    uint32_t stack[2 * BVH_MAX_DEPTH + 8], sp = 0, i, refs_seen = 0;
+    int splits;
+    bvh_result r = BVH_SUCCESS;
+    if (rep) { rep->node = BVH_INVALID; strcpy(rep->message, "ok"); }
+    if (!tree) return BVH_ERROR_INVALID_ARGUMENT;
+    al = tree->allocator;
+    if (!tree->node_count) {
+        if (tree->ref_count) return bvh__invalid(rep, BVH_INVALID, "empty tree with references");
+        if (tree->prim_count != tree->excluded) return bvh__invalid(rep, BVH_INVALID, "primitives missing from an empty tree");
+        return BVH_SUCCESS;
+    }
+    if (!tree->nodes || !tree->prims) return bvh__invalid(rep, BVH_INVALID, "node or reference array missing");
+    if (!prim_boxes && !tree->tris) return bvh__invalid(rep, BVH_INVALID, "no primitive boxes to check leaves against");
+    splits = tree->ref_count != tree->prim_count - tree->excluded;
+    if (splits && tree->builder != BVH_BUILDER_SAH_MIDPOINT)
+        return bvh__invalid(rep, BVH_INVALID, "reference count differs from primitive count for a builder that does not split");
+    seen = BVH__ALLOC(&al, uint8_t, tree->node_count);
+    used = BVH__ALLOC(&al, uint8_t, tree->prim_count);
+    if (!seen || !used) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    memset(seen, 0, tree->node_count);
+    memset(used, 0, tree->prim_count);
+    stack[sp++] = 0; stack[sp++] = 1;
+    while (sp) {
+        uint32_t depth = stack[--sp], ni = stack[--sp];
+        const bvh_node *n = &tree->nodes[ni];
+        bvh_aabb box = bvh__node_box(n);
+        if (seen[ni]++) { r = bvh__invalid(rep, ni, "node reached twice"); goto done; }
+        if (depth > BVH_MAX_DEPTH) { r = bvh__invalid(rep, ni, "tree deeper than BVH_MAX_DEPTH"); goto done; }
+        if (!(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z))
+            { r = bvh__invalid(rep, ni, "node box empty or NaN"); goto done; }
+        if (n->count) {
+            uint32_t k;
+            if (n->index > tree->ref_count || n->count > tree->ref_count - n->index)
+                { r = bvh__invalid(rep, ni, "leaf range outside the reference array"); goto done; }
+            for (k = n->index; k < n->index + n->count; k++) {
+                uint32_t p = tree->prims[k];
+                bvh_aabb pb;
+                refs_seen++;
+                if (p >= tree->prim_count) { r = bvh__invalid(rep, ni, "reference to a primitive out of range"); goto done; }
+                if (used[p] && !splits) { r = bvh__invalid(rep, ni, "primitive referenced twice"); goto done; }
+                used[p] = 1;
+                pb = prim_boxes ? prim_boxes[p] : bvh__tri_box(tree->tris + 9 * (size_t)k);
+                if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
+                               pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
+                           : !bvh_aabb_contains(box, pb))
+                    { r = bvh__invalid(rep, ni, splits ? "leaf box does not touch its primitive" : "leaf box does not contain its primitive"); goto done; }
+            }
+            continue;
+        }
+        if (n->index == 0 || n->index >= tree->node_count - 1)
+            { r = bvh__invalid(rep, ni, "child index out of range"); goto done; }
+        for (i = 0; i < 2; i++) {
+            if (!bvh_aabb_contains(box, bvh__node_box(&tree->nodes[n->index + i])))
+                { r = bvh__invalid(rep, n->index + i, "child box not inside its parent"); goto done; }
+            stack[sp++] = n->index + i; stack[sp++] = depth + 1;
+        }
+    }
+    for (i = 0; i < tree->node_count; i++)
+        if (!seen[i]) { r = bvh__invalid(rep, i, "node not reachable from the root"); goto done; }
+    if (refs_seen != tree->ref_count) { r = bvh__invalid(rep, BVH_INVALID, "references not covered by exactly one leaf"); goto done; }
+    {
+        uint32_t used_count = 0;
+        for (i = 0; i < tree->prim_count; i++) used_count += used[i];
+        if (used_count != tree->prim_count - tree->excluded)
+            { r = bvh__invalid(rep, BVH_INVALID, "a primitive is not referenced by any leaf"); goto done; }
+    }
+done:
+    bvh__free(&al, seen);
+    bvh__free(&al, used);
+    return r;
+}
+
+/* ============================================================================================ */
+/* == traversal ================================================================================= */
+/* Watertight ray/triangle intersection (Woop, Benthin & Wald, JCGT 2013) with their double-
+   precision fallback on edges, and robust slab tests (Ize 2013: the far distance is widened by
+   1 + 2 gamma(3)) so that no box rounding ever culls a triangle that the brute-force loop hits.
+   A zero direction component (+0 or -0) gets an inverse of +inf; the NaN that appears when the
+   origin lies on the slab plane is ignored by the min/max order, which is the right answer
+   (the whole line is inside the slab). Near child first; any-hit stops at the first hit. */
+/* ============================================================================================ */
+typedef struct bvh__rayx {
+    float o[3], d[3], inv[3], tmin;
+    int near[3];     /* float offset in a node of the near plane on each axis: 0..2 min, 4..6 max */
+    int kx, ky, kz;  /* watertight: kz = dominant axis */
+    float sx, sy, sz;
+} bvh__rayx;
+
+static int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
+    const float *o = &ray->origin.x, *d = &ray->dir.x;
+    float ax, ay, az;
+    int a;
+    if (!bvh__finite3(o) || !bvh__finite3(d) || ray->tmin != ray->tmin || ray->tmax != ray->tmax || ray->tmin > ray->tmax)
+        return 0;
+    if (d[0] == 0.0f && d[1] == 0.0f && d[2] == 0.0f) return 0;
+    for (a = 0; a < 3; a++) {
+        rx->o[a] = o[a];
+        rx->d[a] = d[a];
+        rx->inv[a] = d[a] == 0.0f ? BVH_INF : 1.0f / d[a];
+        rx->near[a] = rx->inv[a] < 0.0f ? a + 4 : a;
+    }
+    rx->tmin = ray->tmin;
+    ax = fabsf(d[0]); ay = fabsf(d[1]); az = fabsf(d[2]);
+    rx->kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
+    rx->kx = rx->kz == 2 ? 0 : rx->kz + 1;
+    rx->ky = rx->kx == 2 ? 0 : rx->kx + 1;
+    if (d[rx->kz] < 0.0f) { int t = rx->kx; rx->kx = rx->ky; rx->ky = t; }
+    rx->sx = d[rx->kx] / d[rx->kz];
+    rx->sy = d[rx->ky] / d[rx->kz];
+    rx->sz = 1.0f / d[rx->kz];
+    return 1;
+}
+
+/* Returns 1 and sets *t, *u, *v if the triangle is hit with tmin <= t <= tmax. */
+static int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, float *t, float *u, float *v) {
+    const int kx = r->kx, ky = r->ky, kz = r->kz;
+    float A[3], B[3], C[3], Ax, Ay, Bx, By, Cx, Cy, U, V, W, det, T, rcp;
+    int k;
+    for (k = 0; k < 3; k++) { A[k] = tri[k] - r->o[k]; B[k] = tri[3 + k] - r->o[k]; C[k] = tri[6 + k] - r->o[k]; }
+    Ax = A[kx] - r->sx * A[kz]; Ay = A[ky] - r->sy * A[kz];
+    Bx = B[kx] - r->sx * B[kz]; By = B[ky] - r->sy * B[kz];
+    Cx = C[kx] - r->sx * C[kz]; Cy = C[ky] - r->sy * C[kz];
+    U = Cx * By - Cy * Bx;
+    V = Ax * Cy - Ay * Cx;
+    W = Bx * Ay - By * Ax;
+    if (U == 0.0f || V == 0.0f || W == 0.0f) {
+        U = (float)((double)Cx * (double)By - (double)Cy * (double)Bx);
+        V = (float)((double)Ax * (double)Cy - (double)Ay * (double)Cx);
+        W = (float)((double)Bx * (double)Ay - (double)By * (double)Ax);
+    }
+    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
+    det = U + V + W;
+    if (det == 0.0f) return 0;
+    T = U * (r->sz * A[kz]) + V * (r->sz * B[kz]) + W * (r->sz * C[kz]);
+    rcp = 1.0f / det;
+    *t = T * rcp;
+    if (!(*t >= r->tmin && *t <= tmax)) return 0;
+    *u = V * rcp;
+    *v = W * rcp;
+    return 1;
+}
+
+BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const float v1[3], const float v2[3],
+                                   bvh_hit *hit) {
+    bvh__rayx rx;
+    float tri[9], t, u, v;
+    if (hit) { hit->t = ray ? ray->tmax : BVH_INF; hit->u = hit->v = 0.0f; hit->prim = BVH_INVALID; }
+    if (!ray || !v0 || !v1 || !v2 || !bvh__ray_setup(ray, &rx)) return 0;
+    memcpy(tri, v0, 3 * sizeof(float)); memcpy(tri + 3, v1, 3 * sizeof(float)); memcpy(tri + 6, v2, 3 * sizeof(float));
+    if (!bvh__tri_test(&rx, tri, ray->tmax, &t, &u, &v)) return 0;
+    if (hit) { hit->t = t; hit->u = u; hit->v = v; hit->prim = 0; }
+    return 1;
+}
+
+/* Entry distance of the ray into node n if it enters before tfar, else +inf. */
+static float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
+    const float *f = &n->min.x; /* min at 0..2, max at 4..6 */
+    float tn = r->tmin, tf = BVH_INF, a0, a1;
+    int a;
+    for (a = 0; a < 3; a++) {
+        a0 = (f[r->near[a]] - r->o[a]) * r->inv[a];
+        a1 = (f[r->near[a] ^ 4] - r->o[a]) * r->inv[a];
+        tn = a0 > tn ? a0 : tn; /* NaN (origin on the plane) leaves tn as it is */
+        tf = a1 < tf ? a1 : tf;
+    }
+    tf *= 1.0000004f; /* 1 + 2 gamma(3) */
+    tf = tf < tfar ? tf : tfar;
+    return tn <= tf ? tn : BVH_INF;
+}
+
+static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, uint32_t *visited) {
+    bvh__rayx rx;
+    uint32_t stack[BVH_MAX_DEPTH + 2], sp = 0, best_prim = BVH_INVALID, nvis = 0;
+    float best_t, best_u = 0.0f, best_v = 0.0f;
+    const bvh_node *nodes, *node;
+    if (hit) { hit->t = ray ? ray->tmax : BVH_INF; hit->u = hit->v = 0.0f; hit->prim = BVH_INVALID; }
+    if (visited) *visited = 0;
+    if (!tree || !ray || !tree->node_count || !tree->tris || !bvh__ray_setup(ray, &rx)) return 0;
+    best_t = ray->tmax;
+    nodes = tree->nodes;
+    node = nodes;
+    nvis = 1;
+    if (bvh__slab(&rx, node, best_t) == BVH_INF) goto out;
+    for (;;) {
+        if (node->count) {
+            uint32_t k, end = node->index + node->count;
+            for (k = node->index; k < end; k++) {
+                float t, u, v;
+                if (!bvh__tri_test(&rx, tree->tris + 9 * (size_t)k, best_t, &t, &u, &v)) continue;
+                if (t == best_t && tree->prims[k] > best_prim) continue; /* ties: lowest index */
+                best_t = t; best_u = u; best_v = v; best_prim = tree->prims[k];
+                if (any) goto out;
+            }
+        } else {
+            const bvh_node *c0 = &nodes[node->index], *c1 = c0 + 1;
+            float t0 = bvh__slab(&rx, c0, best_t), t1 = bvh__slab(&rx, c1, best_t);
+            nvis += 2;
+            if (t0 != BVH_INF || t1 != BVH_INF) {
+                if (t1 < t0) { const bvh_node *tc = c0; float tt = t0; c0 = c1; c1 = tc; t0 = t1; t1 = tt; }
+                node = c0;
+                if (t1 != BVH_INF) {
+                    if (sp == BVH_MAX_DEPTH + 2) goto out; /* a tree deeper than the validator allows */
+                    stack[sp++] = (uint32_t)(c1 - nodes);
+                }
+                continue;
+            }
+        }
+        for (;;) { /* pop the next node still in reach (entry recomputed against the current best) */
+            if (!sp) goto out;
+            node = &nodes[stack[--sp]];
+            if (bvh__slab(&rx, node, best_t) != BVH_INF) break;
+        }
+    }
+out:
+    if (visited) *visited = nvis;
+    if (best_prim == BVH_INVALID) return 0;
+    if (hit) { hit->t = best_t; hit->u = best_u; hit->v = best_v; hit->prim = best_prim; }
+    return 1;
+}
+
+BVH_API int bvh_intersect(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit) {
+    return bvh__traverse(tree, ray, hit, 0, NULL);
+}
+BVH_API int bvh_intersect_counted(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, uint32_t *visited) {
+    return bvh__traverse(tree, ray, hit, 0, visited);
+}
+BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray) {
+    return bvh__traverse(tree, ray, NULL, 1, NULL);
+}
+
+typedef struct bvh__batch {
+    const bvh_tree *tree;
+    const bvh_ray *rays;
+    bvh_hit *hits;
+    uint8_t *occluded;
+    size_t count;
+} bvh__batch;
+static void bvh__batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    const bvh__batch *b = BVH__CAST(const bvh__batch *, arg);
+    size_t chunk, i, e;
+    (void)team;
+    /* interleaved chunks of 256 rays: neighbouring pixels cost alike, so this balances well */
+    for (chunk = (size_t)tid * 256; chunk < b->count; chunk += (size_t)nt * 256) {
+        e = chunk + 256 < b->count ? chunk + 256 : b->count;
+        for (i = chunk; i < e; i++) {
+            if (b->hits) bvh__traverse(b->tree, &b->rays[i], &b->hits[i], 0, NULL);
+            else b->occluded[i] = (uint8_t)bvh__traverse(b->tree, &b->rays[i], NULL, 1, NULL);
+        }
+    }
+}
+static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ,
+                                 size_t count, uint32_t threads) {
+    bvh__batch b;
+    uint32_t nt;
+    if (!tree || (count && (!rays || (!hits && !occ)))) return BVH_ERROR_INVALID_ARGUMENT;
+    if (tree->node_count && !tree->tris) return BVH_ERROR_NO_TRIANGLES;
+    b.tree = tree; b.rays = rays; b.hits = hits; b.occluded = occ; b.count = count;
+    nt = bvh__resolve_threads(threads);
+    if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
+    if (nt < 1) nt = 1;
+    return bvh__team_run(&tree->allocator, nt, bvh__batch_fn, &b);
+}
+BVH_API bvh_result bvh_intersect_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
+                                       uint32_t threads) {
+    if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__batch_run(tree, rays, hits, NULL, count, threads);
+}
+BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
+                                      uint32_t threads) {
+    if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__batch_run(tree, rays, NULL, occluded, count, threads);
+}
+
+/* ============================================================================================ */
+/* == camera ===================================================================================== */
+/* ============================================================================================ */
+static bvh_vec3 bvh__v3(float x, float y, float z) { bvh_vec3 v; v.x = x; v.y = y; v.z = z; return v; }
+static bvh_vec3 bvh__normalize(bvh_vec3 v) {
+    float l = sqrtf(v.x * v.x + v.y * v.y + v.z * v.z);
+    return l > 0.0f ? bvh__v3(v.x / l, v.y / l, v.z / l) : v;
+}
+static bvh_vec3 bvh__cross(bvh_vec3 a, bvh_vec3 b) {
+    return bvh__v3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+}
+BVH_API bvh_camera bvh_camera_standard(bvh_aabb b, uint32_t width, uint32_t height) {
+    bvh_camera cam;
+    bvh_vec3 c = bvh_aabb_centroid(b), d = bvh__normalize(bvh__v3(1.0f, 0.6f, 1.3f));
+    float dx = b.max.x - b.min.x, dy = b.max.y - b.min.y, dz = b.max.z - b.min.z;
+    float diag = sqrtf(dx * dx + dy * dy + dz * dz), th = tanf(30.0f * 3.14159265f / 180.0f);
+    float aspect = height ? (float)width / (float)height : 1.0f;
+    bvh_vec3 r, u;
+    if (!(diag > 0.0f) || !isfinite(diag)) diag = 1.0f;
+    if (!isfinite(c.x) || !isfinite(c.y) || !isfinite(c.z)) c = bvh__v3(0.0f, 0.0f, 0.0f);
+    cam.eye = bvh__v3(c.x + d.x * 1.5f * diag, c.y + d.y * 1.5f * diag, c.z + d.z * 1.5f * diag);
+    cam.forward = bvh__v3(-d.x, -d.y, -d.z);
+    r = bvh__normalize(bvh__cross(cam.forward, bvh__v3(0.0f, 1.0f, 0.0f)));
+    u = bvh__cross(r, cam.forward);
+    cam.right = bvh__v3(r.x * th * aspect, r.y * th * aspect, r.z * th * aspect);
+    cam.up = bvh__v3(u.x * th, u.y * th, u.z * th);
+    cam.width = width;
+    cam.height = height;
+    return cam;
+}
+BVH_API bvh_ray bvh_camera_ray(const bvh_camera *cam, uint32_t x, uint32_t y) {
+    bvh_ray ray;
+    float sx = 2.0f * ((float)x + 0.5f) / (float)cam->width - 1.0f;
+    float sy = 1.0f - 2.0f * ((float)y + 0.5f) / (float)cam->height;
+    bvh_vec3 d = bvh__v3(cam->forward.x + sx * cam->right.x + sy * cam->up.x,
+                         cam->forward.y + sx * cam->right.y + sy * cam->up.y,
+                         cam->forward.z + sx * cam->right.z + sy * cam->up.z);
+    ray.origin = cam->eye;
+    ray.dir = bvh__normalize(d);
+    ray.tmin = 0.0f;
+    ray.tmax = BVH_INF;
+    return ray;
+}
+
+#endif /* BVH_IMPLEMENTATION_DONE */
+#endif /* BVH_IMPLEMENTATION */
+
+/*
+MIT License
+
+Copyright (c) 2026 the bvh.h authors
+
+Permission is hereby granted, free of charge, to any person obtaining a copy of this software and
+associated documentation files (the "Software"), to deal in the Software without restriction,
+including without limitation the rights to use, copy, modify, merge, publish, distribute,
+sublicense, and/or sell copies of the Software, and to permit persons to whom the Software is
+furnished to do so, subject to the following conditions:
+
+The above copyright notice and this permission notice shall be included in all copies or
+substantial portions of the Software.
+
+THE SOFTWARE IS PROVIDED "AS IS", WITHOUT WARRANTY OF ANY KIND, EXPRESS OR IMPLIED, INCLUDING BUT
+NOT LIMITED TO THE WARRANTIES OF MERCHANTABILITY, FITNESS FOR A PARTICULAR PURPOSE AND
+NONINFRINGEMENT. IN NO EVENT SHALL THE AUTHORS OR COPYRIGHT HOLDERS BE LIABLE FOR ANY CLAIM, DAMAGES
+OR OTHER LIABILITY, WHETHER IN AN ACTION OF CONTRACT, TORT OR OTHERWISE, ARISING FROM, OUT OF OR IN
+CONNECTION WITH THE SOFTWARE OR THE USE OR OTHER DEALINGS IN THE SOFTWARE.
+*/

@@ -950,19 +950,27 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
         for (i = b; i < e; i++) { p->nd[i] = BVH_INF; p->nn[i] = BVH_INVALID; }
         for (t = 0; t < r; t++) { bd[t] = BVH_INF; bi[t] = BVH_INVALID; }
         for (i = b; i < e; i++) {
-            size_t j, last = i + r < (size_t)count - 1 ? i + r : (size_t)count - 1;
-            const bvh_node *ci = &cin[i];
-            for (j = i + 1; j <= last; j++) {
-                float d = bvh__merged_half_area(ci, &cin[j]);
-                bvh__ploc_offer(p, (uint32_t)i, (uint32_t)j, d);
-                if (j < e) bvh__ploc_offer(p, (uint32_t)j, (uint32_t)i, d);
-                else {
-                    size_t k = j - e;
-                    if (d < bd[k] || (d == bd[k] && bvh__ploc_key((uint32_t)j, (uint32_t)i) < bvh__ploc_key((uint32_t)j, bi[k]))) {
-                        bd[k] = d; bi[k] = (uint32_t)i;
-                    }
+            size_t j, last = i + r < (size_t)count - 1 ? i + r : (size_t)count - 1, mid = last < e ? last + 1 : e;
+            const bvh_node ci = cin[i];
+            float bdi = p->nd[i];
+            uint32_t bji = p->nn[i], ii = (uint32_t)i;
+            for (j = i + 1; j < mid; j++) { /* both ends in this chunk */
+                float d = bvh__merged_half_area(&ci, &cin[j]);
+                uint32_t jj = (uint32_t)j;
+                if (d < bdi || (d == bdi && bvh__ploc_key(ii, jj) < bvh__ploc_key(ii, bji))) { bdi = d; bji = jj; }
+                if (d < p->nd[j] || (d == p->nd[j] && bvh__ploc_key(jj, ii) < bvh__ploc_key(jj, p->nn[j]))) {
+                    p->nd[j] = d; p->nn[j] = ii;
                 }
             }
+            for (; j <= last; j++) { /* j in the next chunk: offered through this thread's buffer */
+                float d = bvh__merged_half_area(&ci, &cin[j]);
+                uint32_t jj = (uint32_t)j;
+                size_t k = j - e;
+                if (d < bdi || (d == bdi && bvh__ploc_key(ii, jj) < bvh__ploc_key(ii, bji))) { bdi = d; bji = jj; }
+                if (d < bd[k] || (d == bd[k] && bvh__ploc_key(jj, ii) < bvh__ploc_key(jj, bi[k]))) { bd[k] = d; bi[k] = ii; }
+            }
+            p->nd[i] = bdi;
+            p->nn[i] = bji;
         }
         bvh__team_sync(team);
         if (tid > 0 && tid < active) { /* pairs that start in the previous chunk */

@@ -1,0 +1,58 @@
+# bvh.h - build the examples, run the tests, the demo and the benchmark.
+#   make            examples (build/render, build/bvhbench ...)
+#   make demo       the main job: render the bunny with every builder and print a table
+#   make test       every test (installs missing Debian packages first when run as root)
+#   make bench      the study's Table I, side by side with Embree
+# CFLAGS, CC, CXX may be overridden.
+CC      ?= cc
+CXX     ?= c++
+CFLAGS  ?= -O2 -g
+BUILD   ?= build
+STD      = -std=c11
+WARN     = -Wall -Wextra -Wpedantic -Werror
+LDLIBS   = -lm -lpthread
+
+# Optional dependencies, detected (scripts/deps.sh installs them when run as root).
+HAVE_OPENCL := $(shell [ -f /usr/include/CL/cl.h ] && ls /usr/lib/*/libOpenCL.so >/dev/null 2>&1 && echo 1)
+HAVE_EMBREE := $(shell [ -f /usr/include/embree3/rtcore.h ] && echo 1)
+HAVE_ASSIMP := $(shell [ -f /usr/include/assimp/cimport.h ] && echo 1)
+HAVE_STB    := $(shell [ -f /usr/include/stb/stb_image_write.h ] && echo 1)
+
+EX_DEFS = $(if $(HAVE_OPENCL),-DBVH_HAVE_OPENCL -DCL_TARGET_OPENCL_VERSION=120) \
+          $(if $(HAVE_EMBREE),-DBVH_HAVE_EMBREE) $(if $(HAVE_ASSIMP),-DBVH_HAVE_ASSIMP) \
+          $(if $(HAVE_STB),-DBVH_HAVE_STB)
+EX_LIBS = $(if $(HAVE_OPENCL),-lOpenCL) $(if $(HAVE_EMBREE),-lembree3) $(if $(HAVE_ASSIMP),-lassimp)
+
+EXAMPLES = $(patsubst examples/%.c,$(BUILD)/%,$(wildcard examples/*.c))
+TESTS    = $(patsubst tests/%.c,$(BUILD)/tests/%,$(wildcard tests/test_*.c))
+HEADERS  = bvh.h $(wildcard examples/*.h) $(wildcard cl/*.h) $(wildcard cl/*.cl) $(wildcard tests/*.h)
+
+.PHONY: all demo test bench clean deps-test deps-demo deps-bench
+all: $(EXAMPLES)
+
+$(BUILD)/%: examples/%.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) $< -o $@ $(EX_LIBS) $(LDLIBS)
+
+# Tests: warnings are errors; test_opencl also links OpenCL.
+$(BUILD)/tests/%: tests/%.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) $< -o $@ -lcmocka $(EX_LIBS) $(LDLIBS)
+
+deps-test:
+	@scripts/deps.sh test
+deps-demo:
+	@scripts/deps.sh demo
+deps-bench:
+	@scripts/deps.sh bench
+
+test: deps-test
+	@$(MAKE) --no-print-directory $(TESTS)
+	@scripts/run-tests.sh $(TESTS)
+
+demo: deps-demo
+	@$(MAKE) --no-print-directory $(BUILD)/render
+	@scripts/demo.sh
+
+clean:
+	rm -rf $(BUILD) out

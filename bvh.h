@@ -900,10 +900,8 @@ typedef struct bvh__ploc {
     const bvh__ctx *c;
     bvh__morton_job mj;
     bvh_node *cin, *cout, *src;
-    uint32_t *nn;
-    float *nd;
-    float *bnd_d;      /* per thread, radius entries: best distance found for the next chunk */
-    uint32_t *bnd_i;
+    uint64_t *best;    /* per cluster: distance bits << 32 | tie key (see bvh__ploc_pack) */
+    uint64_t *bnd;     /* per thread, radius entries: best offers to the next chunk's clusters */
     uint32_t *merges, *survivors; /* per thread */
     uint32_t radius, root;
 } bvh__ploc;
@@ -914,19 +912,25 @@ static float bvh__merged_half_area(const bvh_node *a, const bvh_node *b) {
     float dz = bvh__maxf(a->max.z, b->max.z) - bvh__minf(a->min.z, b->min.z);
     return dx * dy + dy * dz + dz * dx;
 }
-static uint32_t bvh__ploc_key(uint32_t i, uint32_t j) {
-    uint32_t lo = i < j ? i : j, dist = i < j ? j - i : i - j;
-    return dist << 2 | (lo & 1u) << 1 | (j > i ? 1u : 0u);
+/* An offer of neighbour j to cluster i as one integer, so that the best offer is a plain minimum
+   (branch-free): the distance's float bits (non-negative floats order like their bits), then the
+   tie key |i-j| << 2 | (min(i,j) & 1) << 1 | (j > i), from which j can be recovered. */
+static uint64_t bvh__ploc_pack(float d, uint32_t dist, uint32_t lo_odd, uint32_t right) {
+    uint32_t bits;
+    memcpy(&bits, &d, sizeof bits);
+    return (uint64_t)bits << 32 | dist << 2 | lo_odd << 1 | right;
 }
-static void bvh__ploc_offer(bvh__ploc *p, uint32_t i, uint32_t j, float d) {
-    float bd = p->nd[i];
-    if (d < bd || (d == bd && bvh__ploc_key(i, j) < bvh__ploc_key(i, p->nn[i]))) { p->nd[i] = d; p->nn[i] = j; }
+static uint32_t bvh__ploc_neighbour(uint32_t i, uint64_t best) {
+    uint32_t key = (uint32_t)best, dist = key >> 2;
+    return (key & 1u) ? i + dist : i - dist;
 }
+#define BVH__MIN64(a, b) ((b) < (a) ? (b) : (a))
 
 static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__ploc *p = BVH__CAST(bvh__ploc *, arg);
     const bvh__ctx *c = p->c;
     bvh_node *cin = p->cin, *cout = p->cout;
+    uint64_t *best = p->best;
     uint32_t r = p->radius, count = c->n, slots = 0, t;
     size_t b, e, i;
     bvh__morton_codes_team(&p->mj, tid, nt, team);
@@ -940,52 +944,47 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     bvh__team_sync(team);
     while (count > 1) {
         uint32_t active = count / (4 * r + 256), pos = 0, slot = 0, total_surv = 0, total_merge = 0;
-        float *bd = p->bnd_d + (size_t)tid * r;
-        uint32_t *bi = p->bnd_i + (size_t)tid * r;
+        uint64_t *bnd = p->bnd + (size_t)tid * r;
         if (active < 1) active = 1;
         if (active > nt) active = nt;
         if (tid < active) bvh__range(count, tid, active, &b, &e);
         else b = e = 0;
         /* nearest neighbour search: pairs (i, j), i < j <= i + r, each computed once */
-        for (i = b; i < e; i++) { p->nd[i] = BVH_INF; p->nn[i] = BVH_INVALID; }
-        for (t = 0; t < r; t++) { bd[t] = BVH_INF; bi[t] = BVH_INVALID; }
+        for (i = b; i < e; i++) best[i] = ~(uint64_t)0;
+        for (t = 0; t < r; t++) bnd[t] = ~(uint64_t)0;
         for (i = b; i < e; i++) {
             size_t j, last = i + r < (size_t)count - 1 ? i + r : (size_t)count - 1, mid = last < e ? last + 1 : e;
             const bvh_node ci = cin[i];
-            float bdi = p->nd[i];
-            uint32_t bji = p->nn[i], ii = (uint32_t)i;
+            uint64_t bi = best[i];
+            uint32_t odd = (uint32_t)i & 1u;
             for (j = i + 1; j < mid; j++) { /* both ends in this chunk */
                 float d = bvh__merged_half_area(&ci, &cin[j]);
-                uint32_t jj = (uint32_t)j;
-                if (d < bdi || (d == bdi && bvh__ploc_key(ii, jj) < bvh__ploc_key(ii, bji))) { bdi = d; bji = jj; }
-                if (d < p->nd[j] || (d == p->nd[j] && bvh__ploc_key(jj, ii) < bvh__ploc_key(jj, p->nn[j]))) {
-                    p->nd[j] = d; p->nn[j] = ii;
-                }
+                uint32_t dist = (uint32_t)(j - i);
+                uint64_t to_i = bvh__ploc_pack(d, dist, odd, 1), to_j = to_i - 1; /* same, j > i is 0 */
+                bi = BVH__MIN64(bi, to_i);
+                best[j] = BVH__MIN64(best[j], to_j);
             }
             for (; j <= last; j++) { /* j in the next chunk: offered through this thread's buffer */
                 float d = bvh__merged_half_area(&ci, &cin[j]);
-                uint32_t jj = (uint32_t)j;
-                size_t k = j - e;
-                if (d < bdi || (d == bdi && bvh__ploc_key(ii, jj) < bvh__ploc_key(ii, bji))) { bdi = d; bji = jj; }
-                if (d < bd[k] || (d == bd[k] && bvh__ploc_key(jj, ii) < bvh__ploc_key(jj, bi[k]))) { bd[k] = d; bi[k] = ii; }
+                uint32_t dist = (uint32_t)(j - i);
+                uint64_t to_i = bvh__ploc_pack(d, dist, odd, 1), to_j = to_i - 1;
+                bi = BVH__MIN64(bi, to_i);
+                bnd[j - e] = BVH__MIN64(bnd[j - e], to_j);
             }
-            p->nd[i] = bdi;
-            p->nn[i] = bji;
+            best[i] = bi;
         }
         bvh__team_sync(team);
-        if (tid > 0 && tid < active) { /* pairs that start in the previous chunk */
-            const float *pd = p->bnd_d + (size_t)(tid - 1) * r;
-            const uint32_t *pi = p->bnd_i + (size_t)(tid - 1) * r;
-            for (t = 0; t < r && b + t < e; t++)
-                if (pi[t] != BVH_INVALID) bvh__ploc_offer(p, (uint32_t)(b + t), pi[t], pd[t]);
+        if (tid > 0 && tid < active) { /* offers from pairs that start in the previous chunk */
+            const uint64_t *prev = p->bnd + (size_t)(tid - 1) * r;
+            for (t = 0; t < r && b + t < e; t++) best[b + t] = BVH__MIN64(best[b + t], prev[t]);
         }
         bvh__team_sync(team);
         /* merging decisions: count merges and survivors per chunk */
         {
             uint32_t m = 0, s = 0;
             for (i = b; i < e; i++) {
-                uint32_t j = p->nn[i];
-                int mutual = p->nn[j] == i;
+                uint32_t j = bvh__ploc_neighbour((uint32_t)i, best[i]);
+                int mutual = bvh__ploc_neighbour(j, best[j]) == i;
                 if (!(mutual && j < i)) s++;
                 if (mutual && i < j) m++;
             }
@@ -1001,8 +1000,8 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
         slot += slots;
         /* merge and compact (prefix scan positions computed above) */
         for (i = b; i < e; i++) {
-            uint32_t j = p->nn[i];
-            if (p->nn[j] == i) {
+            uint32_t j = bvh__ploc_neighbour((uint32_t)i, best[i]);
+            if (bvh__ploc_neighbour(j, best[j]) == i) {
                 if (i < j) {
                     bvh_node *n = &cout[pos++];
                     p->src[slot] = cin[i];
@@ -1035,19 +1034,16 @@ static bvh_result bvh__build_ploc(const bvh__ctx *c, bvh__out *o, uint32_t nthre
     p.cin = BVH__ALLOC(&c->al, bvh_node, n);
     p.cout = BVH__ALLOC(&c->al, bvh_node, n);
     p.src = BVH__ALLOC(&c->al, bvh_node, 2 * n - 1);
-    p.nn = BVH__ALLOC(&c->al, uint32_t, n);
-    p.nd = BVH__ALLOC(&c->al, float, n);
-    p.bnd_d = BVH__ALLOC(&c->al, float, (size_t)nthreads * p.radius);
-    p.bnd_i = BVH__ALLOC(&c->al, uint32_t, (size_t)nthreads * p.radius);
+    p.best = BVH__ALLOC(&c->al, uint64_t, n);
+    p.bnd = BVH__ALLOC(&c->al, uint64_t, (size_t)nthreads * p.radius);
     p.merges = BVH__ALLOC(&c->al, uint32_t, nthreads);
     p.survivors = BVH__ALLOC(&c->al, uint32_t, nthreads);
-    if (r == BVH_SUCCESS && (!p.cin || !p.cout || !p.src || !p.nn || !p.nd || !p.bnd_d || !p.bnd_i || !p.merges || !p.survivors))
+    if (r == BVH_SUCCESS && (!p.cin || !p.cout || !p.src || !p.best || !p.bnd || !p.merges || !p.survivors))
         r = BVH_ERROR_OUT_OF_MEMORY;
     if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
     /* release the clustering scratch before emission, which needs its own */
     bvh__free(&c->al, p.cin); bvh__free(&c->al, p.cout);
-    bvh__free(&c->al, p.nn); bvh__free(&c->al, p.nd);
-    bvh__free(&c->al, p.bnd_d); bvh__free(&c->al, p.bnd_i);
+    bvh__free(&c->al, p.best); bvh__free(&c->al, p.bnd);
     bvh__free(&c->al, p.merges); bvh__free(&c->al, p.survivors);
     bvh__free(&c->al, p.mj.sort.keys); bvh__free(&c->al, p.mj.sort.keys_tmp);
     bvh__free(&c->al, p.mj.sort.vals_tmp); bvh__free(&c->al, p.mj.sort.hist);

@@ -292,6 +292,11 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #define BVH__CAST(T, x) ((T)(x))
 #endif
 
+#if defined(__GNUC__) || defined(__clang__)
+#define BVH__INLINE static inline __attribute__((always_inline))
+#else
+#define BVH__INLINE static inline
+#endif
 #define BVH__MAX_PRIMS (1u << 30) /* keeps 2n nodes and split references inside uint32 */
 #define BVH__MAX_LEAF 255u
 #define BVH__MAX_THREADS 256u
@@ -299,8 +304,8 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 /* ============================================================================================ */
 /* == math and AABB ============================================================================ */
 /* ============================================================================================ */
-static float bvh__minf(float a, float b) { return a < b ? a : b; }
-static float bvh__maxf(float a, float b) { return a > b ? a : b; }
+BVH__INLINE float bvh__minf(float a, float b) { return a < b ? a : b; }
+BVH__INLINE float bvh__maxf(float a, float b) { return a > b ? a : b; }
 static float bvh__get(bvh_vec3 v, int axis) { return axis == 0 ? v.x : axis == 1 ? v.y : v.z; }
 static int bvh__finite3(const float *p) { return isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2]); }
 
@@ -766,34 +771,36 @@ static bvh_result bvh__build_top_down(const bvh__ctx *c, bvh__out *o) {
 static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src_count, const uint32_t *map,
                             int collapse, bvh__out *o) {
     uint32_t *cnt = BVH__ALLOC(&c->al, uint32_t, src_count); /* prims below; top bit: collapsed */
+    uint32_t *size = BVH__ALLOC(&c->al, uint32_t, src_count); /* output nodes below, itself included */
     uint8_t *height = BVH__ALLOC(&c->al, uint8_t, src_count); /* after collapsing, capped at 255 */
     float *cost = collapse ? BVH__ALLOC(&c->al, float, src_count) : NULL;
-    uint32_t *stack = NULL, i, sp = 0;
+    uint32_t stack[3 * (BVH_MAX_DEPTH + 2)], small[2 * BVH__MAX_LEAF + 8], *gather = NULL, i, sp = 0, prims;
     bvh_result r = BVH_SUCCESS;
-    if (!cnt || !height || (collapse && !cost)) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    if (!cnt || !size || !height || (collapse && !cost)) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
     for (i = 0; i < src_count; i++) {
         const bvh_node *s = &src[i];
         if (s->count) {
-            cnt[i] = s->count; height[i] = 0;
+            cnt[i] = s->count; height[i] = 0; size[i] = 1;
             if (cost) cost[i] = bvh__half_area(bvh__node_box(s)) * (c->cl + c->ct * (float)s->count);
         } else {
             uint32_t l = s->index, n = (cnt[l] & ~BVH__COLLAPSE_BIT) + (cnt[l + 1] & ~BVH__COLLAPSE_BIT);
             uint32_t h = height[l] > height[l + 1] ? height[l] : height[l + 1];
             cnt[i] = n;
             height[i] = (uint8_t)(h >= 255 ? 255 : h + 1);
+            size[i] = 1 + size[l] + size[l + 1];
             if (cost) {
                 float a = bvh__half_area(bvh__node_box(s));
                 float split = c->ci * a + cost[l] + cost[l + 1];
                 float leaf = a * (c->cl + c->ct * (float)n);
-                if (n <= c->max_leaf && leaf <= split) { cost[i] = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; }
+                if (n <= c->max_leaf && leaf <= split) { cost[i] = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; size[i] = 1; }
                 else cost[i] = split;
             }
         }
     }
-    r = bvh__out_init(c, o, 2 * (cnt[src_count - 1] & ~BVH__COLLAPSE_BIT) - 1, cnt[src_count - 1] & ~BVH__COLLAPSE_BIT);
+    prims = cnt[src_count - 1] & ~BVH__COLLAPSE_BIT;
+    /* exact size unless a subtree must be rebuilt for depth (then at most 2 n - 1 nodes) */
+    r = bvh__out_init(c, o, height[src_count - 1] > BVH_MAX_DEPTH - 1 ? 2 * prims - 1 : size[src_count - 1], prims);
     if (r != BVH_SUCCESS) goto done;
-    stack = BVH__ALLOC(&c->al, uint32_t, 3 * (size_t)src_count); /* (src, dst, depth) */
-    if (!stack) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
     o->node_count = 1;
     stack[sp++] = src_count - 1; stack[sp++] = 0; stack[sp++] = 0;
     while (sp) {
@@ -803,17 +810,21 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
         int flatten = s->count || (cnt[si] & BVH__COLLAPSE_BIT);
         int too_deep = !flatten && depth <= BVH_MAX_DEPTH / 2 - 1 && depth + height[si] > BVH_MAX_DEPTH - 1;
         if (flatten || too_deep) {
-            /* gather every primitive below si (a small subtree unless too deep) */
-            uint32_t first = o->ref_count, gsp = sp, n = cnt[si] & ~BVH__COLLAPSE_BIT;
-            stack[gsp++] = si;
-            while (gsp > sp) {
-                const bvh_node *g = &src[stack[--gsp]];
-                if (g->count) {
+            /* gather every primitive below si: a small subtree, or (rarely) a too deep one */
+            uint32_t first = o->ref_count, gsp = 0, n = cnt[si] & ~BVH__COLLAPSE_BIT, *g = small;
+            if (too_deep) {
+                if (!gather && !(gather = BVH__ALLOC(&c->al, uint32_t, src_count))) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+                g = gather;
+            }
+            g[gsp++] = si;
+            while (gsp) {
+                const bvh_node *x = &src[g[--gsp]];
+                if (x->count) {
                     uint32_t k;
-                    for (k = 0; k < g->count; k++) o->refs[o->ref_count++] = map[g->index + k];
+                    for (k = 0; k < x->count; k++) o->refs[o->ref_count++] = map[x->index + k];
                 } else {
-                    stack[gsp++] = g->index + 1;
-                    stack[gsp++] = g->index;
+                    g[gsp++] = x->index + 1;
+                    g[gsp++] = x->index;
                 }
             }
             if (too_deep) { bvh__median_build(c, o, di, first, n); continue; }
@@ -830,9 +841,10 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
     }
 done:
     if (r != BVH_SUCCESS) bvh__out_free(c, o);
-    bvh__free(&c->al, stack);
+    bvh__free(&c->al, gather);
     bvh__free(&c->al, cost);
     bvh__free(&c->al, height);
+    bvh__free(&c->al, size);
     bvh__free(&c->al, cnt);
     return r;
 }
@@ -906,7 +918,7 @@ typedef struct bvh__ploc {
     uint32_t radius, root;
 } bvh__ploc;
 
-static float bvh__merged_half_area(const bvh_node *a, const bvh_node *b) {
+BVH__INLINE float bvh__merged_half_area(const bvh_node *a, const bvh_node *b) {
     float dx = bvh__maxf(a->max.x, b->max.x) - bvh__minf(a->min.x, b->min.x);
     float dy = bvh__maxf(a->max.y, b->max.y) - bvh__minf(a->min.y, b->min.y);
     float dz = bvh__maxf(a->max.z, b->max.z) - bvh__minf(a->min.z, b->min.z);
@@ -915,12 +927,12 @@ static float bvh__merged_half_area(const bvh_node *a, const bvh_node *b) {
 /* An offer of neighbour j to cluster i as one integer, so that the best offer is a plain minimum
    (branch-free): the distance's float bits (non-negative floats order like their bits), then the
    tie key |i-j| << 2 | (min(i,j) & 1) << 1 | (j > i), from which j can be recovered. */
-static uint64_t bvh__ploc_pack(float d, uint32_t dist, uint32_t lo_odd, uint32_t right) {
+BVH__INLINE uint64_t bvh__ploc_pack(float d, uint32_t dist, uint32_t lo_odd, uint32_t right) {
     uint32_t bits;
     memcpy(&bits, &d, sizeof bits);
     return (uint64_t)bits << 32 | dist << 2 | lo_odd << 1 | right;
 }
-static uint32_t bvh__ploc_neighbour(uint32_t i, uint64_t best) {
+BVH__INLINE uint32_t bvh__ploc_neighbour(uint32_t i, uint64_t best) {
     uint32_t key = (uint32_t)best, dist = key >> 2;
     return (key & 1u) ? i + dist : i - dist;
 }
@@ -1210,17 +1222,21 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     bvh__free(&c.al, c.centroids); c.centroids = NULL;
 
     /* exact-size outputs: nodes, references mapped to caller indices, triangles in reference order */
-    tree->nodes = BVH__ALLOC(&c.al, bvh_node, o.node_count);
-    tree->prims = BVH__ALLOC(&c.al, uint32_t, o.ref_count);
-    if (tris) tree->tris = BVH__ALLOC(&c.al, float, 9 * (size_t)o.ref_count);
-    if (!tree->nodes || !tree->prims || (tris && !tree->tris)) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
-    memcpy(tree->nodes, o.nodes, (size_t)o.node_count * sizeof(bvh_node));
+    if (tris && !(tree->tris = BVH__ALLOC(&c.al, float, 9 * (size_t)o.ref_count))) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
+    if (o.node_count == o.node_cap) { tree->nodes = o.nodes; o.nodes = NULL; } /* exact size: adopt */
+    else if ((tree->nodes = BVH__ALLOC(&c.al, bvh_node, o.node_count)) != NULL)
+        memcpy(tree->nodes, o.nodes, (size_t)o.node_count * sizeof(bvh_node));
+    else { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
+    if (o.ref_count == o.ref_cap) { tree->prims = o.refs; o.refs = NULL; }
+    else if ((tree->prims = BVH__ALLOC(&c.al, uint32_t, o.ref_count)) != NULL)
+        memcpy(tree->prims, o.refs, (size_t)o.ref_count * sizeof(uint32_t));
+    else { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
     tree->node_count = o.node_count;
     tree->ref_count = o.ref_count;
-    for (i = 0; i < o.ref_count; i++) {
-        uint32_t local = o.refs[i];
-        tree->prims[i] = orig ? orig[local] : local;
+    for (i = 0; i < o.ref_count; i++) { /* triangles in reference order, references to caller ids */
+        uint32_t local = tree->prims[i];
         if (tris) memcpy(tree->tris + 9 * (size_t)i, tris + 9 * (size_t)local, 9 * sizeof(float));
+        if (orig) tree->prims[i] = orig[local];
     }
 empty:
     bvh__out_free(&c, &o);

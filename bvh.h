@@ -1499,7 +1499,7 @@ static float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
 static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, uint32_t *visited) {
     bvh__rayx rx;
     uint32_t stack[BVH_MAX_DEPTH + 2], sp = 0, best_prim = BVH_INVALID, nvis = 0;
-    float best_t, best_u = 0.0f, best_v = 0.0f;
+    float stack_t[BVH_MAX_DEPTH + 2], best_t, best_u = 0.0f, best_v = 0.0f;
     const bvh_node *nodes, *node;
     if (hit) { hit->t = ray ? ray->tmax : BVH_INF; hit->u = hit->v = 0.0f; hit->prim = BVH_INVALID; }
     if (visited) *visited = 0;
@@ -1528,15 +1528,16 @@ static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
                 node = c0;
                 if (t1 != BVH_INF) {
                     if (sp == BVH_MAX_DEPTH + 2) goto out; /* a tree deeper than the validator allows */
+                    stack_t[sp] = t1;
                     stack[sp++] = (uint32_t)(c1 - nodes);
                 }
                 continue;
             }
         }
-        for (;;) { /* pop the next node still in reach (entry recomputed against the current best) */
+        for (;;) { /* pop the next node still in reach of the current best */
             if (!sp) goto out;
-            node = &nodes[stack[--sp]];
-            if (bvh__slab(&rx, node, best_t) != BVH_INF) break;
+            --sp;
+            if (stack_t[sp] <= best_t) { node = &nodes[stack[sp]]; break; }
         }
     }
 out:

@@ -56,3 +56,6 @@ demo: deps-demo
 
 clean:
 	rm -rf $(BUILD) out
+
+# Further targets (sanitizers, fuzzing, benchmarks) live in mk/*.mk
+-include $(wildcard mk/*.mk)

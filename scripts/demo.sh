@@ -1,0 +1,90 @@
+#!/usr/bin/env bash
+# The demo: builds a BVH over the Stanford bunny with every builder, renders one frame with each to
+# out/demo-<builder>.png and prints a table (build time, SAH, tree size, hits, ray throughput).
+# Usage: scripts/demo.sh [SCENE]     (`make demo` runs it; SCENE as for build/render --help)
+#   default SCENE: /usr/share/glmark2/models/bunny.obj, or gen:procedural:100000 when the Debian
+#   package glmark2-data is missing.
+# Environment: DEMO_SIZE (800x600), DEMO_THREADS (0 = all cores), RENDER (a render binary to use
+#   instead of building build/render).
+# Exit status: 0 when every builder ran and all report the same hits; 1 otherwise.
+set -u
+cd "$(dirname "$0")/.." || exit 1
+size=${DEMO_SIZE:-800x600}
+threads=${DEMO_THREADS:-0}
+builders="top-down bottom-up sah-midpoint ploc ploc-parallel"
+bunny=/usr/share/glmark2/models/bunny.obj
+
+render=${RENDER:-}
+if [ -z "$render" ]; then
+  render=build/render
+  make --no-print-directory -s "$render" || { echo "demo: cannot build $render" >&2; exit 1; }
+fi
+[ -x "$render" ] || { echo "demo: $render is not an executable" >&2; exit 1; }
+
+if [ $# -ge 1 ]; then
+  scene=$1
+elif [ -f "$bunny" ]; then
+  scene=$bunny
+else
+  scene=gen:procedural:100000
+  echo "demo: the Stanford bunny ($bunny) is missing: install it with" >&2
+  echo "demo:   sudo apt-get install glmark2-data" >&2
+  echo "demo: rendering $scene instead" >&2
+fi
+
+ext=png
+if ! "$render" --help | grep -q 'png=yes'; then
+  ext=ppm
+  echo "demo: build/render was built without PNG support (Debian libstb-dev): writing .ppm images" >&2
+fi
+
+mkdir -p out || exit 1
+echo "scene $scene, ${size} pixels, threads ${threads} (0 = all cores)"
+results=""
+failed=""
+for b in $builders; do
+  if line=$("$render" --json --builder "$b" --size "$size" --threads "$threads" --out "out/demo-$b.$ext" "$scene"); then
+    results="$results$line"$'\n'
+  else
+    failed="$failed $b"
+  fi
+done
+
+# One JSON object per line, flat, produced by render: pull each value out with awk.
+printf '%s' "$results" | awk '
+  function get(key,   s) {
+    if (!match($0, "\"" key "\":(\"[^\"]*\"|[^,}]*)")) return "?"
+    s = substr($0, RSTART + length(key) + 3, RLENGTH - length(key) - 3)
+    gsub(/"/, "", s)
+    return s
+  }
+  BEGIN {
+    fmt = "%-14s %10s %10s %9s %9s %6s %8s %9s\n"
+    printf fmt, "builder", "triangles", "build ms", "SAH", "nodes", "depth", "hits", "Mrays/s"
+  }
+  {
+    n++
+    hits[n] = get("hits"); tsum[n] = get("t_sum"); name[n] = get("builder")
+    printf "%-14s %10s %10.2f %9.3f %9s %6s %8s %9.2f\n", name[n], get("triangles"), get("build_ms"),
+           get("sah"), get("nodes"), get("max_depth"), hits[n], get("mrays")
+  }
+  END {
+    bad = 0
+    for (i = 2; i <= n; i++) if (hits[i] != hits[1] || tsum[i] != tsum[1]) bad = 1
+    if (bad) {
+      print "!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!"
+      print "!!! WARNING: the builders DISAGREE on the primary hits (they must all be equal):"
+      for (i = 1; i <= n; i++) printf "!!!   %-14s hits %s  t_sum %s\n", name[i], hits[i], tsum[i]
+      print "!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!"
+      exit 1
+    }
+    if (n) printf "all %d builders agree: %s hits, t_sum %s\n", n, hits[1], tsum[1]
+  }'
+agree=$?
+
+[ -n "$results" ] && echo "images: out/demo-<builder>.$ext"
+if [ -n "$failed" ]; then
+  echo "demo: FAILED for:$failed (see the messages above)" >&2
+  exit 1
+fi
+exit $agree

@@ -18,7 +18,7 @@ HAVE_EMBREE := $(shell [ -f /usr/include/embree3/rtcore.h ] && echo 1)
 HAVE_ASSIMP := $(shell [ -f /usr/include/assimp/cimport.h ] && echo 1)
 HAVE_STB    := $(shell [ -f /usr/include/stb/stb_image_write.h ] && echo 1)
 
-EX_DEFS = $(if $(HAVE_OPENCL),-DBVH_HAVE_OPENCL -DCL_TARGET_OPENCL_VERSION=120) \
+EX_DEFS = $(if $(HAVE_OPENCL),-DBVH_HAVE_OPENCL -DCL_TARGET_OPENCL_VERSION=120 -DBVH_CL_KERNEL_PATH=\"$(CURDIR)/cl/trace.cl\") \
           $(if $(HAVE_EMBREE),-DBVH_HAVE_EMBREE) $(if $(HAVE_ASSIMP),-DBVH_HAVE_ASSIMP) \
           $(if $(HAVE_STB),-DBVH_HAVE_STB)
 EX_LIBS = $(if $(HAVE_OPENCL),-lOpenCL) $(if $(HAVE_EMBREE),-lembree3) $(if $(HAVE_ASSIMP),-lassimp)
@@ -39,6 +39,38 @@ $(BUILD)/tests/%: tests/%.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) $< -o $@ -lcmocka $(EX_LIBS) $(LDLIBS)
 
+# Compile checks of the header itself, built and run by `make test` (a warning or a wrong answer
+# fails it): C11 with BVH_STATIC, with and without threads (tests/compile_static.c); two C
+# translation units (tests/two_tu_*.c); C++11 (tests/compile_cpp.cpp); a C++ program linked with
+# the implementation compiled as C. With $(CC)/$(CXX) in build/check/cc/, and with clang/clang++
+# in build/check/clang/ when present. No -D_GNU_SOURCE: the header must build in strict ISO mode.
+CXXSTD      = -std=c++11
+CXXWARN     = -Wall -Wextra -Wpedantic -Werror
+HAVE_CLANG := $(shell command -v clang >/dev/null 2>&1 && command -v clang++ >/dev/null 2>&1 && echo 1)
+CHECK_CC_cc     = $(CC)
+CHECK_CXX_cc    = $(CXX)
+CHECK_CC_clang  = clang
+CHECK_CXX_clang = clang++
+CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
+           $(addprefix $(BUILD)/check/$(c)/,static static-no-threads two-tu cxx11 cxx11-links-c))
+
+$(BUILD)/check/%/static: tests/compile_static.c bvh.h
+	@mkdir -p $(dir $@)
+	$(CHECK_CC_$*) $(STD) $(WARN) $(CFLAGS) -DBVH_STATIC -I. $< -o $@ $(LDLIBS)
+$(BUILD)/check/%/static-no-threads: tests/compile_static.c bvh.h
+	@mkdir -p $(dir $@)
+	$(CHECK_CC_$*) $(STD) $(WARN) $(CFLAGS) -DBVH_STATIC -DBVH_NO_THREADS -I. $< -o $@ -lm
+$(BUILD)/check/%/two-tu: tests/two_tu_a.c tests/two_tu_b.c bvh.h
+	@mkdir -p $(dir $@)
+	$(CHECK_CC_$*) $(STD) $(WARN) $(CFLAGS) -I. tests/two_tu_a.c tests/two_tu_b.c -o $@ $(LDLIBS)
+$(BUILD)/check/%/cxx11: tests/compile_cpp.cpp bvh.h
+	@mkdir -p $(dir $@)
+	$(CHECK_CXX_$*) $(CXXSTD) $(CXXWARN) $(CFLAGS) -I. $< -o $@ $(LDLIBS)
+$(BUILD)/check/%/cxx11-links-c: tests/compile_cpp.cpp tests/two_tu_a.c bvh.h
+	@mkdir -p $(dir $@)
+	$(CHECK_CC_$*) $(STD) $(WARN) $(CFLAGS) -I. -c tests/two_tu_a.c -o $@-impl.o
+	$(CHECK_CXX_$*) $(CXXSTD) $(CXXWARN) $(CFLAGS) -I. -DBVH_TEST_DECLARATIONS_ONLY $< $@-impl.o -o $@ $(LDLIBS)
+
 deps-test:
 	@scripts/deps.sh test
 deps-demo:
@@ -47,8 +79,8 @@ deps-bench:
 	@scripts/deps.sh bench
 
 test: deps-test
-	@$(MAKE) --no-print-directory $(TESTS)
-	@scripts/run-tests.sh $(TESTS)
+	@$(MAKE) --no-print-directory $(TESTS) $(CHECKS)
+	@scripts/run-tests.sh $(TESTS) $(CHECKS)
 
 demo: deps-demo
 	@$(MAKE) --no-print-directory $(BUILD)/render

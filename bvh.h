@@ -66,7 +66,9 @@
 #include <stdint.h>
 
 #ifndef BVH_API
-#ifdef BVH_STATIC
+#if defined(BVH_STATIC) && (defined(__GNUC__) || defined(__clang__))
+#define BVH_API static __attribute__((unused))
+#elif defined(BVH_STATIC)
 #define BVH_API static
 #else
 #define BVH_API extern
@@ -1414,7 +1416,7 @@ typedef struct bvh__rayx {
     float sx, sy, sz;
 } bvh__rayx;
 
-static int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
+BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
     const float *o = &ray->origin.x, *d = &ray->dir.x;
     float ax, ay, az;
     int a;
@@ -1440,7 +1442,7 @@ static int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
 }
 
 /* Returns 1 and sets *t, *u, *v if the triangle is hit with tmin <= t <= tmax. */
-static int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, float *t, float *u, float *v) {
+BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, float *t, float *u, float *v) {
     const int kx = r->kx, ky = r->ky, kz = r->kz;
     float A[3], B[3], C[3], Ax, Ay, Bx, By, Cx, Cy, U, V, W, det, T, rcp;
     int k;
@@ -1481,7 +1483,7 @@ BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const 
 }
 
 /* Entry distance of the ray into node n if it enters before tfar, else +inf. */
-static float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
+BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
     const float *f = &n->min.x; /* min at 0..2, max at 4..6 */
     float tn = r->tmin, tf = BVH_INF, a0, a1;
     int a;

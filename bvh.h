@@ -1403,7 +1403,7 @@ done:
 /* ============================================================================================ */
 /* == traversal ================================================================================= */
 /* Watertight ray/triangle intersection (Woop, Benthin & Wald, JCGT 2013) with their double-
-   precision fallback on edges, and robust slab tests (Ize 2013: the far distance is widened by
+   precision 2x2 determinants, and robust slab tests (Ize 2013: the far distance is widened by
    1 + 2 gamma(3)) so that no box rounding ever culls a triangle that the brute-force loop hits.
    A zero direction component (+0 or -0) gets an inverse of +inf; the NaN that appears when the
    origin lies on the slab plane is ignored by the min/max order, which is the right answer
@@ -1450,14 +1450,11 @@ BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, 
     Ax = A[kx] - r->sx * A[kz]; Ay = A[ky] - r->sy * A[kz];
     Bx = B[kx] - r->sx * B[kz]; By = B[ky] - r->sy * B[kz];
     Cx = C[kx] - r->sx * C[kz]; Cy = C[ky] - r->sy * C[kz];
-    U = Cx * By - Cy * Bx;
-    V = Ax * Cy - Ay * Cx;
-    W = Bx * Ay - By * Ax;
-    if (U == 0.0f || V == 0.0f || W == 0.0f) {
-        U = (float)((double)Cx * (double)By - (double)Cy * (double)Bx);
-        V = (float)((double)Ax * (double)Cy - (double)Ay * (double)Cx);
-        W = (float)((double)Bx * (double)Ay - (double)By * (double)Ax);
-    }
+    /* In double the float products are exact, so the differences round once whether or not the
+       compiler fuses multiply-adds: a zero-area triangle gives exactly 0 and is never hit. */
+    U = (float)((double)Cx * (double)By - (double)Cy * (double)Bx);
+    V = (float)((double)Ax * (double)Cy - (double)Ay * (double)Cx);
+    W = (float)((double)Bx * (double)Ay - (double)By * (double)Ax);
     if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
     det = U + V + W;
     if (det == 0.0f) return 0;
@@ -1494,6 +1491,14 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
         tf = a1 < tf ? a1 : tf;
     }
     tf *= 1.0000004f; /* 1 + 2 gamma(3) */
+    {
+        /* A triangle inside the box has its watertight t computed with an error of a few ulps of
+           its vertices' distances along the dominant axis, which the box's distances bound; lower
+           the entry by 2^-18 of those so that a hit on the box face is never culled. */
+        float k0 = fabsf((f[r->near[r->kz]] - r->o[r->kz]) * r->inv[r->kz]);
+        float k1 = fabsf((f[r->near[r->kz] ^ 4] - r->o[r->kz]) * r->inv[r->kz]);
+        tn -= (k0 > k1 ? k0 : k1) * 0x1p-18f;
+    }
     tf = tf < tfar ? tf : tfar;
     return tn <= tf ? tn : BVH_INF;
 }

@@ -119,15 +119,10 @@ BVH_CL_FN int bvh_cl_tri_test(const bvh_cl_rayx *r, __global const float *tri, f
     float Ax = Akx - r->sx * Akz, Ay = Aky - r->sy * Akz;
     float Bx = Bkx - r->sx * Bkz, By = Bky - r->sy * Bkz;
     float Cx = Ckx - r->sx * Ckz, Cy = Cky - r->sy * Ckz;
-    float U = Cx * By - Cy * Bx;
-    float V = Ax * Cy - Ay * Cx;
-    float W = Bx * Ay - By * Ax;
+    float U = bvh_cl_diff_of_products(Cx, By, Cy, Bx); /* as the CPU: always exact products */
+    float V = bvh_cl_diff_of_products(Ax, Cy, Ay, Cx);
+    float W = bvh_cl_diff_of_products(Bx, Ay, By, Ax);
     float det, T, rcp, tt;
-    if (U == 0.0f || V == 0.0f || W == 0.0f) {
-        U = bvh_cl_diff_of_products(Cx, By, Cy, Bx);
-        V = bvh_cl_diff_of_products(Ax, Cy, Ay, Cx);
-        W = bvh_cl_diff_of_products(Bx, Ay, By, Ax);
-    }
     if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
     det = U + V + W;
     if (det == 0.0f) return 0;
@@ -156,6 +151,11 @@ BVH_CL_FN float bvh_cl_slab(const bvh_cl_rayx *r, float4 lo, float4 hi, float tf
     tn = a0.z > tn ? a0.z : tn;
     tf = a1.z < tf ? a1.z : tf;
     tf *= 1.0000004f; /* 1 + 2 gamma(3) */
+    { /* as bvh__slab: lower the entry by 2^-18 of the box's distances along the dominant axis */
+        float k0 = fabs(r->kz == 0 ? a0.x : r->kz == 1 ? a0.y : a0.z);
+        float k1 = fabs(r->kz == 0 ? a1.x : r->kz == 1 ? a1.y : a1.z);
+        tn -= (k0 > k1 ? k0 : k1) * 0x1p-18f;
+    }
     tf = tf < tfar ? tf : tfar;
     return tn <= tf ? tn : INFINITY;
 }

@@ -1,0 +1,272 @@
+/* tests/test_builders.c - every builder makes a valid tree on every scene.
+
+   For each scene of test_util.h and each builder: bvh_validate passes (against the triangles
+   and against caller-side boxes), the statistics add up, the reference-ordered triangle copy is
+   the input's, the same input gives the same tree twice; every builder hits the same primitives
+   at the same distances as every other; ploc-parallel gives exactly ploc's tree (memcmp of nodes,
+   references and triangles) on 1, 2, 3, 8 and all threads; leaf size, cost and option variants
+   build valid trees. */
+#define BVH_IMPLEMENTATION
+#include "bvh.h"
+#include "test_util.h"
+
+/* The statistics agree with a walk over the tree done here. */
+static void check_stats(const tu_scene *s, const bvh_tree *t, uint32_t max_leaf) {
+    bvh_stats st;
+    uint32_t i, leaves = 0, refs = 0;
+    const char *name = bvh_builder_name(t->builder);
+    assert_int_equal(bvh_get_stats(t, &st), BVH_SUCCESS);
+    for (i = 0; i < t->node_count; i++)
+        if (t->nodes[i].count) { leaves++; refs += t->nodes[i].count; }
+    if (st.nodes != t->node_count || st.refs != t->ref_count || st.leaves != leaves || refs != t->ref_count ||
+        st.bytes != (size_t)st.nodes * 32 + (size_t)st.refs * 4 || st.triangle_bytes != (size_t)st.refs * 36 ||
+        (t->node_count && st.leaves * 2 - 1 != st.nodes) || st.max_depth > BVH_MAX_DEPTH ||
+        st.max_leaf_size > max_leaf || (t->node_count && (st.max_depth < 1 || st.max_leaf_size < 1)))
+        fail_msg("%s/%s: stats nodes %u leaves %u (walk %u) refs %u (leaf sum %u, tree %u) depth %u max leaf %u (limit %u) "
+                 "bytes %zu triangle bytes %zu",
+                 s->name, name, st.nodes, st.leaves, leaves, st.refs, refs, t->ref_count, st.max_depth,
+                 st.max_leaf_size, max_leaf, st.bytes, st.triangle_bytes);
+}
+
+/* Fields, triangle copy and root box of a tree built from scene s. */
+static void check_tree(const tu_scene *s, const float *tris, const bvh_aabb *boxes, const bvh_tree *t, bvh_builder b) {
+    bvh_validation rep;
+    bvh_aabb root = bvh_tree_bounds(t), bounds = tu_scene_bounds(s);
+    uint32_t k;
+    const char *name = bvh_builder_name(b);
+    assert_int_equal(t->builder, b);
+    assert_int_equal(t->prim_count, s->tri_count);
+    assert_int_equal(t->excluded, 0);
+    assert_non_null(t->tris);
+    if (b == BVH_BUILDER_SAH_MIDPOINT) assert_true(t->ref_count >= s->tri_count); /* it may split references */
+    else assert_int_equal(t->ref_count, s->tri_count);
+    if (bvh_validate(t, boxes, &rep) != BVH_SUCCESS)
+        fail_msg("%s/%s: bvh_validate with caller boxes: %s (node %u)", s->name, name, rep.message, rep.node);
+    for (k = 0; k < t->ref_count; k++)
+        if (memcmp(t->tris + 9 * (size_t)k, tris + 9 * (size_t)t->prims[k], 9 * sizeof(float)) != 0)
+            fail_msg("%s/%s: tree.tris of reference %u is not triangle %u", s->name, name, k, t->prims[k]);
+    assert_true(bvh_aabb_contains(root, bounds));
+    if (t->ref_count == s->tri_count) /* no splits: the root is the union of the triangle boxes */
+        assert_true(root.min.x == bounds.min.x && root.min.y == bounds.min.y && root.min.z == bounds.min.z &&
+                    root.max.x == bounds.max.x && root.max.y == bounds.max.y && root.max.z == bounds.max.z);
+}
+
+static void every_builder_valid(void **state) {
+    int id = tu_state_id(state), b;
+    tu_scene s;
+    float *tris;
+    bvh_aabb *boxes;
+    uint32_t i;
+    if (!tu_scene_make(id, &s)) { skip(); return; }
+    tris = tu_scene_tris(&s);
+    boxes = (bvh_aabb *)malloc(s.tri_count * sizeof *boxes);
+    assert_non_null(boxes);
+    for (i = 0; i < s.tri_count; i++) boxes[i] = tu_tri_box(tris + 9 * (size_t)i);
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_tree t, again;
+        bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
+        tu_build_valid(&s, &d, &t);
+        check_tree(&s, tris, boxes, &t, tu_builder(b));
+        check_stats(&s, &t, tu_default_leaf(tu_builder(b)));
+        /* deterministic: the same input gives the same tree */
+        tu_build_valid(&s, &d, &again);
+        assert_int_equal(again.node_count, t.node_count);
+        assert_int_equal(again.ref_count, t.ref_count);
+        assert_memory_equal(again.nodes, t.nodes, t.node_count * sizeof(bvh_node));
+        assert_memory_equal(again.prims, t.prims, t.ref_count * sizeof(uint32_t));
+        bvh_free(&again);
+        bvh_free(&t);
+    }
+    free(boxes);
+    free(tris);
+    tu_scene_free(&s);
+}
+
+/* Every builder hits the same number of rays, and in fact the same primitives at the same t. */
+static void builders_agree(void **state) {
+    enum { RAYS = 4000 };
+    int id = tu_state_id(state), b;
+    tu_scene s;
+    float *tris;
+    bvh_ray *rays;
+    bvh_hit *first, h;
+    size_t i, count[TU_BUILDER_COUNT], differ[TU_BUILDER_COUNT];
+    if (!tu_scene_make(id, &s)) { skip(); return; }
+    rays = (bvh_ray *)malloc(RAYS * sizeof *rays);
+    first = (bvh_hit *)malloc(RAYS * sizeof *first);
+    assert_true(rays && first);
+    tris = tu_scene_tris(&s);
+    tu_make_rays(tris, s.tri_count, 0x6167726565ULL + (uint64_t)id, rays, RAYS);
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_tree t;
+        tu_build(&s, tu_builder(b), &t);
+        count[b] = differ[b] = 0;
+        for (i = 0; i < RAYS; i++) {
+            bvh_hit *out = b == 0 ? &first[i] : &h;
+            count[b] += (size_t)bvh_intersect(&t, &rays[i], out);
+            if (b > 0 && !tu_hit_equal(&h, &first[i]) && differ[b]++ < 2) {
+                print_error("%s: %s and %s differ on ray %zu\n", s.name, bvh_builder_name(tu_builder(0)),
+                            bvh_builder_name(tu_builder(b)), i);
+                tu_print_ray(&rays[i]);
+                tu_print_hit(bvh_builder_name(tu_builder(0)), &first[i]);
+                tu_print_hit(bvh_builder_name(tu_builder(b)), &h);
+            }
+        }
+        bvh_free(&t);
+    }
+    for (b = 0; b < TU_BUILDER_COUNT; b++)
+        print_message("%-18s %-14s %zu of %d rays hit, %zu differ from %s\n", s.name, bvh_builder_name(tu_builder(b)),
+                      count[b], RAYS, differ[b], bvh_builder_name(tu_builder(0)));
+    for (b = 1; b < TU_BUILDER_COUNT; b++) {
+        assert_int_equal(count[b], count[0]);
+        assert_int_equal(differ[b], 0);
+    }
+    free(rays); free(first); free(tris);
+    tu_scene_free(&s);
+}
+
+/* Two trees are the same: counts and bytes of nodes, references and triangles. */
+static void assert_same_tree(const tu_scene *s, const bvh_tree *a, const bvh_tree *b, uint32_t threads) {
+    if (a->node_count != b->node_count || a->ref_count != b->ref_count ||
+        memcmp(a->nodes, b->nodes, a->node_count * sizeof(bvh_node)) != 0 ||
+        memcmp(a->prims, b->prims, a->ref_count * sizeof(uint32_t)) != 0 ||
+        memcmp(a->tris, b->tris, a->ref_count * 9 * sizeof(float)) != 0)
+        fail_msg("%s: ploc-parallel on %u threads (%u nodes, %u refs) differs from ploc (%u nodes, %u refs)", s->name,
+                 threads, b->node_count, b->ref_count, a->node_count, a->ref_count);
+}
+static void ploc_parallel_same_tree(const tu_scene *s, const bvh_build_desc *base) {
+    static const uint32_t threads[] = {1, 2, 3, 8, 0};
+    bvh_build_desc d = *base;
+    bvh_tree ploc, par;
+    size_t k;
+    d.builder = BVH_BUILDER_PLOC;
+    tu_build_valid(s, &d, &ploc);
+    d.builder = BVH_BUILDER_PLOC_PARALLEL;
+    for (k = 0; k < sizeof threads / sizeof threads[0]; k++) {
+        d.threads = threads[k];
+        tu_build_valid(s, &d, &par);
+        assert_same_tree(s, &ploc, &par, threads[k]);
+        bvh_free(&par);
+    }
+    d.builder = BVH_BUILDER_DEFAULT; /* the default builder is ploc-parallel */
+    d.threads = 3;
+    tu_build_valid(s, &d, &par);
+    assert_int_equal(par.builder, BVH_BUILDER_PLOC_PARALLEL);
+    assert_same_tree(s, &ploc, &par, 3);
+    bvh_free(&par);
+    bvh_free(&ploc);
+}
+static void ploc_parallel_equals_ploc(void **state) {
+    int id = tu_state_id(state);
+    tu_scene s;
+    bvh_build_desc d;
+    if (!tu_scene_make(id, &s)) { skip(); return; }
+    d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
+    ploc_parallel_same_tree(&s, &d);
+    tu_scene_free(&s);
+}
+/* The same with other options: search radius, leaf size, costs (on scenes big enough for every
+   thread to get clusters: 4 * radius + 256 per thread). */
+static void ploc_parallel_equals_ploc_options(void **state) {
+    static const uint32_t radius[] = {1, 2, 7, 256};
+    static const uint32_t leaf[] = {1, 2, 255};
+    tu_scene s;
+    bvh_build_desc d;
+    size_t k;
+    (void)state;
+    tu_scene_random(&s, 6000, 0x4f5054ULL);
+    for (k = 0; k < sizeof radius / sizeof radius[0]; k++) {
+        d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
+        d.ploc_radius = radius[k];
+        ploc_parallel_same_tree(&s, &d);
+    }
+    for (k = 0; k < sizeof leaf / sizeof leaf[0]; k++) {
+        d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
+        d.max_leaf_size = leaf[k];
+        ploc_parallel_same_tree(&s, &d);
+    }
+    d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
+    d.costs.interior = 2.0f; d.costs.leaf = 0.5f; d.costs.triangle = 3.0f;
+    ploc_parallel_same_tree(&s, &d);
+    tu_scene_free(&s);
+    tu_scene_grid(&s);
+    d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
+    d.ploc_radius = 3;
+    ploc_parallel_same_tree(&s, &d);
+    tu_scene_free(&s);
+}
+
+/* Leaf size limits are kept: 1 (one triangle per leaf), 2, 3, 7, 255, on two scenes. */
+static void leaf_sizes(void **state) {
+    static const uint32_t leaf[] = {1, 2, 3, 7, 255};
+    int scene, b;
+    size_t k;
+    (void)state;
+    for (scene = 0; scene < 2; scene++) {
+        tu_scene s;
+        if (scene == 0) tu_scene_random(&s, 1000, 0x4c454146ULL);
+        else tu_scene_duplicates(&s);
+        for (b = 0; b < TU_BUILDER_COUNT; b++)
+            for (k = 0; k < sizeof leaf / sizeof leaf[0]; k++) {
+                bvh_tree t;
+                bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
+                d.max_leaf_size = leaf[k];
+                tu_build_valid(&s, &d, &t);
+                check_stats(&s, &t, leaf[k]);
+                if (leaf[k] == 1 && t.ref_count == s.tri_count) assert_int_equal(t.node_count, 2 * s.tri_count - 1);
+                bvh_free(&t);
+            }
+        tu_scene_free(&s);
+    }
+}
+
+/* Build-time options: cost triples, ploc radius, split budget, thread counts - all valid. */
+static void options_build_valid(void **state) {
+    static const bvh_costs costs[] = {{1, 0, 1}, {1, 1, 1}, {2, 0.5f, 3}, {0, 0, 1}, {1, 0, 0}, {0, 5, 0}};
+    static const float budgets[] = {-1.0f, 0.0f, 0.01f, 0.5f, 1.0f};
+    tu_scene s;
+    int b;
+    size_t k;
+    (void)state;
+    tu_scene_random(&s, 1500, 0x4f505453ULL);
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_tree t;
+        for (k = 0; k < sizeof costs / sizeof costs[0]; k++) {
+            bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
+            d.costs = costs[k];
+            tu_build_valid(&s, &d, &t);
+            check_stats(&s, &t, tu_default_leaf(tu_builder(b)));
+            bvh_free(&t);
+        }
+        for (k = 0; k < sizeof budgets / sizeof budgets[0]; k++) {
+            bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
+            d.split_budget = budgets[k];
+            tu_build_valid(&s, &d, &t);
+            if (tu_builder(b) == BVH_BUILDER_SAH_MIDPOINT && budgets[k] > 0.0f)
+                assert_true(t.ref_count <= s.tri_count + (uint32_t)(budgets[k] * (float)s.tri_count) + 1);
+            else if (tu_builder(b) == BVH_BUILDER_SAH_MIDPOINT && budgets[k] < 0.0f)
+                assert_int_equal(t.ref_count, s.tri_count); /* negative: no splits */
+            bvh_free(&t);
+        }
+        {
+            bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
+            d.threads = 1000; /* clamped to 256 */
+            d.ploc_radius = 256;
+            tu_build_valid(&s, &d, &t);
+            bvh_free(&t);
+        }
+    }
+    tu_scene_free(&s);
+}
+
+int main(void) {
+    const struct CMUnitTest tests[] = {
+        TU_EVERY_SCENE(every_builder_valid),
+        TU_EVERY_SCENE(builders_agree),
+        TU_EVERY_SCENE(ploc_parallel_equals_ploc),
+        cmocka_unit_test(ploc_parallel_equals_ploc_options),
+        cmocka_unit_test(leaf_sizes),
+        cmocka_unit_test(options_build_valid),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

@@ -1,0 +1,254 @@
+/* tests/test_traversal.c - every builder's tree gives exactly the brute-force hits.
+
+   For each scene of test_util.h and each builder: bvh_intersect equals the brute-force closest
+   hit (same primitive, bitwise-same t, u, v) on TU_RAYS rays of every kind, also with tmax set to
+   the hit distance and just below it; bvh_occluded equals "a closest hit exists";
+   bvh_intersect_counted equals bvh_intersect; the batch calls on 1, 2, 3, 8 and all threads equal
+   the single-ray calls. Also: invalid rays miss, and a tree exactly BVH_MAX_DEPTH deep traces. */
+#define BVH_IMPLEMENTATION
+#include "bvh.h"
+#include "test_util.h"
+
+#define MAX_REPORTS 4
+
+/* Compares one builder's tree with the brute-force hits; returns the number of mismatches and
+   prints the first few. */
+static size_t compare(const tu_scene *s, const bvh_tree *t, const bvh_ray *rays, const bvh_hit *want, size_t count) {
+    size_t i, bad = 0;
+    for (i = 0; i < count; i++) {
+        bvh_hit h, hc;
+        uint32_t visited = 0;
+        int found = bvh_intersect(t, &rays[i], &h);
+        int occ = bvh_occluded(t, &rays[i]);
+        int foundc = bvh_intersect_counted(t, &rays[i], &hc, &visited);
+        int want_found = want[i].prim != BVH_INVALID;
+        if (found == want_found && tu_hit_equal(&h, &want[i]) && occ == want_found && foundc == found &&
+            tu_hit_equal(&hc, &h) && visited >= 1)
+            continue;
+        if (bad++ < MAX_REPORTS) {
+            print_error("%s/%s: ray %zu (kind %zu): intersect %d occluded %d counted %d (visited %u), brute force %d\n",
+                        s->name, bvh_builder_name(t->builder), i, i % 10, found, occ, foundc, visited, want_found);
+            tu_print_ray(&rays[i]);
+            tu_print_hit("bvh", &h);
+            tu_print_hit("brute force", &want[i]);
+        }
+    }
+    return bad;
+}
+
+/* For rays that hit: tmax = the hit distance (tmin <= t <= tmax: the same hit), and for every
+   other one tmax just below it (that triangle is out of range; another may still be hit). */
+static size_t tmax_rays(const bvh_ray *rays, const bvh_hit *hits, size_t count, bvh_ray *out) {
+    size_t i, m = 0;
+    for (i = 0; i < count; i++) {
+        if (hits[i].prim == BVH_INVALID) continue;
+        out[m] = rays[i];
+        out[m].tmax = (m & 1) ? nextafterf(hits[i].t, -BVH_INF) : hits[i].t;
+        if (out[m].tmax < out[m].tmin) out[m].tmax = out[m].tmin;
+        m++;
+    }
+    return m;
+}
+
+static void exact_hits(void **state) {
+    int id = tu_state_id(state), b;
+    tu_scene s;
+    float *tris;
+    bvh_ray *rays, *rays2;
+    bvh_hit *want, *want2;
+    size_t n2, bad = 0, hits = 0, i;
+    bvh_tree trees[TU_BUILDER_COUNT];
+    if (!tu_scene_make(id, &s)) { skip(); return; }
+    tris = tu_scene_tris(&s);
+    rays = (bvh_ray *)malloc(TU_RAYS * sizeof *rays);
+    rays2 = (bvh_ray *)malloc(TU_RAYS * sizeof *rays2);
+    want = (bvh_hit *)malloc(TU_RAYS * sizeof *want);
+    want2 = (bvh_hit *)malloc(TU_RAYS * sizeof *want2);
+    assert_true(rays && rays2 && want && want2);
+    tu_make_rays(tris, s.tri_count, 0x7261797300ULL + (uint64_t)id, rays, TU_RAYS);
+    tu_oracle_run(tris, s.tri_count, rays, TU_RAYS, want);
+    n2 = tmax_rays(rays, want, TU_RAYS, rays2);
+    tu_oracle_run(tris, s.tri_count, rays2, n2, want2);
+    for (i = 0; i < TU_RAYS; i++) hits += want[i].prim != BVH_INVALID;
+    print_message("%-18s %7u triangles, %zu of %d rays hit\n", s.name, s.tri_count, hits, TU_RAYS);
+    assert_true(hits > 0);
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        size_t bad_b;
+        tu_build(&s, tu_builder(b), &trees[b]);
+        bad_b = compare(&s, &trees[b], rays, want, TU_RAYS) + compare(&s, &trees[b], rays2, want2, n2);
+        if (bad_b) print_error("%s/%s: %zu of %zu rays differ from the brute force\n", s.name,
+                               bvh_builder_name(tu_builder(b)), bad_b, TU_RAYS + n2);
+        bad += bad_b;
+    }
+    for (b = 0; b < TU_BUILDER_COUNT; b++) bvh_free(&trees[b]);
+    free(rays); free(rays2); free(want); free(want2); free(tris);
+    tu_scene_free(&s);
+    assert_int_equal(bad, 0);
+}
+
+/* bvh_intersect_batch and bvh_occluded_batch on 1, 2, 3, 8 and all threads equal single calls. */
+static void batch_equals_single(void **state) {
+    static const uint32_t threads[] = {1, 2, 3, 8, 0};
+    const size_t count = 3000 + 77; /* 13 chunks of 256 rays, the last one short */
+    int id = tu_state_id(state), b;
+    size_t i, k;
+    tu_scene s;
+    float *tris;
+    bvh_ray *rays;
+    bvh_hit *single, *batch;
+    uint8_t *occ, *occ_single;
+    if (!tu_scene_make(id, &s)) { skip(); return; }
+    rays = (bvh_ray *)malloc(count * sizeof *rays);
+    single = (bvh_hit *)malloc(count * sizeof *single);
+    batch = (bvh_hit *)malloc(count * sizeof *batch);
+    occ = (uint8_t *)malloc(count);
+    occ_single = (uint8_t *)malloc(count);
+    assert_true(rays && single && batch && occ && occ_single);
+    tris = tu_scene_tris(&s);
+    tu_make_rays(tris, s.tri_count, 0x6261746368ULL + (uint64_t)id, rays, count);
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_tree t;
+        tu_build(&s, tu_builder(b), &t);
+        for (i = 0; i < count; i++) {
+            bvh_intersect(&t, &rays[i], &single[i]);
+            occ_single[i] = (uint8_t)bvh_occluded(&t, &rays[i]);
+        }
+        for (k = 0; k < sizeof threads / sizeof threads[0]; k++) {
+            memset(batch, 0xab, count * sizeof *batch);
+            memset(occ, 0xab, count);
+            assert_int_equal(bvh_intersect_batch(&t, rays, batch, count, threads[k]), BVH_SUCCESS);
+            assert_int_equal(bvh_occluded_batch(&t, rays, occ, count, threads[k]), BVH_SUCCESS);
+            for (i = 0; i < count; i++) {
+                if (tu_hit_equal(&batch[i], &single[i]) && occ[i] == occ_single[i]) continue;
+                tu_print_ray(&rays[i]);
+                tu_print_hit("single", &single[i]);
+                tu_print_hit("batch", &batch[i]);
+                fail_msg("%s/%s: batch on %u threads differs from single calls at ray %zu (occluded %u vs %u)", s.name,
+                         bvh_builder_name(tu_builder(b)), threads[k], i, occ[i], occ_single[i]);
+            }
+        }
+        /* a few rays only (fewer than one chunk), and none */
+        assert_int_equal(bvh_intersect_batch(&t, rays, batch, 3, 8), BVH_SUCCESS);
+        for (i = 0; i < 3; i++) assert_true(tu_hit_equal(&batch[i], &single[i]));
+        assert_int_equal(bvh_intersect_batch(&t, rays, batch, 0, 8), BVH_SUCCESS);
+        assert_int_equal(bvh_occluded_batch(&t, rays, occ, 0, 8), BVH_SUCCESS);
+        bvh_free(&t);
+    }
+    free(rays); free(single); free(batch); free(occ); free(occ_single); free(tris);
+    tu_scene_free(&s);
+}
+
+/* Rays with NaN, Inf, a zero direction or tmin > tmax hit nothing, in every call. */
+static void invalid_rays_miss(void **state) {
+    tu_scene s;
+    bvh_tree t;
+    bvh_ray good = {{0.25f, 0.25f, -1.0f}, 0.0f, {0.0f, 0.0f, 1.0f}, BVH_INF}, bad[8];
+    bvh_hit h, hits[8];
+    uint8_t occ[8];
+    int k;
+    (void)state;
+    tu_scene_few(&s, 1);
+    tu_build(&s, BVH_BUILDER_PLOC, &t);
+    assert_int_equal(bvh_intersect(&t, &good, &h), 1); /* the baseline: this ray hits */
+    assert_int_equal(h.prim, 0);
+    assert_true(h.t == 1.0f);
+    for (k = 0; k < 8; k++) bad[k] = good;
+    bad[0].origin.x = NAN;
+    bad[1].dir.y = NAN;
+    bad[2].dir.z = 0.0f;                 /* zero direction */
+    bad[3].tmin = 2.0f; bad[3].tmax = 1.0f; /* tmin > tmax */
+    bad[4].origin.z = -BVH_INF;
+    bad[5].tmin = NAN;
+    bad[6].tmax = NAN;
+    bad[7].dir.z = BVH_INF;
+    for (k = 0; k < 8; k++) {
+        float v0[3] = {0, 0, 0}, v1[3] = {1, 0, 0}, v2[3] = {0, 1, 0};
+        memset(&h, 0, sizeof h);
+        assert_int_equal(bvh_intersect(&t, &bad[k], &h), 0);
+        assert_int_equal(h.prim, BVH_INVALID);
+        assert_int_equal(bvh_occluded(&t, &bad[k]), 0);
+        assert_int_equal(bvh_intersect_triangle(&bad[k], v0, v1, v2, &h), 0);
+        assert_int_equal(h.prim, BVH_INVALID);
+    }
+    assert_int_equal(bvh_intersect_batch(&t, bad, hits, 8, 2), BVH_SUCCESS);
+    assert_int_equal(bvh_occluded_batch(&t, bad, occ, 8, 2), BVH_SUCCESS);
+    for (k = 0; k < 8; k++) {
+        assert_int_equal(hits[k].prim, BVH_INVALID);
+        assert_int_equal(occ[k], 0);
+    }
+    /* the tmin <= t <= tmax boundaries are inclusive, and a miss reports t = tmax */
+    good.tmin = good.tmax = 1.0f;
+    assert_int_equal(bvh_intersect(&t, &good, &h), 1);
+    good.tmax = nextafterf(1.0f, 0.0f); good.tmin = 0.0f;
+    assert_int_equal(bvh_intersect(&t, &good, &h), 0);
+    assert_true(h.t == good.tmax);
+    assert_int_equal(h.prim, BVH_INVALID);
+    bvh_free(&t);
+    tu_scene_free(&s);
+}
+
+/* A hand-made chain tree `levels` deep (root depth 1): triangle k lies on the plane z = k over
+   the same unit square, the leaf of triangle k at depth k + 1 (the last two share the deepest
+   level). A ray from above hits the deepest triangle first, after the whole chain. */
+static void chain_tree(uint32_t levels, bvh_tree *t, bvh_node *nodes, uint32_t *prims, float *tris) {
+    uint32_t k, n = levels; /* one triangle per leaf */
+    memset(t, 0, sizeof *t);
+    for (k = 0; k < n; k++) {
+        float *v = tris + 9 * (size_t)k, z = (float)k;
+        tu_set3(v, 0, 0, z); tu_set3(v + 3, 1, 0, z); tu_set3(v + 6, 0, 1, z);
+        prims[k] = k;
+    }
+    /* interior node i (depth i + 1) at 2i, children at 2i + 1 (leaf of triangle i) and 2i + 2 */
+    for (k = 0; k + 1 < n; k++) {
+        nodes[2 * k].index = 2 * k + 1; nodes[2 * k].count = 0;
+        nodes[2 * k + 1].index = k; nodes[2 * k + 1].count = 1;
+    }
+    nodes[2 * (n - 1)].index = n - 1; nodes[2 * (n - 1)].count = 1;
+    for (k = 2 * n - 1; k-- > 0;) { /* boxes bottom-up: a node's box spans the triangles at and below it */
+        uint32_t first = nodes[k].count ? nodes[k].index : k / 2;
+        nodes[k].min = tu_v3(0, 0, (float)first);
+        nodes[k].max = tu_v3(1, 1, nodes[k].count ? (float)first : (float)(n - 1));
+    }
+    t->nodes = nodes; t->node_count = 2 * n - 1;
+    t->prims = prims; t->ref_count = n; t->prim_count = n;
+    t->tris = tris;
+    t->builder = BVH_BUILDER_TOP_DOWN;
+}
+static void max_depth_tree_traces(void **state) {
+    enum { L = BVH_MAX_DEPTH };
+    bvh_node nodes[2 * L - 1];
+    uint32_t prims[L];
+    float tris[9 * L];
+    bvh_tree t;
+    bvh_validation rep;
+    bvh_stats st;
+    bvh_ray ray = {{0.25f, 0.25f, 1000.0f}, 0.0f, {-0.0f, 0.0f, -1.0f}, BVH_INF};
+    bvh_hit h;
+    (void)state;
+    chain_tree(L, &t, nodes, prims, tris);
+    if (bvh_validate(&t, NULL, &rep) != BVH_SUCCESS) fail_msg("chain of %d levels: %s", L, rep.message);
+    assert_int_equal(bvh_get_stats(&t, &st), BVH_SUCCESS);
+    assert_int_equal(st.max_depth, L);
+    assert_int_equal(bvh_intersect(&t, &ray, &h), 1);
+    assert_int_equal(h.prim, L - 1);
+    assert_true(h.t == 1000.0f - (float)(L - 1));
+    ray.dir.z = 1.0f; ray.origin.z = -0.5f; /* from below: the root's left leaf, the least deep */
+    assert_int_equal(bvh_intersect(&t, &ray, &h), 1);
+    assert_int_equal(h.prim, 0);
+    assert_int_equal(bvh_occluded(&t, &ray), 1);
+    ray.dir.z = -1.0f; ray.origin.z = (float)L / 2 + 0.5f; /* from the middle, down */
+    assert_int_equal(bvh_intersect(&t, &ray, &h), 1);
+    assert_int_equal(h.prim, L / 2);
+}
+
+int main(void) {
+    const struct CMUnitTest tests[] = {
+        TU_EVERY_SCENE(exact_hits),
+        TU_SCENE_TEST(batch_equals_single, TU_SCENE_RANDOM, "random"),
+        TU_SCENE_TEST(batch_equals_single, TU_SCENE_GRID, "grid"),
+        TU_SCENE_TEST(batch_equals_single, TU_SCENE_BUNNY, "bunny"),
+        cmocka_unit_test(invalid_rays_miss),
+        cmocka_unit_test(max_depth_tree_traces),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

@@ -81,6 +81,7 @@
 
 #define BVH_INF HUGE_VALF
 #define BVH_INVALID 0xFFFFFFFFu
+#define BVH_SAH_MIDPOINT_ONLY 0xFFFFFFFFu
 
 #ifdef __cplusplus
 extern "C" {
@@ -167,6 +168,9 @@ typedef struct bvh_build_desc {
     uint32_t ploc_radius;     /* PLOC search radius in Morton order; 0 = 16; above 256 refused */
     float split_budget;       /* sah-midpoint: extra references allowed, as a fraction of the
                                  primitive count; 0 = 0.3; negative = no splits; above 1 refused */
+    uint32_t sah_bins;        /* sah-midpoint: binned SAH object-split candidates per axis costed
+                                 beside the mid-point plane; 0 = 32, above 64 refused;
+                                 BVH_SAH_MIDPOINT_ONLY = the study's variant (mid-point only) */
     bvh_costs costs;          /* build-time SAH costs, zero = (1, 0, 1); negative/NaN refused */
     int skip_invalid;         /* 0: NaN/Inf geometry is refused with BVH_ERROR_INVALID_GEOMETRY;
                                  1: such primitives are left out and counted in tree.excluded */
@@ -621,7 +625,7 @@ typedef struct bvh__ctx {
     bvh_vec3 *centroids;   /* n centroids (box centres) */
     const float *tris;     /* n * 9 floats (v0, v1, v2) or NULL for box input */
     bvh_aabb bounds, cbounds;
-    uint32_t max_leaf, threads, radius;
+    uint32_t max_leaf, threads, radius, sah_bins;
     float ci, cl, ct, split_budget;
 } bvh__ctx;
 
@@ -1069,14 +1073,572 @@ static bvh_result bvh__build_ploc(const bvh__ctx *c, bvh__out *o, uint32_t nthre
 
 /* ============================================================================================ */
 /* == SAH-guided top-down with mid-point split partitioning ====================================== */
+/* After Ganestam & Doggett 2016 ("SAH guided spatial split partitioning for fast BVH
+   construction", Eurographics 2016), as the study defines it. At every node and on each axis the
+   spatial mid-point plane of the node's bounds sorts the references into wholly left (D_L),
+   wholly right (D_R) and straddling. Two options are costed on each axis:
+       C_O = A(D_L u O_L)|D_L u O_L| + A(D_R u O_R)|D_R u O_R|   straddlers kept whole, each on the
+                                                                  side of its centroid (O_L, O_R)
+       C_S = A(D_L u S_L)|D_L u S_L| + A(D_R u S_R)|D_R u S_R|   straddlers split at the plane and
+                                                                  referenced on both sides (S_L, S_R)
+   The cheapest gives E_r = C_i A(n) + C_t C; the node becomes a leaf when N(n) <= max_leaf and
+   E_t = C_t A(n) N(n) + C_l A(n) <= E_r. A split clips the triangle itself: the bounds of the
+   clipped polygon (computed in double, points on the plane widened by (|u| + |v|) 2^-21 on the
+   other axes so that no rounding loses a sliver) intersected with the reference's current box;
+   box input clips the box. A part that is empty on one side (or only touches the plane) is
+   referenced on the other side only, so no reference lands on a side it does not touch and a
+   leaf never holds one primitive twice.
+   Split budget: at most split_budget * n extra references in all. The root gets the whole budget;
+   a node spends what its split duplicates and shares the rest between its children in proportion
+   to their sizes; what a leaf leaves unused goes to the next node in depth-first order. An option
+   that needs more than its node has is not a candidate.
+   Added to the study's definition (desc.sah_bins = BVH_SAH_MIDPOINT_ONLY gives exactly the study's variant):
+   - binned SAH object splits (Wald 2007) with desc.sah_bins bins per axis over the
+     centroid bounds (32; at most one per reference in small nodes), costed alongside C_O and C_S;
+   - with bins, C_S is costed only where the best candidate's children overlap by more than
+     BVH__SAH_MIDPOINT_ALPHA (1e-3) of the root's area (Stich, Friedrich & Dietrich 2009, Sec. 4):
+     clipping every straddler dominated the build time where a split has nothing to gain;
+   - with bins, reference unsplitting (the same paper, Sec. 4.4): when C_S wins, a straddler is
+     kept whole on one side if that is cheaper than referencing it on both.
+   With bins, C_O is found by the bin sweep itself: the bin holding the mid-point is cut in two
+   there (see bvh__sm_axis), so the mid-point options cost one pass over the references, plus
+   one for C_S where it is costed.
+   An object median on the longest centroid axis (as bvh__median_build) is used when no candidate
+   separates the references (flat node, all centroids equal, a plane that leaves a side empty),
+   when the best candidate is no cheaper than not separating (C >= A(n) N(n), which a median
+   always matches: identical triangles are not split forever), and for every node from the depth
+   at which halving is needed to stay within BVH_MAX_DEPTH.
+   Differences from the paper: the paper splits while it coarsely partitions the scene and hands
+   the sets to a fast builder (or runs as a pre-split pass); here the choice is made at every node
+   of one top-down build, and (without bins) all straddlers of a plane are split or none. One
+   thread.
+   Memory: one scratch array of n * (1 + budget) clipped references used as a stack (the node
+   being processed is always on top, so a split appends its duplicates in place), the reference
+   output of the same size, and the node array, grown by half when full (2 refs - 1 at most).
+   Nodes come out depth-first, children adjacent, as bvh__median_build writes them. */
 /* ============================================================================================ */
-#ifdef BVH__HAVE_SAH_MIDPOINT_WIP
-#include "wip/sah_midpoint.inc"
-#else
-static bvh_result bvh__build_sah_midpoint(const bvh__ctx *c, bvh__out *o) {
-    return bvh__build_top_down(c, o); /* placeholder until the builder lands */
-}
+#ifndef BVH__SAH_MIDPOINT_ALPHA
+#define BVH__SAH_MIDPOINT_ALPHA 1e-3
 #endif
+#define BVH__SM_MAX_BINS 64
+/* pending tasks: at most one per level; median mode can reach depth 1 + log2(2^31) */
+#define BVH__SM_STACK (BVH_MAX_DEPTH > 33 ? BVH_MAX_DEPTH + 4 : 37)
+
+enum { BVH__SM_NONE, BVH__SM_BIN, BVH__SM_OVERLAP, BVH__SM_SPLIT, BVH__SM_MEDIAN };
+
+typedef struct bvh__sm_box { float lo[3], hi[3]; } bvh__sm_box;
+typedef struct bvh__sm_ref { float lo[3], hi[3]; uint32_t id; } bvh__sm_ref; /* clipped bounds */
+
+typedef struct bvh__sm_task {
+    uint32_t node, count, depth; /* its references are work[top - count, top) when it is popped */
+    uint32_t budget;             /* extra references this subtree may still create */
+    bvh__sm_box box, cbox;       /* bounds of the references and of their centroids */
+} bvh__sm_task;
+
+typedef struct bvh__sm_choice {
+    int kind, axis;
+    uint32_t bin, bins, cut; /* BVH__SM_BIN: first child = slots below `bin` (see bvh__sm_axis) */
+    float plane;       /* the mid-point of the chosen axis (the cut of the binning, or the plane) */
+    float bin_lo, bin_scale;
+    double cost;       /* C, the sum over both children of half-area * references */
+    bvh__sm_box left, right; /* BVH__SM_SPLIT: the children as costed, for unsplitting */
+    uint32_t n_left, n_right;
+} bvh__sm_choice;
+
+typedef struct bvh__sm {
+    const bvh__ctx *c;
+    bvh__out *o;
+    bvh__sm_ref *work;
+    uint32_t top, cap, budget, extra, carry, node_max, bins;
+    double root_area;
+    /* evaluation scratch, per axis */
+    bvh__sm_box bin[3][BVH__SM_MAX_BINS + 1]; /* one more: the bin holding the mid-point, cut */
+    uint32_t bin_n[3][BVH__SM_MAX_BINS + 1];
+    double right_area[BVH__SM_MAX_BINS + 1];
+    uint32_t right_n[BVH__SM_MAX_BINS + 1];
+} bvh__sm;
+
+BVH__INLINE void bvh__sm_empty(bvh__sm_box *b) {
+    b->lo[0] = b->lo[1] = b->lo[2] = BVH_INF;
+    b->hi[0] = b->hi[1] = b->hi[2] = -BVH_INF;
+}
+BVH__INLINE void bvh__sm_grow(bvh__sm_box *b, const float *lo, const float *hi) {
+    b->lo[0] = bvh__minf(b->lo[0], lo[0]); b->hi[0] = bvh__maxf(b->hi[0], hi[0]);
+    b->lo[1] = bvh__minf(b->lo[1], lo[1]); b->hi[1] = bvh__maxf(b->hi[1], hi[1]);
+    b->lo[2] = bvh__minf(b->lo[2], lo[2]); b->hi[2] = bvh__maxf(b->hi[2], hi[2]);
+}
+BVH__INLINE void bvh__sm_merge(bvh__sm_box *b, const bvh__sm_box *x) { bvh__sm_grow(b, x->lo, x->hi); }
+/* Half the surface area in double (no overflow for huge boxes); 0 for an empty box. */
+BVH__INLINE double bvh__sm_area(const bvh__sm_box *b) {
+    double dx = (double)b->hi[0] - b->lo[0], dy = (double)b->hi[1] - b->lo[1], dz = (double)b->hi[2] - b->lo[2];
+    if (!(dx >= 0.0 && dy >= 0.0 && dz >= 0.0)) return 0.0;
+    return dx * dy + dy * dz + dz * dx;
+}
+/* Halving is exact (but for subnormals), so even a contracted (FMA) form gives the same value:
+   every pass bins a reference alike. */
+BVH__INLINE float bvh__sm_centre(const bvh__sm_ref *r, int a) { return 0.5f * r->lo[a] + 0.5f * r->hi[a]; }
+BVH__INLINE uint32_t bvh__sm_bin_of(float x, float lo, float scale, uint32_t bins) {
+    /* (x - lo) * scale >= 0, +inf when the centroid range overflows float: clamp, then convert */
+    float f = bvh__minf((x - lo) * scale, (float)(bins - 1));
+    return (uint32_t)(int)f;
+}
+static bvh_aabb bvh__sm_aabb(const bvh__sm_box *b) {
+    bvh_aabb r;
+    r.min.x = b->lo[0]; r.min.y = b->lo[1]; r.min.z = b->lo[2];
+    r.max.x = b->hi[0]; r.max.y = b->hi[1]; r.max.z = b->hi[2];
+    return r;
+}
+static uint32_t bvh__sm_log2(uint32_t m) { /* ceil(log2(m)) */
+    uint32_t l = 0;
+    while (l < 32 && ((uint64_t)1 << l) < m) l++;
+    return l;
+}
+static float bvh__sm_to_float(double x) { return x < -FLT_MAX ? -FLT_MAX : x > FLT_MAX ? FLT_MAX : (float)x; }
+
+/* Bounds of the parts of reference r (which straddles x[a] = p) on each side of the plane: bit 0
+   of the result when *l holds a non-empty left part, bit 1 for *rt and the right part. Triangles
+   are clipped in double; points on the plane get p exactly on axis a, and on the other axes are
+   widened by (|u| + |v|) 2^-21, far more than the error of the double computation and of the
+   rounding to float, so the boxes stay conservative. */
+static int bvh__sm_clip(const bvh__ctx *c, const bvh__sm_ref *r, int a, float p, bvh__sm_ref *l, bvh__sm_ref *rt) {
+    const float *t;
+    float llo[3], lhi[3], rlo[3], rhi[3];
+    int e, k, mask = 0;
+    *l = *r;
+    *rt = *r;
+    if (!c->tris) { l->hi[a] = p; rt->lo[a] = p; return 3; }
+    t = c->tris + 9 * (size_t)r->id;
+    for (k = 0; k < 3; k++) { llo[k] = rlo[k] = BVH_INF; lhi[k] = rhi[k] = -BVH_INF; }
+    for (e = 0; e < 3; e++) {
+        const float *u = t + 3 * e, *v = t + 3 * (e == 2 ? 0 : e + 1);
+        if (u[a] <= p) for (k = 0; k < 3; k++) { llo[k] = bvh__minf(llo[k], u[k]); lhi[k] = bvh__maxf(lhi[k], u[k]); }
+        if (u[a] >= p) for (k = 0; k < 3; k++) { rlo[k] = bvh__minf(rlo[k], u[k]); rhi[k] = bvh__maxf(rhi[k], u[k]); }
+        if ((u[a] < p && v[a] > p) || (u[a] > p && v[a] < p)) {
+            double f = ((double)p - u[a]) / ((double)v[a] - u[a]);
+            for (k = 0; k < 3; k++) {
+                double x, eps;
+                float xl, xh;
+                if (k == a) { xl = xh = p; }
+                else {
+                    x = u[k] + f * ((double)v[k] - u[k]);
+                    eps = (fabs((double)u[k]) + fabs((double)v[k])) * (1.0 / 2097152.0) + (double)FLT_MIN;
+                    xl = bvh__sm_to_float(x - eps);
+                    xh = bvh__sm_to_float(x + eps);
+                }
+                llo[k] = bvh__minf(llo[k], xl); lhi[k] = bvh__maxf(lhi[k], xh);
+                rlo[k] = bvh__minf(rlo[k], xl); rhi[k] = bvh__maxf(rhi[k], xh);
+            }
+        }
+    }
+    for (k = 0; k < 3; k++) {
+        l->lo[k] = bvh__maxf(llo[k], r->lo[k]); l->hi[k] = bvh__minf(lhi[k], r->hi[k]);
+        rt->lo[k] = bvh__maxf(rlo[k], r->lo[k]); rt->hi[k] = bvh__minf(rhi[k], r->hi[k]);
+    }
+    l->hi[a] = bvh__minf(l->hi[a], p);
+    rt->lo[a] = bvh__maxf(rt->lo[a], p);
+    if (l->lo[0] <= l->hi[0] && l->lo[1] <= l->hi[1] && l->lo[2] <= l->hi[2] && l->lo[a] < p) mask |= 1;
+    if (rt->lo[0] <= rt->hi[0] && rt->lo[1] <= rt->hi[1] && rt->lo[2] <= rt->hi[2] && rt->hi[a] > p) mask |= 2;
+    if (!mask) { /* cannot happen with conservative boxes; keep the whole reference on one side */
+        *l = *r;
+        *rt = *r;
+        mask = bvh__sm_centre(r, a) < p ? 1 : 2;
+    }
+    return mask;
+}
+
+/* Half area of the intersection of two boxes (0 when they do not overlap). */
+static double bvh__sm_overlap(const bvh__sm_box *x, const bvh__sm_box *y) {
+    bvh__sm_box i;
+    int k;
+    for (k = 0; k < 3; k++) { i.lo[k] = bvh__maxf(x->lo[k], y->lo[k]); i.hi[k] = bvh__minf(x->hi[k], y->hi[k]); }
+    return bvh__sm_area(&i);
+}
+static int bvh__sm_offer(bvh__sm_choice *best, int kind, int axis, float plane, double cost) {
+    if (best->kind != BVH__SM_NONE && !(cost < best->cost)) return 0; /* ties: the earlier candidate */
+    best->kind = kind;
+    best->axis = axis;
+    best->plane = plane;
+    best->cost = cost;
+    return 1;
+}
+
+/* Binning of one axis: `bins` bins over the centroid bounds (1 when not binning), and when the
+   mid-point p lies within the centroid bounds, bin kp (the one holding p) cut in two at p: its
+   references left of p stay in slot kp, the others move up one slot with every later bin. The
+   boundary below slot kp + 1 then separates exactly D_L u O_L from D_R u O_R (left: centroid < p,
+   or centroid = p with the box not beyond p), so C_O is one candidate of the sweep. */
+typedef struct bvh__sm_axis {
+    float lo, scale, p;
+    uint32_t bins, kp; /* kp = bins: no cut */
+} bvh__sm_axis;
+BVH__INLINE uint32_t bvh__sm_slot(const bvh__sm_ref *r, int a, float c, const bvh__sm_axis *x) { /* c: centroid */
+    uint32_t k = x->bins > 1 ? bvh__sm_bin_of(c, x->lo, x->scale, x->bins) : 0;
+    uint32_t right = (uint32_t)(c >= x->p) & (uint32_t)((c != x->p) | (r->hi[a] > x->p)); /* not in D_L u O_L */
+    return k + (uint32_t)(k > x->kp) + ((uint32_t)(k == x->kp) & right);
+}
+
+/* Costs every candidate of the node work[b, b + m) with bounds nb and centroid bounds cb, allowed
+   `budget` duplicates; *best gets the cheapest (BVH__SM_NONE when nothing separates). Pass 1 bins
+   the references (C_O and the object splits come out of one sweep per axis); pass 2 sorts them
+   into D_L, D_R and straddlers and clips the straddlers for C_S. With bins, pass 2 runs only
+   where the best candidate so far has children overlapping by more than BVH__SAH_MIDPOINT_ALPHA
+   of the root's area; without bins (the study's variant) C_S is always costed. */
+static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget, const bvh__sm_box *nb,
+                             const bvh__sm_box *cb, bvh__sm_choice *best) {
+    const uint32_t bins = s->bins < m ? s->bins : m, e = b + m; /* small nodes: fewer bins */
+    bvh__sm_axis x[3];
+    bvh__sm_box dl[3], dr[3], sl[3], sr[3], lb, rb;
+    uint32_t ndl[3], ndr[3], nsl[3], nsr[3], dup[3], slots[3], i, k, best_slot = 0;
+    int mid_ok[3], clip[3], any_clip = 0, a;
+    best->kind = BVH__SM_NONE;
+    best->cost = 0.0;
+    for (a = 0; a < 3; a++) {
+        bvh__sm_axis *xa = &x[a];
+        xa->p = 0.5f * nb->lo[a] + 0.5f * nb->hi[a];
+        mid_ok[a] = nb->lo[a] < xa->p && xa->p < nb->hi[a];
+        xa->lo = cb->lo[a];
+        xa->bins = bins > 1 && cb->lo[a] < cb->hi[a] ? bins : 1;
+        xa->scale = xa->bins > 1 ? (float)((double)bins / ((double)cb->hi[a] - cb->lo[a])) : 0.0f;
+        if (xa->bins > 1 && !(xa->scale > 0.0f && xa->scale <= FLT_MAX)) { xa->bins = 1; xa->scale = 0.0f; }
+        xa->kp = xa->bins;
+        if (mid_ok[a] && cb->lo[a] <= xa->p && xa->p <= cb->hi[a])
+            xa->kp = xa->bins > 1 ? bvh__sm_bin_of(xa->p, xa->lo, xa->scale, xa->bins) : 0;
+        slots[a] = xa->bins + (xa->kp < xa->bins);
+        for (k = 0; k < slots[a]; k++) { bvh__sm_empty(&s->bin[a][k]); s->bin_n[a][k] = 0; }
+    }
+    for (i = b; i < e; i++) { /* pass 1 */
+        const bvh__sm_ref *r = &s->work[i];
+        for (a = 0; a < 3; a++) {
+            if (slots[a] < 2) continue;
+            k = bvh__sm_slot(r, a, bvh__sm_centre(r, a), &x[a]);
+            bvh__sm_grow(&s->bin[a][k], r->lo, r->hi);
+            s->bin_n[a][k]++;
+        }
+    }
+    for (a = 0; a < 3; a++) { /* Wald 2007: sweep the slots from the right, then from the left */
+        bvh__sm_box acc;
+        uint32_t n = 0;
+        double area = 0.0;
+        if (slots[a] < 2) continue;
+        bvh__sm_empty(&acc);
+        for (k = slots[a] - 1; k > 0; k--) { /* an empty slot changes nothing: no area to compute */
+            if (s->bin_n[a][k]) {
+                bvh__sm_merge(&acc, &s->bin[a][k]);
+                n += s->bin_n[a][k];
+                area = bvh__sm_area(&acc);
+            }
+            s->right_area[k] = area;
+            s->right_n[k] = n;
+        }
+        bvh__sm_empty(&acc);
+        n = 0;
+        for (k = 1; k < slots[a]; k++) { /* after an empty slot the candidate repeats the previous one */
+            if (!s->bin_n[a][k - 1]) continue;
+            bvh__sm_merge(&acc, &s->bin[a][k - 1]);
+            n += s->bin_n[a][k - 1];
+            if (!s->right_n[k]) break;
+            if (bvh__sm_offer(best, k == x[a].kp + 1 ? BVH__SM_OVERLAP : BVH__SM_BIN, a, x[a].p,
+                              bvh__sm_area(&acc) * n + s->right_area[k] * s->right_n[k]))
+                best_slot = k;
+        }
+    }
+    if (best->kind == BVH__SM_BIN) {
+        const bvh__sm_axis *xa = &x[best->axis];
+        best->bin = best_slot;
+        best->bins = xa->bins;
+        best->cut = xa->kp;
+        best->bin_lo = xa->lo;
+        best->bin_scale = xa->scale;
+    }
+    /* C_S: does a split have anything to gain? */
+    {
+        int gate = s->bins > 0 && best->kind != BVH__SM_NONE;
+        if (gate) {
+            a = best->axis;
+            bvh__sm_empty(&lb);
+            bvh__sm_empty(&rb);
+            for (k = 0; k < slots[a]; k++) bvh__sm_merge(k < best_slot ? &lb : &rb, &s->bin[a][k]);
+            gate = !(bvh__sm_overlap(&lb, &rb) > BVH__SAH_MIDPOINT_ALPHA * s->root_area);
+        }
+        for (a = 0; a < 3; a++) {
+            clip[a] = !gate && budget > 0 && mid_ok[a];
+            any_clip |= clip[a];
+            bvh__sm_empty(&dl[a]); bvh__sm_empty(&dr[a]); bvh__sm_empty(&sl[a]); bvh__sm_empty(&sr[a]);
+            ndl[a] = ndr[a] = nsl[a] = nsr[a] = dup[a] = 0;
+        }
+    }
+    if (!any_clip) return;
+    for (i = b; i < e; i++) { /* pass 2 */
+        const bvh__sm_ref *r = &s->work[i];
+        for (a = 0; a < 3; a++) {
+            bvh__sm_ref lp, rp;
+            int mask;
+            float p = x[a].p;
+            if (!clip[a]) continue;
+            if (r->hi[a] <= p) { bvh__sm_grow(&dl[a], r->lo, r->hi); ndl[a]++; continue; }
+            if (r->lo[a] >= p) { bvh__sm_grow(&dr[a], r->lo, r->hi); ndr[a]++; continue; }
+            mask = bvh__sm_clip(s->c, r, a, p, &lp, &rp);
+            if (mask & 1) { bvh__sm_grow(&sl[a], lp.lo, lp.hi); nsl[a]++; }
+            if (mask & 2) { bvh__sm_grow(&sr[a], rp.lo, rp.hi); nsr[a]++; }
+            if (mask == 3 && ++dup[a] > budget) clip[a] = 0; /* over budget: not a candidate */
+        }
+    }
+    for (a = 0; a < 3; a++) {
+        if (!clip[a] || !(nsl[a] + nsr[a]) || !(ndl[a] + nsl[a]) || !(ndr[a] + nsr[a])) continue;
+        lb = dl[a]; bvh__sm_merge(&lb, &sl[a]);
+        rb = dr[a]; bvh__sm_merge(&rb, &sr[a]);
+        if (bvh__sm_offer(best, BVH__SM_SPLIT, a, x[a].p,
+                          bvh__sm_area(&lb) * (ndl[a] + nsl[a]) + bvh__sm_area(&rb) * (ndr[a] + nsr[a]))) {
+            best->left = lb; best->right = rb;
+            best->n_left = ndl[a] + nsl[a]; best->n_right = ndr[a] + nsr[a];
+        }
+    }
+}
+
+BVH__INLINE void bvh__sm_swap(bvh__sm_ref *x, bvh__sm_ref *y) { bvh__sm_ref t = *x; *x = *y; *y = t; }
+
+/* Grows a child's bounds and centroid bounds by reference r (cc: its centroid, or NULL). */
+BVH__INLINE void bvh__sm_add(bvh__sm_task *t, const bvh__sm_ref *r, const float *cc) {
+    float c[3];
+    if (!cc) { c[0] = bvh__sm_centre(r, 0); c[1] = bvh__sm_centre(r, 1); c[2] = bvh__sm_centre(r, 2); cc = c; }
+    bvh__sm_grow(&t->box, r->lo, r->hi);
+    bvh__sm_grow(&t->cbox, cc, cc);
+}
+/* Reference unsplitting (Stich, Friedrich & Dietrich 2009, Sec. 4.4), with bins only: keeps a
+   straddler whole on one side when that costs less than referencing it on both, judged against
+   the children as costed. Returns 1 (left), 2 (right) or 3 (split). */
+static int bvh__sm_unsplit(const bvh__sm_choice *ch, const bvh__sm_ref *r) {
+    bvh__sm_box l = ch->left, rt = ch->right;
+    double al = bvh__sm_area(&ch->left), ar = bvh__sm_area(&ch->right), split, c1, c2;
+    split = al * ch->n_left + ar * ch->n_right;
+    bvh__sm_grow(&l, r->lo, r->hi);
+    bvh__sm_grow(&rt, r->lo, r->hi);
+    c1 = bvh__sm_area(&l) * ch->n_left + ar * (ch->n_right - 1);
+    c2 = al * (ch->n_left - 1) + bvh__sm_area(&rt) * ch->n_right;
+    if (c1 < split && c1 <= c2) return 1;
+    if (c2 < split) return 2;
+    return 3;
+}
+
+/* Partitions the node's references work[b, top): the first child's go to the top of the work
+   array (it is processed first), the second child's below them, and their bounds into *first and
+   *second. Split references get their right part in place and their left part appended at the
+   top (at most `budget` of them). Returns the first child's count; s->top counts the duplicates. */
+static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const bvh__sm_choice *ch,
+                                  bvh__sm_task *first, bvh__sm_task *second) {
+    bvh__sm_ref *w = s->work;
+    uint32_t top = s->top, i = b, j = top;
+    if (ch->kind == BVH__SM_SPLIT) { /* three-way: [right only | both (right part) | left only] + left parts */
+        uint32_t lo = b, mid = b, hi = top, dups = 0;
+        int a = ch->axis;
+        float p = ch->plane;
+        while (mid < hi) {
+            bvh__sm_ref *r = &w[mid];
+            int side; /* 1 left, 2 right, 3 both */
+            if (r->hi[a] <= p) side = 1;
+            else if (r->lo[a] >= p) side = 2;
+            else {
+                bvh__sm_ref lp, rp;
+                int mask = bvh__sm_clip(s->c, r, a, p, &lp, &rp);
+                if (mask != 3) { side = mask; *r = mask == 1 ? lp : rp; } /* touches one side only */
+                else {
+                    side = s->bins ? bvh__sm_unsplit(ch, r) : 3; /* 1 or 2: whole, on that side */
+                    if (side == 3 && dups >= budget) side = bvh__sm_centre(r, a) < p ? 1 : 2;
+                    if (side == 3) { w[top + dups++] = lp; *r = rp; bvh__sm_add(first, &lp, NULL); }
+                }
+            }
+            bvh__sm_add(side == 1 ? first : second, r, NULL);
+            if (side == 2) { bvh__sm_swap(&w[lo], &w[mid]); lo++; mid++; }
+            else if (side == 3) mid++;
+            else { hi--; bvh__sm_swap(&w[mid], &w[hi]); }
+        }
+        s->extra += dups;
+        s->top = top + dups;
+        return s->top - mid;
+    }
+    { /* two-way, binned (slots below ch->bin) or C_O (D_L u O_L) */
+        const int a = ch->axis, binned = ch->kind == BVH__SM_BIN;
+        const float p = ch->plane;
+        bvh__sm_axis x;
+        x.lo = ch->bin_lo; x.scale = ch->bin_scale; x.p = p; x.bins = ch->bins; x.kp = ch->cut;
+        while (i < j) {
+            const bvh__sm_ref *r = &w[i];
+            float cc[3];
+            int go_first;
+            cc[0] = bvh__sm_centre(r, 0); cc[1] = bvh__sm_centre(r, 1); cc[2] = bvh__sm_centre(r, 2);
+            go_first = binned ? bvh__sm_slot(r, a, cc[a], &x) < ch->bin : r->hi[a] <= p || (r->lo[a] < p && cc[a] < p);
+            bvh__sm_add(go_first ? first : second, r, cc);
+            if (!go_first) i++;
+            else { j--; bvh__sm_swap(&w[i], &w[j]); }
+        }
+    }
+    return top - i;
+}
+
+/* Quickselect on centroids (bvh__select on clipped references): v[k] gets the k-th smallest key. */
+static void bvh__sm_select(bvh__sm_ref *v, uint32_t n, uint32_t k, int axis) {
+    uint32_t lo = 0, hi = n - 1;
+    while (hi > lo) {
+        uint32_t i = lo, j = hi, mid = lo + (hi - lo) / 2;
+        float x = bvh__sm_centre(&v[lo], axis), y = bvh__sm_centre(&v[mid], axis), z = bvh__sm_centre(&v[hi], axis);
+        float pivot = x < y ? (y < z ? y : (x < z ? z : x)) : (x < z ? x : (y < z ? z : y));
+        for (;;) { /* Hoare partition: equal keys split evenly */
+            while (bvh__sm_centre(&v[i], axis) < pivot) i++;
+            while (bvh__sm_centre(&v[j], axis) > pivot) j--;
+            if (i >= j) break;
+            bvh__sm_swap(&v[i], &v[j]);
+            i++; j--;
+        }
+        if (i == j) { if (k == i) return; if (k < i) hi = i - 1; else lo = i + 1; }
+        else if (k <= j) hi = j;
+        else lo = j + 1;
+    }
+}
+/* Object median on the longest centroid axis; returns the first child's count (the upper half). */
+static uint32_t bvh__sm_median(bvh__sm *s, uint32_t b, uint32_t m, const bvh__sm_box *cb) {
+    float ex = cb->hi[0] - cb->lo[0], ey = cb->hi[1] - cb->lo[1], ez = cb->hi[2] - cb->lo[2];
+    int axis = ex >= ey && ex >= ez ? 0 : ey >= ez ? 1 : 2;
+    if (ex > 0.0f || ey > 0.0f || ez > 0.0f) bvh__sm_select(s->work + b, m, m / 2, axis);
+    return m - m / 2;
+}
+
+static void bvh__sm_bounds(const bvh__sm_ref *v, uint32_t n, bvh__sm_box *box, bvh__sm_box *cbox) {
+    uint32_t i;
+    bvh__sm_empty(box);
+    bvh__sm_empty(cbox);
+    for (i = 0; i < n; i++) {
+        float cc[3];
+        cc[0] = bvh__sm_centre(&v[i], 0); cc[1] = bvh__sm_centre(&v[i], 1); cc[2] = bvh__sm_centre(&v[i], 2);
+        bvh__sm_grow(box, v[i].lo, v[i].hi);
+        bvh__sm_grow(cbox, cc, cc);
+    }
+}
+
+static bvh_result bvh__sm_reserve_pair(bvh__sm *s) {
+    bvh__out *o = s->o;
+    bvh_node *nodes;
+    uint64_t cap;
+    if (o->node_count + 2 <= o->node_cap) return BVH_SUCCESS;
+    cap = (uint64_t)o->node_cap + o->node_cap / 2 + 1024;
+    if (cap > s->node_max) cap = s->node_max;
+    if (cap < (uint64_t)o->node_count + 2) return BVH_ERROR_OUT_OF_MEMORY; /* cannot happen: 2 refs - 1 */
+    nodes = BVH__ALLOC(&s->c->al, bvh_node, cap);
+    if (!nodes) return BVH_ERROR_OUT_OF_MEMORY;
+    memcpy(nodes, o->nodes, (size_t)o->node_count * sizeof(bvh_node));
+    bvh__free(&s->c->al, o->nodes);
+    o->nodes = nodes;
+    o->node_cap = (uint32_t)cap;
+    return BVH_SUCCESS;
+}
+
+/* The builder; bins = 0 is the study's variant (mid-point candidates only). */
+static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32_t bins) {
+    bvh__sm *s;
+    bvh__sm_task stack[BVH__SM_STACK];
+    uint32_t sp = 0, i;
+    bvh_result r = BVH_SUCCESS;
+    double budget = c->split_budget > 0.0f ? floor((double)c->split_budget * (double)c->n) : 0.0;
+    memset(o, 0, sizeof *o);
+    s = BVH__ALLOC(&c->al, bvh__sm, 1);
+    if (!s) return BVH_ERROR_OUT_OF_MEMORY;
+    memset(s, 0, sizeof *s);
+    s->c = c;
+    s->o = o;
+    s->bins = bins > BVH__SM_MAX_BINS ? BVH__SM_MAX_BINS : bins;
+    s->budget = budget < (double)BVH__MAX_PRIMS ? (uint32_t)budget : BVH__MAX_PRIMS; /* n <= 2^30 */
+    s->cap = c->n + s->budget;
+    s->node_max = 2 * s->cap - 1;
+    s->work = BVH__ALLOC(&c->al, bvh__sm_ref, s->cap);
+    o->refs = BVH__ALLOC(&c->al, uint32_t, s->cap);
+    o->node_cap = c->n < 1024 ? s->node_max : c->n; /* grown by half when full */
+    o->nodes = BVH__ALLOC(&c->al, bvh_node, o->node_cap);
+    o->ref_cap = s->cap;
+    if (!s->work || !o->refs || !o->nodes) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    for (i = 0; i < c->n; i++) {
+        bvh__sm_ref *w = &s->work[i];
+        const bvh_aabb *bx = &c->boxes[i];
+        w->lo[0] = bx->min.x; w->lo[1] = bx->min.y; w->lo[2] = bx->min.z;
+        w->hi[0] = bx->max.x; w->hi[1] = bx->max.y; w->hi[2] = bx->max.z;
+        w->id = i;
+    }
+    s->top = c->n;
+    o->node_count = 1;
+    stack[0].node = 0; stack[0].count = c->n; stack[0].depth = 1; stack[0].budget = s->budget;
+    bvh__sm_bounds(s->work, c->n, &stack[0].box, &stack[0].cbox);
+    s->root_area = bvh__sm_area(&stack[0].box);
+    sp = 1;
+    while (sp) {
+        bvh__sm_task t = stack[--sp], tl, tr;
+        uint32_t m = t.count, b = s->top - m, nl, nr, left;
+        bvh__sm_choice ch;
+        bvh__sm_box box;
+        bvh_node *node;
+        memset(&ch, 0, sizeof ch);
+        ch.kind = BVH__SM_MEDIAN;
+        t.budget += s->carry; /* what the subtrees before this one left unused */
+        s->carry = 0;
+        if (t.depth + bvh__sm_log2(m) + 4 >= BVH_MAX_DEPTH) { /* halve from here on: depth stays bounded */
+            if (m <= c->max_leaf) ch.kind = BVH__SM_NONE;
+        } else if (m <= 1) {
+            ch.kind = BVH__SM_NONE;
+        } else {
+            double area = bvh__sm_area(&t.box);
+            bvh__sm_evaluate(s, b, m, t.budget, &t.box, &t.cbox, &ch);
+            if (m <= c->max_leaf &&
+                (ch.kind == BVH__SM_NONE || area * ((double)c->ct * m + c->cl) <= c->ci * area + c->ct * ch.cost))
+                ch.kind = BVH__SM_NONE; /* leaf: E_t <= E_r */
+            else if (ch.kind == BVH__SM_NONE || !(ch.cost < area * m))
+                ch.kind = BVH__SM_MEDIAN;
+        }
+        node = &o->nodes[t.node];
+        if (ch.kind == BVH__SM_NONE) { /* leaf */
+            bvh__set_box(node, bvh__sm_aabb(&t.box));
+            node->index = o->ref_count;
+            node->count = m;
+            for (i = b; i < b + m; i++) o->refs[o->ref_count++] = s->work[i].id;
+            s->top = b;
+            s->carry = t.budget;
+            continue;
+        }
+        bvh__sm_empty(&tl.box); bvh__sm_empty(&tl.cbox);
+        bvh__sm_empty(&tr.box); bvh__sm_empty(&tr.cbox);
+        nl = ch.kind == BVH__SM_MEDIAN ? 0 : bvh__sm_partition(s, b, t.budget, &ch, &tl, &tr);
+        if (nl == 0 || nl == s->top - b) { /* median (no duplicates were made) */
+            nl = bvh__sm_median(s, b, m, &t.cbox);
+            bvh__sm_bounds(s->work + s->top - nl, nl, &tl.box, &tl.cbox);
+            bvh__sm_bounds(s->work + b, s->top - b - nl, &tr.box, &tr.cbox);
+        }
+        nr = s->top - b - nl;
+        left = t.budget - (s->top - b - m); /* shared by the children in proportion to their size */
+        tl.budget = (uint32_t)((uint64_t)left * nl / (nl + nr));
+        tr.budget = left - tl.budget;
+        r = bvh__sm_reserve_pair(s);
+        if (r != BVH_SUCCESS) goto done;
+        node = &o->nodes[t.node];
+        tl.node = o->node_count; tr.node = o->node_count + 1;
+        o->node_count += 2;
+        tl.count = nl; tr.count = nr;
+        tl.depth = tr.depth = t.depth + 1;
+        box = tl.box;
+        bvh__sm_merge(&box, &tr.box); /* split parts may be tighter than the node's references */
+        bvh__set_box(node, bvh__sm_aabb(&box));
+        node->index = tl.node;
+        node->count = 0;
+        BVH_ASSERT(sp + 2 <= BVH__SM_STACK);
+        stack[sp++] = tr;
+        stack[sp++] = tl;
+    }
+done:
+    BVH_ASSERT(s->extra <= s->budget);
+    if (r != BVH_SUCCESS) bvh__out_free(c, o);
+    bvh__free(&c->al, s->work);
+    bvh__free(&c->al, s);
+    return r;
+}
+
+static bvh_result bvh__build_sah_midpoint(const bvh__ctx *c, bvh__out *o) {
+    return bvh__sah_midpoint_build(c, o, c->sah_bins);
+}
 
 /* ============================================================================================ */
 /* == build front-end ============================================================================ */
@@ -1104,6 +1666,7 @@ static bvh_result bvh__check_desc(const bvh_build_desc *d, uint32_t *count) {
     uint32_t i;
     if ((unsigned)d->builder >= BVH_BUILDER_COUNT) return BVH_ERROR_INVALID_ARGUMENT;
     if (d->max_leaf_size > BVH__MAX_LEAF || d->ploc_radius > 256) return BVH_ERROR_INVALID_ARGUMENT;
+    if (d->sah_bins > 64 && d->sah_bins != BVH_SAH_MIDPOINT_ONLY) return BVH_ERROR_INVALID_ARGUMENT;
     if (!bvh__costs_valid(&d->costs) || d->split_budget != d->split_budget || d->split_budget > 1.0f)
         return BVH_ERROR_INVALID_ARGUMENT;
     if (t->triangle_count && (d->boxes || d->box_count)) return BVH_ERROR_INVALID_ARGUMENT;
@@ -1163,6 +1726,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     }
     c.threads = builder == BVH_BUILDER_PLOC_PARALLEL ? bvh__resolve_threads(desc->threads) : 1;
     c.radius = desc->ploc_radius ? desc->ploc_radius : 16;
+    c.sah_bins = desc->sah_bins == BVH_SAH_MIDPOINT_ONLY ? 0 : desc->sah_bins ? desc->sah_bins : 32;
     if (desc->costs.interior == 0.0f && desc->costs.leaf == 0.0f && desc->costs.triangle == 0.0f) {
         c.ci = 1.0f; c.cl = 0.0f; c.ct = 1.0f;
     } else {
@@ -1497,7 +2061,7 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
            the entry by 2^-18 of those so that a hit on the box face is never culled. */
         float k0 = fabsf((f[r->near[r->kz]] - r->o[r->kz]) * r->inv[r->kz]);
         float k1 = fabsf((f[r->near[r->kz] ^ 4] - r->o[r->kz]) * r->inv[r->kz]);
-        tn -= (k0 > k1 ? k0 : k1) * 0x1p-18f;
+        tn -= (k0 > k1 ? k0 : k1) * 3.814697265625e-6f /* 2^-18 */;
     }
     tf = tf < tfar ? tf : tfar;
     return tn <= tf ? tn : BVH_INF;

@@ -1,0 +1,1538 @@
+/* bvhbench.c - the study's Table I ("Comparison of BVH construction methods"), reproduced and
+   extended: every builder of bvh.h on a set of scenes, side by side with Embree 3.
+
+   build/bvhbench [--builder all|LIST] [--embree all|none|LIST] [--threads N] [--repeat R]
+                  [--size WxH] [--trace cpu|opencl|both|none] [--brute-max N] [--strict]
+                  [--md FILE] [--json FILE|-] [--plots DIR] [--quiet] [SCENE...]
+   e.g. build/bvhbench --repeat 2 --size 256x256 gen:random:500 /usr/share/glmark2/models/bunny.obj
+        make bench          (the default scenes below, writing out/bench/)
+
+   Scenes: files or generators as build/render takes them (see --help). None given: the study's
+   four sizes, gen:random:500, the Stanford bunny (~70K), gen:field:15 (~1M), gen:field:44 (~3M).
+
+   Per scene and row: build time (median, min and max of R builds after one warm-up), SAH with
+   costs (1, 0, 1), tree statistics, peak memory of the build (a counting bvh_allocator), one
+   frame of the standard camera's primary rays (bvh_camera_standard over the tree bounds,
+   bvh_camera_ray per pixel) traced on 1 CPU thread, on N CPU threads (bvh_intersect_batch) and
+   with OpenCL (cl/bvh_cl.h); frame ms = the fastest of those tracers, FPS = 1000 / frame ms.
+   Rows: "none" (brute force, the study's first row; only up to --brute-max triangles), the five
+   builders, and Embree's scene API at build quality low, medium and high (rtcIntersect1 for the
+   frame; the SAH, nodes and leaves of a binary tree from rtcBuildBVH at the same quality).
+   Every frame must give the same hits. bvh.h's frames (brute force, every builder, 1 and N
+   threads, OpenCL) must agree pixel for pixel, primitive and t. Embree's frames are compared
+   pixel by pixel with bvh.h's and an exact (long double) ray-triangle test referees each pixel
+   where they differ: a pixel bvh.h loses is a disagreement; pixels it wins, or grazing rays
+   within float precision of an edge, mark Embree's row "(e)" with a note (a disagreement only
+   with --strict). A disagreement is reported on stderr, marked "(!)" in the tables, and makes
+   the exit status 3.
+
+   Exit status: 0 ok; 1 an error (a scene, build or output failed); 2 bad command line;
+   3 the hits disagree. */
+#define BVH_IMPLEMENTATION
+#include "bvh.h"
+#define SCENE_IMPLEMENTATION
+#include "scene.h"
+#define EMB_IMPLEMENTATION
+#include "embree_side.h"
+#define BVH_CL_IMPLEMENTATION
+#include "cl/bvh_cl.h"
+
+#include <errno.h>
+#include <float.h>
+#include <math.h>
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#define BENCH_MAX_PIXELS (64u * 1024u * 1024u)
+#define BENCH_MAX_SCENES 64
+#define BENCH_MAX_ROWS (1 + BVH_BUILDER_COUNT + 3)
+#define BENCH_MAX_REPEAT 1000
+#define BENCH_BRUTE_TESTS 1e9 /* brute force: at most this many ray-triangle tests per frame */
+#define BENCH_BUNNY "/usr/share/glmark2/models/bunny.obj"
+
+typedef struct options {
+    const char *scenes[BENCH_MAX_SCENES];
+    int nscenes;
+    int brute;                              /* the "none" row */
+    bvh_builder builders[BVH_BUILDER_COUNT];
+    int nbuilders;
+    emb_quality qualities[3];
+    int nqualities;
+    uint32_t threads;  /* as given, 0 = all cores */
+    uint32_t nthreads; /* resolved */
+    uint32_t repeat, width, height, brute_max;
+    int trace_cpu, trace_cl, trace_auto;
+    const char *md, *json, *plots, *argv0;
+    int quiet, strict;
+} options;
+
+/* One row of a scene's table. Every number is NAN when it does not apply ("-" / null). */
+typedef enum row_kind { ROW_BRUTE, ROW_BVH, ROW_EMBREE } row_kind;
+typedef enum row_state { ROW_OK, ROW_SKIPPED, ROW_FAILED } row_state;
+typedef struct row {
+    row_kind kind;
+    bvh_builder builder;
+    emb_quality quality;
+    char name[24];
+    row_state state;
+    char note[200];                           /* why skipped or failed */
+    double build_ms, build_min, build_max;
+    double sah, nodes, leaves, refs, max_depth, max_leaf, bvh_bytes, tri_bytes, peak_bytes;
+    double ms_1t, mrays_1t, ms_mt, mrays_mt, ms_cl, mrays_cl, cl_kernel_ms;
+    double frame_ms, fps, hits, t_sum;
+    double x_build, x_sah, x_mrays;           /* ours / Embree medium */
+    double emb_bvh_ms, emb_prim_diff;         /* Embree: rtcBuildBVH time; pixels whose triangle
+                                                 differs from bvh.h's */
+    const char *frame_tracer;
+    int disagree;                             /* (!): the hits disagree */
+    char disagree_msg[320];
+    int refereed;                             /* (e): Embree differs from bvh.h on pixels where an
+                                                 exact test decides for bvh.h */
+    char referee_msg[320];
+} row;
+
+typedef struct bench_scene {
+    char name[256];
+    uint32_t triangles;
+    row rows[BENCH_MAX_ROWS];
+    int nrows;
+    int disagree;
+} bench_scene;
+
+/* ============================================================================================ */
+/* == small helpers ============================================================================= */
+/* ============================================================================================ */
+static int g_quiet, g_progress_open;
+
+/* One progress line on stderr, rewritten in place on a terminal. */
+static void progress(const char *fmt, ...) {
+    va_list ap;
+    if (g_quiet) return;
+    if (isatty(2)) fputs("\r\033[K", stderr);
+    va_start(ap, fmt);
+    vfprintf(stderr, fmt, ap);
+    va_end(ap);
+    if (isatty(2)) g_progress_open = 1;
+    else fputc('\n', stderr);
+    fflush(stderr);
+}
+static void progress_end(void) {
+    if (g_progress_open) fputs("\r\033[K", stderr);
+    g_progress_open = 0;
+}
+/* A message on stderr that does not mix with the progress line. */
+static void say(const char *fmt, ...) {
+    va_list ap;
+    progress_end();
+    va_start(ap, fmt);
+    fputs("bvhbench: ", stderr);
+    vfprintf(stderr, fmt, ap);
+    fputc('\n', stderr);
+    va_end(ap);
+}
+
+static uint32_t online_cpus(void) {
+    long n = sysconf(_SC_NPROCESSORS_ONLN);
+    return n > 0 ? (uint32_t)(n > 256 ? 256 : n) : 1;
+}
+
+static void row_init(row *r, row_kind kind, const char *name) {
+    memset(r, 0, sizeof *r);
+    r->kind = kind;
+    snprintf(r->name, sizeof r->name, "%s", name);
+    r->build_ms = r->build_min = r->build_max = NAN;
+    r->sah = r->nodes = r->leaves = r->refs = r->max_depth = r->max_leaf = NAN;
+    r->bvh_bytes = r->tri_bytes = r->peak_bytes = NAN;
+    r->ms_1t = r->mrays_1t = r->ms_mt = r->mrays_mt = r->ms_cl = r->mrays_cl = r->cl_kernel_ms = NAN;
+    r->frame_ms = r->fps = r->hits = r->t_sum = NAN;
+    r->x_build = r->x_sah = r->x_mrays = r->emb_bvh_ms = r->emb_prim_diff = NAN;
+    r->frame_tracer = NULL;
+}
+
+static double mrays_of(size_t rays, double ms) { return ms > 0.0 ? (double)rays / (ms * 1e3) : NAN; }
+
+/* the fastest tracer gives the frame time */
+static void frame_pick(row *r, double ms, const char *tracer) {
+    if (!isnan(ms) && (isnan(r->frame_ms) || ms < r->frame_ms)) {
+        r->frame_ms = ms;
+        r->fps = ms > 0.0 ? 1000.0 / ms : NAN;
+        r->frame_tracer = tracer;
+    }
+}
+
+/* ============================================================================================ */
+/* == peak build memory: a counting allocator ==================================================== */
+/* ============================================================================================ */
+typedef union mem_header { size_t size; max_align_t align; } mem_header;
+typedef struct mem_counter { atomic_size_t live, peak; } mem_counter;
+
+static void *count_alloc(size_t size, void *user) {
+    mem_counter *c = (mem_counter *)user;
+    mem_header *h;
+    size_t now, peak;
+    if (size > SIZE_MAX - sizeof *h) return NULL;
+    h = (mem_header *)malloc(sizeof *h + size);
+    if (!h) return NULL;
+    h->size = size;
+    now = atomic_fetch_add(&c->live, size) + size;
+    peak = atomic_load(&c->peak);
+    while (now > peak && !atomic_compare_exchange_weak(&c->peak, &peak, now)) {}
+    return h + 1;
+}
+static void count_free(void *ptr, void *user) {
+    mem_counter *c = (mem_counter *)user;
+    mem_header *h = (mem_header *)ptr - 1;
+    atomic_fetch_sub(&c->live, h->size);
+    free(h);
+}
+
+/* ============================================================================================ */
+/* == OpenCL adapter: the only code that calls cl/bvh_cl.h ======================================= */
+/* ============================================================================================ */
+typedef struct bench_cl {
+    bvh_cl_context *ctx;
+    char device[400];
+} bench_cl;
+
+/* Opens the first device (or $BVH_CL_DEVICE) with cl/trace.cl found from the working directory
+   or next to the program (build/../cl/trace.cl). 0 on success, else a reason in msg. */
+static int bcl_open(bench_cl *b, const char *argv0, char *msg, size_t msglen) {
+    char path[1024], log[4096] = "";
+    const char *slash = strrchr(argv0, '/');
+    bvh_cl_desc d;
+    bvh_cl_device_info info;
+    bvh_cl_result r;
+    memset(b, 0, sizeof *b);
+    memset(&d, 0, sizeof d);
+    snprintf(path, sizeof path, "%s", BVH_CL_KERNEL_PATH);
+    if (access(path, R_OK) != 0 && slash)
+        snprintf(path, sizeof path, "%.*s/../%s", (int)(slash - argv0), argv0, BVH_CL_KERNEL_PATH);
+    d.kernel_path = path;
+    d.log = log;
+    d.log_size = sizeof log;
+    r = bvh_cl_create(&b->ctx, &d);
+    if (r != BVH_CL_SUCCESS) {
+        const char *what = bvh_cl_result_string(r);
+        if (!log[0] || strstr(what, log)) snprintf(msg, msglen, "%s", what);
+        else snprintf(msg, msglen, "%s: %.300s", what, log);
+        return 1;
+    }
+    if (bvh_cl_get_info(b->ctx, &info) == BVH_CL_SUCCESS)
+        snprintf(b->device, sizeof b->device, "%s, %s (%s)", info.platform, info.device, info.version);
+    return 0;
+}
+
+/* One frame of the camera's primary rays on the device: hits per pixel, the wall time of the
+   frame (hits read back included) and the kernels' own time. 0 on success. */
+static int bcl_frame(bench_cl *b, const bvh_tree *tree, const bvh_camera *cam, bvh_hit *hits, double *wall_ms,
+                     double *kernel_ms, char *msg, size_t msglen) {
+    bvh_cl_tree *gpu = NULL;
+    bvh_cl_result r = bvh_cl_upload(b->ctx, tree, &gpu);
+    double t0;
+    if (r == BVH_CL_SUCCESS) { /* warm-up: the first launch compiles the work-group function */
+        bvh_camera tiny = *cam;
+        tiny.width = tiny.height = 8;
+        r = bvh_cl_render_frame(gpu, &tiny, NULL, NULL, NULL);
+    }
+    if (r == BVH_CL_SUCCESS) {
+        t0 = scene_now_ms();
+        r = bvh_cl_render_frame(gpu, cam, NULL, hits, NULL);
+        *wall_ms = scene_now_ms() - t0;
+        *kernel_ms = bvh_cl_last_kernel_ms(b->ctx);
+    }
+    bvh_cl_tree_free(gpu);
+    if (r != BVH_CL_SUCCESS) {
+        const char *call = "";
+        int err = bvh_cl_last_error(b->ctx, &call);
+        snprintf(msg, msglen, "OpenCL: %s (%s %d)", bvh_cl_result_string(r), call, err);
+        return 1;
+    }
+    return 0;
+}
+
+static void bcl_close(bench_cl *b) {
+    bvh_cl_destroy(b->ctx);
+    b->ctx = NULL;
+}
+
+/* ============================================================================================ */
+/* == brute force (the "none" row) ================================================================ */
+/* ============================================================================================ */
+typedef struct brute_job {
+    const float *v;
+    const uint32_t *ids; /* triangles to test (the finite ones), ascending */
+    uint32_t nids;
+    const bvh_ray *rays;
+    bvh_hit *hits;
+    size_t count;
+    uint32_t tid, nt;
+} brute_job;
+
+/* Closest hit over every triangle in index order; ties in t keep the lower index, as bvh.h. */
+static void brute_ray(const brute_job *j, size_t i) {
+    bvh_ray ray = j->rays[i];
+    bvh_hit best, h;
+    uint32_t k;
+    best.t = ray.tmax; best.u = best.v = 0.0f; best.prim = BVH_INVALID;
+    for (k = 0; k < j->nids; k++) {
+        const float *t = j->v + 9 * (size_t)j->ids[k];
+        if (bvh_intersect_triangle(&ray, t, t + 3, t + 6, &h) && (best.prim == BVH_INVALID || h.t < best.t)) {
+            best = h;
+            best.prim = j->ids[k];
+            ray.tmax = h.t;
+        }
+    }
+    j->hits[i] = best;
+}
+static void *brute_worker(void *arg) {
+    const brute_job *j = (const brute_job *)arg;
+    size_t chunk, i, end;
+    for (chunk = (size_t)j->tid * 256; chunk < j->count; chunk += (size_t)j->nt * 256) {
+        end = chunk + 256 < j->count ? chunk + 256 : j->count;
+        for (i = chunk; i < end; i++) brute_ray(j, i);
+    }
+    return NULL;
+}
+/* Traces on `threads` threads (the caller is one of them); 0 on success. */
+static int trace_brute(const float *v, const uint32_t *ids, uint32_t nids, const bvh_ray *rays, bvh_hit *hits,
+                       size_t count, uint32_t threads, double *ms) {
+    brute_job jobs[256];
+    pthread_t tid[256];
+    uint32_t k, started = 1;
+    double t0;
+    int rc = 0;
+    for (k = 0; k < threads; k++) {
+        jobs[k].v = v; jobs[k].ids = ids; jobs[k].nids = nids; jobs[k].rays = rays; jobs[k].hits = hits;
+        jobs[k].count = count; jobs[k].tid = k; jobs[k].nt = threads;
+    }
+    t0 = scene_now_ms();
+    for (k = 1; k < threads; k++, started++)
+        if (pthread_create(&tid[k], NULL, brute_worker, &jobs[k]) != 0) { rc = 1; break; }
+    if (!rc) brute_worker(&jobs[0]);
+    for (k = 1; k < started; k++) pthread_join(tid[k], NULL);
+    *ms = scene_now_ms() - t0;
+    return rc;
+}
+
+/* ============================================================================================ */
+/* == one scene ================================================================================== */
+/* ============================================================================================ */
+typedef struct run_ctx {
+    const options *o;
+    const scene *s;
+    bench_scene *out;
+    bench_cl *cl;           /* NULL: no OpenCL */
+    uint32_t *ids;          /* the finite triangles */
+    uint32_t nids;
+    bvh_aabb bounds;        /* of the finite triangles = the root box of every tree */
+    size_t npix;
+    bvh_ray *rays;
+    bvh_hit *hits, *ref;    /* a frame; the scene's reference frame (the first bvh.h traced) */
+    uint32_t *emb_prims;
+    int has_ref;
+    char ref_name[48];
+    double ref_hits;        /* hit count of the first frame (bvh.h or Embree) ... */
+    char ref_hits_name[48]; /* ... and its row */
+    mem_counter mem;
+} run_ctx;
+
+static void flag(run_ctx *c, row *r, const char *fmt, ...) {
+    va_list ap;
+    char msg[320];
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    if (!r->disagree) snprintf(r->disagree_msg, sizeof r->disagree_msg, "%s", msg);
+    r->disagree = 1;
+    c->out->disagree = 1;
+    say("!!! HITS DISAGREE on %s: %s", c->out->name, msg);
+}
+
+/* Hit count and t_sum of a frame (in pixel order); compares it with the reference frame, or
+   makes it the reference. */
+static void check_frame(run_ctx *c, row *r, const char *tracer, const bvh_hit *h) {
+    size_t i, diff = 0, first = 0;
+    double hits = 0.0, t_sum = 0.0;
+    for (i = 0; i < c->npix; i++)
+        if (h[i].prim != BVH_INVALID) { hits += 1.0; t_sum += (double)h[i].t; }
+    if (isnan(r->hits)) { r->hits = hits; r->t_sum = t_sum; }
+    if (!c->has_ref) {
+        memcpy(c->ref, h, c->npix * sizeof *h);
+        c->has_ref = 1;
+        snprintf(c->ref_name, sizeof c->ref_name, "%s %s", r->name, tracer);
+        if (isnan(c->ref_hits)) {
+            c->ref_hits = hits;
+            snprintf(c->ref_hits_name, sizeof c->ref_hits_name, "%s", c->ref_name);
+        }
+        return;
+    }
+    for (i = 0; i < c->npix; i++)
+        if (h[i].prim != c->ref[i].prim || (h[i].prim != BVH_INVALID && memcmp(&h[i].t, &c->ref[i].t, sizeof(float))))
+            if (!diff++) first = i;
+    if (hits != c->ref_hits || diff)
+        flag(c, r, "%s %s: %.0f hits, %zu pixels differ from %s (first at x=%zu y=%zu)", r->name, tracer, hits, diff,
+             c->ref_name, first % c->o->width, first / c->o->width);
+    else if (hits != r->hits || t_sum != r->t_sum)
+        flag(c, r, "%s %s: hits or t_sum differ from the row's first frame", r->name, tracer);
+}
+
+static void make_rays(run_ctx *c, bvh_aabb bounds, bvh_camera *cam) {
+    uint32_t x, y;
+    size_t i = 0;
+    *cam = bvh_camera_standard(bounds, c->o->width, c->o->height);
+    for (y = 0; y < c->o->height; y++)
+        for (x = 0; x < c->o->width; x++) c->rays[i++] = bvh_camera_ray(cam, x, y);
+}
+
+static void run_brute(run_ctx *c, row *r) {
+    const options *o = c->o;
+    bvh_camera cam;
+    double tests = (double)c->nids * (double)c->npix, ms;
+    char tag[32];
+    r->build_ms = r->build_min = r->build_max = 0.0; /* the study's "0": nothing is built */
+    if (!o->trace_cpu) {
+        r->state = ROW_SKIPPED;
+        snprintf(r->note, sizeof r->note, "skipped (%s)", o->trace_cl ? "brute force runs on the CPU only, see --trace"
+                                                                       : "no tracing: --trace none");
+        return;
+    }
+    if (c->nids > o->brute_max || tests > BENCH_BRUTE_TESTS) {
+        r->state = ROW_SKIPPED;
+        snprintf(r->note, sizeof r->note, "skipped (too slow: %u triangles x %zu rays%s)", c->nids, c->npix,
+                 c->nids > o->brute_max ? ", above --brute-max" : "");
+        return;
+    }
+    make_rays(c, c->bounds, &cam);
+    progress("%s: none (brute force), 1 thread", c->out->name);
+    if (trace_brute(c->s->v, c->ids, c->nids, c->rays, c->hits, c->npix, 1, &ms)) goto thread_fail;
+    r->ms_1t = ms;
+    r->mrays_1t = mrays_of(c->npix, ms);
+    frame_pick(r, ms, "cpu-1t");
+    check_frame(c, r, "cpu-1t", c->hits);
+    if (o->nthreads > 1) {
+        progress("%s: none (brute force), %u threads", c->out->name, o->nthreads);
+        if (trace_brute(c->s->v, c->ids, c->nids, c->rays, c->hits, c->npix, o->nthreads, &ms)) goto thread_fail;
+        snprintf(tag, sizeof tag, "cpu-%ut", o->nthreads);
+        check_frame(c, r, tag, c->hits);
+    }
+    r->ms_mt = ms;
+    r->mrays_mt = mrays_of(c->npix, ms);
+    frame_pick(r, ms, "cpu-mt");
+    return;
+thread_fail:
+    r->state = ROW_FAILED;
+    snprintf(r->note, sizeof r->note, "failed: cannot create a thread");
+}
+
+/* Builds 1 + repeat times (the first is a warm-up); keeps the last tree. */
+static int build_repeated(run_ctx *c, row *r, bvh_tree *tree) {
+    const options *o = c->o;
+    bvh_build_desc desc;
+    double ms[BENCH_MAX_REPEAT], peak = 0.0;
+    uint32_t rep, i;
+    memset(&desc, 0, sizeof desc);
+    desc.builder = r->builder;
+    desc.threads = o->threads;
+    desc.skip_invalid = 1;
+    desc.triangles.positions = c->s->v;
+    desc.triangles.vertex_count = 3 * c->s->triangles;
+    desc.triangles.triangle_count = c->s->triangles;
+    desc.allocator.alloc = count_alloc;
+    desc.allocator.free = count_free;
+    desc.allocator.user = &c->mem;
+    for (rep = 0; rep <= o->repeat; rep++) {
+        double t0;
+        size_t live;
+        bvh_result res;
+        progress("%s: %s, build %u/%u%s", c->out->name, r->name, rep, o->repeat, rep ? "" : " (warm-up)");
+        bvh_free(tree);
+        live = atomic_load(&c->mem.live);
+        atomic_store(&c->mem.peak, live);
+        t0 = scene_now_ms();
+        res = bvh_build(tree, &desc);
+        if (rep) ms[rep - 1] = scene_now_ms() - t0;
+        if (res != BVH_SUCCESS) {
+            r->state = ROW_FAILED;
+            snprintf(r->note, sizeof r->note, "failed: %s", bvh_result_string(res));
+            return 1;
+        }
+        if ((double)(atomic_load(&c->mem.peak) - live) > peak) peak = (double)(atomic_load(&c->mem.peak) - live);
+    }
+    r->build_min = r->build_max = ms[0];
+    for (i = 1; i < o->repeat; i++) {
+        if (ms[i] < r->build_min) r->build_min = ms[i];
+        if (ms[i] > r->build_max) r->build_max = ms[i];
+    }
+    r->build_ms = scene_median(ms, o->repeat);
+    r->peak_bytes = peak;
+    return 0;
+}
+
+static int tree_figures(row *r, const bvh_tree *tree) {
+    bvh_validation v;
+    bvh_stats st;
+    bvh_result res = bvh_validate(tree, NULL, &v);
+    if (res != BVH_SUCCESS) {
+        r->state = ROW_FAILED;
+        snprintf(r->note, sizeof r->note, "failed: invalid tree: %s (node %d)",
+                 res == BVH_ERROR_INVALID_TREE ? v.message : bvh_result_string(res),
+                 v.node == BVH_INVALID ? -1 : (int)v.node);
+        return 1;
+    }
+    if (bvh_sah(tree, NULL, &r->sah) != BVH_SUCCESS || bvh_get_stats(tree, &st) != BVH_SUCCESS) {
+        r->state = ROW_FAILED;
+        snprintf(r->note, sizeof r->note, "failed: no SAH or statistics");
+        return 1;
+    }
+    r->nodes = st.nodes; r->leaves = st.leaves; r->refs = st.refs; r->max_depth = st.max_depth;
+    r->max_leaf = st.max_leaf_size; r->bvh_bytes = (double)st.bytes; r->tri_bytes = (double)st.triangle_bytes;
+    return 0;
+}
+
+static void trace_tree(run_ctx *c, row *r, const bvh_tree *tree) {
+    const options *o = c->o;
+    bvh_camera cam;
+    double ms, kms;
+    char tag[32], msg[400];
+    bvh_result res;
+    make_rays(c, bvh_tree_bounds(tree), &cam);
+    if (o->trace_cpu) {
+        progress("%s: %s, trace 1 thread", c->out->name, r->name);
+        ms = scene_now_ms();
+        res = bvh_intersect_batch(tree, c->rays, c->hits, c->npix, 1);
+        r->ms_1t = scene_now_ms() - ms;
+        if (res != BVH_SUCCESS) goto fail;
+        r->mrays_1t = mrays_of(c->npix, r->ms_1t);
+        frame_pick(r, r->ms_1t, "cpu-1t");
+        check_frame(c, r, "cpu-1t", c->hits);
+        r->ms_mt = r->ms_1t;
+        if (o->nthreads > 1) {
+            progress("%s: %s, trace %u threads", c->out->name, r->name, o->nthreads);
+            ms = scene_now_ms();
+            res = bvh_intersect_batch(tree, c->rays, c->hits, c->npix, o->nthreads);
+            r->ms_mt = scene_now_ms() - ms;
+            if (res != BVH_SUCCESS) goto fail;
+            snprintf(tag, sizeof tag, "cpu-%ut", o->nthreads);
+            check_frame(c, r, tag, c->hits);
+        }
+        r->mrays_mt = mrays_of(c->npix, r->ms_mt);
+        frame_pick(r, r->ms_mt, "cpu-mt");
+    }
+    if (c->cl) {
+        progress("%s: %s, trace OpenCL", c->out->name, r->name);
+        if (bcl_frame(c->cl, tree, &cam, c->hits, &ms, &kms, msg, sizeof msg)) {
+            r->state = ROW_FAILED;
+            snprintf(r->note, sizeof r->note, "failed: %.180s", msg);
+            return;
+        }
+        r->ms_cl = ms;
+        r->cl_kernel_ms = kms;
+        r->mrays_cl = mrays_of(c->npix, ms);
+        frame_pick(r, ms, "opencl");
+        check_frame(c, r, "opencl", c->hits);
+    }
+    return;
+fail:
+    r->state = ROW_FAILED;
+    snprintf(r->note, sizeof r->note, "failed: tracing: %s", bvh_result_string(res));
+}
+
+static void run_builder(run_ctx *c, row *r) {
+    bvh_tree tree;
+    memset(&tree, 0, sizeof tree);
+    if (!build_repeated(c, r, &tree) && !tree_figures(r, &tree) && (c->o->trace_cpu || c->cl))
+        trace_tree(c, r, &tree);
+    bvh_free(&tree);
+}
+
+/* Ray against triangle in long double (x87: 64-bit mantissa): the signed volumes of the ray with
+   the three edges (Pluecker). Origin, direction and vertices are floats, so the differences are
+   exact and the products keep 64 bits. Both tracers test in float, so their answers can only be
+   held to float precision: a volume within 4 FLT_EPSILON of the size of its terms counts as "on
+   the edge", where either answer is right (a watertight test gives such a ray to one of the two
+   triangles of the edge, not always to the one an exact test picks). Returns 1 hit, 0 miss, -1
+   on an edge (or parallel); *t is the distance of the triangle's plane. */
+static long double edge_volume(const long double o[3], const long double d[3], const float *a, const float *b,
+                               long double *bound) {
+    long double A[3], B[3], c[3], m[3];
+    int k;
+    for (k = 0; k < 3; k++) { A[k] = (long double)a[k] - o[k]; B[k] = (long double)b[k] - o[k]; }
+    c[0] = A[1] * B[2] - A[2] * B[1]; m[0] = fabsl(A[1] * B[2]) + fabsl(A[2] * B[1]);
+    c[1] = A[2] * B[0] - A[0] * B[2]; m[1] = fabsl(A[2] * B[0]) + fabsl(A[0] * B[2]);
+    c[2] = A[0] * B[1] - A[1] * B[0]; m[2] = fabsl(A[0] * B[1]) + fabsl(A[1] * B[0]);
+    *bound = 4.0L * FLT_EPSILON * (m[0] * fabsl(d[0]) + m[1] * fabsl(d[1]) + m[2] * fabsl(d[2]));
+    return c[0] * d[0] + c[1] * d[1] + c[2] * d[2];
+}
+static int exact_hit(const bvh_ray *r, const float *t3, long double *t) {
+    long double o[3], d[3], v[3], bound[3], e1[3], e2[3], n[3], nd;
+    int k, pos = 0, neg = 0, unsure = 0;
+    o[0] = r->origin.x; o[1] = r->origin.y; o[2] = r->origin.z;
+    d[0] = r->dir.x; d[1] = r->dir.y; d[2] = r->dir.z;
+    v[0] = edge_volume(o, d, t3 + 3, t3 + 6, &bound[0]);
+    v[1] = edge_volume(o, d, t3 + 6, t3, &bound[1]);
+    v[2] = edge_volume(o, d, t3, t3 + 3, &bound[2]);
+    for (k = 0; k < 3; k++) {
+        if (fabsl(v[k]) <= bound[k]) unsure = 1;
+        else if (v[k] > 0) pos = 1;
+        else neg = 1;
+    }
+    for (k = 0; k < 3; k++) { e1[k] = (long double)t3[3 + k] - t3[k]; e2[k] = (long double)t3[6 + k] - t3[k]; }
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1]; n[1] = e1[2] * e2[0] - e1[0] * e2[2]; n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    nd = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
+    if (nd == 0.0L) return -1;
+    *t = (n[0] * (t3[0] - o[0]) + n[1] * (t3[1] - o[1]) + n[2] * (t3[2] - o[2])) / nd;
+    if (pos && neg) return 0;
+    if (*t < r->tmin) return 0;
+    return unsure ? -1 : 1;
+}
+
+static const char *prim_text(uint32_t prim, char *b, size_t n) {
+    if (prim == BVH_INVALID) snprintf(b, n, "miss");
+    else snprintf(b, n, "triangle %u", prim);
+    return b;
+}
+
+/* Embree's frame against the reference frame (bvh.h's), pixel by pixel. Where they differ, an
+   exact test referees: bvh.h is right when its triangle is hit (or grazed) and Embree's is
+   missed, grazed or not nearer. Pixels bvh.h loses are disagreements (!); when it wins them all,
+   the row is marked (e) and noted, and is a disagreement only with --strict. */
+static void referee_embree(run_ctx *c, row *r) {
+    const options *o = c->o;
+    bvh_camera cam = bvh_camera_standard(c->bounds, o->width, o->height);
+    size_t i, diff = 0, lost = 0, first = 0, first_lost = 0, x, y;
+    char pb[32], pe[32];
+    for (i = 0; i < c->npix; i++) {
+        uint32_t e = c->emb_prims[i], b = c->ref[i].prim;
+        bvh_ray ray;
+        long double te = 0.0L, tb = 0.0L;
+        int se, sb;
+        if (e == b) continue;
+        if (!diff++) first = i;
+        ray = bvh_camera_ray(&cam, (uint32_t)(i % o->width), (uint32_t)(i / o->width));
+        se = e == BVH_INVALID ? 0 : exact_hit(&ray, c->s->v + 9 * (size_t)e, &te);
+        sb = b == BVH_INVALID ? 0 : exact_hit(&ray, c->s->v + 9 * (size_t)b, &tb);
+        if (b == BVH_INVALID ? se == 1 : sb == 0 || (se == 1 && te < tb * (1.0L - 1e-6L)))
+            if (!lost++) first_lost = i;
+    }
+    r->emb_prim_diff = (double)diff;
+    if (lost) {
+        x = first_lost % o->width;
+        y = first_lost / o->width;
+        flag(c, r, "%s: %.0f hits (%s: %.0f); %zu pixels differ, at %zu an exact test says bvh.h is wrong (first "
+                   "x=%zu y=%zu: bvh.h %s, Embree %s)",
+             r->name, r->hits, c->ref_name, c->ref_hits, diff, lost, x, y,
+             prim_text(c->ref[first_lost].prim, pb, sizeof pb), prim_text(c->emb_prims[first_lost], pe, sizeof pe));
+    } else if (diff || r->hits != c->ref_hits) {
+        x = first % o->width;
+        y = first / o->width;
+        r->refereed = 1;
+        snprintf(r->referee_msg, sizeof r->referee_msg,
+                 "%s: %.0f hits (%s: %.0f); %zu pixel(s) differ, all grazing rays (float precision) or decided "
+                 "for bvh.h by an exact test (first "
+                 "x=%zu y=%zu: bvh.h %s, Embree %s)", r->name, r->hits, c->ref_name, c->ref_hits, diff, x, y,
+                 prim_text(c->ref[first].prim, pb, sizeof pb), prim_text(c->emb_prims[first], pe, sizeof pe));
+        if (o->strict) flag(c, r, "%s (--strict)", r->referee_msg);
+        else say("note on %s: %s", c->out->name, r->referee_msg);
+    }
+}
+
+static void run_embree(run_ctx *c, row *r) {
+    const options *o = c->o;
+    emb_scene_desc d;
+    emb_scene_result res;
+    emb_sah_desc sd;
+    emb_sah_result sah;
+    int st;
+    memset(&d, 0, sizeof d);
+    d.quality = r->quality;
+    d.threads = o->threads;
+    d.repeat = o->repeat;
+    if (o->trace_cpu) { d.width = o->width; d.height = o->height; }
+    d.trace_threads = o->nthreads;
+    d.robust = 1; /* RTC_SCENE_FLAG_ROBUST: the closest Embree comes to a watertight test */
+    d.bounds = &c->bounds;
+    d.prim_out = c->emb_prims;
+    progress("%s: %s, %u builds + frame", c->out->name, r->name, o->repeat + 1);
+    st = emb_scene_bench(c->s->v, c->s->triangles, &d, &res);
+    if (st != EMB_OK) {
+        r->state = ROW_FAILED;
+        snprintf(r->note, sizeof r->note, "failed: %s", res.message);
+        return;
+    }
+    r->build_ms = res.build.ms; r->build_min = res.build.min_ms; r->build_max = res.build.max_ms;
+    if (d.width) {
+        r->ms_1t = res.trace_ms; r->mrays_1t = res.mrays;
+        r->ms_mt = res.trace_ms_mt; r->mrays_mt = res.mrays_mt;
+        r->hits = (double)res.hits; r->t_sum = res.t_sum;
+        frame_pick(r, r->ms_1t, "cpu-1t");
+        frame_pick(r, r->ms_mt, "cpu-mt");
+        if (!res.mt_identical) flag(c, r, "%s: the %u-thread frame differs from the 1-thread frame", r->name, o->nthreads);
+        if (c->has_ref) referee_embree(c, r);
+        else if (isnan(c->ref_hits)) {
+            c->ref_hits = r->hits;
+            snprintf(c->ref_hits_name, sizeof c->ref_hits_name, "%s", r->name);
+        } else if (r->hits != c->ref_hits)
+            flag(c, r, "%s: %.0f hits, %s has %.0f", r->name, r->hits, c->ref_hits_name, c->ref_hits);
+    }
+    memset(&sd, 0, sizeof sd);
+    sd.quality = r->quality;
+    sd.threads = o->threads;
+    sd.repeat = 1;
+    progress("%s: %s, rtcBuildBVH for the SAH", c->out->name, r->name);
+    st = emb_bvh_sah(c->s->v, c->s->triangles, &sd, &sah);
+    if (st != EMB_OK) {
+        r->state = ROW_FAILED;
+        snprintf(r->note, sizeof r->note, "failed: rtcBuildBVH: %s", sah.message);
+        return;
+    }
+    r->sah = sah.sah; r->nodes = sah.nodes; r->leaves = sah.leaves; r->refs = sah.refs;
+    r->max_depth = sah.max_depth; r->max_leaf = sah.max_leaf_size; r->emb_bvh_ms = sah.build.ms;
+}
+
+/* ours / Embree medium */
+static void ratios(bench_scene *s) {
+    const row *m = NULL;
+    int i;
+    for (i = 0; i < s->nrows; i++)
+        if (s->rows[i].kind == ROW_EMBREE && s->rows[i].quality == EMB_QUALITY_MEDIUM && s->rows[i].state == ROW_OK)
+            m = &s->rows[i];
+    if (!m) return;
+    for (i = 0; i < s->nrows; i++) {
+        row *r = &s->rows[i];
+        if (r->kind == ROW_EMBREE || r->state != ROW_OK) continue;
+        if (r->kind == ROW_BVH) r->x_build = r->build_ms / m->build_ms;
+        r->x_sah = r->sah / m->sah;
+        r->x_mrays = r->mrays_mt / m->mrays_mt;
+    }
+}
+
+/* Runs every row on one loaded scene; 0 when nothing failed. */
+static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene *out) {
+    run_ctx c;
+    int i, failed = 0;
+    uint32_t t;
+    memset(&c, 0, sizeof c);
+    c.o = o; c.s = s; c.out = out; c.cl = cl;
+    c.ref_hits = NAN;
+    atomic_init(&c.mem.live, 0);
+    atomic_init(&c.mem.peak, 0);
+    c.npix = (size_t)o->width * o->height;
+    c.ids = (uint32_t *)malloc((size_t)s->triangles * sizeof *c.ids);
+    c.rays = (bvh_ray *)malloc(c.npix * sizeof *c.rays);
+    c.hits = (bvh_hit *)malloc(c.npix * sizeof *c.hits);
+    c.ref = (bvh_hit *)malloc(c.npix * sizeof *c.ref);
+    c.emb_prims = (uint32_t *)malloc(c.npix * sizeof *c.emb_prims);
+    if (!c.ids || !c.rays || !c.hits || !c.ref || !c.emb_prims) {
+        say("%s: out of memory", out->name);
+        failed = 1;
+        goto done;
+    }
+    c.bounds = bvh_aabb_empty();
+    for (t = 0; t < s->triangles; t++) {
+        const float *p = s->v + 9 * (size_t)t;
+        int k, ok = 1;
+        for (k = 0; k < 9; k++) ok &= isfinite(p[k]) != 0;
+        if (!ok) continue;
+        c.ids[c.nids++] = t;
+        for (k = 0; k < 3; k++) {
+            bvh_vec3 q;
+            q.x = p[3 * k]; q.y = p[3 * k + 1]; q.z = p[3 * k + 2];
+            bvh_aabb_grow(&c.bounds, q);
+        }
+    }
+    if (o->brute) row_init(&out->rows[out->nrows++], ROW_BRUTE, "none");
+    for (i = 0; i < o->nbuilders; i++) {
+        row *r = &out->rows[out->nrows++];
+        row_init(r, ROW_BVH, bvh_builder_name(o->builders[i]));
+        r->builder = o->builders[i];
+    }
+    for (i = 0; emb_available() && i < o->nqualities; i++) {
+        row *r = &out->rows[out->nrows++];
+        char name[24];
+        snprintf(name, sizeof name, "embree-%s", emb_quality_name(o->qualities[i]));
+        row_init(r, ROW_EMBREE, name);
+        r->quality = o->qualities[i];
+    }
+    for (i = 0; i < out->nrows; i++) {
+        row *r = &out->rows[i];
+        if (r->kind == ROW_BRUTE) run_brute(&c, r);
+        else if (r->kind == ROW_BVH) run_builder(&c, r);
+        else run_embree(&c, r);
+        if (r->state == ROW_FAILED) {
+            say("%s: %s %s", out->name, r->name, r->note);
+            failed = 1;
+        }
+    }
+    ratios(out);
+done:
+    progress_end();
+    free(c.ids);
+    free(c.rays);
+    free(c.hits);
+    free(c.ref);
+    free(c.emb_prims);
+    return failed;
+}
+
+/* ============================================================================================ */
+/* == tables: columns, cells, best values ========================================================= */
+/* ============================================================================================ */
+enum {
+    C_BUILDER, C_BUILD, C_RANGE, C_SAH, C_NODES, C_LEAVES, C_REFS, C_DEPTH, C_BPT, C_PEAK, C_PEAKBPT, C_MR1,
+    C_MRN, C_MRCL, C_FRAME, C_FPS, C_HITS, C_XBUILD, C_XSAH, C_XMR, C_COUNT
+};
+typedef struct column {
+    const char *head;  /* text table; "%u" becomes the thread count */
+    const char *md;    /* Markdown header */
+    int width;         /* text table */
+    int better;        /* -1 lower is better, +1 higher, 0 not ranked */
+} column;
+static const column g_cols[C_COUNT] = {
+    {"builder", "Builder", 14, 0},
+    {"build ms", "Build ms (median)", 9, -1},
+    {"min-max", "min-max", 15, 0},
+    {"SAH", "SAH (1,0,1)", 9, -1},
+    {"nodes", "Nodes", 9, 0},
+    {"leaves", "Leaves", 8, 0},
+    {"refs", "Refs", 8, 0},
+    {"depth", "Max depth", 5, -1},
+    {"B/tri", "BVH B/tri", 6, -1},
+    {"peak MB", "Peak build MB", 8, -1},
+    {"pk B/tri", "Peak B/tri", 8, -1},
+    {"Mr/s 1t", "CPU Mrays/s 1 thread", 8, +1},
+    {"Mr/s %ut", "CPU Mrays/s %u threads", 8, +1},
+    {"Mr/s CL", "OpenCL Mrays/s", 8, +1},
+    {"frame ms", "Frame ms", 9, -1},
+    {"FPS", "FPS", 7, +1},
+    {"hits", "Hits", 13, 0},
+    {"xbuild", "Build / Embree med.", 7, -1},
+    {"xSAH", "SAH / Embree med.", 6, -1},
+    {"xMrays", "Mrays / Embree med.", 7, +1},
+};
+
+static void fmt_num(char *b, size_t n, double v, int prec) {
+    if (isnan(v)) snprintf(b, n, "-");
+    else snprintf(b, n, "%.*f", prec, v);
+}
+static void fmt_ms(char *b, size_t n, double v) { /* 3 significant digits, at least 0 decimals */
+    fmt_num(b, n, v, isnan(v) ? 0 : v < 10.0 ? 3 : v < 100.0 ? 2 : v < 1000.0 ? 1 : 0);
+}
+
+/* The text of one cell (without markers); returns the value used to rank it (NAN: none). */
+static double cell(const bench_scene *s, const row *r, int col, char *b, size_t n) {
+    double tris = s->triangles ? (double)s->triangles : NAN;
+    char lo[32], hi[32];
+    switch (col) {
+    case C_BUILDER: snprintf(b, n, "%s", r->name); return NAN;
+    case C_BUILD:
+        if (r->kind == ROW_BRUTE) { snprintf(b, n, "0"); return NAN; } /* the study's 0: nothing built */
+        fmt_ms(b, n, r->build_ms);
+        return r->build_ms;
+    case C_RANGE:
+        if (isnan(r->build_min) || r->kind == ROW_BRUTE) { snprintf(b, n, "-"); return NAN; }
+        fmt_ms(lo, sizeof lo, r->build_min);
+        fmt_ms(hi, sizeof hi, r->build_max);
+        snprintf(b, n, "%s-%s", lo, hi);
+        return NAN;
+    case C_SAH: fmt_num(b, n, r->sah, 2); return r->sah;
+    case C_NODES: fmt_num(b, n, r->nodes, 0); return r->nodes;
+    case C_LEAVES: fmt_num(b, n, r->leaves, 0); return r->leaves;
+    case C_REFS: fmt_num(b, n, r->refs, 0); return r->refs;
+    case C_DEPTH: fmt_num(b, n, r->max_depth, 0); return r->max_depth;
+    case C_BPT: fmt_num(b, n, r->bvh_bytes / tris, 1); return r->bvh_bytes / tris;
+    case C_PEAK: fmt_ms(b, n, r->peak_bytes / 1048576.0); return r->peak_bytes;
+    case C_PEAKBPT: fmt_num(b, n, r->peak_bytes / tris, 0); return r->peak_bytes / tris;
+    case C_MR1: fmt_num(b, n, r->mrays_1t, 2); return r->mrays_1t;
+    case C_MRN: fmt_num(b, n, r->mrays_mt, 2); return r->mrays_mt;
+    case C_MRCL: fmt_num(b, n, r->mrays_cl, 2); return r->mrays_cl;
+    case C_FRAME: fmt_ms(b, n, r->frame_ms); return r->frame_ms;
+    case C_FPS: fmt_num(b, n, r->fps, r->fps < 10.0 ? 2 : 1); return r->fps;
+    case C_HITS: fmt_num(b, n, r->hits, 0); return NAN;
+    case C_XBUILD: fmt_num(b, n, r->x_build, 2); return r->x_build;
+    case C_XSAH: fmt_num(b, n, r->x_sah, 3); return r->x_sah;
+    case C_XMR: fmt_num(b, n, r->x_mrays, 2); return r->x_mrays;
+    default: snprintf(b, n, "?"); return NAN;
+    }
+}
+
+/* best[col]: the text of the best value of the column in this scene ("" if none) */
+static void best_cells(const bench_scene *s, char best[C_COUNT][40]) {
+    int col, i;
+    for (col = 0; col < C_COUNT; col++) {
+        double bv = NAN;
+        best[col][0] = 0;
+        if (!g_cols[col].better) continue;
+        for (i = 0; i < s->nrows; i++) {
+            char b[40];
+            double v = cell(s, &s->rows[i], col, b, sizeof b);
+            if (s->rows[i].state != ROW_OK || isnan(v)) continue;
+            if (isnan(bv) || (g_cols[col].better < 0 ? v < bv : v > bv)) {
+                bv = v;
+                snprintf(best[col], sizeof best[col], "%s", b);
+            }
+        }
+    }
+}
+
+static void head_text(int col, const options *o, int md, char *b, size_t n) {
+    const char *h = md ? g_cols[col].md : g_cols[col].head;
+    if (col == C_MRN) snprintf(b, n, h, o->nthreads);
+    else snprintf(b, n, "%s", h);
+}
+
+/* ---- the text table ------------------------------------------------------------------------ */
+static void print_block(FILE *f, const options *o, const bench_scene *s) {
+    char b[220];
+    int col, i;
+    fprintf(f, "\nscene %s: %u triangles, %ux%u primary rays\n", s->name, s->triangles, o->width, o->height);
+    for (col = 0; col < C_COUNT; col++) {
+        head_text(col, o, 0, b, sizeof b);
+        fprintf(f, col == C_BUILDER ? "%-*s" : " %*s", g_cols[col].width, b);
+    }
+    fputc('\n', f);
+    for (i = 0; i < s->nrows; i++) {
+        const row *r = &s->rows[i];
+        fprintf(f, "%-*s", g_cols[C_BUILDER].width, r->name);
+        if (r->state != ROW_OK) {
+            if (r->kind == ROW_BRUTE) fprintf(f, " %*s", g_cols[C_BUILD].width, "0");
+            fprintf(f, "  %s\n", r->note);
+            continue;
+        }
+        for (col = 1; col < C_COUNT; col++) {
+            cell(s, r, col, b, sizeof b);
+            if (col == C_HITS && (r->disagree || r->refereed))
+                strncat(b, r->disagree ? " (!)" : " (e)", sizeof b - strlen(b) - 1);
+            fprintf(f, " %*s", g_cols[col].width, b);
+        }
+        fputc('\n', f);
+    }
+    for (i = 0; i < s->nrows; i++)
+        if (s->rows[i].disagree) fprintf(f, "(!) HITS DISAGREE: %s\n", s->rows[i].disagree_msg);
+        else if (s->rows[i].refereed) fprintf(f, "(e) %s\n", s->rows[i].referee_msg);
+}
+
+/* ---- Markdown --------------------------------------------------------------------------------- */
+static void md_block(FILE *f, const options *o, const bench_scene *s) {
+    char b[220], best[C_COUNT][40];
+    int col, i;
+    best_cells(s, best);
+    fprintf(f, "\n### %s: %u triangles\n\n|", s->name, s->triangles);
+    for (col = 0; col < C_COUNT; col++) {
+        head_text(col, o, 1, b, sizeof b);
+        fprintf(f, " %s |", b);
+    }
+    fputs("\n|", f);
+    for (col = 0; col < C_COUNT; col++) fputs(col == C_BUILDER ? ":---|" : "---:|", f);
+    fputc('\n', f);
+    for (i = 0; i < s->nrows; i++) {
+        const row *r = &s->rows[i];
+        fprintf(f, "| %s |", r->name);
+        for (col = 1; col < C_COUNT; col++) {
+            if (r->state != ROW_OK) {
+                const char *t = col == C_BUILD && r->kind == ROW_BRUTE ? "0"
+                              : col == C_RANGE ? (r->state == ROW_SKIPPED ? "skipped (too slow)" : "failed")
+                              : (col == C_FRAME || col == C_FPS) ? "X" : "";
+                if (col == C_RANGE && r->state == ROW_SKIPPED && strncmp(r->note, "skipped (too slow", 17))
+                    t = "skipped";
+                fprintf(f, " %s |", t);
+                continue;
+            }
+            cell(s, r, col, b, sizeof b);
+            if (best[col][0] && !strcmp(b, best[col])) fprintf(f, " **%s** |", b);
+            else fprintf(f, " %s%s |", b, col != C_HITS ? "" : r->disagree ? " **(!)**" : r->refereed ? " (e)" : "");
+        }
+        fputc('\n', f);
+    }
+    for (i = 0; i < s->nrows; i++) {
+        const row *r = &s->rows[i];
+        if (r->disagree) fprintf(f, "\n**(!) HITS DISAGREE:** %s\n", r->disagree_msg);
+        else if (r->refereed) fprintf(f, "\n(e) %s\n", r->referee_msg);
+        if (r->state != ROW_OK) fprintf(f, "\n%s: %s\n", r->name, r->note);
+    }
+}
+
+/* ---- the top lines ------------------------------------------------------------------------------ */
+static void cpu_model(char *b, size_t n) {
+    FILE *f = fopen("/proc/cpuinfo", "r");
+    char line[512];
+    snprintf(b, n, "unknown");
+    if (!f) return;
+    while (fgets(line, sizeof line, f)) {
+        char *colon = strchr(line, ':');
+        if (strncmp(line, "model name", 10) || !colon) continue;
+        colon++;
+        while (*colon == ' ' || *colon == '\t') colon++;
+        colon[strcspn(colon, "\n")] = 0;
+        snprintf(b, n, "%s", colon);
+        break;
+    }
+    fclose(f);
+}
+
+typedef struct header_info {
+    char date[64], cpu[256], embree[200], opencl[400], trace[64];
+} header_info;
+
+static void header_lines(FILE *f, const options *o, const header_info *h, const char *prefix) {
+    fprintf(f, "%sbvhbench: bvh.h %d.%d.%d, %s\n", prefix, BVH_VERSION_MAJOR, BVH_VERSION_MINOR, BVH_VERSION_PATCH,
+            h->date);
+    fprintf(f, "%sCPU: %s, %u cores online; threads %u (ploc-parallel, multi-thread tracing, Embree)\n", prefix,
+            h->cpu, online_cpus(), o->nthreads);
+    fprintf(f, "%sEmbree: %s\n", prefix, h->embree);
+    fprintf(f, "%sOpenCL: %s\n", prefix, h->opencl);
+    fprintf(f, "%sbuild: median of %u timed build(s) after one warm-up; frame: %ux%u primary rays of the standard camera, "
+               "traced %s; frame ms = fastest tracer\n",
+            prefix, o->repeat, o->width, o->height, h->trace);
+}
+
+static int mkdir_p(const char *dir);
+
+/* fopen(path, "w"), creating the directory first */
+static FILE *create_file(const char *path) {
+    char dir[1024];
+    const char *slash = strrchr(path, '/');
+    if (slash && slash != path && (size_t)(slash - path) < sizeof dir) {
+        memcpy(dir, path, (size_t)(slash - path));
+        dir[slash - path] = 0;
+        mkdir_p(dir);
+    }
+    return fopen(path, "w");
+}
+
+static int write_md(const char *path, const options *o, const header_info *h, const bench_scene *sc, int n) {
+    FILE *f = create_file(path);
+    int i;
+    if (!f) { say("cannot write %s: %s", path, strerror(errno)); return 1; }
+    fputs("# bvh.h benchmark: the study's Table I, with Embree\n\n", f);
+    header_lines(f, o, h, "- ");
+    fputs("- best value per column and scene in **bold**; \"-\": does not apply; X: too slow to be measured "
+          "(as in the study); hits: (!) disagreement, (e) Embree differs from bvh.h only on grazing rays or "
+          "where an exact test agrees with bvh.h\n"
+          "- Embree rows: build ms and Mrays/s of the scene API (rtcIntersect1, robust flag); SAH, nodes, "
+          "leaves, refs, depth of rtcBuildBVH's binary tree at the same quality (max leaf 8)\n",
+          f);
+    for (i = 0; i < n; i++) md_block(f, o, &sc[i]);
+    if (fclose(f) != 0) { say("cannot write %s", path); return 1; }
+    return 0;
+}
+
+/* ---- JSON lines ------------------------------------------------------------------------------------ */
+static void json_str(FILE *f, const char *s) {
+    fputc('"', f);
+    for (; s && *s; s++) {
+        unsigned char ch = (unsigned char)*s;
+        if (ch == '"' || ch == '\\') fprintf(f, "\\%c", ch);
+        else if (ch < 0x20) fprintf(f, "\\u%04x", ch);
+        else fputc(ch, f);
+    }
+    fputc('"', f);
+}
+static void json_num(FILE *f, const char *key, double v, int prec) {
+    fprintf(f, ",\"%s\":", key);
+    if (isnan(v) || isinf(v)) fputs("null", f);
+    else fprintf(f, "%.*f", prec, v);
+}
+
+static void json_rows(FILE *f, const options *o, const bench_scene *s) {
+    int i;
+    for (i = 0; i < s->nrows; i++) {
+        const row *r = &s->rows[i];
+        double tris = (double)s->triangles;
+        fputs("{\"scene\":", f);
+        json_str(f, s->name);
+        fprintf(f, ",\"triangles\":%u,\"builder\":", s->triangles);
+        json_str(f, r->name);
+        fprintf(f, ",\"kind\":\"%s\",\"status\":\"%s\",\"threads\":%u,\"repeat\":%u",
+                r->kind == ROW_BRUTE ? "brute-force" : r->kind == ROW_BVH ? "bvh.h" : "embree",
+                r->state == ROW_OK ? "ok" : r->state == ROW_SKIPPED ? "skipped" : "failed", o->nthreads, o->repeat);
+        json_num(f, "build_ms", r->build_ms, 4);
+        json_num(f, "build_ms_min", r->build_min, 4);
+        json_num(f, "build_ms_max", r->build_max, 4);
+        json_num(f, "sah", r->sah, 6);
+        json_num(f, "nodes", r->nodes, 0);
+        json_num(f, "leaves", r->leaves, 0);
+        json_num(f, "refs", r->refs, 0);
+        json_num(f, "max_depth", r->max_depth, 0);
+        json_num(f, "max_leaf_size", r->max_leaf, 0);
+        json_num(f, "bvh_bytes", r->bvh_bytes, 0);
+        json_num(f, "triangle_bytes", r->tri_bytes, 0);
+        json_num(f, "bytes_per_tri", r->bvh_bytes / tris, 3);
+        json_num(f, "peak_build_bytes", r->peak_bytes, 0);
+        json_num(f, "peak_build_bytes_per_tri", r->peak_bytes / tris, 3);
+        fprintf(f, ",\"width\":%u,\"height\":%u", o->width, o->height);
+        json_num(f, "hits", r->hits, 0);
+        json_num(f, "t_sum", r->t_sum, 6);
+        json_num(f, "mrays", r->mrays_mt, 4);
+        json_num(f, "trace_ms_1t", r->ms_1t, 4);
+        json_num(f, "mrays_1t", r->mrays_1t, 4);
+        json_num(f, "trace_ms_mt", r->ms_mt, 4);
+        json_num(f, "mrays_mt", r->mrays_mt, 4);
+        json_num(f, "trace_ms_opencl", r->ms_cl, 4);
+        json_num(f, "kernel_ms_opencl", r->cl_kernel_ms, 4);
+        json_num(f, "mrays_opencl", r->mrays_cl, 4);
+        json_num(f, "frame_ms", r->frame_ms, 4);
+        json_num(f, "fps", r->fps, 3);
+        fputs(",\"frame_tracer\":", f);
+        if (r->frame_tracer) json_str(f, r->frame_tracer);
+        else fputs("null", f);
+        json_num(f, "ratio_build", r->x_build, 4);
+        json_num(f, "ratio_sah", r->x_sah, 4);
+        json_num(f, "ratio_mrays", r->x_mrays, 4);
+        if (r->kind == ROW_EMBREE) {
+            json_num(f, "rtcbuildbvh_ms", r->emb_bvh_ms, 4);
+            json_num(f, "pixels_other_triangle", r->emb_prim_diff, 0);
+        }
+        fprintf(f, ",\"hits_agree\":%s,\"hits_refereed\":%s,\"note\":", r->disagree || r->refereed ? "false" : "true",
+                r->refereed && !r->disagree ? "true" : "false");
+        json_str(f, r->disagree ? r->disagree_msg : r->refereed ? r->referee_msg : r->note);
+        fputs("}\n", f);
+    }
+    fflush(f);
+}
+
+/* ============================================================================================ */
+/* == plots: data files and gnuplot ================================================================ */
+/* ============================================================================================ */
+static int mkdir_p(const char *dir) {
+    char p[1024];
+    size_t i, n = strlen(dir);
+    if (n == 0 || n >= sizeof p) return 1;
+    memcpy(p, dir, n + 1);
+    for (i = 1; i <= n; i++) {
+        if (p[i] != '/' && p[i] != 0) continue;
+        p[i] = 0;
+        if (mkdir(p, 0777) != 0 && errno != EEXIST) return 1;
+        if (i < n) p[i] = '/';
+    }
+    return 0;
+}
+
+static FILE *open_in(const char *dir, const char *name) {
+    char path[1200];
+    FILE *f;
+    snprintf(path, sizeof path, "%s/%s", dir, name);
+    f = fopen(path, "w");
+    if (!f) say("cannot write %s: %s", path, strerror(errno));
+    return f;
+}
+
+/* the distinct row names over all scenes, in order of appearance */
+static int row_names(const bench_scene *sc, int n, const char *names[BENCH_MAX_ROWS * 2]) {
+    int count = 0, i, j, k;
+    for (i = 0; i < n; i++)
+        for (j = 0; j < sc[i].nrows; j++) {
+            for (k = 0; k < count && strcmp(names[k], sc[i].rows[j].name); k++) {}
+            if (k == count && count < BENCH_MAX_ROWS * 2) names[count++] = sc[i].rows[j].name;
+        }
+    return count;
+}
+
+static const row *find_row(const bench_scene *s, const char *name) {
+    int i;
+    for (i = 0; i < s->nrows; i++)
+        if (!strcmp(s->rows[i].name, name) && s->rows[i].state == ROW_OK) return &s->rows[i];
+    return NULL;
+}
+
+/* 500, 69.7K, 1.04M */
+static void fmt_count(char *b, size_t n, uint32_t v) {
+    if (v < 10000) snprintf(b, n, "%u", v);
+    else if (v < 1000000) snprintf(b, n, "%.3gK", v / 1e3);
+    else snprintf(b, n, "%.3gM", v / 1e6);
+}
+
+static double per_scene_value(const bench_scene *s, const char *name, int field) {
+    const row *r = find_row(s, name);
+    return !r ? NAN : field == 0 ? r->mrays_1t : field == 1 ? r->mrays_mt : r->mrays_cl;
+}
+
+/* One data column per row name that has a value somewhere (gnuplot cannot draw a histogram
+   column without any), one line per scene; "-" = missing. No file when nothing was measured. */
+static int write_per_scene(const char *dir, const char *file, const char *what, const bench_scene *sc, int n,
+                           const char **names, int nn, int field) {
+    int use[BENCH_MAX_ROWS * 2], i, k, any = 0;
+    char count[32];
+    FILE *f;
+    for (k = 0; k < nn; k++) {
+        for (i = 0, use[k] = 0; i < n; i++) use[k] |= !isnan(per_scene_value(&sc[i], names[k], field));
+        any |= use[k];
+    }
+    if (!any) return 0;
+    if (!(f = open_in(dir, file))) return 1;
+    fprintf(f, "# %s per scene (rows) and builder (columns); '-' = not measured\n\"scene\"", what);
+    for (k = 0; k < nn; k++)
+        if (use[k]) fprintf(f, " \"%s\"", names[k]);
+    fputc('\n', f);
+    for (i = 0; i < n; i++) {
+        fmt_count(count, sizeof count, sc[i].triangles);
+        fprintf(f, "\"%s\\n%s triangles\"", sc[i].name, count);
+        for (k = 0; k < nn; k++) {
+            double v = per_scene_value(&sc[i], names[k], field);
+            if (!use[k]) continue;
+            if (isnan(v)) fputs(" -", f);
+            else fprintf(f, " %.4f", v);
+        }
+        fputc('\n', f);
+    }
+    return fclose(f) != 0;
+}
+
+static int write_plot_data(const char *dir, const options *o, const bench_scene *sc, int n) {
+    const char *names[BENCH_MAX_ROWS * 2];
+    int nn = row_names(sc, n, names), i, k, rc = 0, blocks, points;
+    FILE *f;
+    if (mkdir_p(dir)) { say("cannot create %s: %s", dir, strerror(errno)); return 1; }
+    for (k = 0; k < 3; k++) { /* no stale panel from an earlier run */
+        char path[1200];
+        snprintf(path, sizeof path, "%s/mrays_%s.dat", dir, k == 0 ? "1t" : k == 1 ? "mt" : "cl");
+        remove(path);
+    }
+    /* build time vs triangles: one block (gnuplot index) per builder */
+    if (!(f = open_in(dir, "build_time.dat"))) return 1;
+    fprintf(f, "# build time (median of %u, ms) vs triangles; one block per builder\n", o->repeat);
+    for (k = 0, blocks = 0; k < nn; k++) {
+        for (i = 0, points = 0; i < n; i++) {
+            const row *r = find_row(&sc[i], names[k]);
+            if (!r || r->kind == ROW_BRUTE || isnan(r->build_ms)) continue;
+            if (!points++)
+                fprintf(f, "%s\"%s\" \"build_ms\" \"min\" \"max\" \"scene\"\n", blocks++ ? "\n\n" : "", names[k]);
+            fprintf(f, "%u %.4f %.4f %.4f \"%s\"\n", sc[i].triangles, r->build_ms, r->build_min, r->build_max,
+                    sc[i].name);
+        }
+    }
+    rc |= fclose(f) != 0;
+    /* SAH vs build time: one block per scene */
+    if (!(f = open_in(dir, "sah_build.dat"))) return 1;
+    fputs("# SAH (costs 1,0,1) vs build time (ms); one block per scene\n", f);
+    for (i = 0; i < n; i++) {
+        fprintf(f, "%s\"%s (%u triangles)\" \"sah\" \"builder\"\n", i ? "\n\n" : "", sc[i].name, sc[i].triangles);
+        for (k = 0; k < sc[i].nrows; k++) {
+            const row *r = &sc[i].rows[k];
+            if (r->state == ROW_OK && r->kind != ROW_BRUTE && !isnan(r->build_ms) && !isnan(r->sah))
+                fprintf(f, "%.4f %.6f \"%s\"\n", r->build_ms, r->sah, r->name);
+        }
+    }
+    rc |= fclose(f) != 0;
+    rc |= write_per_scene(dir, "mrays_1t.dat", "CPU Mrays/s on 1 thread", sc, n, names, nn, 0);
+    if (o->nthreads > 1) {
+        char what[64];
+        snprintf(what, sizeof what, "CPU Mrays/s on %u threads", o->nthreads);
+        rc |= write_per_scene(dir, "mrays_mt.dat", what, sc, n, names, nn, 1);
+    }
+    if (o->trace_cl) rc |= write_per_scene(dir, "mrays_cl.dat", "OpenCL Mrays/s", sc, n, names, nn, 2);
+    if (rc) say("writing the plot data in %s failed", dir);
+    return rc;
+}
+
+/* Runs scripts/plot.sh DIR (found from the working directory or next to the program). */
+static int run_plot_script(const char *argv0, const char *dir) {
+    char script[1024];
+    const char *slash = strrchr(argv0, '/');
+    pid_t pid;
+    int status;
+    snprintf(script, sizeof script, "scripts/plot.sh");
+    if (access(script, R_OK) != 0 && slash)
+        snprintf(script, sizeof script, "%.*s/../scripts/plot.sh", (int)(slash - argv0), argv0);
+    if (access(script, R_OK) != 0) { say("scripts/plot.sh not found: plot data left in %s", dir); return 1; }
+    fflush(NULL);
+    pid = fork();
+    if (pid < 0) { say("cannot run %s: %s", script, strerror(errno)); return 1; }
+    if (pid == 0) {
+        execlp("sh", "sh", script, dir, (char *)NULL);
+        _exit(127);
+    }
+    if (waitpid(pid, &status, 0) < 0) status = -1;
+    if (WIFEXITED(status) && WEXITSTATUS(status) == 3) return 0; /* no gnuplot: plot.sh said so */
+    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+        say("%s %s failed (the .dat files are in %s)", script, dir, dir);
+        return 1;
+    }
+    return 0;
+}
+
+/* ============================================================================================ */
+/* == options ===================================================================================== */
+/* ============================================================================================ */
+static void usage(FILE *f) {
+    fprintf(f,
+            "usage: bvhbench [options] [SCENE...]\n"
+            "  --builder LIST   'all' (default: none + the five builders) or a comma list of\n"
+            "                   none, top-down, bottom-up, sah-midpoint, ploc, ploc-parallel\n"
+            "                   (none = brute force, the study's first row)\n"
+            "  --embree LIST    'all' (default: low,medium,high), 'none', or a comma list\n"
+            "  --threads N      ploc-parallel, multi-thread tracing and Embree; 0 = all cores (default)\n"
+            "  --repeat R       timed builds after one warm-up; the median is reported (default 5)\n"
+            "  --size WxH       frame size (default 1024x1024)\n"
+            "  --trace MODE     cpu, opencl, both or none (default: both when OpenCL works, else cpu)\n"
+            "  --brute-max N    brute force only up to N triangles (default 20000) and %.0e tests\n"
+            "  --md FILE        Markdown tables, best value per column and scene in bold\n"
+            "  --json FILE      one JSON object per line and row ('-': stdout; the table goes to stderr)\n"
+            "  --plots DIR      plot data (*.dat) and, with gnuplot, PNG plots (scripts/plot.sh)\n"
+            "  --strict         Embree's differences from bvh.h count as disagreements even where an\n"
+            "                   exact test decides for bvh.h (they are marked (e) and noted otherwise)\n"
+            "  --quiet          no progress line on stderr\n"
+            "Without SCENE: gen:random:500, %s (or gen:random:100000), gen:field:15, gen:field:44.\n"
+            "%s"
+            "Exit status: 0 ok, 1 error, 2 bad command line, 3 hits disagree.\n",
+            BENCH_BRUTE_TESTS, BENCH_BUNNY, scene_spec_help());
+}
+
+static int parse_u32(const char *s, uint32_t lo, uint32_t hi, uint32_t *out, const char **end) {
+    char *e;
+    unsigned long long v;
+    if (!s || *s < '0' || *s > '9') return 1;
+    errno = 0;
+    v = strtoull(s, &e, 10);
+    if (errno || v < lo || v > hi || (!end && *e)) return 1;
+    if (end) *end = e;
+    *out = (uint32_t)v;
+    return 0;
+}
+
+static int parse_builders(const char *list, options *o) {
+    char buf[256], *tok, *save = NULL;
+    int i;
+    o->brute = 0;
+    o->nbuilders = 0;
+    if (strlen(list) >= sizeof buf) return 1;
+    strcpy(buf, list);
+    for (tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+        bvh_builder b;
+        if (!strcmp(tok, "all")) {
+            o->brute = 1;
+            o->nbuilders = 0;
+            for (i = BVH_BUILDER_TOP_DOWN; i < BVH_BUILDER_COUNT; i++) o->builders[o->nbuilders++] = (bvh_builder)i;
+            continue;
+        }
+        if (!strcmp(tok, "none")) { o->brute = 1; continue; }
+        if (bvh_builder_from_name(tok, &b) != BVH_SUCCESS || b == BVH_BUILDER_DEFAULT) return 1;
+        for (i = 0; i < o->nbuilders && o->builders[i] != b; i++) {}
+        if (i == o->nbuilders) o->builders[o->nbuilders++] = b;
+    }
+    return 0;
+}
+
+static int parse_embree(const char *list, options *o) {
+    char buf[64], *tok, *save = NULL;
+    int i;
+    o->nqualities = 0;
+    if (strlen(list) >= sizeof buf) return 1;
+    if (!strcmp(list, "none")) return 0;
+    if (!strcmp(list, "all")) list = "low,medium,high";
+    strcpy(buf, list);
+    for (tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+        emb_quality q;
+        if (emb_quality_from_name(tok, &q) != 0) return 1;
+        for (i = 0; i < o->nqualities && o->qualities[i] != q; i++) {}
+        if (i == o->nqualities) o->qualities[o->nqualities++] = q;
+    }
+    return 0;
+}
+
+/* 0: run; 1: --help printed; 2: bad command line (message printed) */
+static int parse_args(int argc, char **argv, options *o) {
+    int i;
+    memset(o, 0, sizeof *o);
+    o->argv0 = argv[0];
+    parse_builders("all", o);
+    parse_embree("all", o);
+    o->repeat = 5;
+    o->width = o->height = 1024;
+    o->brute_max = 20000;
+    o->trace_auto = 1;
+    for (i = 1; i < argc; i++) {
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL, *e;
+        int takes = a[0] == '-' && a[1] == '-' && strcmp(a, "--quiet") && strcmp(a, "--strict") && strcmp(a, "--help");
+        if (!strcmp(a, "--help") || !strcmp(a, "-h")) { usage(stdout); return 1; }
+        if (takes && !v) { fprintf(stderr, "bvhbench: %s needs a value (see --help)\n", a); return 2; }
+        if (!strcmp(a, "--quiet")) o->quiet = 1;
+        else if (!strcmp(a, "--strict")) o->strict = 1;
+        else if (!strcmp(a, "--builder")) {
+            if (parse_builders(v, o)) {
+                fprintf(stderr, "bvhbench: --builder wants all or a comma list of none, top-down, bottom-up, "
+                                "sah-midpoint, ploc, ploc-parallel, not '%s'\n", v);
+                return 2;
+            }
+        } else if (!strcmp(a, "--embree")) {
+            if (parse_embree(v, o)) {
+                fprintf(stderr, "bvhbench: --embree wants all, none or a comma list of low, medium, high, not '%s'\n", v);
+                return 2;
+            }
+        } else if (!strcmp(a, "--threads")) {
+            if (parse_u32(v, 0, 256, &o->threads, NULL)) {
+                fprintf(stderr, "bvhbench: --threads wants 0 (all cores) to 256, not '%s'\n", v);
+                return 2;
+            }
+        } else if (!strcmp(a, "--repeat")) {
+            if (parse_u32(v, 1, BENCH_MAX_REPEAT, &o->repeat, NULL)) {
+                fprintf(stderr, "bvhbench: --repeat wants 1 to %d, not '%s'\n", BENCH_MAX_REPEAT, v);
+                return 2;
+            }
+        } else if (!strcmp(a, "--brute-max")) {
+            if (parse_u32(v, 0, 0xFFFFFFFFu, &o->brute_max, NULL)) {
+                fprintf(stderr, "bvhbench: --brute-max wants a triangle count, not '%s'\n", v);
+                return 2;
+            }
+        } else if (!strcmp(a, "--size")) {
+            if (parse_u32(v, 1, 16384, &o->width, &e) || (*e != 'x' && *e != 'X') ||
+                parse_u32(e + 1, 1, 16384, &o->height, NULL) || (uint64_t)o->width * o->height > BENCH_MAX_PIXELS) {
+                fprintf(stderr, "bvhbench: --size wants WxH (e.g. 1024x1024, at most 16384 a side and %u pixels), "
+                                "not '%s'\n", BENCH_MAX_PIXELS, v);
+                return 2;
+            }
+        } else if (!strcmp(a, "--trace")) {
+            o->trace_auto = 0;
+            o->trace_cpu = !strcmp(v, "cpu") || !strcmp(v, "both");
+            o->trace_cl = !strcmp(v, "opencl") || !strcmp(v, "both");
+            if (!o->trace_cpu && !o->trace_cl && strcmp(v, "none")) {
+                fprintf(stderr, "bvhbench: --trace wants cpu, opencl, both or none, not '%s'\n", v);
+                return 2;
+            }
+        } else if (!strcmp(a, "--md")) o->md = v;
+        else if (!strcmp(a, "--json")) o->json = v;
+        else if (!strcmp(a, "--plots")) o->plots = v;
+        else if (a[0] == '-' && a[1]) {
+            fprintf(stderr, "bvhbench: unknown option '%s' (see --help)\n", a);
+            return 2;
+        } else if (o->nscenes == BENCH_MAX_SCENES) {
+            fprintf(stderr, "bvhbench: at most %d scenes\n", BENCH_MAX_SCENES);
+            return 2;
+        } else o->scenes[o->nscenes++] = a;
+        if (takes) i++;
+    }
+    if (!o->brute && !o->nbuilders && !o->nqualities) {
+        fprintf(stderr, "bvhbench: nothing to run (no builder and --embree none)\n");
+        return 2;
+    }
+    o->nthreads = o->threads ? o->threads : online_cpus();
+    return 0;
+}
+
+/* The study's four sizes; the bunny and the fields need glmark2-data's bunny. */
+static void default_scenes(options *o) {
+    int bunny = access(BENCH_BUNNY, R_OK) == 0;
+    o->nscenes = 0;
+    o->scenes[o->nscenes++] = "gen:random:500";
+    o->scenes[o->nscenes++] = bunny ? BENCH_BUNNY : "gen:random:100000";
+    o->scenes[o->nscenes++] = bunny ? "gen:field:15" : "gen:procedural:1044992";
+    o->scenes[o->nscenes++] = bunny ? "gen:field:44" : "gen:procedural:3065306";
+    if (!bunny)
+        say("the Stanford bunny %s is missing (Debian glmark2-data): using gen:random:100000 and procedural "
+            "scenes of 1M and 3M triangles instead", BENCH_BUNNY);
+}
+
+/* ============================================================================================ */
+/* == main ======================================================================================== */
+/* ============================================================================================ */
+/* The top lines, and OpenCL: opened when asked (or by default, when it works). 0 on success. */
+static int setup(options *o, header_info *h, bench_cl *store, bench_cl **cl) {
+    time_t now = time(NULL);
+    char msg[600];
+    memset(h, 0, sizeof *h);
+    strftime(h->date, sizeof h->date, "%Y-%m-%d %H:%M:%S %Z", localtime(&now));
+    cpu_model(h->cpu, sizeof h->cpu);
+    if (!emb_available())
+        snprintf(h->embree, sizeof h->embree, "not available (built without BVH_HAVE_EMBREE: install libembree-dev "
+                                              "and rebuild); no Embree rows");
+    else if (!o->nqualities) snprintf(h->embree, sizeof h->embree, "%s, not run (--embree none)", emb_version());
+    else snprintf(h->embree, sizeof h->embree, "%s (ratio columns: ours / embree-medium)", emb_version());
+    if (o->trace_auto) o->trace_cpu = o->trace_cl = 1;
+    *cl = NULL;
+    if (!o->trace_cl) snprintf(h->opencl, sizeof h->opencl, "not used (--trace)");
+    else if (bcl_open(store, o->argv0, msg, sizeof msg) == 0) {
+        *cl = store;
+        snprintf(h->opencl, sizeof h->opencl, "%s", store->device);
+    } else if (o->trace_auto) {
+        o->trace_cl = 0;
+        snprintf(h->opencl, sizeof h->opencl, "not used: %.380s", msg);
+    } else {
+        say("--trace needs OpenCL: %s", msg);
+        return 1;
+    }
+    snprintf(h->trace, sizeof h->trace, "%s",
+             o->trace_cpu && o->trace_cl ? "on the CPU and with OpenCL" : o->trace_cpu ? "on the CPU"
+             : o->trace_cl ? "with OpenCL" : "not (--trace none)");
+    return 0;
+}
+
+/* Loads scene `spec` and runs every row on it into *bs. 0 ok, 1 failed (message printed). */
+static int bench_one(const options *o, const char *spec, int index, bench_cl *cl, bench_scene *bs) {
+    scene s;
+    char err[512];
+    int failed;
+    memset(bs, 0, sizeof *bs);
+    progress("loading %s (scene %d of %d)", spec, index + 1, o->nscenes);
+    if (scene_load(spec, &s, err, sizeof err) != 0) {
+        say("%s", err);
+        return 1;
+    }
+    if (s.triangles > 0x55555555u) { /* vertex_count = 3 * triangles must fit 32 bits */
+        say("%s has too many triangles (%u)", s.name, s.triangles);
+        scene_free(&s);
+        return 1;
+    }
+    snprintf(bs->name, sizeof bs->name, "%s", s.name);
+    bs->triangles = s.triangles;
+    failed = run_scene(o, &s, cl, bs);
+    scene_free(&s);
+    return failed;
+}
+
+int main(int argc, char **argv) {
+    static bench_scene scenes[BENCH_MAX_SCENES];
+    options o;
+    header_info h;
+    bench_cl cl_store, *cl = NULL;
+    FILE *table = stdout, *json = NULL;
+    double t_start = scene_now_ms();
+    int rc = parse_args(argc, argv, &o), i, failed = 0, disagree = 0, done = 0;
+    if (rc) return rc == 1 ? 0 : 2;
+    memset(&cl_store, 0, sizeof cl_store);
+    g_quiet = o.quiet;
+    if (!o.nscenes) default_scenes(&o);
+    if (setup(&o, &h, &cl_store, &cl)) return 1;
+    if (o.json && !strcmp(o.json, "-")) { json = stdout; table = stderr; }
+    else if (o.json && !(json = create_file(o.json))) {
+        say("cannot write %s: %s", o.json, strerror(errno));
+        bcl_close(&cl_store);
+        return 1;
+    }
+    header_lines(table, &o, &h, "");
+    fflush(table);
+
+    for (i = 0; i < o.nscenes; i++) {
+        bench_scene *bs = &scenes[done];
+        failed |= bench_one(&o, o.scenes[i], i, cl, bs);
+        if (!bs->nrows) continue;
+        disagree |= bs->disagree;
+        done++;
+        print_block(table, &o, bs);
+        fflush(table);
+        if (json) json_rows(json, &o, bs);
+        /* the files are rewritten after every scene, so that a long run leaves partial results */
+        if (o.md) failed |= write_md(o.md, &o, &h, scenes, done);
+        if (o.plots) failed |= write_plot_data(o.plots, &o, scenes, done);
+    }
+    if (json && json != stdout && fclose(json) != 0) { say("cannot write %s", o.json); failed = 1; }
+    if (o.plots && done) failed |= run_plot_script(o.argv0, o.plots);
+    bcl_close(&cl_store);
+    progress_end();
+    fprintf(table, "\ntotal %.1f s", (scene_now_ms() - t_start) / 1000.0);
+    if (o.md) fprintf(table, "; Markdown: %s", o.md);
+    if (o.json && json != stdout) fprintf(table, "; JSON: %s", o.json);
+    if (o.plots) fprintf(table, "; plots: %s", o.plots);
+    fputc('\n', table);
+    if (disagree) {
+        say("!!! HITS DISAGREE (see the rows marked (!) above) !!!");
+        return 3;
+    }
+    return failed ? 1 : 0;
+}

@@ -78,6 +78,9 @@
 #ifndef BVH_MAX_DEPTH
 #define BVH_MAX_DEPTH 64
 #endif
+#if BVH_MAX_DEPTH < 64
+#error "BVH_MAX_DEPTH must be at least 64: depth-bounding rebuilds need 32 levels below depth 31"
+#endif
 
 #define BVH_INF HUGE_VALF
 #define BVH_INVALID 0xFFFFFFFFu
@@ -537,25 +540,34 @@ static uint64_t bvh__expand21(uint64_t v) { /* spreads 21 bits to every third bi
     v = (v | v << 2) & 0x1249249249249249ULL;
     return v;
 }
-/* 63-bit Morton code of p inside box b (21 bits per axis). */
-static uint64_t bvh__morton(bvh_vec3 p, bvh_vec3 lo, bvh_vec3 scale) {
-    float f[3];
+/* 63-bit Morton code of p inside the centroid bounds (21 bits per axis). In double, so that
+   bounds spanning more than FLT_MAX (e.g. -3e38 .. 3e38) still quantise; NaN clamps to 0. */
+typedef struct bvh__mscale { double lo[3], scale[3]; } bvh__mscale;
+static uint64_t bvh__morton(bvh_vec3 p, const bvh__mscale *m) {
+    double f[3];
     uint64_t q[3];
     int a;
-    f[0] = (p.x - lo.x) * scale.x; f[1] = (p.y - lo.y) * scale.y; f[2] = (p.z - lo.z) * scale.z;
+    f[0] = ((double)p.x - m->lo[0]) * m->scale[0];
+    f[1] = ((double)p.y - m->lo[1]) * m->scale[1];
+    f[2] = ((double)p.z - m->lo[2]) * m->scale[2];
     for (a = 0; a < 3; a++) {
-        float x = f[a] < 0.0f ? 0.0f : f[a] > 2097151.0f ? 2097151.0f : f[a];
+        double x = !(f[a] > 0.0) ? 0.0 : f[a] > 2097151.0 ? 2097151.0 : f[a];
         q[a] = (uint64_t)x;
     }
     return bvh__expand21(q[0]) << 2 | bvh__expand21(q[1]) << 1 | bvh__expand21(q[2]);
 }
-static bvh_vec3 bvh__morton_scale(bvh_aabb cb) {
-    bvh_vec3 s;
-    float dx = cb.max.x - cb.min.x, dy = cb.max.y - cb.min.y, dz = cb.max.z - cb.min.z;
-    s.x = dx > 0.0f ? 2097151.0f / dx : 0.0f;
-    s.y = dy > 0.0f ? 2097151.0f / dy : 0.0f;
-    s.z = dz > 0.0f ? 2097151.0f / dz : 0.0f;
-    return s;
+static bvh__mscale bvh__morton_scale(bvh_aabb cb) {
+    bvh__mscale m;
+    double lo[3], hi[3];
+    int a;
+    lo[0] = cb.min.x; lo[1] = cb.min.y; lo[2] = cb.min.z;
+    hi[0] = cb.max.x; hi[1] = cb.max.y; hi[2] = cb.max.z;
+    for (a = 0; a < 3; a++) {
+        double d = hi[a] - lo[a];
+        m.lo[a] = lo[a];
+        m.scale[a] = d > 0.0 ? 2097151.0 / d : 0.0;
+    }
+    return m;
 }
 
 /* LSD radix sort of (key, value) pairs, 11-bit digits, stable: equal keys keep value order.
@@ -662,13 +674,13 @@ static bvh_result bvh__out_init(const bvh__ctx *c, bvh__out *o, uint32_t node_ca
 typedef struct bvh__morton_job {
     const bvh__ctx *c;
     bvh__sort sort;
-    bvh_vec3 lo, scale;
+    bvh__mscale ms;
 } bvh__morton_job;
 static void bvh__morton_codes_team(bvh__morton_job *j, uint32_t tid, uint32_t nt, bvh__team *team) {
     size_t b, e, i;
     bvh__range(j->c->n, tid, nt, &b, &e);
     for (i = b; i < e; i++) {
-        j->sort.keys[i] = bvh__morton(j->c->centroids[i], j->lo, j->scale);
+        j->sort.keys[i] = bvh__morton(j->c->centroids[i], &j->ms);
         j->sort.vals[i] = (uint32_t)i;
     }
     bvh__team_sync(team);
@@ -686,8 +698,7 @@ static bvh_result bvh__morton_job_init(const bvh__ctx *c, bvh__morton_job *j, ui
     j->sort.vals = BVH__ALLOC(&c->al, uint32_t, c->n);
     j->sort.vals_tmp = BVH__ALLOC(&c->al, uint32_t, c->n);
     j->sort.hist = BVH__ALLOC(&c->al, uint32_t, (size_t)nthreads * BVH__RADIX_SIZE);
-    j->lo = c->cbounds.min;
-    j->scale = bvh__morton_scale(c->cbounds);
+    j->ms = bvh__morton_scale(c->cbounds);
     if (!j->sort.keys || !j->sort.keys_tmp || !j->sort.vals || !j->sort.vals_tmp || !j->sort.hist)
         return BVH_ERROR_OUT_OF_MEMORY;
     return BVH_SUCCESS;
@@ -730,7 +741,7 @@ static void bvh__select(const bvh__ctx *c, uint32_t *ids, uint32_t n, uint32_t k
 
 /* Builds a median tree over o->refs[first .. first+count) with its root in node `root`. */
 static void bvh__median_build(const bvh__ctx *c, bvh__out *o, uint32_t root, uint32_t first, uint32_t count) {
-    uint32_t stack[3 * (BVH_MAX_DEPTH + 2)];
+    uint32_t stack[3 * 40]; /* the median tree is at most ceil(log2(2^30)) + 1 deep */
     uint32_t sp = 0;
     stack[sp++] = root; stack[sp++] = first; stack[sp++] = count;
     while (sp) {
@@ -1972,8 +1983,8 @@ done:
 
 /* ============================================================================================ */
 /* == traversal ================================================================================= */
-/* Watertight ray/triangle intersection (Woop, Benthin & Wald, JCGT 2013) with their double-
-   precision 2x2 determinants, and robust slab tests (Ize 2013: the far distance is widened by
+/* Watertight ray/triangle intersection (Woop, Benthin & Wald, JCGT 2013) with the shear and
+   determinants in double, and robust slab tests (Ize 2013: the far distance is widened by
    1 + 2 gamma(3)) so that no box rounding ever culls a triangle that the brute-force loop hits.
    A zero direction component (+0 or -0) gets an inverse of +inf; the NaN that appears when the
    origin lies on the slab plane is ignored by the min/max order, which is the right answer
@@ -1992,13 +2003,16 @@ BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
     int a;
     if (!bvh__finite3(o) || !bvh__finite3(d) || ray->tmin != ray->tmin || ray->tmax != ray->tmax || ray->tmin > ray->tmax)
         return 0;
-    if (d[0] == 0.0f && d[1] == 0.0f && d[2] == 0.0f) return 0;
     for (a = 0; a < 3; a++) {
         rx->o[a] = o[a];
-        rx->d[a] = d[a];
-        rx->inv[a] = d[a] == 0.0f ? BVH_INF : 1.0f / d[a];
+        /* a subnormal component has no finite inverse: it is taken as 0 by the boxes and the
+           triangles alike, so brute force and traversal agree */
+        rx->d[a] = fabsf(d[a]) < FLT_MIN ? 0.0f : d[a];
+        rx->inv[a] = rx->d[a] == 0.0f ? BVH_INF : 1.0f / rx->d[a];
         rx->near[a] = rx->inv[a] < 0.0f ? a + 4 : a;
     }
+    if (rx->d[0] == 0.0f && rx->d[1] == 0.0f && rx->d[2] == 0.0f) return 0;
+    d = rx->d;
     rx->tmin = ray->tmin;
     ax = fabsf(d[0]); ay = fabsf(d[1]); az = fabsf(d[2]);
     rx->kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
@@ -2011,29 +2025,37 @@ BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
     return 1;
 }
 
-/* Returns 1 and sets *t, *u, *v if the triangle is hit with tmin <= t <= tmax. */
+/* Returns 1 and sets *t, *u, *v if the triangle is hit with tmin <= t <= tmax, t finite.
+   Vertices are translated in float (as Woop et al.: each vertex once, so shared edges give the
+   same edge functions and the test stays watertight), sheared and tested in double, where
+   subnormal products cannot underflow and fused multiply-adds cannot change a sign. */
 BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, float *t, float *u, float *v) {
     const int kx = r->kx, ky = r->ky, kz = r->kz;
-    float A[3], B[3], C[3], Ax, Ay, Bx, By, Cx, Cy, U, V, W, det, T, rcp;
+    const double sx = r->sx, sy = r->sy, sz = r->sz;
+    float A[3], B[3], C[3], ft;
+    double Ax, Ay, Bx, By, Cx, Cy, U, V, W, det, T;
     int k;
     for (k = 0; k < 3; k++) { A[k] = tri[k] - r->o[k]; B[k] = tri[3 + k] - r->o[k]; C[k] = tri[6 + k] - r->o[k]; }
-    Ax = A[kx] - r->sx * A[kz]; Ay = A[ky] - r->sy * A[kz];
-    Bx = B[kx] - r->sx * B[kz]; By = B[ky] - r->sy * B[kz];
-    Cx = C[kx] - r->sx * C[kz]; Cy = C[ky] - r->sy * C[kz];
-    /* In double the float products are exact, so the differences round once whether or not the
-       compiler fuses multiply-adds: a zero-area triangle gives exactly 0 and is never hit. */
-    U = (float)((double)Cx * (double)By - (double)Cy * (double)Bx);
-    V = (float)((double)Ax * (double)Cy - (double)Ay * (double)Cx);
-    W = (float)((double)Bx * (double)Ay - (double)By * (double)Ax);
-    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
+    Ax = A[kx] - sx * A[kz]; Ay = A[ky] - sy * A[kz];
+    Bx = B[kx] - sx * B[kz]; By = B[ky] - sy * B[kz];
+    Cx = C[kx] - sx * C[kz]; Cy = C[ky] - sy * C[kz];
+    U = Cx * By - Cy * Bx;
+    V = Ax * Cy - Ay * Cx;
+    W = Bx * Ay - By * Ax;
+    if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return 0;
     det = U + V + W;
-    if (det == 0.0f) return 0;
-    T = U * (r->sz * A[kz]) + V * (r->sz * B[kz]) + W * (r->sz * C[kz]);
-    rcp = 1.0f / det;
-    *t = T * rcp;
-    if (!(*t >= r->tmin && *t <= tmax)) return 0;
-    *u = V * rcp;
-    *v = W * rcp;
+    if (det == 0.0) return 0;
+    T = U * (sz * A[kz]) + V * (sz * B[kz]) + W * (sz * C[kz]);
+    ft = (float)(T / det);
+    if (!(ft >= r->tmin && ft <= tmax && ft < BVH_INF)) return 0;
+    { /* a zero-area triangle (exactly collinear or coincident vertices) is never hit */
+        double e1x = (double)tri[3] - tri[0], e1y = (double)tri[4] - tri[1], e1z = (double)tri[5] - tri[2];
+        double e2x = (double)tri[6] - tri[0], e2y = (double)tri[7] - tri[1], e2z = (double)tri[8] - tri[2];
+        if (e1y * e2z - e1z * e2y == 0.0 && e1z * e2x - e1x * e2z == 0.0 && e1x * e2y - e1y * e2x == 0.0) return 0;
+    }
+    *t = ft;
+    *u = (float)(V / det);
+    *v = (float)(W / det);
     return 1;
 }
 

@@ -73,6 +73,10 @@ BVH_CL_FN int bvh_cl_ray_setup(float3 o, float tmin, float3 d, float tmax, bvh_c
     if (!(isfinite(o.x) && isfinite(o.y) && isfinite(o.z) && isfinite(d.x) && isfinite(d.y) && isfinite(d.z)))
         return 0;
     if (isnan(tmin) || isnan(tmax) || tmin > tmax) return 0;
+    /* as bvh__ray_setup: subnormal components have no finite inverse and count as 0 */
+    d.x = fabs(d.x) < FLT_MIN ? 0.0f : d.x;
+    d.y = fabs(d.y) < FLT_MIN ? 0.0f : d.y;
+    d.z = fabs(d.z) < FLT_MIN ? 0.0f : d.z;
     if (d.x == 0.0f && d.y == 0.0f && d.z == 0.0f) return 0;
     rx->o = o;
     rx->inv.x = d.x == 0.0f ? INFINITY : 1.0f / d.x;
@@ -110,6 +114,37 @@ BVH_CL_FN float bvh_cl_diff_of_products(float a, float b, float c, float d) {
 #endif
 }
 
+#ifdef BVH_CL_FP64
+/* bvh__tri_test: vertices translated in float, shear and edge functions in double */
+BVH_CL_FN int bvh_cl_tri_test(const bvh_cl_rayx *r, __global const float *tri, float tmax, float *t, float *u,
+                              float *v) {
+    const int kx = r->kx, ky = r->ky, kz = r->kz;
+    const double sx = r->sx, sy = r->sy, sz = r->sz;
+    float Akx = tri[kx] - r->okx, Aky = tri[ky] - r->oky, Akz = tri[kz] - r->okz;
+    float Bkx = tri[3 + kx] - r->okx, Bky = tri[3 + ky] - r->oky, Bkz = tri[3 + kz] - r->okz;
+    float Ckx = tri[6 + kx] - r->okx, Cky = tri[6 + ky] - r->oky, Ckz = tri[6 + kz] - r->okz;
+    double Ax = (double)Akx - sx * (double)Akz, Ay = (double)Aky - sy * (double)Akz;
+    double Bx = (double)Bkx - sx * (double)Bkz, By = (double)Bky - sy * (double)Bkz;
+    double Cx = (double)Ckx - sx * (double)Ckz, Cy = (double)Cky - sy * (double)Ckz;
+    double U = Cx * By - Cy * Bx, V = Ax * Cy - Ay * Cx, W = Bx * Ay - By * Ax, det, T;
+    float tt;
+    if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return 0;
+    det = U + V + W;
+    if (det == 0.0) return 0;
+    T = U * (sz * (double)Akz) + V * (sz * (double)Bkz) + W * (sz * (double)Ckz);
+    tt = (float)(T / det);
+    if (!(tt >= r->tmin && tt <= tmax && tt < INFINITY)) return 0;
+    {
+        double e1x = (double)tri[3] - tri[0], e1y = (double)tri[4] - tri[1], e1z = (double)tri[5] - tri[2];
+        double e2x = (double)tri[6] - tri[0], e2y = (double)tri[7] - tri[1], e2z = (double)tri[8] - tri[2];
+        if (e1y * e2z - e1z * e2y == 0.0 && e1z * e2x - e1x * e2z == 0.0 && e1x * e2y - e1y * e2x == 0.0) return 0;
+    }
+    *t = tt;
+    *u = (float)(V / det);
+    *v = (float)(W / det);
+    return 1;
+}
+#else
 BVH_CL_FN int bvh_cl_tri_test(const bvh_cl_rayx *r, __global const float *tri, float tmax, float *t, float *u,
                               float *v) {
     const int kx = r->kx, ky = r->ky, kz = r->kz;
@@ -129,12 +164,14 @@ BVH_CL_FN int bvh_cl_tri_test(const bvh_cl_rayx *r, __global const float *tri, f
     T = U * (r->sz * Akz) + V * (r->sz * Bkz) + W * (r->sz * Ckz);
     rcp = 1.0f / det;
     tt = T * rcp;
-    if (!(tt >= r->tmin && tt <= tmax)) return 0;
+    if (!(tt >= r->tmin && tt <= tmax && tt < INFINITY)) return 0;
+    if (all(cross(vload3(1, tri) - vload3(0, tri), vload3(2, tri) - vload3(0, tri)) == (float3)(0.0f))) return 0;
     *t = tt;
     *u = V * rcp;
     *v = W * rcp;
     return 1;
 }
+#endif
 
 /* ============================================================================================ */
 /* == slab test and traversal (bvh__slab, bvh__traverse) ========================================= */

@@ -1033,6 +1033,28 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
             total_merge += p->merges[t];
         }
         slot += slots;
+        if (total_merge * 32 < count) {
+            /* Fewer than 1/32 of the clusters merge (nested or chained input would otherwise take
+               O(n) iterations, O(n^2) time): this iteration pairs neighbours (2k, 2k+1) instead,
+               as the bottom-up builder does, which halves the count. Decided from the totals,
+               so every thread count takes the same path. */
+            for (i = b + (b & 1); i < e; i += 2) {
+                size_t k = i / 2;
+                if (i + 1 < count) {
+                    size_t sl = slots + 2 * k;
+                    bvh_node *n = &cout[k];
+                    p->src[sl] = cin[i];
+                    p->src[sl + 1] = cin[i + 1];
+                    bvh__set_box(n, bvh_aabb_merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[i + 1])));
+                    n->index = (uint32_t)sl;
+                    n->count = 0;
+                } else {
+                    cout[k] = cin[i];
+                }
+            }
+            total_merge = count / 2;
+            total_surv = count - total_merge;
+        } else
         /* merge and compact (prefix scan positions computed above) */
         for (i = b; i < e; i++) {
             uint32_t j = bvh__ploc_neighbour((uint32_t)i, best[i]);

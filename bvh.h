@@ -639,9 +639,10 @@ static void bvh__radix_sort_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__t
 typedef struct bvh__ctx {
     bvh_allocator al;
     uint32_t n;            /* primitives taking part (n >= 1 inside builders) */
-    bvh_aabb *boxes;       /* n boxes */
-    bvh_vec3 *centroids;   /* n centroids (box centres) */
-    const float *tris;     /* n * 9 floats (v0, v1, v2) or NULL for box input */
+    bvh_aabb *boxes;       /* n boxes (PLOC releases them once its clusters hold them: NULL) */
+    const bvh_triangles *tris; /* the caller's triangles, NULL for box input */
+    const bvh_aabb *in_boxes;  /* the caller's boxes, NULL for triangle input */
+    const uint32_t *orig;  /* local id -> caller index when primitives were left out, else NULL */
     bvh_aabb bounds, cbounds;
     uint32_t max_leaf, threads, radius, sah_bins;
     float ci, cl, ct, split_budget;
@@ -669,6 +670,23 @@ static bvh_result bvh__out_init(const bvh__ctx *c, bvh__out *o, uint32_t node_ca
     return BVH_SUCCESS;
 }
 
+static const float *bvh__vertex(const bvh_triangles *t, uint32_t v);
+static void bvh__fetch_triangle(const bvh_triangles *t, uint32_t i, float out[9]);
+static bvh_aabb bvh__tri_box(const float *t);
+/* Triangle of local primitive id, read from the caller's input (no copy is kept during builds). */
+static void bvh__ctx_triangle(const bvh__ctx *c, uint32_t id, float out[9]) {
+    bvh__fetch_triangle(c->tris, c->orig ? c->orig[id] : id, out);
+}
+/* Box of local primitive id: from the box array, or recomputed once it has been released. */
+static bvh_aabb bvh__prim_box(const bvh__ctx *c, uint32_t id) {
+    float t[9];
+    if (c->boxes) return c->boxes[id];
+    if (c->in_boxes) return c->in_boxes[c->orig ? c->orig[id] : id];
+    bvh__ctx_triangle(c, id, t);
+    return bvh__tri_box(t);
+}
+static bvh_vec3 bvh__prim_centroid(const bvh__ctx *c, uint32_t id) { return bvh_aabb_centroid(bvh__prim_box(c, id)); }
+
 /* Sorts all primitives by the Morton code of their centroid; *out_ids gets the local ids in
    Morton order (ties in index order). Runs on the context's team if one is given. */
 typedef struct bvh__morton_job {
@@ -680,7 +698,7 @@ static void bvh__morton_codes_team(bvh__morton_job *j, uint32_t tid, uint32_t nt
     size_t b, e, i;
     bvh__range(j->c->n, tid, nt, &b, &e);
     for (i = b; i < e; i++) {
-        j->sort.keys[i] = bvh__morton(j->c->centroids[i], &j->ms);
+        j->sort.keys[i] = bvh__morton(bvh__prim_centroid(j->c, (uint32_t)i), &j->ms);
         j->sort.vals[i] = (uint32_t)i;
     }
     bvh__team_sync(team);
@@ -716,7 +734,7 @@ static void bvh__morton_job_free(const bvh__ctx *c, bvh__morton_job *j) {
    per level, so O(n log n) in all), leaf at max_leaf primitives or fewer. Also used to rebuild
    any subtree of another builder that would exceed BVH_MAX_DEPTH: its depth is ceil(log2(n)). */
 /* ============================================================================================ */
-static float bvh__key(const bvh__ctx *c, uint32_t id, int axis) { return bvh__get(c->centroids[id], axis); }
+static float bvh__key(const bvh__ctx *c, uint32_t id, int axis) { return bvh__get(bvh__prim_centroid(c, id), axis); }
 
 /* Rearranges ids[0..n) so that ids[k] has the k-th smallest key, smaller keys before it. */
 static void bvh__select(const bvh__ctx *c, uint32_t *ids, uint32_t n, uint32_t k, int axis) {
@@ -752,8 +770,9 @@ static void bvh__median_build(const bvh__ctx *c, bvh__out *o, uint32_t root, uin
         int axis;
         for (i = b; i < b + m; i++) {
             uint32_t id = o->refs[i];
-            box = bvh_aabb_merge(box, c->boxes[id]);
-            bvh_aabb_grow(&cb, c->centroids[id]);
+            bvh_aabb pb = bvh__prim_box(c, id);
+            box = bvh_aabb_merge(box, pb);
+            bvh_aabb_grow(&cb, bvh_aabb_centroid(pb));
         }
         bvh__set_box(node, box);
         if (m <= c->max_leaf) { node->index = b; node->count = m; continue; }
@@ -961,6 +980,21 @@ BVH__INLINE uint32_t bvh__ploc_neighbour(uint32_t i, uint64_t best) {
 }
 #define BVH__MIN64(a, b) ((b) < (a) ? (b) : (a))
 
+/* First team run: Morton codes, radix sort, one leaf cluster per primitive in Morton order. */
+static void bvh__ploc_init_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__ploc *p = BVH__CAST(bvh__ploc *, arg);
+    const bvh__ctx *c = p->c;
+    size_t b, e, i;
+    bvh__morton_codes_team(&p->mj, tid, nt, team);
+    bvh__range(c->n, tid, nt, &b, &e);
+    for (i = b; i < e; i++) {
+        bvh__set_box(&p->cin[i], c->boxes[p->mj.sort.vals[i]]);
+        p->cin[i].index = (uint32_t)i;
+        p->cin[i].count = 1;
+    }
+}
+
+/* Second team run: the clustering loop. */
 static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__ploc *p = BVH__CAST(bvh__ploc *, arg);
     const bvh__ctx *c = p->c;
@@ -968,15 +1002,6 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     uint64_t *best = p->best;
     uint32_t r = p->radius, count = c->n, slots = 0, t;
     size_t b, e, i;
-    bvh__morton_codes_team(&p->mj, tid, nt, team);
-    bvh__range(c->n, tid, nt, &b, &e);
-    for (i = b; i < e; i++) {
-        uint32_t id = p->mj.sort.vals[i];
-        bvh__set_box(&cin[i], c->boxes[id]);
-        cin[i].index = (uint32_t)i;
-        cin[i].count = 1;
-    }
-    bvh__team_sync(team);
     while (count > 1) {
         uint32_t active = count / (4 * r + 256), pos = 0, slot = 0, total_surv = 0, total_merge = 0;
         uint64_t *bnd = p->bnd + (size_t)tid * r;
@@ -1080,7 +1105,10 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     if (tid == 0) { p->src[slots] = cin[0]; p->root = slots; }
 }
 
-static bvh_result bvh__build_ploc(const bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
+/* Memory: the clustering needs cin, cout, the node pairs (2n nodes) and the offers; it is run
+   after the boxes and the sort's scratch are released, so the peak stays near 140 bytes per
+   primitive instead of the ~230 that holding everything at once would take. */
+static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     bvh__ploc p;
     bvh_result r;
     size_t n = c->n;
@@ -1089,21 +1117,27 @@ static bvh_result bvh__build_ploc(const bvh__ctx *c, bvh__out *o, uint32_t nthre
     p.radius = c->radius;
     r = bvh__morton_job_init(c, &p.mj, nthreads);
     p.cin = BVH__ALLOC(&c->al, bvh_node, n);
-    p.cout = BVH__ALLOC(&c->al, bvh_node, n);
-    p.src = BVH__ALLOC(&c->al, bvh_node, 2 * n - 1);
-    p.best = BVH__ALLOC(&c->al, uint64_t, n);
-    p.bnd = BVH__ALLOC(&c->al, uint64_t, (size_t)nthreads * p.radius);
-    p.merges = BVH__ALLOC(&c->al, uint32_t, nthreads);
-    p.survivors = BVH__ALLOC(&c->al, uint32_t, nthreads);
-    if (r == BVH_SUCCESS && (!p.cin || !p.cout || !p.src || !p.best || !p.bnd || !p.merges || !p.survivors))
-        r = BVH_ERROR_OUT_OF_MEMORY;
+    if (r == BVH_SUCCESS && !p.cin) r = BVH_ERROR_OUT_OF_MEMORY;
+    if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_init_fn, &p);
+    /* the clusters now hold the boxes; the sorted keys' array becomes the offers' */
+    bvh__free(&c->al, c->boxes); c->boxes = NULL;
+    bvh__free(&c->al, p.mj.sort.keys_tmp); bvh__free(&c->al, p.mj.sort.vals_tmp); bvh__free(&c->al, p.mj.sort.hist);
+    p.mj.sort.keys_tmp = NULL; p.mj.sort.vals_tmp = NULL; p.mj.sort.hist = NULL;
+    p.best = p.mj.sort.keys;
+    if (r == BVH_SUCCESS) {
+        p.cout = BVH__ALLOC(&c->al, bvh_node, n);
+        p.src = BVH__ALLOC(&c->al, bvh_node, 2 * n - 1);
+        p.bnd = BVH__ALLOC(&c->al, uint64_t, (size_t)nthreads * p.radius);
+        p.merges = BVH__ALLOC(&c->al, uint32_t, nthreads);
+        p.survivors = BVH__ALLOC(&c->al, uint32_t, nthreads);
+        if (!p.cout || !p.src || !p.bnd || !p.merges || !p.survivors) r = BVH_ERROR_OUT_OF_MEMORY;
+    }
     if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
     /* release the clustering scratch before emission, which needs its own */
     bvh__free(&c->al, p.cin); bvh__free(&c->al, p.cout);
-    bvh__free(&c->al, p.best); bvh__free(&c->al, p.bnd);
+    bvh__free(&c->al, p.mj.sort.keys);
+    bvh__free(&c->al, p.bnd);
     bvh__free(&c->al, p.merges); bvh__free(&c->al, p.survivors);
-    bvh__free(&c->al, p.mj.sort.keys); bvh__free(&c->al, p.mj.sort.keys_tmp);
-    bvh__free(&c->al, p.mj.sort.vals_tmp); bvh__free(&c->al, p.mj.sort.hist);
     if (r == BVH_SUCCESS) r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, o);
     bvh__free(&c->al, p.mj.sort.vals);
     bvh__free(&c->al, p.src);
@@ -1240,13 +1274,13 @@ static float bvh__sm_to_float(double x) { return x < -FLT_MAX ? -FLT_MAX : x > F
    widened by (|u| + |v|) 2^-21, far more than the error of the double computation and of the
    rounding to float, so the boxes stay conservative. */
 static int bvh__sm_clip(const bvh__ctx *c, const bvh__sm_ref *r, int a, float p, bvh__sm_ref *l, bvh__sm_ref *rt) {
-    const float *t;
+    float t[9];
     float llo[3], lhi[3], rlo[3], rhi[3];
     int e, k, mask = 0;
     *l = *r;
     *rt = *r;
     if (!c->tris) { l->hi[a] = p; rt->lo[a] = p; return 3; }
-    t = c->tris + 9 * (size_t)r->id;
+    bvh__ctx_triangle(c, r->id, t);
     for (k = 0; k < 3; k++) { llo[k] = rlo[k] = BVH_INF; lhi[k] = rhi[k] = -BVH_INF; }
     for (e = 0; e < 3; e++) {
         const float *u = t + 3 * e, *v = t + 3 * (e == 2 ? 0 : e + 1);
@@ -1744,7 +1778,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     bvh__ctx c;
     bvh__out o;
     uint32_t count = 0, i, n = 0, *orig = NULL;
-    float *tris = NULL, tri[9];
+    float tri[9];
     bvh_result r;
     bvh_builder builder;
     if (!tree) return BVH_ERROR_INVALID_ARGUMENT;
@@ -1775,9 +1809,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     if (count == 0) return BVH_SUCCESS; /* an empty tree: node_count 0, every ray misses */
 
     c.boxes = BVH__ALLOC(&c.al, bvh_aabb, count);
-    c.centroids = BVH__ALLOC(&c.al, bvh_vec3, count);
-    if (!desc->boxes) tris = BVH__ALLOC(&c.al, float, 9 * (size_t)count);
-    if (!c.boxes || !c.centroids || (!desc->boxes && !tris)) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
+    if (!c.boxes) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
     c.bounds = bvh_aabb_empty();
     c.cbounds = bvh_aabb_empty();
     for (i = 0; i < count; i++) {
@@ -1803,16 +1835,16 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
             continue;
         }
         if (orig) orig[n] = i;
-        if (tris) memcpy(tris + 9 * (size_t)n, tri, sizeof tri);
         c.boxes[n] = box;
-        c.centroids[n] = bvh_aabb_centroid(box);
         c.bounds = bvh_aabb_merge(c.bounds, box);
-        bvh_aabb_grow(&c.cbounds, c.centroids[n]);
+        bvh_aabb_grow(&c.cbounds, bvh_aabb_centroid(box));
         n++;
     }
     tree->excluded = count - n;
     c.n = n;
-    c.tris = tris;
+    c.tris = desc->boxes ? NULL : &desc->triangles;
+    c.in_boxes = desc->boxes;
+    c.orig = orig;
     if (n == 0) goto empty;
 
     switch (builder) {
@@ -1824,10 +1856,9 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     }
     if (r != BVH_SUCCESS) goto fail;
     bvh__free(&c.al, c.boxes); c.boxes = NULL;
-    bvh__free(&c.al, c.centroids); c.centroids = NULL;
 
     /* exact-size outputs: nodes, references mapped to caller indices, triangles in reference order */
-    if (tris && !(tree->tris = BVH__ALLOC(&c.al, float, 9 * (size_t)o.ref_count))) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
+    if (c.tris && !(tree->tris = BVH__ALLOC(&c.al, float, 9 * (size_t)o.ref_count))) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
     if (o.node_count == o.node_cap) { tree->nodes = o.nodes; o.nodes = NULL; } /* exact size: adopt */
     else if ((tree->nodes = BVH__ALLOC(&c.al, bvh_node, o.node_count)) != NULL)
         memcpy(tree->nodes, o.nodes, (size_t)o.node_count * sizeof(bvh_node));
@@ -1840,22 +1871,18 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     tree->ref_count = o.ref_count;
     for (i = 0; i < o.ref_count; i++) { /* triangles in reference order, references to caller ids */
         uint32_t local = tree->prims[i];
-        if (tris) memcpy(tree->tris + 9 * (size_t)i, tris + 9 * (size_t)local, 9 * sizeof(float));
+        if (c.tris) bvh__ctx_triangle(&c, local, tree->tris + 9 * (size_t)i);
         if (orig) tree->prims[i] = orig[local];
     }
 empty:
     bvh__out_free(&c, &o);
-    bvh__free(&c.al, tris);
     bvh__free(&c.al, orig);
     bvh__free(&c.al, c.boxes);
-    bvh__free(&c.al, c.centroids);
     return BVH_SUCCESS;
 fail:
     bvh__out_free(&c, &o);
-    bvh__free(&c.al, tris);
     bvh__free(&c.al, orig);
     bvh__free(&c.al, c.boxes);
-    bvh__free(&c.al, c.centroids);
     bvh_free(tree);
     tree->builder = BVH_BUILDER_DEFAULT;
     return r;

@@ -224,12 +224,6 @@ BVH_API void bvh_free(bvh_tree *tree);
 
 /* SAH = Ci * sum_I A(n)/A(root) + Cl * sum_L A(n)/A(root) + Ct * sum_L A(n) N(n)/A(root).
    costs NULL or all zero = (1, 0, 1). A tree whose root has zero area uses A(n)/A(root) = 1. */
-/* in double: boxes near FLT_MAX would overflow a float area */
-static double bvh__half_area_d(const bvh_node *n) {
-    double dx = (double)n->max.x - n->min.x, dy = (double)n->max.y - n->min.y, dz = (double)n->max.z - n->min.z;
-    if (!(dx >= 0.0 && dy >= 0.0 && dz >= 0.0)) return 0.0;
-    return dx * dy + dy * dz + dz * dx;
-}
 BVH_API bvh_result bvh_sah(const bvh_tree *tree, const bvh_costs *costs, double *out_cost);
 
 /* Checks the structure: every node reached once, children inside parents, leaves contain their
@@ -1896,6 +1890,12 @@ BVH_API bvh_aabb bvh_tree_bounds(const bvh_tree *tree) {
     return bvh__node_box(&tree->nodes[0]);
 }
 
+/* in double: boxes near FLT_MAX would overflow a float area */
+static double bvh__half_area_d(const bvh_node *n) {
+    double dx = (double)n->max.x - n->min.x, dy = (double)n->max.y - n->min.y, dz = (double)n->max.z - n->min.z;
+    if (!(dx >= 0.0 && dy >= 0.0 && dz >= 0.0)) return 0.0;
+    return dx * dy + dy * dz + dz * dx;
+}
 BVH_API bvh_result bvh_sah(const bvh_tree *tree, const bvh_costs *costs, double *out) {
     double ci = 1.0, cl = 0.0, ct = 1.0, si = 0.0, sl = 0.0, st = 0.0, root;
     uint32_t i;

@@ -433,6 +433,9 @@ static void bvh__free(const bvh_allocator *al, void *p) {
     else BVH_FREE(p, al->user);
 }
 #define BVH__ALLOC(al, T, n) BVH__CAST(T *, bvh__alloc((al), (size_t)(n), sizeof(T)))
+#ifndef BVH__MIN_PRIMS_PER_THREAD /* private; the tests set it to 1 to run small inputs threaded */
+#define BVH__MIN_PRIMS_PER_THREAD 8192u
+#endif
 
 /* ============================================================================================ */
 /* == threads =================================================================================== */
@@ -1884,6 +1887,10 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     }
     c.split_budget = desc->split_budget == 0.0f ? 0.3f : desc->split_budget < 0.0f ? 0.0f : desc->split_budget;
     if (count == 0) return BVH_SUCCESS; /* an empty tree: node_count 0, every ray misses */
+    /* a thread per BVH__MIN_PRIMS_PER_THREAD primitives at most: on small inputs, creating threads
+       and meeting at barriers costs more than the work (the tree does not depend on the count) */
+    if (c.threads > 1 && count / BVH__MIN_PRIMS_PER_THREAD < c.threads)
+        c.threads = count / BVH__MIN_PRIMS_PER_THREAD > 1 ? count / BVH__MIN_PRIMS_PER_THREAD : 1;
 
     c.boxes = BVH__ALLOC(&c.al, bvh_aabb, count);
     if (!c.boxes) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }

@@ -2,6 +2,7 @@
    empty and box-only trees, allocation failures, statistics, AABB and camera helpers, and the
    validator catching corrupted trees. */
 #define BVH_IMPLEMENTATION
+#define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
 #include "test_util.h"
 

@@ -12,6 +12,7 @@
    Without an OpenCL device the tests skip, except under CI=true, where the first one fails.
    The kernel is read from cl/trace.cl: run from the repository root. */
 #define BVH_IMPLEMENTATION
+#define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
 #define BVH_CL_IMPLEMENTATION
 #include "cl/bvh_cl.h"

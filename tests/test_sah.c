@@ -7,6 +7,7 @@
    used below). Then properties of built trees: an independent evaluation in double agrees, and
    PLOC's SAH collapse never makes the SAH worse than the uncollapsed tree. */
 #define BVH_IMPLEMENTATION
+#define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
 #include "test_util.h"
 

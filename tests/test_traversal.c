@@ -6,6 +6,7 @@
    bvh_intersect_counted equals bvh_intersect; the batch calls on 1, 2, 3, 8 and all threads equal
    the single-ray calls. Also: invalid rays miss, and a tree exactly BVH_MAX_DEPTH deep traces. */
 #define BVH_IMPLEMENTATION
+#define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
 #include "test_util.h"
 

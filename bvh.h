@@ -170,7 +170,8 @@ typedef struct bvh_build_desc {
     uint32_t box_count;
     uint32_t max_leaf_size;   /* 0 = 4 (top-down, bottom-up) or 8 (SAH-collapsed builders);
                                  above 255: BVH_ERROR_INVALID_ARGUMENT */
-    uint32_t threads;         /* ploc-parallel: 0 = all online CPUs; above 256 clamped to 256 */
+    uint32_t threads;         /* ploc-parallel: 0 = all online CPUs; above 256 clamped to 256;
+                                 at most one per 8192 primitives (the tree is the same) */
     uint32_t ploc_radius;     /* PLOC search radius in Morton order; 0 = 16; above 256 refused */
     float split_budget;       /* sah-midpoint: extra references allowed, as a fraction of the
                                  primitive count; 0 = 0.3; negative = no splits; above 1 refused */

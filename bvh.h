@@ -830,8 +830,67 @@ static bvh_result bvh__build_top_down(const bvh__ctx *c, bvh__out *o) {
    subtree that would make the tree deeper than BVH_MAX_DEPTH. */
 /* ============================================================================================ */
 #define BVH__COLLAPSE_BIT 0x80000000u
+#define BVH__EMIT_TASKS 64
+/* A subtree to write: source node si goes to output node di at depth `depth`; its descendants'
+   nodes start at `node` and its references at `ref`. Positions follow from the subtree sizes: a
+   node's children pair comes first, then the left subtree's nodes, then the right's; so does the
+   order of references. Any split into tasks writes the same output. */
+typedef struct bvh__emit_task { uint32_t si, di, node, ref; } bvh__emit_task;
+typedef struct bvh__emit_job {
+    const bvh_node *src;
+    const uint32_t *map, *cnt, *size;
+    bvh__out *o;
+    const bvh__emit_task *tasks;
+    const uint32_t *owner; /* task -> thread */
+    uint32_t task_count;
+} bvh__emit_job;
+/* Writes one subtree (no depth rebuild: used only when the tree is shallow enough). */
+static void bvh__emit_subtree(const bvh__emit_job *j, bvh__emit_task t0) {
+    bvh__emit_task stack[BVH_MAX_DEPTH + 2];
+    uint32_t sp = 0, small[2 * BVH__MAX_LEAF + 8];
+    stack[sp++] = t0;
+    while (sp) {
+        bvh__emit_task t = stack[--sp];
+        const bvh_node *s = &j->src[t.si];
+        bvh_node *d = &j->o->nodes[t.di];
+        d->min = s->min; d->max = s->max;
+        if (s->count || (j->cnt[t.si] & BVH__COLLAPSE_BIT)) { /* a leaf: gather the primitives below */
+            uint32_t gsp = 0, r = t.ref;
+            small[gsp++] = t.si;
+            while (gsp) {
+                const bvh_node *x = &j->src[small[--gsp]];
+                if (x->count) {
+                    uint32_t k;
+                    for (k = 0; k < x->count; k++) j->o->refs[r++] = j->map[x->index + k];
+                } else {
+                    small[gsp++] = x->index + 1;
+                    small[gsp++] = x->index;
+                }
+            }
+            d->index = t.ref;
+            d->count = j->cnt[t.si] & ~BVH__COLLAPSE_BIT;
+        } else {
+            uint32_t l = s->index, lsize = j->size[l], lcnt = j->cnt[l] & ~BVH__COLLAPSE_BIT;
+            bvh__emit_task a, b;
+            d->index = t.node;
+            d->count = 0;
+            a.si = l; a.di = t.node; a.node = t.node + 2; a.ref = t.ref;
+            b.si = l + 1; b.di = t.node + 1; b.node = t.node + 1 + lsize; b.ref = t.ref + lcnt;
+            stack[sp++] = b;
+            stack[sp++] = a;
+        }
+    }
+}
+static void bvh__emit_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    const bvh__emit_job *j = BVH__CAST(const bvh__emit_job *, arg);
+    uint32_t i;
+    (void)team;
+    for (i = 0; i < j->task_count; i++)
+        if (j->owner[i] % nt == tid) bvh__emit_subtree(j, j->tasks[i]);
+}
+
 static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src_count, const uint32_t *map,
-                            int collapse, bvh__out *o) {
+                            int collapse, uint32_t nthreads, bvh__out *o) {
     uint32_t *cnt = BVH__ALLOC(&c->al, uint32_t, src_count); /* prims below; top bit: collapsed */
     uint32_t *size = BVH__ALLOC(&c->al, uint32_t, src_count); /* output nodes below, itself included */
     uint8_t *height = BVH__ALLOC(&c->al, uint8_t, src_count); /* after collapsing, capped at 255 */
@@ -863,6 +922,56 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
     /* exact size unless a subtree must be rebuilt for depth (then at most 2 n - 1 nodes) */
     r = bvh__out_init(c, o, height[src_count - 1] > BVH_MAX_DEPTH - 1 ? 2 * prims - 1 : size[src_count - 1], prims);
     if (r != BVH_SUCCESS) goto done;
+    if (height[src_count - 1] <= BVH_MAX_DEPTH - 1) {
+        /* shallow enough: no subtree is rebuilt, so positions follow from the sizes and the
+           subtrees can be written by the team. With several threads, the largest subtree is split
+           until there are BVH__EMIT_TASKS of them or the largest has under 4096 nodes (half of
+           BVH__MIN_PRIMS_PER_THREAD, which the tests lower to split small trees too); the
+           top nodes are written here, each subtree goes to the least loaded thread so far. The
+           output is the same for any thread count. */
+        bvh__emit_task tasks[BVH__EMIT_TASKS];
+        uint32_t owner[BVH__EMIT_TASKS], load[BVH__EMIT_TASKS], nt = nthreads, k, t;
+        bvh__emit_job job;
+        uint32_t ntasks = 1;
+        tasks[0].si = src_count - 1; tasks[0].di = 0; tasks[0].node = 1; tasks[0].ref = 0;
+        if (nt > BVH__EMIT_TASKS / 4) nt = BVH__EMIT_TASKS / 4;
+        while (nt > 1 && ntasks + 1 < BVH__EMIT_TASKS) {
+            /* expand the largest task that is an interior node in the output */
+            uint32_t big = ntasks, bigsize = 0;
+            for (k = 0; k < ntasks; k++) {
+                const bvh_node *s = &src[tasks[k].si];
+                if (!s->count && !(cnt[tasks[k].si] & BVH__COLLAPSE_BIT) && size[tasks[k].si] > bigsize) {
+                    big = k; bigsize = size[tasks[k].si];
+                }
+            }
+            if (big == ntasks || 2 * (size_t)bigsize < BVH__MIN_PRIMS_PER_THREAD) break;
+            {
+                bvh__emit_task x = tasks[big];
+                const bvh_node *s = &src[x.si];
+                bvh_node *d = &o->nodes[x.di];
+                uint32_t l = s->index;
+                d->min = s->min; d->max = s->max;
+                d->index = x.node; d->count = 0;
+                tasks[big].si = l; tasks[big].di = x.node; tasks[big].node = x.node + 2; tasks[big].ref = x.ref;
+                tasks[ntasks].si = l + 1; tasks[ntasks].di = x.node + 1;
+                tasks[ntasks].node = x.node + 1 + size[l]; tasks[ntasks].ref = x.ref + (cnt[l] & ~BVH__COLLAPSE_BIT);
+                ntasks++;
+            }
+        }
+        for (t = 0; t < nt; t++) load[t] = 0;
+        for (k = 0; k < ntasks; k++) { /* greedy: each task to the least loaded thread so far */
+            uint32_t least = 0;
+            for (t = 1; t < nt; t++) if (load[t] < load[least]) least = t;
+            owner[k] = least;
+            load[least] += size[tasks[k].si];
+        }
+        job.src = src; job.map = map; job.cnt = cnt; job.size = size; job.o = o;
+        job.tasks = tasks; job.owner = owner; job.task_count = ntasks;
+        r = bvh__team_run(&c->al, nt, bvh__emit_team_fn, &job);
+        o->node_count = size[src_count - 1];
+        o->ref_count = prims;
+        goto done;
+    }
     o->node_count = 1;
     stack[sp++] = src_count - 1; stack[sp++] = 0; stack[sp++] = 0;
     while (sp) {
@@ -948,7 +1057,7 @@ static bvh_result bvh__build_bottom_up(const bvh__ctx *c, bvh__out *o) {
         level = next;
         len = count - next;
     }
-    r = bvh__emit(c, src, count, job.sort.vals, 0, o);
+    r = bvh__emit(c, src, count, job.sort.vals, 0, 1, o);
 done:
     bvh__free(&c->al, src);
     bvh__morton_job_free(c, &job);
@@ -1158,7 +1267,7 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     bvh__free(&c->al, p.mj.sort.keys);
     bvh__free(&c->al, p.bnd);
     bvh__free(&c->al, p.merges); bvh__free(&c->al, p.survivors);
-    if (r == BVH_SUCCESS) r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, o);
+    if (r == BVH_SUCCESS) r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, nthreads, o);
     bvh__free(&c->al, p.mj.sort.vals);
     bvh__free(&c->al, p.src);
     return r;

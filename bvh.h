@@ -454,6 +454,7 @@ struct bvh__team {
     pthread_mutex_t mutex;
     pthread_cond_t cond;
     uint32_t waiting, generation, started;
+    int spin; /* rounds to spin at a barrier: 0 when the team has more threads than CPUs */
 #endif
 };
 typedef struct bvh__worker { bvh__team *team; uint32_t tid; } bvh__worker;
@@ -475,7 +476,9 @@ static uint32_t bvh__resolve_threads(uint32_t t) {
 /* Barrier. The last thread to arrive bumps the generation; the others spin on it for a few
    microseconds before they sleep on the condition variable: a PLOC iteration on a mid-size
    scene is shorter than a sleeping thread takes to wake up (70K triangles: about 120 barriers,
-   which made 2 threads slower than one). OpenMP runtimes spin far longer by default. With compilers that lack the GCC atomic builtins they
+   which made 2 threads slower than one). OpenMP runtimes spin far longer by default. A team
+   with more threads than CPUs does not spin: a spinning thread would hold a CPU that a working
+   one needs. With compilers that lack the GCC atomic builtins they
    sleep at once. */
 #if defined(__GNUC__) || defined(__clang__)
 #define BVH__LOAD_ACQ(p) __atomic_load_n((p), __ATOMIC_ACQUIRE)
@@ -507,7 +510,7 @@ static void bvh__team_sync(bvh__team *team) {
         return;
     }
     pthread_mutex_unlock(&team->mutex);
-    for (k = 0; k < BVH__SPIN_ROUNDS; k++) {
+    for (k = 0; k < team->spin; k++) {
         if (BVH__LOAD_ACQ(&team->generation) != gen) return;
         BVH__PAUSE();
     }
@@ -554,6 +557,7 @@ static bvh_result bvh__team_run(const bvh_allocator *al, uint32_t want, bvh__tea
         }
         pthread_mutex_lock(&team.mutex);
         team.n = made + 1; /* workers with tid >= n return at once */
+        team.spin = team.n <= bvh__cpu_count() ? BVH__SPIN_ROUNDS : 0;
         team.started = 1;
         pthread_cond_broadcast(&team.cond);
         pthread_mutex_unlock(&team.mutex);

@@ -865,8 +865,8 @@ static bvh_result bvh__build_top_down(const bvh__ctx *c, bvh__out *o) {
 /* ============================================================================================ */
 #define BVH__COLLAPSE_BIT 0x80000000u
 #define BVH__EMIT_TASKS 64
-/* A subtree to write: source node si goes to output node di at depth `depth`; its descendants'
-   nodes start at `node` and its references at `ref`. Positions follow from the subtree sizes: a
+/* A subtree to write: source node si goes to output node di; its descendants' nodes start at
+   `node` and its references at `ref`. Positions follow from the subtree sizes: a
    node's children pair comes first, then the left subtree's nodes, then the right's; so does the
    order of references. Any split into tasks writes the same output. */
 typedef struct bvh__emit_task { uint32_t si, di, node, ref; } bvh__emit_task;

@@ -2316,6 +2316,7 @@ BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
    Vertices are translated in float (as Woop et al.: each vertex once, so shared edges give the
    same edge functions and the test stays watertight), sheared and tested in double, where
    subnormal products cannot underflow and fused multiply-adds cannot change a sign. */
+BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar);
 BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, float *t, float *u, float *v) {
     const int kx = r->kx, ky = r->ky, kz = r->kz;
     const double sx = r->sx, sy = r->sy, sz = r->sz;
@@ -2339,6 +2340,19 @@ BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, 
         double e1x = (double)tri[3] - tri[0], e1y = (double)tri[4] - tri[1], e1z = (double)tri[5] - tri[2];
         double e2x = (double)tri[6] - tri[0], e2y = (double)tri[7] - tri[1], e2z = (double)tri[8] - tri[2];
         if (e1y * e2z - e1z * e2y == 0.0 && e1z * e2x - e1x * e2z == 0.0 && e1x * e2y - e1y * e2x == 0.0) return 0;
+    }
+    { /* The ray must reach the triangle's own box by t, as the traversal's slab test sees it.
+         Every node box that holds the triangle holds its box, and the slab test is monotone in
+         the planes, so such a node is never culled before this hit. Only hits that precision
+         made up fail: with an origin ~1e33 away from a triangle ~1e17 wide, the float translation
+         leaves the edge functions meaningless, and the test can report a hit far outside the
+         triangle (found by the fuzzer). */
+        bvh_node box;
+        box.min.x = bvh__minf(bvh__minf(tri[0], tri[3]), tri[6]); box.max.x = bvh__maxf(bvh__maxf(tri[0], tri[3]), tri[6]);
+        box.min.y = bvh__minf(bvh__minf(tri[1], tri[4]), tri[7]); box.max.y = bvh__maxf(bvh__maxf(tri[1], tri[4]), tri[7]);
+        box.min.z = bvh__minf(bvh__minf(tri[2], tri[5]), tri[8]); box.max.z = bvh__maxf(bvh__maxf(tri[2], tri[5]), tri[8]);
+        box.index = box.count = 0;
+        if (bvh__slab(r, &box, ft) == BVH_INF) return 0;
     }
     *t = ft;
     *u = (float)(V / det);

@@ -114,6 +114,14 @@ BVH_CL_FN float bvh_cl_diff_of_products(float a, float b, float c, float d) {
 #endif
 }
 
+BVH_CL_FN float bvh_cl_slab(const bvh_cl_rayx *r, float4 lo, float4 hi, float tfar);
+/* as bvh__tri_test: the ray must reach the triangle's own box by t (hits that precision made up) */
+BVH_CL_FN int bvh_cl_tri_box_reached(const bvh_cl_rayx *r, __global const float *tri, float tt) {
+    float3 a = vload3(0, tri), b = vload3(1, tri), c = vload3(2, tri);
+    float3 lo = fmin(fmin(a, b), c), hi = fmax(fmax(a, b), c);
+    return bvh_cl_slab(r, (float4)(lo, 0.0f), (float4)(hi, 0.0f), tt) != INFINITY;
+}
+
 #ifdef BVH_CL_FP64
 /* bvh__tri_test: vertices translated in float, shear and edge functions in double */
 BVH_CL_FN int bvh_cl_tri_test(const bvh_cl_rayx *r, __global const float *tri, float tmax, float *t, float *u,
@@ -139,6 +147,7 @@ BVH_CL_FN int bvh_cl_tri_test(const bvh_cl_rayx *r, __global const float *tri, f
         double e2x = (double)tri[6] - tri[0], e2y = (double)tri[7] - tri[1], e2z = (double)tri[8] - tri[2];
         if (e1y * e2z - e1z * e2y == 0.0 && e1z * e2x - e1x * e2z == 0.0 && e1x * e2y - e1y * e2x == 0.0) return 0;
     }
+    if (!bvh_cl_tri_box_reached(r, tri, tt)) return 0;
     *t = tt;
     *u = (float)(V / det);
     *v = (float)(W / det);
@@ -166,6 +175,7 @@ BVH_CL_FN int bvh_cl_tri_test(const bvh_cl_rayx *r, __global const float *tri, f
     tt = T * rcp;
     if (!(tt >= r->tmin && tt <= tmax && tt < INFINITY)) return 0;
     if (all(cross(vload3(1, tri) - vload3(0, tri), vload3(2, tri) - vload3(0, tri)) == (float3)(0.0f))) return 0;
+    if (!bvh_cl_tri_box_reached(r, tri, tt)) return 0;
     *t = tt;
     *u = V * rcp;
     *v = W * rcp;

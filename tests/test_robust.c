@@ -893,6 +893,36 @@ static void test_hit_is_finite(void **state) {
     rb_scene_free(&s);
 }
 
+/* A ray whose origin is ~1e33 away from a triangle ~1e17 wide: translated in float, the vertices
+   leave the edge functions meaningless, and the triangle test used to report a hit far outside
+   the triangle, which the traversal's box test (rightly) culled, so traversal and brute force
+   disagreed (found by tests/fuzz_build.c; the input is tests/fuzz/crash-false-hit-far-origin).
+   The hit must be rejected by both. */
+static void test_far_origin_false_hit(void **state) {
+    rb_scene s;
+    bvh_builder b;
+    bvh_ray ray = rb_ray(rb_v3(-0x1.4eff4p+40f, 0x1.4p+1f, -0x1.1efe1ap+111f), rb_v3(-0x1.4p+0f, -0x1.4p+1f, 0x1.ep+1f), 0,
+                         BVH_INF);
+    bvh_hit h;
+    (void)state;
+    rb_scene_soup(&s, 2);
+    rb_set_tri(s.pos, 0x1.527bb4p+57f, 0x1.ea78p-136f, 0x1.7ap-107f, 0x1.f038p-136f, 0, -0x1.9ap+26f, 0x1.f2ap-136f,
+               -0x1.3ep-117f, -0x1.0a7a36p+88f);
+    rb_set_tri(s.pos + 9, 10, 0, 4, 11, 0, 4, 10, 1, 4);
+    rb_scene_expand(&s);
+    if (bvh_intersect_triangle(&ray, s.tris, s.tris + 3, s.tris + 6, &h))
+        fail_msg("bvh_intersect_triangle: hit at t=%a, where the ray is nowhere near the triangle", (double)h.t);
+    RB_FOR_EACH_BUILDER(b) {
+        bvh_build_desc d = rb_desc(&s, b);
+        bvh_tree t;
+        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+        rb_check_ray("far origin", &t, &s, &ray);
+        bvh_free(&t);
+    }
+    rb_expect_no_mismatch("far origin", BVH_BUILDER_COUNT - 1);
+    rb_scene_free(&s);
+}
+
 /* == bad arguments =========================================================================== */
 static void rb_expect(bvh_build_desc d, bvh_result want, const char *what) {
     bvh_tree t;
@@ -1442,6 +1472,7 @@ int main(void) {
         cmocka_unit_test_teardown(test_threads_batch, rb_teardown),
         /* last: under UBSan (make asan) a report stops the whole program */
         cmocka_unit_test_teardown(test_huge_coordinates, rb_teardown),
+        cmocka_unit_test_teardown(test_far_origin_false_hit, rb_teardown),
     };
     const char *filter = getenv("ROBUST_FILTER"); /* e.g. "test_threads_*" for make tsan */
     if (filter && *filter) cmocka_set_test_filter(filter);

@@ -49,9 +49,9 @@
 
    THREADS
      No global mutable state: any function may be called from several threads on different trees.
-     Parallel builders create their worker threads once per build, never per iteration; at
-     barriers they spin for up to about half a millisecond before sleeping, unless the build has
-     more threads than the machine has CPUs.
+     Parallel builders create their worker threads once per build phase (five per build), never
+     per iteration; at barriers they spin for up to about half a millisecond before sleeping,
+     unless the build has more threads than the machine has CPUs.
 
    LICENSE
      MIT, see the end of this file.

@@ -923,34 +923,76 @@ static void bvh__emit_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
         if (j->owner[i] % nt == tid) bvh__emit_subtree(j, j->tasks[i]);
 }
 
+/* Pass 1 of bvh__emit, bottom-up over src (children before parents): primitives, output size,
+   height and SAH cost of every subtree, and the collapse decisions. With `blocks` (the ends of
+   runs of src whose children all lie in earlier runs, as each PLOC iteration appends), each run
+   is split over the team, which meets at a barrier between runs; without, one thread. */
+typedef struct bvh__sizes {
+    const bvh__ctx *c;
+    const bvh_node *src;
+    uint32_t *cnt, *size;
+    uint8_t *height;
+    float *cost;
+    const uint32_t *blocks;
+    uint32_t block_count, src_count;
+} bvh__sizes;
+static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
+    const bvh__ctx *c = q->c;
+    const bvh_node *s = &q->src[i];
+    uint32_t *cnt = q->cnt, *size = q->size;
+    uint8_t *height = q->height;
+    float *cost = q->cost;
+    if (s->count) {
+        cnt[i] = s->count; height[i] = 0; size[i] = 1;
+        if (cost) cost[i] = bvh__half_area(bvh__node_box(s)) * (c->cl + c->ct * (float)s->count);
+    } else {
+        uint32_t l = s->index, n = (cnt[l] & ~BVH__COLLAPSE_BIT) + (cnt[l + 1] & ~BVH__COLLAPSE_BIT);
+        uint32_t h = height[l] > height[l + 1] ? height[l] : height[l + 1];
+        cnt[i] = n;
+        height[i] = (uint8_t)(h >= 255 ? 255 : h + 1);
+        size[i] = 1 + size[l] + size[l + 1];
+        if (cost) {
+            float a = bvh__half_area(bvh__node_box(s));
+            float split = c->ci * a + cost[l] + cost[l + 1];
+            float leaf = a * (c->cl + c->ct * (float)n);
+            if (n <= c->max_leaf && leaf <= split) { cost[i] = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; size[i] = 1; }
+            else cost[i] = split;
+        }
+    }
+}
+static void bvh__sizes_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    const bvh__sizes *q = BVH__CAST(const bvh__sizes *, arg);
+    uint32_t k, start = 0;
+    size_t b, e, i;
+    if (!q->blocks) {
+        for (i = 0; i < q->src_count; i++) bvh__sizes_node(q, (uint32_t)i);
+        return;
+    }
+    for (k = 0; k < q->block_count; k++) {
+        uint32_t end = q->blocks[k];
+        bvh__range(end - start, tid, nt, &b, &e);
+        for (i = b; i < e; i++) bvh__sizes_node(q, start + (uint32_t)i);
+        bvh__team_sync(team);
+        start = end;
+    }
+}
+
 static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src_count, const uint32_t *map,
-                            int collapse, uint32_t nthreads, bvh__out *o) {
+                            int collapse, uint32_t nthreads, const uint32_t *blocks, uint32_t block_count,
+                            bvh__out *o) {
     uint32_t *cnt = BVH__ALLOC(&c->al, uint32_t, src_count); /* prims below; top bit: collapsed */
     uint32_t *size = BVH__ALLOC(&c->al, uint32_t, src_count); /* output nodes below, itself included */
     uint8_t *height = BVH__ALLOC(&c->al, uint8_t, src_count); /* after collapsing, capped at 255 */
     float *cost = collapse ? BVH__ALLOC(&c->al, float, src_count) : NULL;
-    uint32_t stack[3 * (BVH_MAX_DEPTH + 2)], small[2 * BVH__MAX_LEAF + 8], *gather = NULL, i, sp = 0, prims;
+    uint32_t stack[3 * (BVH_MAX_DEPTH + 2)], small[2 * BVH__MAX_LEAF + 8], *gather = NULL, sp = 0, prims;
     bvh_result r = BVH_SUCCESS;
     if (!cnt || !size || !height || (collapse && !cost)) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
-    for (i = 0; i < src_count; i++) {
-        const bvh_node *s = &src[i];
-        if (s->count) {
-            cnt[i] = s->count; height[i] = 0; size[i] = 1;
-            if (cost) cost[i] = bvh__half_area(bvh__node_box(s)) * (c->cl + c->ct * (float)s->count);
-        } else {
-            uint32_t l = s->index, n = (cnt[l] & ~BVH__COLLAPSE_BIT) + (cnt[l + 1] & ~BVH__COLLAPSE_BIT);
-            uint32_t h = height[l] > height[l + 1] ? height[l] : height[l + 1];
-            cnt[i] = n;
-            height[i] = (uint8_t)(h >= 255 ? 255 : h + 1);
-            size[i] = 1 + size[l] + size[l + 1];
-            if (cost) {
-                float a = bvh__half_area(bvh__node_box(s));
-                float split = c->ci * a + cost[l] + cost[l + 1];
-                float leaf = a * (c->cl + c->ct * (float)n);
-                if (n <= c->max_leaf && leaf <= split) { cost[i] = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; size[i] = 1; }
-                else cost[i] = split;
-            }
-        }
+    {
+        bvh__sizes q;
+        q.c = c; q.src = src; q.cnt = cnt; q.size = size; q.height = height; q.cost = cost;
+        q.blocks = blocks; q.block_count = blocks ? block_count : 0; q.src_count = src_count;
+        r = bvh__team_run(&c->al, blocks ? nthreads : 1, bvh__sizes_fn, &q);
+        if (r != BVH_SUCCESS) goto done;
     }
     prims = cnt[src_count - 1] & ~BVH__COLLAPSE_BIT;
     /* exact size unless a subtree must be rebuilt for depth (then at most 2 n - 1 nodes) */
@@ -1091,7 +1133,7 @@ static bvh_result bvh__build_bottom_up(const bvh__ctx *c, bvh__out *o) {
         level = next;
         len = count - next;
     }
-    r = bvh__emit(c, src, count, job.sort.vals, 0, 1, o);
+    r = bvh__emit(c, src, count, job.sort.vals, 0, 1, NULL, 0, o);
 done:
     bvh__free(&c->al, src);
     bvh__morton_job_free(c, &job);
@@ -1120,8 +1162,12 @@ typedef struct bvh__ploc {
     uint64_t *best;    /* per cluster: distance bits << 32 | tie key (see bvh__ploc_pack) */
     uint64_t *bnd;     /* per thread, radius entries: best offers to the next chunk's clusters */
     uint32_t *merges, *survivors; /* per thread */
-    uint32_t radius, root;
+    uint32_t *blocks;  /* end of src after each iteration, then after the root (for bvh__emit) */
+    uint32_t block_count, radius, root;
 } bvh__ploc;
+/* at most ln(n) / ln(32/31) + 1 iterations (each merges a 32nd of the clusters or halves them):
+   about 660 for 2^30 primitives; beyond this bvh__emit's first pass runs on one thread */
+#define BVH__PLOC_MAX_ITER 1024u
 
 BVH__INLINE float bvh__merged_half_area(const bvh_node *a, const bvh_node *b) {
     float dx = bvh__maxf(a->max.x, b->max.x) - bvh__minf(a->min.x, b->min.x);
@@ -1263,9 +1309,18 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
         bvh__team_sync(team);
         slots += 2 * total_merge;
         count = total_surv;
+        if (tid == 0) {
+            if (p->block_count < BVH__PLOC_MAX_ITER) p->blocks[p->block_count] = slots;
+            p->block_count++;
+        }
         { bvh_node *tmp = cin; cin = cout; cout = tmp; }
     }
-    if (tid == 0) { p->src[slots] = cin[0]; p->root = slots; }
+    if (tid == 0) {
+        p->src[slots] = cin[0];
+        p->root = slots;
+        if (p->block_count < BVH__PLOC_MAX_ITER) p->blocks[p->block_count] = slots + 1;
+        p->block_count++;
+    }
 }
 
 /* Memory: the clustering needs cin, cout, the node pairs (2n nodes) and the offers; it is run
@@ -1293,7 +1348,8 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
         p.bnd = BVH__ALLOC(&c->al, uint64_t, (size_t)nthreads * p.radius);
         p.merges = BVH__ALLOC(&c->al, uint32_t, nthreads);
         p.survivors = BVH__ALLOC(&c->al, uint32_t, nthreads);
-        if (!p.cout || !p.src || !p.bnd || !p.merges || !p.survivors) r = BVH_ERROR_OUT_OF_MEMORY;
+        p.blocks = BVH__ALLOC(&c->al, uint32_t, BVH__PLOC_MAX_ITER + 1);
+        if (!p.cout || !p.src || !p.bnd || !p.merges || !p.survivors || !p.blocks) r = BVH_ERROR_OUT_OF_MEMORY;
     }
     if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
     /* release the clustering scratch before emission, which needs its own */
@@ -1301,9 +1357,12 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     bvh__free(&c->al, p.mj.sort.keys);
     bvh__free(&c->al, p.bnd);
     bvh__free(&c->al, p.merges); bvh__free(&c->al, p.survivors);
-    if (r == BVH_SUCCESS) r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, nthreads, o);
+    if (r == BVH_SUCCESS)
+        r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, nthreads, p.block_count <= BVH__PLOC_MAX_ITER ? p.blocks : NULL,
+                      p.block_count, o);
     bvh__free(&c->al, p.mj.sort.vals);
     bvh__free(&c->al, p.src);
+    bvh__free(&c->al, p.blocks);
     return r;
 }
 

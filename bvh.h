@@ -1163,11 +1163,15 @@ typedef struct bvh__ploc {
     uint64_t *bnd;     /* per thread, radius entries: best offers to the next chunk's clusters */
     uint32_t *merges, *survivors; /* per thread */
     uint32_t *blocks;  /* end of src after each iteration, then after the root (for bvh__emit) */
-    uint32_t block_count, radius, root;
+    uint32_t block_count, block_cap, radius, root;
 } bvh__ploc;
-/* at most ln(n) / ln(32/31) + 1 iterations (each merges a 32nd of the clusters or halves them):
-   about 660 for 2^30 primitives; beyond this bvh__emit's first pass runs on one thread */
-#define BVH__PLOC_MAX_ITER 1024u
+/* Room for every iteration's end and the root's: each iteration merges at least a 32nd of the
+   clusters (or pairs them all), which bounds the count (about 660 for 2^30 primitives). */
+static uint32_t bvh__ploc_block_cap(uint32_t n) {
+    uint32_t k = 1, m = n;
+    while (m > 1) { m -= m / 32 ? m / 32 : 1; k++; }
+    return k;
+}
 
 BVH__INLINE float bvh__merged_half_area(const bvh_node *a, const bvh_node *b) {
     float dx = bvh__maxf(a->max.x, b->max.x) - bvh__minf(a->min.x, b->min.x);
@@ -1310,7 +1314,7 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
         slots += 2 * total_merge;
         count = total_surv;
         if (tid == 0) {
-            if (p->block_count < BVH__PLOC_MAX_ITER) p->blocks[p->block_count] = slots;
+            if (p->block_count < p->block_cap) p->blocks[p->block_count] = slots;
             p->block_count++;
         }
         { bvh_node *tmp = cin; cin = cout; cout = tmp; }
@@ -1318,7 +1322,7 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     if (tid == 0) {
         p->src[slots] = cin[0];
         p->root = slots;
-        if (p->block_count < BVH__PLOC_MAX_ITER) p->blocks[p->block_count] = slots + 1;
+        if (p->block_count < p->block_cap) p->blocks[p->block_count] = slots + 1;
         p->block_count++;
     }
 }
@@ -1348,7 +1352,8 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
         p.bnd = BVH__ALLOC(&c->al, uint64_t, (size_t)nthreads * p.radius);
         p.merges = BVH__ALLOC(&c->al, uint32_t, nthreads);
         p.survivors = BVH__ALLOC(&c->al, uint32_t, nthreads);
-        p.blocks = BVH__ALLOC(&c->al, uint32_t, BVH__PLOC_MAX_ITER + 1);
+        p.block_cap = bvh__ploc_block_cap((uint32_t)n);
+        p.blocks = BVH__ALLOC(&c->al, uint32_t, p.block_cap);
         if (!p.cout || !p.src || !p.bnd || !p.merges || !p.survivors || !p.blocks) r = BVH_ERROR_OUT_OF_MEMORY;
     }
     if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
@@ -1358,7 +1363,7 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     bvh__free(&c->al, p.bnd);
     bvh__free(&c->al, p.merges); bvh__free(&c->al, p.survivors);
     if (r == BVH_SUCCESS)
-        r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, nthreads, p.block_count <= BVH__PLOC_MAX_ITER ? p.blocks : NULL,
+        r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, nthreads, p.block_count <= p.block_cap ? p.blocks : NULL,
                       p.block_count, o);
     bvh__free(&c->al, p.mj.sort.vals);
     bvh__free(&c->al, p.src);

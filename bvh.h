@@ -2439,22 +2439,25 @@ BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const 
 /* Entry distance of the ray into node n if it enters before tfar, else +inf. */
 BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
     const float *f = &n->min.x; /* min at 0..2, max at 4..6 */
-    float t0[3], t1[3], tn = r->tmin, tf = BVH_INF, slack;
-    t0[0] = (f[r->near[0]] - r->o[0]) * r->inv[0]; t1[0] = (f[r->near[0] ^ 4] - r->o[0]) * r->inv[0];
-    t0[1] = (f[r->near[1]] - r->o[1]) * r->inv[1]; t1[1] = (f[r->near[1] ^ 4] - r->o[1]) * r->inv[1];
-    t0[2] = (f[r->near[2]] - r->o[2]) * r->inv[2]; t1[2] = (f[r->near[2] ^ 4] - r->o[2]) * r->inv[2];
-    tn = t0[0] > tn ? t0[0] : tn; /* NaN (origin on the plane) leaves tn as it is */
-    tn = t0[1] > tn ? t0[1] : tn;
-    tn = t0[2] > tn ? t0[2] : tn;
-    tf = t1[0] < tf ? t1[0] : tf;
-    tf = t1[1] < tf ? t1[1] : tf;
-    tf = t1[2] < tf ? t1[2] : tf;
+    const float t0x = (f[r->near[0]] - r->o[0]) * r->inv[0], t1x = (f[r->near[0] ^ 4] - r->o[0]) * r->inv[0];
+    const float t0y = (f[r->near[1]] - r->o[1]) * r->inv[1], t1y = (f[r->near[1] ^ 4] - r->o[1]) * r->inv[1];
+    const float t0z = (f[r->near[2]] - r->o[2]) * r->inv[2], t1z = (f[r->near[2] ^ 4] - r->o[2]) * r->inv[2];
+    float tn = r->tmin, tf = BVH_INF, k0, k1, slack;
+    tn = t0x > tn ? t0x : tn; /* NaN (origin on the plane) leaves tn as it is */
+    tn = t0y > tn ? t0y : tn;
+    tn = t0z > tn ? t0z : tn;
+    tf = t1x < tf ? t1x : tf;
+    tf = t1y < tf ? t1y : tf;
+    tf = t1z < tf ? t1z : tf;
     tf *= 1.0000004f; /* 1 + 2 gamma(3) */
     /* A triangle inside the box has its watertight t computed with an error of a few ulps of its
        vertices' distances along the dominant axis, which the box's distances on that axis bound
        (t0 <= t1 there, so max(|t0|, |t1|) = max(t1, -t0)); lowering the entry by 2^-18 of those
-       means a hit on the box's face is never culled. */
-    slack = t1[r->kz] > -t0[r->kz] ? t1[r->kz] : -t0[r->kz];
+       means a hit on the box's face is never culled. Selected without indexing, so that the
+       distances stay in registers. */
+    k0 = r->kz == 0 ? t0x : r->kz == 1 ? t0y : t0z;
+    k1 = r->kz == 0 ? t1x : r->kz == 1 ? t1y : t1z;
+    slack = k1 > -k0 ? k1 : -k0;
     tn -= slack * 3.814697265625e-6f; /* 2^-18 */
     tf = tf < tfar ? tf : tfar;
     return tn <= tf ? tn : BVH_INF;

@@ -878,6 +878,24 @@ typedef struct bvh__emit_job {
     const uint32_t *owner; /* task -> thread */
     uint32_t task_count;
 } bvh__emit_job;
+/* Writes the references of every primitive below source node si to refs, left to right, with
+   `stack` as scratch (room for the subtree's height + 1 entries); returns how many. */
+static uint32_t bvh__gather_refs(const bvh_node *src, const uint32_t *map, uint32_t si, uint32_t *stack,
+                                 uint32_t *refs) {
+    uint32_t sp = 0, n = 0;
+    stack[sp++] = si;
+    while (sp) {
+        const bvh_node *x = &src[stack[--sp]];
+        if (x->count) {
+            uint32_t k;
+            for (k = 0; k < x->count; k++) refs[n++] = map[x->index + k];
+        } else {
+            stack[sp++] = x->index + 1;
+            stack[sp++] = x->index;
+        }
+    }
+    return n;
+}
 /* Writes one subtree (no depth rebuild: used only when the tree is shallow enough). */
 static void bvh__emit_subtree(const bvh__emit_job *j, bvh__emit_task t0) {
     bvh__emit_task stack[BVH_MAX_DEPTH + 2];
@@ -889,20 +907,8 @@ static void bvh__emit_subtree(const bvh__emit_job *j, bvh__emit_task t0) {
         bvh_node *d = &j->o->nodes[t.di];
         d->min = s->min; d->max = s->max;
         if (s->count || (j->cnt[t.si] & BVH__COLLAPSE_BIT)) { /* a leaf: gather the primitives below */
-            uint32_t gsp = 0, r = t.ref;
-            small[gsp++] = t.si;
-            while (gsp) {
-                const bvh_node *x = &j->src[small[--gsp]];
-                if (x->count) {
-                    uint32_t k;
-                    for (k = 0; k < x->count; k++) j->o->refs[r++] = j->map[x->index + k];
-                } else {
-                    small[gsp++] = x->index + 1;
-                    small[gsp++] = x->index;
-                }
-            }
             d->index = t.ref;
-            d->count = j->cnt[t.si] & ~BVH__COLLAPSE_BIT;
+            d->count = bvh__gather_refs(j->src, j->map, t.si, small, j->o->refs + t.ref);
         } else {
             uint32_t l = s->index, lsize = j->size[l], lcnt = j->cnt[l] & ~BVH__COLLAPSE_BIT;
             bvh__emit_task a, b;
@@ -926,7 +932,8 @@ static void bvh__emit_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
 /* Pass 1 of bvh__emit, bottom-up over src (children before parents): primitives, output size,
    height and SAH cost of every subtree, and the collapse decisions. With `blocks` (the ends of
    runs of src whose children all lie in earlier runs, as each PLOC iteration appends), each run
-   is split over the team, which meets at a barrier between runs; without, one thread. */
+   is split over the team, which meets at a barrier between runs; without, all of src is one run
+   on one thread. */
 typedef struct bvh__sizes {
     const bvh__ctx *c;
     const bvh_node *src;
@@ -934,7 +941,7 @@ typedef struct bvh__sizes {
     uint8_t *height;
     float *cost;
     const uint32_t *blocks;
-    uint32_t block_count, src_count;
+    uint32_t block_count;
 } bvh__sizes;
 static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
     const bvh__ctx *c = q->c;
@@ -964,10 +971,6 @@ static void bvh__sizes_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     const bvh__sizes *q = BVH__CAST(const bvh__sizes *, arg);
     uint32_t k, start = 0;
     size_t b, e, i;
-    if (!q->blocks) {
-        for (i = 0; i < q->src_count; i++) bvh__sizes_node(q, (uint32_t)i);
-        return;
-    }
     for (k = 0; k < q->block_count; k++) {
         uint32_t end = q->blocks[k];
         bvh__range(end - start, tid, nt, &b, &e);
@@ -990,7 +993,8 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
     {
         bvh__sizes q;
         q.c = c; q.src = src; q.cnt = cnt; q.size = size; q.height = height; q.cost = cost;
-        q.blocks = blocks; q.block_count = blocks ? block_count : 0; q.src_count = src_count;
+        q.blocks = blocks ? blocks : &src_count;
+        q.block_count = blocks ? block_count : 1;
         r = bvh__team_run(&c->al, blocks ? nthreads : 1, bvh__sizes_fn, &q);
         if (r != BVH_SUCCESS) goto done;
     }
@@ -1058,22 +1062,12 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
         int too_deep = !flatten && depth <= BVH_MAX_DEPTH / 2 - 1 && depth + height[si] > BVH_MAX_DEPTH - 1;
         if (flatten || too_deep) {
             /* gather every primitive below si: a small subtree, or (rarely) a too deep one */
-            uint32_t first = o->ref_count, gsp = 0, n = cnt[si] & ~BVH__COLLAPSE_BIT, *g = small;
+            uint32_t first = o->ref_count, n = cnt[si] & ~BVH__COLLAPSE_BIT, *g = small;
             if (too_deep) {
                 if (!gather && !(gather = BVH__ALLOC(&c->al, uint32_t, src_count))) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
                 g = gather;
             }
-            g[gsp++] = si;
-            while (gsp) {
-                const bvh_node *x = &src[g[--gsp]];
-                if (x->count) {
-                    uint32_t k;
-                    for (k = 0; k < x->count; k++) o->refs[o->ref_count++] = map[x->index + k];
-                } else {
-                    g[gsp++] = x->index + 1;
-                    g[gsp++] = x->index;
-                }
-            }
+            o->ref_count += bvh__gather_refs(src, map, si, g, o->refs + first);
             if (too_deep) { bvh__median_build(c, o, di, first, n); continue; }
             d->min = s->min; d->max = s->max;
             d->index = first; d->count = n;
@@ -2412,9 +2406,7 @@ BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, 
          leaves the edge functions meaningless, and the test can report a hit far outside the
          triangle (found by the fuzzer). */
         bvh_node box;
-        box.min.x = bvh__minf(bvh__minf(tri[0], tri[3]), tri[6]); box.max.x = bvh__maxf(bvh__maxf(tri[0], tri[3]), tri[6]);
-        box.min.y = bvh__minf(bvh__minf(tri[1], tri[4]), tri[7]); box.max.y = bvh__maxf(bvh__maxf(tri[1], tri[4]), tri[7]);
-        box.min.z = bvh__minf(bvh__minf(tri[2], tri[5]), tri[8]); box.max.z = bvh__maxf(bvh__maxf(tri[2], tri[5]), tri[8]);
+        bvh__set_box(&box, bvh__tri_box(tri));
         box.index = box.count = 0;
         if (bvh__slab(r, &box, ft) == BVH_INF) return 0;
     }

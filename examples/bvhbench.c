@@ -11,10 +11,12 @@
    four sizes, gen:random:500, the Stanford bunny (~70K), gen:field:15 (~1M), gen:field:44 (~3M).
 
    Per scene and row: build time (median, min and max of R builds after one warm-up), SAH with
-   costs (1, 0, 1), tree statistics, peak memory of the build (a counting bvh_allocator), one
-   frame of the standard camera's primary rays (bvh_camera_standard over the tree bounds,
-   bvh_camera_ray per pixel) traced on 1 CPU thread, on N CPU threads (bvh_intersect_batch) and
-   with OpenCL (cl/bvh_cl.h); frame ms = the fastest of those tracers, FPS = 1000 / frame ms.
+   costs (1, 0, 1), tree statistics, bytes per triangle of the binary tree (nodes + references)
+   and of the 4-wide copy CPU traversal uses (built by default, --trace-width), peak memory of
+   the build (a counting bvh_allocator), the standard camera's primary rays (bvh_camera_standard
+   over the tree bounds, bvh_camera_ray per pixel) traced on 1 CPU thread and on N CPU threads
+   (bvh_intersect_batch; median time of 3 frames each) and with OpenCL (cl/bvh_cl.h, binary
+   nodes); frame ms = the fastest of those tracers, FPS = 1000 / frame ms.
    Rows: "none" (brute force, the study's first row; only up to --brute-max triangles), the five
    builders, and Embree's scene API at build quality low, medium and high (rtcIntersect1 for the
    frame; the SAH, nodes and leaves of a binary tree from rtcBuildBVH at the same quality).
@@ -55,6 +57,7 @@
 #define BENCH_MAX_SCENES 64
 #define BENCH_MAX_ROWS (1 + BVH_BUILDER_COUNT + 3)
 #define BENCH_MAX_REPEAT 1000
+#define BENCH_TRACE_REPEAT 3 /* frames per CPU tracer (and per Embree tracer); median time */
 #define BENCH_BRUTE_TESTS 1e9 /* brute force: at most this many ray-triangle tests per frame */
 #define BENCH_BUNNY "/usr/share/glmark2/models/bunny.obj"
 
@@ -68,7 +71,7 @@ typedef struct options {
     int nqualities;
     uint32_t threads;  /* as given, 0 = all cores */
     uint32_t nthreads; /* resolved */
-    uint32_t repeat, width, height, brute_max;
+    uint32_t repeat, width, height, brute_max, trace_width;
     int trace_cpu, trace_cl, trace_auto;
     const char *md, *json, *plots, *argv0;
     int quiet, strict;
@@ -85,7 +88,7 @@ typedef struct row {
     row_state state;
     char note[200];                           /* why skipped or failed */
     double build_ms, build_min, build_max;
-    double sah, nodes, leaves, refs, max_depth, max_leaf, bvh_bytes, tri_bytes, peak_bytes;
+    double sah, nodes, leaves, refs, max_depth, max_leaf, bvh_bytes, tri_bytes, wide_bytes, peak_bytes;
     double ms_1t, mrays_1t, ms_mt, mrays_mt, ms_cl, mrays_cl, cl_kernel_ms;
     double frame_ms, fps, hits, t_sum;
     double x_build, x_sah, x_mrays;           /* ours / Embree medium */
@@ -150,7 +153,7 @@ static void row_init(row *r, row_kind kind, const char *name) {
     snprintf(r->name, sizeof r->name, "%s", name);
     r->build_ms = r->build_min = r->build_max = NAN;
     r->sah = r->nodes = r->leaves = r->refs = r->max_depth = r->max_leaf = NAN;
-    r->bvh_bytes = r->tri_bytes = r->peak_bytes = NAN;
+    r->bvh_bytes = r->tri_bytes = r->wide_bytes = r->peak_bytes = NAN;
     r->ms_1t = r->mrays_1t = r->ms_mt = r->mrays_mt = r->ms_cl = r->mrays_cl = r->cl_kernel_ms = NAN;
     r->frame_ms = r->fps = r->hits = r->t_sum = NAN;
     r->x_build = r->x_sah = r->x_mrays = r->emb_bvh_ms = r->emb_prim_diff = NAN;
@@ -444,6 +447,7 @@ static int build_repeated(run_ctx *c, row *r, bvh_tree *tree) {
     memset(&desc, 0, sizeof desc);
     desc.builder = r->builder;
     desc.threads = o->threads;
+    desc.trace_width = o->trace_width;
     desc.skip_invalid = 1;
     desc.triangles.positions = c->s->v;
     desc.triangles.vertex_count = 3 * c->s->triangles;
@@ -501,7 +505,22 @@ static int tree_figures(row *r, const bvh_tree *tree) {
     }
     r->nodes = st.nodes; r->leaves = st.leaves; r->refs = st.refs; r->max_depth = st.max_depth;
     r->max_leaf = st.max_leaf_size; r->bvh_bytes = (double)st.bytes; r->tri_bytes = (double)st.triangle_bytes;
+    r->wide_bytes = (double)st.wide_bytes;
     return 0;
+}
+
+/* BENCH_TRACE_REPEAT frames on `threads` threads; *ms = the median time */
+static bvh_result trace_median(run_ctx *c, const bvh_tree *tree, uint32_t threads, double *ms) {
+    double v[BENCH_TRACE_REPEAT];
+    uint32_t i;
+    for (i = 0; i < BENCH_TRACE_REPEAT; i++) {
+        double t0 = scene_now_ms();
+        bvh_result res = bvh_intersect_batch(tree, c->rays, c->hits, c->npix, threads);
+        v[i] = scene_now_ms() - t0;
+        if (res != BVH_SUCCESS) return res;
+    }
+    *ms = scene_median(v, BENCH_TRACE_REPEAT);
+    return BVH_SUCCESS;
 }
 
 static void trace_tree(run_ctx *c, row *r, const bvh_tree *tree) {
@@ -513,9 +532,7 @@ static void trace_tree(run_ctx *c, row *r, const bvh_tree *tree) {
     make_rays(c, bvh_tree_bounds(tree), &cam);
     if (o->trace_cpu) {
         progress("%s: %s, trace 1 thread", c->out->name, r->name);
-        ms = scene_now_ms();
-        res = bvh_intersect_batch(tree, c->rays, c->hits, c->npix, 1);
-        r->ms_1t = scene_now_ms() - ms;
+        res = trace_median(c, tree, 1, &r->ms_1t);
         if (res != BVH_SUCCESS) goto fail;
         r->mrays_1t = mrays_of(c->npix, r->ms_1t);
         frame_pick(r, r->ms_1t, "cpu-1t");
@@ -523,9 +540,7 @@ static void trace_tree(run_ctx *c, row *r, const bvh_tree *tree) {
         r->ms_mt = r->ms_1t;
         if (o->nthreads > 1) {
             progress("%s: %s, trace %u threads", c->out->name, r->name, o->nthreads);
-            ms = scene_now_ms();
-            res = bvh_intersect_batch(tree, c->rays, c->hits, c->npix, o->nthreads);
-            r->ms_mt = scene_now_ms() - ms;
+            res = trace_median(c, tree, o->nthreads, &r->ms_mt);
             if (res != BVH_SUCCESS) goto fail;
             snprintf(tag, sizeof tag, "cpu-%ut", o->nthreads);
             check_frame(c, r, tag, c->hits);
@@ -664,6 +679,7 @@ static void run_embree(run_ctx *c, row *r) {
     d.repeat = o->repeat;
     if (o->trace_cpu) { d.width = o->width; d.height = o->height; }
     d.trace_threads = o->nthreads;
+    d.trace_repeat = BENCH_TRACE_REPEAT;
     d.robust = 1; /* RTC_SCENE_FLAG_ROBUST: the closest Embree comes to a watertight test */
     d.bounds = &c->bounds;
     d.prim_out = c->emb_prims;
@@ -793,7 +809,7 @@ done:
 /* == tables: columns, cells, best values ========================================================= */
 /* ============================================================================================ */
 enum {
-    C_BUILDER, C_BUILD, C_RANGE, C_SAH, C_NODES, C_LEAVES, C_REFS, C_DEPTH, C_BPT, C_PEAK, C_PEAKBPT, C_MR1,
+    C_BUILDER, C_BUILD, C_RANGE, C_SAH, C_NODES, C_LEAVES, C_REFS, C_DEPTH, C_BPT, C_WBPT, C_PEAK, C_PEAKBPT, C_MR1,
     C_MRN, C_MRCL, C_FRAME, C_FPS, C_HITS, C_XBUILD, C_XSAH, C_XMR, C_COUNT
 };
 typedef struct column {
@@ -812,6 +828,7 @@ static const column g_cols[C_COUNT] = {
     {"refs", "Refs", 8, 0},
     {"depth", "Max depth", 5, -1},
     {"B/tri", "BVH B/tri", 6, -1},
+    {"4w B/tri", "4-wide B/tri", 8, 0},
     {"peak MB", "Peak build MB", 8, -1},
     {"pk B/tri", "Peak B/tri", 8, -1},
     {"Mr/s 1t", "CPU Mrays/s 1 thread", 8, +1},
@@ -855,6 +872,7 @@ static double cell(const bench_scene *s, const row *r, int col, char *b, size_t 
     case C_REFS: fmt_num(b, n, r->refs, 0); return r->refs;
     case C_DEPTH: fmt_num(b, n, r->max_depth, 0); return r->max_depth;
     case C_BPT: fmt_num(b, n, r->bvh_bytes / tris, 1); return r->bvh_bytes / tris;
+    case C_WBPT: fmt_num(b, n, r->wide_bytes / tris, 1); return r->wide_bytes / tris;
     case C_PEAK: fmt_ms(b, n, r->peak_bytes / 1048576.0); return r->peak_bytes;
     case C_PEAKBPT: fmt_num(b, n, r->peak_bytes / tris, 0); return r->peak_bytes / tris;
     case C_MR1: fmt_num(b, n, r->mrays_1t, 2); return r->mrays_1t;
@@ -1072,6 +1090,8 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "bvh_bytes", r->bvh_bytes, 0);
         json_num(f, "triangle_bytes", r->tri_bytes, 0);
         json_num(f, "bytes_per_tri", r->bvh_bytes / tris, 3);
+        json_num(f, "wide_bytes", r->wide_bytes, 0);
+        json_num(f, "wide_bytes_per_tri", r->wide_bytes / tris, 3);
         json_num(f, "peak_build_bytes", r->peak_bytes, 0);
         json_num(f, "peak_build_bytes_per_tri", r->peak_bytes / tris, 3);
         fprintf(f, ",\"width\":%u,\"height\":%u", o->width, o->height);
@@ -1278,6 +1298,7 @@ static void usage(FILE *f) {
             "  --threads N      ploc-parallel, multi-thread tracing and Embree; 0 = all cores (default)\n"
             "  --repeat R       timed builds after one warm-up; the median is reported (default 5)\n"
             "  --size WxH       frame size (default 1024x1024)\n"
+            "  --trace-width W  4: builds add the 4-wide copy CPU tracing uses (default); 2: binary only\n"
             "  --trace MODE     cpu, opencl, both or none (default: both when OpenCL works, else cpu)\n"
             "  --brute-max N    brute force only up to N triangles (default 20000) and %.0e tests\n"
             "  --md FILE        Markdown tables, best value per column and scene in bold\n"
@@ -1352,6 +1373,7 @@ static int parse_args(int argc, char **argv, options *o) {
     parse_builders("all", o);
     parse_embree("all", o);
     o->repeat = 5;
+    o->trace_width = 4;
     o->width = o->height = 1024;
     o->brute_max = 20000;
     o->trace_auto = 1;
@@ -1376,6 +1398,11 @@ static int parse_args(int argc, char **argv, options *o) {
         } else if (!strcmp(a, "--threads")) {
             if (parse_u32(v, 0, 256, &o->threads, NULL)) {
                 fprintf(stderr, "bvhbench: --threads wants 0 (all cores) to 256, not '%s'\n", v);
+                return 2;
+            }
+        } else if (!strcmp(a, "--trace-width")) {
+            if (parse_u32(v, 2, 4, &o->trace_width, NULL) || o->trace_width == 3) {
+                fprintf(stderr, "bvhbench: --trace-width wants 2 or 4, not '%s'\n", v);
                 return 2;
             }
         } else if (!strcmp(a, "--repeat")) {

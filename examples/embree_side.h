@@ -4,8 +4,8 @@
      Measures Embree 3 on a triangle soup, with the same rays and the same SAH costs as bvh.h:
        emb_scene_bench  Embree's scene API (what a renderer uses): build time at a build quality
                         on N threads (rtcNewScene .. rtcCommitScene, and rtcCommitScene alone;
-                        median/min/max of R builds after one warm-up), then one W x H frame of
-                        the project's standard camera (bvh_camera_standard over the scene bounds,
+                        median/min/max of R builds after one warm-up), then W x H frames of
+                        the project's standard camera (median time of trace_repeat frames) (bvh_camera_standard over the scene bounds,
                         bvh_camera_ray per pixel centre: bit-identical rays to bvh.h's) traced
                         with rtcIntersect1 on 1 thread and on T pthreads (rows interleaved):
                         hits, t_sum, Mrays/s.
@@ -91,6 +91,7 @@ typedef struct emb_scene_desc {
     uint32_t repeat;        /* timed builds after one warm-up; 0 = 5; at most 100000 */
     uint32_t width, height; /* the frame; 0 (either) = build only */
     uint32_t trace_threads; /* pthreads for the multi-threaded frame; 0 = online CPUs */
+    uint32_t trace_repeat;  /* frames traced per thread count, the median time reported; 0 = 1 */
     int robust;             /* 1: RTC_SCENE_FLAG_ROBUST (watertight-ish hits); 0: as embree_ref */
     const bvh_aabb *bounds; /* camera bounds; NULL = bounds of the finite vertices (= the root
                                box of a bvh.h tree over the same triangles) */
@@ -395,6 +396,22 @@ static void *emb__trace_rows(void *arg) {
    EMB_ERR_THREAD / EMB_ERR_MEMORY; *ms is the wall time from the first thread start to the
    last join. */
 static int emb__trace(RTCScene scene, const bvh_ray *rays, uint32_t w, uint32_t h, uint32_t threads,
+                      float *t, uint32_t *prim, double *ms);
+/* d->trace_repeat frames (at most 15); *ms = the median time */
+static int emb__trace_median(RTCScene scene, const bvh_ray *rays, const emb_scene_desc *d, uint32_t threads,
+                             float *t, uint32_t *prim, double *ms) {
+    double v[15];
+    uint32_t n = d->trace_repeat ? d->trace_repeat : 1, i, j;
+    if (n > 15) n = 15;
+    for (i = 0; i < n; i++) {
+        int st = emb__trace(scene, rays, d->width, d->height, threads, t, prim, &v[i]);
+        if (st != EMB_OK) return st;
+        for (j = i; j > 0 && v[j - 1] > v[j]; j--) { double x = v[j]; v[j] = v[j - 1]; v[j - 1] = x; }
+    }
+    *ms = n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+    return EMB_OK;
+}
+static int emb__trace(RTCScene scene, const bvh_ray *rays, uint32_t w, uint32_t h, uint32_t threads,
                       float *t, uint32_t *prim, double *ms) {
     double t0;
     if (threads <= 1) {
@@ -499,12 +516,12 @@ EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *de
         if (!rays || !t1 || !p1) { st = EMB_ERR_MEMORY; emb__msg(out->message, "out of memory (rays)"); goto done; }
         for (y = 0; y < d.height; y++)
             for (x = 0; x < d.width; x++) rays[(size_t)y * d.width + x] = bvh_camera_ray(&cam, x, y);
-        st = emb__trace(scene, rays, d.width, d.height, 1, t1, p1, &ms1);
+        st = emb__trace_median(scene, rays, &d, 1, t1, p1, &ms1);
         if (st == EMB_OK && d.trace_threads > 1) {
             t2 = (float *)malloc(npix * sizeof *t2);
             p2 = (uint32_t *)malloc(npix * sizeof *p2);
             if (!t2 || !p2) st = EMB_ERR_MEMORY;
-            else st = emb__trace(scene, rays, d.width, d.height, d.trace_threads, t2, p2, &ms2);
+            else st = emb__trace_median(scene, rays, &d, d.trace_threads, t2, p2, &ms2);
         } else {
             ms2 = ms1;
         }

@@ -4,7 +4,8 @@
    hit (same primitive, bitwise-same t, u, v) on TU_RAYS rays of every kind, also with tmax set to
    the hit distance and just below it; bvh_occluded equals "a closest hit exists";
    bvh_intersect_counted equals bvh_intersect; the batch calls on 1, 2, 3, 8 and all threads equal
-   the single-ray calls. Also: invalid rays miss, and a tree exactly BVH_MAX_DEPTH deep traces. */
+   the single-ray calls. bvh_intersect and bvh_occluded are checked on the default 4-wide copy and
+   on a binary-only tree (trace_width 2); bvh_intersect_counted always walks the binary nodes. Also: invalid rays miss, and a tree exactly BVH_MAX_DEPTH deep traces. */
 #define BVH_IMPLEMENTATION
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
@@ -75,11 +76,22 @@ static void exact_hits(void **state) {
     assert_true(hits > 0);
     for (b = 0; b < TU_BUILDER_COUNT; b++) {
         size_t bad_b;
+        bvh_tree bin;
+        bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
         tu_build(&s, tu_builder(b), &trees[b]);
+        assert_non_null(trees[b].nodes4); /* the default: 4-wide traversal (counted: binary) */
         bad_b = compare(&s, &trees[b], rays, want, TU_RAYS) + compare(&s, &trees[b], rays2, want2, n2);
         if (bad_b) print_error("%s/%s: %zu of %zu rays differ from the brute force\n", s.name,
                                bvh_builder_name(tu_builder(b)), bad_b, TU_RAYS + n2);
         bad += bad_b;
+        d.trace_width = 2; /* binary traversal only */
+        tu_build_valid(&s, &d, &bin);
+        assert_null(bin.nodes4);
+        bad_b = compare(&s, &bin, rays, want, TU_RAYS) + compare(&s, &bin, rays2, want2, n2);
+        if (bad_b) print_error("%s/%s, trace_width 2: %zu of %zu rays differ from the brute force\n", s.name,
+                               bvh_builder_name(tu_builder(b)), bad_b, TU_RAYS + n2);
+        bad += bad_b;
+        bvh_free(&bin);
     }
     for (b = 0; b < TU_BUILDER_COUNT; b++) bvh_free(&trees[b]);
     free(rays); free(rays2); free(want); free(want2); free(tris);

@@ -2879,15 +2879,36 @@ typedef struct bvh__batch {
     const bvh_ray *rays;
     bvh_hit *hits;
     uint8_t *occluded;
-    size_t count;
+    size_t count, next; /* next: first ray no thread has taken */
 } bvh__batch;
-static void bvh__batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
-    const bvh__batch *b = BVH__CAST(const bvh__batch *, arg);
-    size_t chunk, i, e;
+/* Chunks of 64 rays taken in turn from a shared counter: the cost of a ray varies by orders of
+   magnitude across a frame (a mesh in one part of it), and fixed interleaved chunks of 256
+   left one of two threads idle for a third of the dragon's frame. */
+#define BVH__BATCH_CHUNK 64u
+static size_t bvh__batch_take(bvh__batch *b, bvh__team *team) {
+#if defined(__GNUC__) || defined(__clang__)
     (void)team;
-    /* interleaved chunks of 256 rays: neighbouring pixels cost alike, so this balances well */
-    for (chunk = (size_t)tid * 256; chunk < b->count; chunk += (size_t)nt * 256) {
-        e = chunk + 256 < b->count ? chunk + 256 : b->count;
+    return __atomic_fetch_add(&b->next, (size_t)BVH__BATCH_CHUNK, __ATOMIC_RELAXED);
+#else
+    size_t c;
+#ifndef BVH_NO_THREADS
+    if (team->n > 1) pthread_mutex_lock(&team->mutex);
+#endif
+    c = b->next;
+    b->next += BVH__BATCH_CHUNK;
+#ifndef BVH_NO_THREADS
+    if (team->n > 1) pthread_mutex_unlock(&team->mutex);
+#endif
+    (void)team;
+    return c;
+#endif
+}
+static void bvh__batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__batch *b = BVH__CAST(bvh__batch *, arg);
+    size_t chunk, i, e;
+    (void)tid; (void)nt;
+    while ((chunk = bvh__batch_take(b, team)) < b->count) {
+        e = chunk + BVH__BATCH_CHUNK < b->count ? chunk + BVH__BATCH_CHUNK : b->count;
         for (i = chunk; i < e; i++) {
             if (b->hits) bvh__traverse(b->tree, &b->rays[i], &b->hits[i], 0, NULL);
             else b->occluded[i] = (uint8_t)bvh__traverse(b->tree, &b->rays[i], NULL, 1, NULL);
@@ -2900,7 +2921,7 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
     uint32_t nt;
     if (!tree || (count && (!rays || (!hits && !occ)))) return BVH_ERROR_INVALID_ARGUMENT;
     if (tree->node_count && !tree->tris) return BVH_ERROR_NO_TRIANGLES;
-    b.tree = tree; b.rays = rays; b.hits = hits; b.occluded = occ; b.count = count;
+    b.tree = tree; b.rays = rays; b.hits = hits; b.occluded = occ; b.count = count; b.next = 0;
     nt = bvh__resolve_threads(threads);
     if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
     if (nt < 1) nt = 1;

@@ -41,8 +41,9 @@
                            advised as transparent huge pages (madvise; needs _DEFAULT_SOURCE or
                            _GNU_SOURCE, as gcc's default gnu dialects have); this turns that off
      BVH_MAX_DEPTH         traversal stack depth; builders never produce a deeper tree (64)
-     BVH_NO_SIMD           4-wide traversal without SSE intrinsics (plain C, same results); SSE
-                           is used where the compiler targets it (x86-64 always)
+     BVH_NO_SIMD           no SSE intrinsics in 4-wide traversal and PLOC's neighbour search
+                           (plain C, the same results); SSE is used where the compiler targets
+                           it (x86-64 always)
 
    ERRORS
      Every call that can fail returns a bvh_result; bvh_result_string() names it. The library
@@ -325,7 +326,8 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #include <sys/mman.h>
 #endif
 #if !defined(BVH_NO_SIMD) && (defined(__SSE2__) || defined(_M_X64) || (defined(_M_IX86_FP) && _M_IX86_FP >= 2))
-#include <xmmintrin.h>
+#include <emmintrin.h>
+#define BVH__SSE 1
 #endif
 #ifndef BVH_NO_THREADS
 #include <pthread.h>
@@ -1167,8 +1169,8 @@ done:
    iteration: every cluster finds its nearest neighbour within `radius` positions, by the surface
    area of the merged box; mutual nearest neighbours merge; a prefix scan compacts the survivors.
    Ties in distance go to the nearest position, then to the pair (2k, 2k+1), so that equal boxes
-   still halve the cluster count each iteration. Distances are computed once per pair (each
-   cluster scans only to its right and updates both ends). Then bvh__emit collapses subtrees into
+   still halve the cluster count each iteration. Distances are computed once per pair, four pairs
+   at a time (bvh__ploc_search), and each pair's distance is offered to both of its ends. Then bvh__emit collapses subtrees into
    leaves where the SAH says so. One code path for `ploc` (a team of one, no thread created) and
    `ploc-parallel` (a team of pthreads meeting at barriers, 4 per iteration): every phase splits
    the clusters by the thread count and every result is independent of it, so both give exactly
@@ -1176,6 +1178,7 @@ done:
    node is written back in place of the left cluster before compaction, as the study's
    pseudo-code does. */
 /* ============================================================================================ */
+typedef struct bvh__nn bvh__nn;
 typedef struct bvh__ploc {
     const bvh__ctx *c;
     bvh__morton_job mj;
@@ -1183,6 +1186,7 @@ typedef struct bvh__ploc {
     uint64_t *best;    /* per cluster: distance bits << 32 | tie key (see bvh__ploc_pack) */
     uint64_t *bnd;     /* per thread, radius entries: best offers to the next chunk's clusters */
     uint32_t *merges, *survivors; /* per thread */
+    bvh__nn *nn;       /* per thread: the neighbour search's block buffers */
     uint32_t *blocks;  /* end of src after each iteration, then after the root (for bvh__emit) */
     uint32_t block_count, block_cap, radius, root;
 } bvh__ploc;
@@ -1214,6 +1218,100 @@ BVH__INLINE uint32_t bvh__ploc_neighbour(uint32_t i, uint64_t best) {
 }
 #define BVH__MIN64(a, b) ((b) < (a) ? (b) : (a))
 
+/* The neighbour search of one thread's clusters [b, e), block by block. For each offset k = j - i
+   (1..r) the distances of the pairs (i, i + k) of a block are computed at once from the boxes as
+   a structure of arrays, and kept per side: the best right neighbour of i and the best left
+   neighbour of j = i + k, as (distance, k). Every loop over a block runs over contiguous arrays
+   without a dependence from one element to the next, which compilers turn into SIMD; the packed
+   64-bit offers of bvh__ploc_pack are formed once per cluster at the end, so the result is
+   exactly that of comparing every offer: smaller distance, then smaller k, then the parity and
+   side bits. Padding past the last cluster has NaN boxes, whose distances are never taken. */
+#define BVH__NN_BLOCK 256u
+struct bvh__nn {
+    float lo[3][BVH__NN_BLOCK + 256], hi[3][BVH__NN_BLOCK + 256]; /* boxes of i0 .. i0 + nb + r */
+    float rd[BVH__NN_BLOCK], ld[BVH__NN_BLOCK + 256];             /* best distance to the right/left */
+    uint32_t rk[BVH__NN_BLOCK], lk[BVH__NN_BLOCK + 256];          /* its offset k; 0: no offer yet */
+};
+static void bvh__ploc_search(bvh__nn *w, const bvh_node *cin, uint32_t count, uint32_t r, size_t b, size_t e,
+                             uint64_t *best, uint64_t *bnd) {
+    size_t i0, q, i;
+    uint32_t k;
+    const float nan = (float)NAN;
+    for (q = 0; q < r; q++) { w->ld[q] = 0.0f; w->lk[q] = 0; }
+    for (i0 = b; i0 < e; i0 += BVH__NN_BLOCK) {
+        size_t nb = e - i0 < BVH__NN_BLOCK ? e - i0 : BVH__NN_BLOCK, nb4 = (nb + 3) & ~(size_t)3;
+        /* Rounded up to 4 pairs at a time: the extra clusters past e make genuine offers (or NaN
+           ones past the last cluster), which the thread that owns them makes too, and a minimum
+           does not mind a repeated offer; their own results are not used. */
+        for (q = 0; q < nb4 + r; q++) {
+            if (i0 + q < count) {
+                const bvh_node *n = &cin[i0 + q];
+                w->lo[0][q] = n->min.x; w->lo[1][q] = n->min.y; w->lo[2][q] = n->min.z;
+                w->hi[0][q] = n->max.x; w->hi[1][q] = n->max.y; w->hi[2][q] = n->max.z;
+            } else {
+                w->lo[0][q] = w->lo[1][q] = w->lo[2][q] = nan;
+                w->hi[0][q] = w->hi[1][q] = w->hi[2][q] = nan;
+            }
+        }
+        for (q = 0; q < nb4; q++) { w->rd[q] = 0.0f; w->rk[q] = 0; w->ld[r + q] = 0.0f; w->lk[r + q] = 0; }
+        for (k = 1; k <= r; k++) {
+            const float *lx = w->lo[0], *ly = w->lo[1], *lz = w->lo[2], *hx = w->hi[0], *hy = w->hi[1], *hz = w->hi[2];
+            float *rd = w->rd, *ld = w->ld + k;
+            uint32_t *rk = w->rk, *lk = w->lk + k;
+#ifdef BVH__SSE
+            const __m128i kk = _mm_set1_epi32((int)k), zero = _mm_setzero_si128();
+            for (q = 0; q < nb4; q += 4) {
+                __m128 dx = _mm_sub_ps(_mm_max_ps(_mm_loadu_ps(hx + q), _mm_loadu_ps(hx + q + k)),
+                                       _mm_min_ps(_mm_loadu_ps(lx + q), _mm_loadu_ps(lx + q + k)));
+                __m128 dy = _mm_sub_ps(_mm_max_ps(_mm_loadu_ps(hy + q), _mm_loadu_ps(hy + q + k)),
+                                       _mm_min_ps(_mm_loadu_ps(ly + q), _mm_loadu_ps(ly + q + k)));
+                __m128 dz = _mm_sub_ps(_mm_max_ps(_mm_loadu_ps(hz + q), _mm_loadu_ps(hz + q + k)),
+                                       _mm_min_ps(_mm_loadu_ps(lz + q), _mm_loadu_ps(lz + q + k)));
+                __m128 d = _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dy), _mm_mul_ps(dy, dz)), _mm_mul_ps(dz, dx));
+                __m128 ok = _mm_cmpeq_ps(d, d), cr = _mm_loadu_ps(rd + q), cl = _mm_loadu_ps(ld + q);
+                __m128i kr = _mm_loadu_si128((const __m128i *)(const void *)(rk + q));
+                __m128i kl = _mm_loadu_si128((const __m128i *)(const void *)(lk + q));
+                __m128 tr = _mm_and_ps(ok, _mm_or_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(kr, zero)), _mm_cmplt_ps(d, cr)));
+                /* k < lk as signed 32-bit ints: both are at most 256 */
+                __m128 tl = _mm_and_ps(ok, _mm_or_ps(_mm_or_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(kl, zero)), _mm_cmplt_ps(d, cl)),
+                                                     _mm_and_ps(_mm_cmpeq_ps(d, cl), _mm_castsi128_ps(_mm_cmplt_epi32(kk, kl)))));
+                __m128i tri = _mm_castps_si128(tr), tli = _mm_castps_si128(tl);
+                _mm_storeu_ps(rd + q, _mm_or_ps(_mm_and_ps(tr, d), _mm_andnot_ps(tr, cr)));
+                _mm_storeu_si128((__m128i *)(void *)(rk + q), _mm_or_si128(_mm_and_si128(tri, kk), _mm_andnot_si128(tri, kr)));
+                _mm_storeu_ps(ld + q, _mm_or_ps(_mm_and_ps(tl, d), _mm_andnot_ps(tl, cl)));
+                _mm_storeu_si128((__m128i *)(void *)(lk + q), _mm_or_si128(_mm_and_si128(tli, kk), _mm_andnot_si128(tli, kl)));
+            }
+#else
+            for (q = 0; q < nb4; q++) {
+                float dx = (hx[q] > hx[q + k] ? hx[q] : hx[q + k]) - (lx[q] < lx[q + k] ? lx[q] : lx[q + k]);
+                float dy = (hy[q] > hy[q + k] ? hy[q] : hy[q + k]) - (ly[q] < ly[q + k] ? ly[q] : ly[q + k]);
+                float dz = (hz[q] > hz[q + k] ? hz[q] : hz[q + k]) - (lz[q] < lz[q + k] ? lz[q] : lz[q + k]);
+                float d = dx * dy + dy * dz + dz * dx;
+                /* right: offsets arrive in increasing k, so a strictly smaller distance wins */
+                if (d == d && (rk[q] == 0 || d < rd[q])) { rd[q] = d; rk[q] = k; }
+                /* left (j = i0 + q + k): offers carried from the previous block have larger k */
+                if (d == d && (lk[q] == 0 || d < ld[q] || (d == ld[q] && k < lk[q]))) { ld[q] = d; lk[q] = k; }
+            }
+#endif
+        }
+        for (q = 0; q < nb; q++) {
+            uint64_t right = ~(uint64_t)0, left = ~(uint64_t)0;
+            i = i0 + q;
+            if (w->rk[q]) right = bvh__ploc_pack(w->rd[q], w->rk[q], (uint32_t)i & 1u, 1);
+            if (w->lk[q]) left = bvh__ploc_pack(w->ld[q], w->lk[q], (uint32_t)(i - w->lk[q]) & 1u, 0);
+            best[i] = BVH__MIN64(left, right);
+        }
+        /* the left offers to the next r clusters move to the front */
+        memmove(w->ld, w->ld + nb, r * sizeof(float));
+        memmove(w->lk, w->lk + nb, r * sizeof(uint32_t));
+    }
+    for (q = 0; q < r; q++) { /* offers to the next thread's first clusters */
+        i = e + q;
+        bnd[q] = ~(uint64_t)0;
+        if (b < e && i < count && w->lk[q]) bnd[q] = bvh__ploc_pack(w->ld[q], w->lk[q], (uint32_t)(i - w->lk[q]) & 1u, 0);
+    }
+}
+
 /* First team run: Morton codes, radix sort, one leaf cluster per primitive in Morton order. */
 static void bvh__ploc_init_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__ploc *p = BVH__CAST(bvh__ploc *, arg);
@@ -1244,29 +1342,7 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
         if (tid < active) bvh__range(count, tid, active, &b, &e);
         else b = e = 0;
         /* nearest neighbour search: pairs (i, j), i < j <= i + r, each computed once */
-        for (i = b; i < e; i++) best[i] = ~(uint64_t)0;
-        for (t = 0; t < r; t++) bnd[t] = ~(uint64_t)0;
-        for (i = b; i < e; i++) {
-            size_t j, last = i + r < (size_t)count - 1 ? i + r : (size_t)count - 1, mid = last < e ? last + 1 : e;
-            const bvh_node ci = cin[i];
-            uint64_t bi = best[i];
-            uint32_t odd = (uint32_t)i & 1u;
-            for (j = i + 1; j < mid; j++) { /* both ends in this chunk */
-                float d = bvh__merged_half_area(&ci, &cin[j]);
-                uint32_t dist = (uint32_t)(j - i);
-                uint64_t to_i = bvh__ploc_pack(d, dist, odd, 1), to_j = to_i - 1; /* same, j > i is 0 */
-                bi = BVH__MIN64(bi, to_i);
-                best[j] = BVH__MIN64(best[j], to_j);
-            }
-            for (; j <= last; j++) { /* j in the next chunk: offered through this thread's buffer */
-                float d = bvh__merged_half_area(&ci, &cin[j]);
-                uint32_t dist = (uint32_t)(j - i);
-                uint64_t to_i = bvh__ploc_pack(d, dist, odd, 1), to_j = to_i - 1;
-                bi = BVH__MIN64(bi, to_i);
-                bnd[j - e] = BVH__MIN64(bnd[j - e], to_j);
-            }
-            best[i] = bi;
-        }
+        bvh__ploc_search(&p->nn[tid], cin, count, r, b, e, best, bnd);
         bvh__team_sync(team);
         if (tid > 0 && tid < active) { /* offers from pairs that start in the previous chunk */
             const uint64_t *prev = p->bnd + (size_t)(tid - 1) * r;
@@ -1371,17 +1447,19 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
         p.cout = BVH__ALLOC(&c->al, bvh_node, n);
         p.src = BVH__ALLOC(&c->al, bvh_node, 2 * n - 1);
         p.bnd = BVH__ALLOC(&c->al, uint64_t, (size_t)nthreads * p.radius);
+        p.nn = BVH__ALLOC(&c->al, bvh__nn, nthreads);
         p.merges = BVH__ALLOC(&c->al, uint32_t, nthreads);
         p.survivors = BVH__ALLOC(&c->al, uint32_t, nthreads);
         p.block_cap = bvh__ploc_block_cap((uint32_t)n);
         p.blocks = BVH__ALLOC(&c->al, uint32_t, p.block_cap);
-        if (!p.cout || !p.src || !p.bnd || !p.merges || !p.survivors || !p.blocks) r = BVH_ERROR_OUT_OF_MEMORY;
+        if (!p.cout || !p.src || !p.bnd || !p.nn || !p.merges || !p.survivors || !p.blocks) r = BVH_ERROR_OUT_OF_MEMORY;
     }
     if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
     /* release the clustering scratch before emission, which needs its own */
     bvh__free(&c->al, p.cin); bvh__free(&c->al, p.cout);
     bvh__free(&c->al, p.mj.sort.keys);
     bvh__free(&c->al, p.bnd);
+    bvh__free(&c->al, p.nn);
     bvh__free(&c->al, p.merges); bvh__free(&c->al, p.survivors);
     if (r == BVH_SUCCESS)
         r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, nthreads, p.block_count <= p.block_cap ? p.blocks : NULL,
@@ -2684,9 +2762,6 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32
 
 /* Entry distances of the ray into the four child boxes of n (mask bit i: slot i entered before
    tfar); the binary bvh__slab, lane by lane. */
-#if !defined(BVH_NO_SIMD) && (defined(__SSE2__) || defined(_M_X64) || (defined(_M_IX86_FP) && _M_IX86_FP >= 2))
-#define BVH__SSE 1
-#endif
 typedef struct bvh__ray4 {
     int nearo[3], faro[3]; /* float offsets in a bvh_node4 of the near and far planes by axis */
     int kz;

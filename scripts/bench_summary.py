@@ -29,7 +29,7 @@ def main(paths):
         if r["scene"] not in scenes:
             scenes.append(r["scene"])
     cols = [("build ms", "build_ms", -1), ("SAH", "sah", 2), ("B/tri", "bytes_per_tri", 1),
-            ("peak B/tri", "peak_build_bytes_per_tri", 0), ("Mrays/s 1t", "mrays_1t", 1),
+            ("4-wide B/tri", "wide_bytes_per_tri", 1), ("peak B/tri", "peak_build_bytes_per_tri", 0), ("Mrays/s 1t", "mrays_1t", 1),
             ("Mrays/s 2t", "mrays_mt", 1), ("Mrays/s OpenCL", "mrays_opencl", 1),
             ("frame ms", "frame_ms", 1), ("hits", "hits", 0), ("build / Embree med.", "ratio_build", 2),
             ("SAH / Embree med.", "ratio_sah", 3), ("Mrays 1t / Embree med.", None, 2)]

@@ -1183,7 +1183,7 @@ typedef struct bvh__ploc {
     const bvh__ctx *c;
     bvh__morton_job mj;
     bvh_node *cin, *cout, *src;
-    uint64_t *best;    /* per cluster: distance bits << 32 | tie key (see bvh__ploc_pack) */
+    uint64_t *best;    /* per cluster: distance bits << 32 | tie key (see bvh__ploc_offer) */
     uint64_t *bnd;     /* per thread, radius entries: best offers to the next chunk's clusters */
     uint32_t *merges, *survivors; /* per thread */
     bvh__nn *nn;       /* per thread: the neighbour search's block buffers */
@@ -1198,18 +1198,12 @@ static uint32_t bvh__ploc_block_cap(uint32_t n) {
     return k;
 }
 
-BVH__INLINE float bvh__merged_half_area(const bvh_node *a, const bvh_node *b) {
-    float dx = bvh__maxf(a->max.x, b->max.x) - bvh__minf(a->min.x, b->min.x);
-    float dy = bvh__maxf(a->max.y, b->max.y) - bvh__minf(a->min.y, b->min.y);
-    float dz = bvh__maxf(a->max.z, b->max.z) - bvh__minf(a->min.z, b->min.z);
-    return dx * dy + dy * dz + dz * dx;
-}
-/* An offer of neighbour j to cluster i as one integer, so that the best offer is a plain minimum
-   (branch-free): the distance's float bits (non-negative floats order like their bits), then the
-   tie key |i-j| << 2 | (min(i,j) & 1) << 1 | (j > i), from which j can be recovered. */
-BVH__INLINE uint64_t bvh__ploc_pack(float d, uint32_t dist, uint32_t lo_odd, uint32_t right) {
-    uint32_t bits;
-    memcpy(&bits, &d, sizeof bits);
+/* An offer of neighbour j to cluster i as one integer, so that the best offer is a plain minimum:
+   the distance's float bits (non-negative floats order like their bits; a NaN comes last), then
+   the tie key |i-j| << 2 | (min(i,j) & 1) << 1 | (j > i), from which j can be recovered. The
+   distance comes as a key: its bits with the sign bit flipped (see bvh__ploc_search). */
+BVH__INLINE uint64_t bvh__ploc_offer(int32_t key, uint32_t dist, uint32_t lo_odd, uint32_t right) {
+    uint32_t bits = (uint32_t)key ^ 0x80000000u;
     return (uint64_t)bits << 32 | dist << 2 | lo_odd << 1 | right;
 }
 BVH__INLINE uint32_t bvh__ploc_neighbour(uint32_t i, uint64_t best) {
@@ -1222,44 +1216,45 @@ BVH__INLINE uint32_t bvh__ploc_neighbour(uint32_t i, uint64_t best) {
    (1..r) the distances of the pairs (i, i + k) of a block are computed at once from the boxes as
    a structure of arrays, and kept per side: the best right neighbour of i and the best left
    neighbour of j = i + k, as (distance, k). Every loop over a block runs over contiguous arrays
-   without a dependence from one element to the next, which compilers turn into SIMD; the packed
-   64-bit offers of bvh__ploc_pack are formed once per cluster at the end, so the result is
-   exactly that of comparing every offer: smaller distance, then smaller k, then the parity and
-   side bits. Padding past the last cluster has NaN boxes, whose distances are never taken. */
+   without a dependence from one element to the next (SSE, four pairs at a time); the packed
+   64-bit offers of bvh__ploc_offer are formed once per cluster at the end. Distances are compared
+   by their bits as bvh__ploc_offer orders them (a NaN, from an infinite extent times a zero one,
+   is the worst offer but still an offer), so the result is exactly that of comparing every offer:
+   smaller distance, then smaller k, then the parity and side bits. Keys are the bits with the
+   sign bit flipped, so that signed 32-bit comparisons order them as unsigned ones. */
 #define BVH__NN_BLOCK 256u
 struct bvh__nn {
     float lo[3][BVH__NN_BLOCK + 256], hi[3][BVH__NN_BLOCK + 256]; /* boxes of i0 .. i0 + nb + r */
-    float rd[BVH__NN_BLOCK], ld[BVH__NN_BLOCK + 256];             /* best distance to the right/left */
-    uint32_t rk[BVH__NN_BLOCK], lk[BVH__NN_BLOCK + 256];          /* its offset k; 0: no offer yet */
+    int32_t rd[BVH__NN_BLOCK], ld[BVH__NN_BLOCK + 256];           /* best distance key right/left */
+    int32_t rk[BVH__NN_BLOCK], lk[BVH__NN_BLOCK + 256];           /* its offset k; 0: no offer yet */
 };
 static void bvh__ploc_search(bvh__nn *w, const bvh_node *cin, uint32_t count, uint32_t r, size_t b, size_t e,
                              uint64_t *best, uint64_t *bnd) {
     size_t i0, q, i;
     uint32_t k;
-    const float nan = (float)NAN;
-    for (q = 0; q < r; q++) { w->ld[q] = 0.0f; w->lk[q] = 0; }
+    for (q = 0; q < r; q++) { w->ld[q] = 0; w->lk[q] = 0; }
     for (i0 = b; i0 < e; i0 += BVH__NN_BLOCK) {
+        /* Rounded up to 4 pairs at a time: clusters past e make genuine offers, which the thread
+           that owns them makes too (a minimum does not mind a repeated offer), and their own
+           results are not used; pairs reaching past the last cluster are masked out. */
         size_t nb = e - i0 < BVH__NN_BLOCK ? e - i0 : BVH__NN_BLOCK, nb4 = (nb + 3) & ~(size_t)3;
-        /* Rounded up to 4 pairs at a time: the extra clusters past e make genuine offers (or NaN
-           ones past the last cluster), which the thread that owns them makes too, and a minimum
-           does not mind a repeated offer; their own results are not used. */
+        const int32_t lim = (int32_t)(count - i0); /* pair (i0 + q, i0 + q + k) exists iff q + k < lim */
         for (q = 0; q < nb4 + r; q++) {
             if (i0 + q < count) {
                 const bvh_node *n = &cin[i0 + q];
                 w->lo[0][q] = n->min.x; w->lo[1][q] = n->min.y; w->lo[2][q] = n->min.z;
                 w->hi[0][q] = n->max.x; w->hi[1][q] = n->max.y; w->hi[2][q] = n->max.z;
             } else {
-                w->lo[0][q] = w->lo[1][q] = w->lo[2][q] = nan;
-                w->hi[0][q] = w->hi[1][q] = w->hi[2][q] = nan;
+                w->lo[0][q] = w->lo[1][q] = w->lo[2][q] = w->hi[0][q] = w->hi[1][q] = w->hi[2][q] = 0.0f;
             }
         }
-        for (q = 0; q < nb4; q++) { w->rd[q] = 0.0f; w->rk[q] = 0; w->ld[r + q] = 0.0f; w->lk[r + q] = 0; }
+        for (q = 0; q < nb4; q++) { w->rd[q] = 0; w->rk[q] = 0; w->ld[r + q] = 0; w->lk[r + q] = 0; }
         for (k = 1; k <= r; k++) {
             const float *lx = w->lo[0], *ly = w->lo[1], *lz = w->lo[2], *hx = w->hi[0], *hy = w->hi[1], *hz = w->hi[2];
-            float *rd = w->rd, *ld = w->ld + k;
-            uint32_t *rk = w->rk, *lk = w->lk + k;
+            int32_t *rd = w->rd, *ld = w->ld + k, *rk = w->rk, *lk = w->lk + k;
 #ifdef BVH__SSE
-            const __m128i kk = _mm_set1_epi32((int)k), zero = _mm_setzero_si128();
+            const __m128i kk = _mm_set1_epi32((int)k), zero = _mm_setzero_si128(), flip = _mm_set1_epi32(INT32_MIN);
+            const __m128i limv = _mm_set1_epi32(lim), lane = _mm_setr_epi32(0, 1, 2, 3);
             for (q = 0; q < nb4; q += 4) {
                 __m128 dx = _mm_sub_ps(_mm_max_ps(_mm_loadu_ps(hx + q), _mm_loadu_ps(hx + q + k)),
                                        _mm_min_ps(_mm_loadu_ps(lx + q), _mm_loadu_ps(lx + q + k)));
@@ -1268,18 +1263,21 @@ static void bvh__ploc_search(bvh__nn *w, const bvh_node *cin, uint32_t count, ui
                 __m128 dz = _mm_sub_ps(_mm_max_ps(_mm_loadu_ps(hz + q), _mm_loadu_ps(hz + q + k)),
                                        _mm_min_ps(_mm_loadu_ps(lz + q), _mm_loadu_ps(lz + q + k)));
                 __m128 d = _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dy), _mm_mul_ps(dy, dz)), _mm_mul_ps(dz, dx));
-                __m128 ok = _mm_cmpeq_ps(d, d), cr = _mm_loadu_ps(rd + q), cl = _mm_loadu_ps(ld + q);
+                __m128i key = _mm_xor_si128(_mm_castps_si128(d), flip);
+                __m128i ok = _mm_cmplt_epi32(_mm_add_epi32(_mm_set1_epi32((int)(q + k)), lane), limv);
+                __m128i cr = _mm_loadu_si128((const __m128i *)(const void *)(rd + q));
+                __m128i cl = _mm_loadu_si128((const __m128i *)(const void *)(ld + q));
                 __m128i kr = _mm_loadu_si128((const __m128i *)(const void *)(rk + q));
                 __m128i kl = _mm_loadu_si128((const __m128i *)(const void *)(lk + q));
-                __m128 tr = _mm_and_ps(ok, _mm_or_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(kr, zero)), _mm_cmplt_ps(d, cr)));
-                /* k < lk as signed 32-bit ints: both are at most 256 */
-                __m128 tl = _mm_and_ps(ok, _mm_or_ps(_mm_or_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(kl, zero)), _mm_cmplt_ps(d, cl)),
-                                                     _mm_and_ps(_mm_cmpeq_ps(d, cl), _mm_castsi128_ps(_mm_cmplt_epi32(kk, kl)))));
-                __m128i tri = _mm_castps_si128(tr), tli = _mm_castps_si128(tl);
-                _mm_storeu_ps(rd + q, _mm_or_ps(_mm_and_ps(tr, d), _mm_andnot_ps(tr, cr)));
-                _mm_storeu_si128((__m128i *)(void *)(rk + q), _mm_or_si128(_mm_and_si128(tri, kk), _mm_andnot_si128(tri, kr)));
-                _mm_storeu_ps(ld + q, _mm_or_ps(_mm_and_ps(tl, d), _mm_andnot_ps(tl, cl)));
-                _mm_storeu_si128((__m128i *)(void *)(lk + q), _mm_or_si128(_mm_and_si128(tli, kk), _mm_andnot_si128(tli, kl)));
+                /* right: offsets arrive in increasing k, so a strictly smaller key wins */
+                __m128i tr = _mm_and_si128(ok, _mm_or_si128(_mm_cmpeq_epi32(kr, zero), _mm_cmplt_epi32(key, cr)));
+                /* left (j = i0 + q + k): offers carried from the previous block have larger k */
+                __m128i tl = _mm_and_si128(ok, _mm_or_si128(_mm_or_si128(_mm_cmpeq_epi32(kl, zero), _mm_cmplt_epi32(key, cl)),
+                                                            _mm_and_si128(_mm_cmpeq_epi32(key, cl), _mm_cmplt_epi32(kk, kl))));
+                _mm_storeu_si128((__m128i *)(void *)(rd + q), _mm_or_si128(_mm_and_si128(tr, key), _mm_andnot_si128(tr, cr)));
+                _mm_storeu_si128((__m128i *)(void *)(rk + q), _mm_or_si128(_mm_and_si128(tr, kk), _mm_andnot_si128(tr, kr)));
+                _mm_storeu_si128((__m128i *)(void *)(ld + q), _mm_or_si128(_mm_and_si128(tl, key), _mm_andnot_si128(tl, cl)));
+                _mm_storeu_si128((__m128i *)(void *)(lk + q), _mm_or_si128(_mm_and_si128(tl, kk), _mm_andnot_si128(tl, kl)));
             }
 #else
             for (q = 0; q < nb4; q++) {
@@ -1287,28 +1285,32 @@ static void bvh__ploc_search(bvh__nn *w, const bvh_node *cin, uint32_t count, ui
                 float dy = (hy[q] > hy[q + k] ? hy[q] : hy[q + k]) - (ly[q] < ly[q + k] ? ly[q] : ly[q + k]);
                 float dz = (hz[q] > hz[q + k] ? hz[q] : hz[q + k]) - (lz[q] < lz[q + k] ? lz[q] : lz[q + k]);
                 float d = dx * dy + dy * dz + dz * dx;
-                /* right: offsets arrive in increasing k, so a strictly smaller distance wins */
-                if (d == d && (rk[q] == 0 || d < rd[q])) { rd[q] = d; rk[q] = k; }
-                /* left (j = i0 + q + k): offers carried from the previous block have larger k */
-                if (d == d && (lk[q] == 0 || d < ld[q] || (d == ld[q] && k < lk[q]))) { ld[q] = d; lk[q] = k; }
+                uint32_t bits;
+                int32_t key;
+                if ((int32_t)(q + k) >= lim) continue;
+                memcpy(&bits, &d, sizeof bits);
+                key = (int32_t)(bits ^ 0x80000000u);
+                if (rk[q] == 0 || key < rd[q]) { rd[q] = key; rk[q] = (int32_t)k; }
+                if (lk[q] == 0 || key < ld[q] || (key == ld[q] && (int32_t)k < lk[q])) { ld[q] = key; lk[q] = (int32_t)k; }
             }
 #endif
         }
         for (q = 0; q < nb; q++) {
             uint64_t right = ~(uint64_t)0, left = ~(uint64_t)0;
             i = i0 + q;
-            if (w->rk[q]) right = bvh__ploc_pack(w->rd[q], w->rk[q], (uint32_t)i & 1u, 1);
-            if (w->lk[q]) left = bvh__ploc_pack(w->ld[q], w->lk[q], (uint32_t)(i - w->lk[q]) & 1u, 0);
+            if (w->rk[q]) right = bvh__ploc_offer(w->rd[q], (uint32_t)w->rk[q], (uint32_t)i & 1u, 1);
+            if (w->lk[q]) left = bvh__ploc_offer(w->ld[q], (uint32_t)w->lk[q], (uint32_t)(i - (uint32_t)w->lk[q]) & 1u, 0);
             best[i] = BVH__MIN64(left, right);
         }
         /* the left offers to the next r clusters move to the front */
-        memmove(w->ld, w->ld + nb, r * sizeof(float));
-        memmove(w->lk, w->lk + nb, r * sizeof(uint32_t));
+        memmove(w->ld, w->ld + nb, r * sizeof(int32_t));
+        memmove(w->lk, w->lk + nb, r * sizeof(int32_t));
     }
     for (q = 0; q < r; q++) { /* offers to the next thread's first clusters */
         i = e + q;
         bnd[q] = ~(uint64_t)0;
-        if (b < e && i < count && w->lk[q]) bnd[q] = bvh__ploc_pack(w->ld[q], w->lk[q], (uint32_t)(i - w->lk[q]) & 1u, 0);
+        if (b < e && i < count && w->lk[q])
+            bnd[q] = bvh__ploc_offer(w->ld[q], (uint32_t)w->lk[q], (uint32_t)(i - (uint32_t)w->lk[q]) & 1u, 0);
     }
 }
 

@@ -742,7 +742,8 @@ static void test_axis_aligned(void **state) {
     rb_scene_free(&s);
 }
 
-/* Finite coordinates near FLT_MAX: boxes and centroid sums overflow to Inf inside the builders. */
+/* Finite coordinates near FLT_MAX: boxes and centroid sums overflow to Inf inside the builders,
+   and PLOC's distances to NaN. */
 static void test_huge_coordinates(void **state) {
     rb_scene s;
     uint32_t i;
@@ -754,6 +755,17 @@ static void test_huge_coordinates(void **state) {
     }
     rb_scene_expand(&s);
     rb_every_builder("coordinates near FLT_MAX", &s, 600, 0, 0);
+    rb_scene_free(&s);
+    /* Flat (y = 0) triangles at x = -3e38 and +3e38: a merged box is infinitely wide and has no
+       height, so PLOC's distance (the half area) is Inf * 0 = NaN, which must stay an offer (the
+       worst), or a cluster is left without a neighbour (found by the fuzzer). */
+    rb_scene_soup(&s, 40);
+    for (i = 0; i < 40; i++) {
+        float x = (i & 1 ? 1.0f : -1.0f) * (3e38f - 1e36f * (float)i);
+        rb_set_tri(s.pos + 9 * i, x, 0, (float)i, x + 1e36f, 0, (float)i, x, 0, (float)i + 1.0f);
+    }
+    rb_scene_expand(&s);
+    rb_every_builder("flat, infinitely wide merged boxes", &s, 600, 0, 0);
     rb_scene_free(&s);
 }
 

@@ -2609,13 +2609,12 @@ BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const 
     return 1;
 }
 
-/* Entry distance of the ray into node n if it enters before tfar, else +inf. */
-BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
-    const float *f = &n->min.x; /* min at 0..2, max at 4..6 */
-    const float t0x = (f[r->near[0]] - r->o[0]) * r->inv[0], t1x = (f[r->near[0] ^ 4] - r->o[0]) * r->inv[0];
-    const float t0y = (f[r->near[1]] - r->o[1]) * r->inv[1], t1y = (f[r->near[1] ^ 4] - r->o[1]) * r->inv[1];
-    const float t0z = (f[r->near[2]] - r->o[2]) * r->inv[2], t1z = (f[r->near[2] ^ 4] - r->o[2]) * r->inv[2];
-    float tn = r->tmin, tf = BVH_INF, k0, k1, slack;
+/* The slab test from the distances to the near (t0) and far (t1) planes on each axis: the entry
+   distance if the ray enters before tfar, else +inf. bvh__slab4 does the same four lanes at a
+   time. */
+BVH__INLINE float bvh__slab_t(float tmin, int kz, float tfar, float t0x, float t1x, float t0y, float t1y, float t0z,
+                              float t1z) {
+    float tn = tmin, tf = BVH_INF, k0, k1, slack;
     tn = t0x > tn ? t0x : tn; /* NaN (origin on the plane) leaves tn as it is */
     tn = t0y > tn ? t0y : tn;
     tn = t0z > tn ? t0z : tn;
@@ -2628,12 +2627,19 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
        (t0 <= t1 there, so max(|t0|, |t1|) = max(t1, -t0)); lowering the entry by 2^-18 of those
        means a hit on the box's face is never culled. Selected without indexing, so that the
        distances stay in registers. */
-    k0 = r->kz == 0 ? t0x : r->kz == 1 ? t0y : t0z;
-    k1 = r->kz == 0 ? t1x : r->kz == 1 ? t1y : t1z;
+    k0 = kz == 0 ? t0x : kz == 1 ? t0y : t0z;
+    k1 = kz == 0 ? t1x : kz == 1 ? t1y : t1z;
     slack = k1 > -k0 ? k1 : -k0;
     tn -= slack * 3.814697265625e-6f; /* 2^-18 */
     tf = tf < tfar ? tf : tfar;
     return tn <= tf ? tn : BVH_INF;
+}
+/* Entry distance of the ray into node n if it enters before tfar, else +inf. */
+BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
+    const float *f = &n->min.x; /* min at 0..2, max at 4..6 */
+    return bvh__slab_t(r->tmin, r->kz, tfar, (f[r->near[0]] - r->o[0]) * r->inv[0], (f[r->near[0] ^ 4] - r->o[0]) * r->inv[0],
+                       (f[r->near[1]] - r->o[1]) * r->inv[1], (f[r->near[1] ^ 4] - r->o[1]) * r->inv[1],
+                       (f[r->near[2]] - r->o[2]) * r->inv[2], (f[r->near[2] ^ 4] - r->o[2]) * r->inv[2]);
 }
 
 
@@ -2803,32 +2809,21 @@ BVH__INLINE unsigned bvh__slab4(const bvh__ray4 *r, const bvh_node4 *n, float tf
     tn = _mm_sub_ps(tn, _mm_mul_ps(slack, _mm_set1_ps(3.814697265625e-6f)));
     tf = _mm_min_ps(tf, _mm_set1_ps(tfar));
     _mm_storeu_ps(tn_out, tn);
-    return (unsigned)_mm_movemask_ps(_mm_cmple_ps(tn, tf));
+    /* entered: tn <= tf and tn finite, as bvh__slab_t (a ray parallel to an axis outside the
+       slab gets tn = tf = +inf) */
+    return (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmple_ps(tn, tf), _mm_cmplt_ps(tn, _mm_set1_ps(BVH_INF))));
 }
 #else
 BVH__INLINE unsigned bvh__slab4(const bvh__ray4 *r, const bvh_node4 *n, float tfar, float tn_out[4]) {
     const float *f = &n->min[0][0];
     unsigned mask = 0;
     int i;
-    for (i = 0; i < 4; i++) {
-        const float t0x = (f[r->nearo[0] + i] - r->o[0]) * r->inv[0], t1x = (f[r->faro[0] + i] - r->o[0]) * r->inv[0];
-        const float t0y = (f[r->nearo[1] + i] - r->o[1]) * r->inv[1], t1y = (f[r->faro[1] + i] - r->o[1]) * r->inv[1];
-        const float t0z = (f[r->nearo[2] + i] - r->o[2]) * r->inv[2], t1z = (f[r->faro[2] + i] - r->o[2]) * r->inv[2];
-        float tn = r->tmin, tf = BVH_INF, k0, k1, slack;
-        tn = t0x > tn ? t0x : tn;
-        tn = t0y > tn ? t0y : tn;
-        tn = t0z > tn ? t0z : tn;
-        tf = t1x < tf ? t1x : tf;
-        tf = t1y < tf ? t1y : tf;
-        tf = t1z < tf ? t1z : tf;
-        tf *= 1.0000004f;
-        k0 = r->kz == 0 ? t0x : r->kz == 1 ? t0y : t0z;
-        k1 = r->kz == 0 ? t1x : r->kz == 1 ? t1y : t1z;
-        slack = k1 > -k0 ? k1 : -k0;
-        tn -= slack * 3.814697265625e-6f;
-        tf = tf < tfar ? tf : tfar;
-        tn_out[i] = tn;
-        if (tn <= tf) mask |= 1u << i;
+    for (i = 0; i < 4; i++) { /* the node's lanes: an empty slot gives +inf */
+        tn_out[i] = bvh__slab_t(r->tmin, r->kz, tfar, (f[r->nearo[0] + i] - r->o[0]) * r->inv[0],
+                                (f[r->faro[0] + i] - r->o[0]) * r->inv[0], (f[r->nearo[1] + i] - r->o[1]) * r->inv[1],
+                                (f[r->faro[1] + i] - r->o[1]) * r->inv[1], (f[r->nearo[2] + i] - r->o[2]) * r->inv[2],
+                                (f[r->faro[2] + i] - r->o[2]) * r->inv[2]);
+        if (tn_out[i] != BVH_INF) mask |= 1u << i;
     }
     return mask;
 }

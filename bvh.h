@@ -6,7 +6,8 @@
      construction methods" (Kedadry): baseline top-down (object median), baseline bottom-up
      (Morton-order pairwise aggregation), SAH-guided top-down with mid-point split partitioning,
      PLOC (Meister & Bittner 2018) and PLOC on pthreads. The node layout is a flat array of
-     32-byte nodes that cl/trace.cl reads as-is on any OpenCL device.
+     32-byte nodes that cl/trace.cl reads as-is on any OpenCL device; CPU tracing walks a 4-wide
+     copy of it (bvh_node4, made by bvh_build unless desc.trace_width = 2).
 
    HOW TO INCLUDE
      In exactly ONE .c or .cpp file:

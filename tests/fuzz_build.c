@@ -9,7 +9,7 @@
    later run replays it first.
 
    The input bytes become build options (two builders, max_leaf_size, ploc_radius, threads 1-3,
-   skip_invalid, costs, split budget, stride, an allocation to fail) and a triangle list: vertex
+   skip_invalid, costs, split budget, trace_width 0 or 2, stride, an allocation to fail) and a triangle list: vertex
    coordinates straight from the bytes (raw floats: NaN, Inf, huge, denormal values occur), or
    quantized to small multiples of 1/4 (exact coincidences, shared edges, axis-aligned and
    degenerate triangles), optionally indexed with indices from the bytes. The vertex buffer is
@@ -142,6 +142,7 @@ static void fz_parse_options(fz_in *in, fz_case *c, uint8_t *flags, uint8_t *ext
     if (*extra & 2) d->split_budget = fz_raw(in);
     c->batch = (*extra & 16) != 0;
     c->negative_tmin = (*extra & 64) != 0;
+    if (*extra & 128) d->trace_width = 2; /* binary traversal; else the 4-wide copy */
     c->arg_err = d->max_leaf_size > 255 || d->ploc_radius > 256 || !fz_costs_ok(&d->costs) ||
                  d->split_budget != d->split_budget || d->split_budget > 1.0f;
 }

@@ -1187,6 +1187,7 @@ typedef struct bvh__ploc {
     uint64_t *best;    /* per cluster: distance bits << 32 | tie key (see bvh__ploc_offer) */
     uint64_t *bnd;     /* per thread, radius entries: best offers to the next chunk's clusters */
     uint32_t *merges, *survivors; /* per thread */
+    uint8_t *role;     /* per cluster, this iteration: see the merging decisions */
     bvh__nn *nn;       /* per thread: the neighbour search's block buffers */
     uint32_t *blocks;  /* end of src after each iteration, then after the root (for bvh__emit) */
     uint32_t block_count, block_cap, radius, root;
@@ -1355,11 +1356,12 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
         /* merging decisions: count merges and survivors per chunk */
         {
             uint32_t m = 0, s = 0;
-            for (i = b; i < e; i++) {
+            for (i = b; i < e; i++) { /* role: 0 survives alone, 1 merges with j > i, 2 is merged into j < i */
                 uint32_t j = bvh__ploc_neighbour((uint32_t)i, best[i]);
-                int mutual = bvh__ploc_neighbour(j, best[j]) == i;
-                if (!(mutual && j < i)) s++;
-                if (mutual && i < j) m++;
+                uint32_t mutual = bvh__ploc_neighbour(j, best[j]) == i, left = mutual & (i < j);
+                p->role[i] = (uint8_t)(mutual + (mutual & !left));
+                s += 1u - (mutual & !left);
+                m += left;
             }
             p->merges[tid] = m;
             p->survivors[tid] = s;
@@ -1395,18 +1397,17 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
         } else
         /* merge and compact (prefix scan positions computed above) */
         for (i = b; i < e; i++) {
-            uint32_t j = bvh__ploc_neighbour((uint32_t)i, best[i]);
-            if (bvh__ploc_neighbour(j, best[j]) == i) {
-                if (i < j) {
-                    bvh_node *n = &cout[pos++];
-                    p->src[slot] = cin[i];
-                    p->src[slot + 1] = cin[j];
-                    bvh__set_box(n, bvh_aabb_merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[j])));
-                    n->index = slot;
-                    n->count = 0;
-                    slot += 2;
-                }
-            } else {
+            uint8_t role = p->role[i];
+            if (role == 1) {
+                uint32_t j = bvh__ploc_neighbour((uint32_t)i, best[i]);
+                bvh_node *n = &cout[pos++];
+                p->src[slot] = cin[i];
+                p->src[slot + 1] = cin[j];
+                bvh__set_box(n, bvh_aabb_merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[j])));
+                n->index = slot;
+                n->count = 0;
+                slot += 2;
+            } else if (role == 0) {
                 cout[pos++] = cin[i];
             }
         }
@@ -1451,11 +1452,13 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
         p.src = BVH__ALLOC(&c->al, bvh_node, 2 * n - 1);
         p.bnd = BVH__ALLOC(&c->al, uint64_t, (size_t)nthreads * p.radius);
         p.nn = BVH__ALLOC(&c->al, bvh__nn, nthreads);
+        p.role = BVH__ALLOC(&c->al, uint8_t, n);
         p.merges = BVH__ALLOC(&c->al, uint32_t, nthreads);
         p.survivors = BVH__ALLOC(&c->al, uint32_t, nthreads);
         p.block_cap = bvh__ploc_block_cap((uint32_t)n);
         p.blocks = BVH__ALLOC(&c->al, uint32_t, p.block_cap);
-        if (!p.cout || !p.src || !p.bnd || !p.nn || !p.merges || !p.survivors || !p.blocks) r = BVH_ERROR_OUT_OF_MEMORY;
+        if (!p.cout || !p.src || !p.bnd || !p.nn || !p.role || !p.merges || !p.survivors || !p.blocks)
+            r = BVH_ERROR_OUT_OF_MEMORY;
     }
     if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
     /* release the clustering scratch before emission, which needs its own */
@@ -1463,6 +1466,7 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     bvh__free(&c->al, p.mj.sort.keys);
     bvh__free(&c->al, p.bnd);
     bvh__free(&c->al, p.nn);
+    bvh__free(&c->al, p.role);
     bvh__free(&c->al, p.merges); bvh__free(&c->al, p.survivors);
     if (r == BVH_SUCCESS)
         r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, nthreads, p.block_count <= p.block_cap ? p.blocks : NULL,

@@ -2524,6 +2524,7 @@ done:
 typedef struct bvh__rayx {
     float o[3], d[3], inv[3], tmin;
     int near[3];     /* float offset in a node of the near plane on each axis: 0..2 min, 4..6 max */
+    int near4[3], far4[3]; /* the same in a bvh_node4 (slot 0): 0, 4, 8 min, 12, 16, 20 max */
     int kx, ky, kz;  /* watertight: kz = dominant axis */
     float sx, sy, sz;
 } bvh__rayx;
@@ -2541,6 +2542,8 @@ BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
         rx->d[a] = fabsf(d[a]) < FLT_MIN ? 0.0f : d[a];
         rx->inv[a] = rx->d[a] == 0.0f ? BVH_INF : 1.0f / rx->d[a];
         rx->near[a] = rx->inv[a] < 0.0f ? a + 4 : a;
+        rx->near4[a] = rx->inv[a] < 0.0f ? 12 + 4 * a : 4 * a;
+        rx->far4[a] = rx->inv[a] < 0.0f ? 4 * a : 12 + 4 * a;
     }
     if (rx->d[0] == 0.0f && rx->d[1] == 0.0f && rx->d[2] == 0.0f) return 0;
     d = rx->d;
@@ -2680,9 +2683,10 @@ static uint32_t bvh__wide_node(const bvh_node *nodes, uint32_t b, bvh_node4 *out
     if (out) {
         memset(out, 0, sizeof *out);
         for (i = 0; i < 4; i++) {
-            const bvh_node *c = &nodes[kids[i < k ? i : 0]];
+            const bvh_node *c;
             for (a = 0; a < 3; a++) { out->min[a][i] = BVH_INF; out->max[a][i] = -BVH_INF; }
             if (i >= k) continue;
+            c = &nodes[kids[i]];
             out->min[0][i] = c->min.x; out->min[1][i] = c->min.y; out->min[2][i] = c->min.z;
             out->max[0][i] = c->max.x; out->max[1][i] = c->max.y; out->max[2][i] = c->max.z;
             out->child[i] = c->count ? c->index : 0; /* interior children: the caller sets the index */
@@ -2775,33 +2779,17 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32
 
 /* Entry distances of the ray into the four child boxes of n (mask bit i: slot i entered before
    tfar); the binary bvh__slab, lane by lane. */
-typedef struct bvh__ray4 {
-    int nearo[3], faro[3]; /* float offsets in a bvh_node4 of the near and far planes by axis */
-    int kz;
-    float o[3], inv[3], tmin;
-} bvh__ray4;
-BVH__INLINE void bvh__ray4_setup(const bvh__rayx *r, bvh__ray4 *q) {
-    int a;
-    for (a = 0; a < 3; a++) {
-        q->nearo[a] = r->near[a] >= 4 ? 12 + 4 * a : 4 * a;
-        q->faro[a] = r->near[a] >= 4 ? 4 * a : 12 + 4 * a;
-        q->o[a] = r->o[a];
-        q->inv[a] = r->inv[a];
-    }
-    q->kz = r->kz;
-    q->tmin = r->tmin;
-}
 #ifdef BVH__SSE
-BVH__INLINE unsigned bvh__slab4(const bvh__ray4 *r, const bvh_node4 *n, float tfar, float tn_out[4]) {
+BVH__INLINE unsigned bvh__slab4(const bvh__rayx *r, const bvh_node4 *n, float tfar, float tn_out[4]) {
     const float *f = &n->min[0][0];
     const __m128 ox = _mm_set1_ps(r->o[0]), oy = _mm_set1_ps(r->o[1]), oz = _mm_set1_ps(r->o[2]);
     const __m128 ix = _mm_set1_ps(r->inv[0]), iy = _mm_set1_ps(r->inv[1]), iz = _mm_set1_ps(r->inv[2]);
-    const __m128 t0x = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->nearo[0]), ox), ix);
-    const __m128 t1x = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->faro[0]), ox), ix);
-    const __m128 t0y = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->nearo[1]), oy), iy);
-    const __m128 t1y = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->faro[1]), oy), iy);
-    const __m128 t0z = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->nearo[2]), oz), iz);
-    const __m128 t1z = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->faro[2]), oz), iz);
+    const __m128 t0x = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->near4[0]), ox), ix);
+    const __m128 t1x = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->far4[0]), ox), ix);
+    const __m128 t0y = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->near4[1]), oy), iy);
+    const __m128 t1y = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->far4[1]), oy), iy);
+    const __m128 t0z = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->near4[2]), oz), iz);
+    const __m128 t1z = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->far4[2]), oz), iz);
     __m128 tn = _mm_set1_ps(r->tmin), tf = _mm_set1_ps(BVH_INF), k0, k1, slack;
     /* _mm_max_ps(a, b) is a > b ? a : b and _mm_min_ps(a, b) is a < b ? a : b: the scalar
        selects, NaN included */
@@ -2819,15 +2807,15 @@ BVH__INLINE unsigned bvh__slab4(const bvh__ray4 *r, const bvh_node4 *n, float tf
     return (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmple_ps(tn, tf), _mm_cmplt_ps(tn, _mm_set1_ps(BVH_INF))));
 }
 #else
-BVH__INLINE unsigned bvh__slab4(const bvh__ray4 *r, const bvh_node4 *n, float tfar, float tn_out[4]) {
+BVH__INLINE unsigned bvh__slab4(const bvh__rayx *r, const bvh_node4 *n, float tfar, float tn_out[4]) {
     const float *f = &n->min[0][0];
     unsigned mask = 0;
     int i;
     for (i = 0; i < 4; i++) { /* the node's lanes: an empty slot gives +inf */
-        tn_out[i] = bvh__slab_t(r->tmin, r->kz, tfar, (f[r->nearo[0] + i] - r->o[0]) * r->inv[0],
-                                (f[r->faro[0] + i] - r->o[0]) * r->inv[0], (f[r->nearo[1] + i] - r->o[1]) * r->inv[1],
-                                (f[r->faro[1] + i] - r->o[1]) * r->inv[1], (f[r->nearo[2] + i] - r->o[2]) * r->inv[2],
-                                (f[r->faro[2] + i] - r->o[2]) * r->inv[2]);
+        tn_out[i] = bvh__slab_t(r->tmin, r->kz, tfar, (f[r->near4[0] + i] - r->o[0]) * r->inv[0],
+                                (f[r->far4[0] + i] - r->o[0]) * r->inv[0], (f[r->near4[1] + i] - r->o[1]) * r->inv[1],
+                                (f[r->far4[1] + i] - r->o[1]) * r->inv[1], (f[r->near4[2] + i] - r->o[2]) * r->inv[2],
+                                (f[r->far4[2] + i] - r->o[2]) * r->inv[2]);
         if (tn_out[i] != BVH_INF) mask |= 1u << i;
     }
     return mask;
@@ -2840,13 +2828,11 @@ static int bvh__traverse4(const bvh_tree *tree, const bvh__rayx *rx, float tmax,
     uint32_t sp = 0, best_prim = BVH_INVALID, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first reference */
     float best_t = tmax, best_u = 0.0f, best_v = 0.0f;
     const bvh_node4 *nodes = tree->nodes4;
-    bvh__ray4 q;
-    bvh__ray4_setup(rx, &q);
     for (;;) {
         if (!lc) { /* an interior node: test its four children */
             const bvh_node4 *n = &nodes[cur];
             float tn[4];
-            unsigned m = bvh__slab4(&q, n, best_t, tn), i;
+            unsigned m = bvh__slab4(rx, n, best_t, tn), i;
             if (m) {
                 uint32_t idx[4], k = 0, j;
                 for (i = 0; i < 4; i++)

@@ -42,7 +42,8 @@ $(BUILD)/tests/%: tests/%.c $(HEADERS)
 # Compile checks of the header itself, built and run by `make test` (a warning or a wrong answer
 # fails it): C11 with BVH_STATIC, with and without threads (tests/compile_static.c); two C
 # translation units (tests/two_tu_*.c); C++11 (tests/compile_cpp.cpp); a C++ program linked with
-# the implementation compiled as C; the traversal test without SSE (BVH_NO_SIMD). With $(CC)/$(CXX) in build/check/cc/, and with clang/clang++
+# the implementation compiled as C; the traversal test without SSE (BVH_NO_SIMD), the builder
+# tests without AVX2 (BVH_NO_AVX2). With $(CC)/$(CXX) in build/check/cc/, and with clang/clang++
 # in build/check/clang/ when present. No -D_GNU_SOURCE: the header must build in strict ISO mode.
 CXXSTD      = -std=c++11
 CXXWARN     = -Wall -Wextra -Wpedantic -Werror
@@ -53,7 +54,7 @@ CHECK_CC_clang  = clang
 CHECK_CXX_clang = clang++
 CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
            $(addprefix $(BUILD)/check/$(c)/,static static-no-threads two-tu cxx11 cxx11-links-c)) \
-         $(BUILD)/check/traversal-no-simd
+         $(BUILD)/check/traversal-no-simd $(BUILD)/check/builders-no-avx2
 
 $(BUILD)/check/%/static: tests/compile_static.c bvh.h
 	@mkdir -p $(dir $@)
@@ -65,6 +66,11 @@ $(BUILD)/check/%/static-no-threads: tests/compile_static.c bvh.h
 $(BUILD)/check/traversal-no-simd: tests/test_traversal.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_SIMD -I. $< -o $@ -lcmocka $(LDLIBS)
+# The builder tests again with PLOC's neighbour search on SSE only (BVH_NO_AVX2), where the CPU
+# would take the AVX2 path.
+$(BUILD)/check/builders-no-avx2: tests/test_builders.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX2 -I. $(EX_DEFS) $< -o $@ -lcmocka $(EX_LIBS) $(LDLIBS)
 $(BUILD)/check/%/two-tu: tests/two_tu_a.c tests/two_tu_b.c bvh.h
 	@mkdir -p $(dir $@)
 	$(CHECK_CC_$*) $(STD) $(WARN) $(CFLAGS) -I. tests/two_tu_a.c tests/two_tu_b.c -o $@ $(LDLIBS)

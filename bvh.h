@@ -972,12 +972,13 @@ static void bvh__emit_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
    runs of src whose children all lie in earlier runs, as each PLOC iteration appends), each run
    is split over the team, which meets at a barrier between runs; without, all of src is one run
    on one thread. */
+typedef union bvh__fu { float f; uint32_t u; } bvh__fu; /* pass 1: SAH cost; pass 2: see bvh__place */
 typedef struct bvh__sizes {
     const bvh__ctx *c;
     const bvh_node *src;
     uint32_t *cnt, *size;
     uint8_t *height;
-    float *cost;
+    bvh__fu *cost;
     const uint32_t *blocks;
     uint32_t block_count;
 } bvh__sizes;
@@ -986,10 +987,10 @@ static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
     const bvh_node *s = &q->src[i];
     uint32_t *cnt = q->cnt, *size = q->size;
     uint8_t *height = q->height;
-    float *cost = q->cost;
+    bvh__fu *cost = q->cost;
     if (s->count) {
         cnt[i] = s->count; height[i] = 0; size[i] = 1;
-        if (cost) cost[i] = bvh__half_area(bvh__node_box(s)) * (c->cl + c->ct * (float)s->count);
+        if (cost) cost[i].f = bvh__half_area(bvh__node_box(s)) * (c->cl + c->ct * (float)s->count);
     } else {
         uint32_t l = s->index, n = (cnt[l] & ~BVH__COLLAPSE_BIT) + (cnt[l + 1] & ~BVH__COLLAPSE_BIT);
         uint32_t h = height[l] > height[l + 1] ? height[l] : height[l + 1];
@@ -998,10 +999,10 @@ static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
         size[i] = 1 + size[l] + size[l + 1];
         if (cost) {
             float a = bvh__half_area(bvh__node_box(s));
-            float split = c->ci * a + cost[l] + cost[l + 1];
+            float split = c->ci * a + cost[l].f + cost[l + 1].f;
             float leaf = a * (c->cl + c->ct * (float)n);
-            if (n <= c->max_leaf && leaf <= split) { cost[i] = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; size[i] = 1; }
-            else cost[i] = split;
+            if (n <= c->max_leaf && leaf <= split) { cost[i].f = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; size[i] = 1; }
+            else cost[i].f = split;
         }
     }
 }
@@ -1018,19 +1019,68 @@ static void bvh__sizes_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     }
 }
 
+/* Pass 2 of bvh__emit with `blocks`, when no subtree is rebuilt: src is walked from the root down,
+   run by run from the last (parents before children), each run's pairs split over the team. A
+   children pair (l, l + 1) gets from its parent, in pos[l], the output index of its first node
+   and, in pos[l + 1], its first reference; pos[l] = 0 marks a pair inside a collapsed leaf, whose
+   primitives are still written at their places. Positions follow from the sizes exactly as in the
+   depth-first walk (bvh__emit_subtree), so the tree is the same; but every read of src, cnt, size
+   and pos goes forward through memory, where the walk jumped about. */
+typedef struct bvh__place {
+    const bvh_node *src;
+    const uint32_t *map, *cnt, *size, *blocks;
+    bvh__fu *pos;
+    bvh__out *o;
+    uint32_t block_count;
+} bvh__place;
+/* Source node x goes to output node di (0: inside a leaf), its children pair to `node`, its
+   references start at ref. */
+static void bvh__place_node(const bvh__place *q, uint32_t x, uint32_t di, uint32_t node, uint32_t ref) {
+    const bvh_node *s = &q->src[x];
+    bvh_node *d = &q->o->nodes[di];
+    uint32_t k, leaf = s->count || (q->cnt[x] & BVH__COLLAPSE_BIT);
+    if (s->count)
+        for (k = 0; k < s->count; k++) q->o->refs[ref + k] = q->map[s->index + k];
+    else {
+        q->pos[s->index].u = leaf || !di ? 0 : node;
+        q->pos[s->index + 1].u = ref;
+    }
+    if (!di) return;
+    d->min = s->min; d->max = s->max;
+    if (leaf) { d->index = ref; d->count = q->cnt[x] & ~BVH__COLLAPSE_BIT; }
+    else { d->index = node; d->count = 0; }
+}
+static void bvh__place_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    const bvh__place *q = BVH__CAST(const bvh__place *, arg);
+    uint32_t k = q->block_count - 1; /* the last run is the root's */
+    size_t b, e, i;
+    while (k-- > 0) {
+        uint32_t start = k ? q->blocks[k - 1] : 0;
+        bvh__range((q->blocks[k] - start) / 2, tid, nt, &b, &e);
+        for (i = b; i < e; i++) {
+            uint32_t l = start + 2 * (uint32_t)i, di = q->pos[l].u, ref = q->pos[l + 1].u;
+            uint32_t lcnt = q->cnt[l] & ~BVH__COLLAPSE_BIT;
+            bvh__place_node(q, l, di, di + 2, ref);
+            bvh__place_node(q, l + 1, di ? di + 1 : 0, di + 1 + q->size[l], ref + lcnt);
+        }
+        bvh__team_sync(team);
+    }
+}
+
 static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src_count, const uint32_t *map,
                             int collapse, uint32_t nthreads, const uint32_t *blocks, uint32_t block_count,
                             bvh__out *o) {
     uint32_t *cnt = BVH__ALLOC(&c->al, uint32_t, src_count); /* prims below; top bit: collapsed */
     uint32_t *size = BVH__ALLOC(&c->al, uint32_t, src_count); /* output nodes below, itself included */
     uint8_t *height = BVH__ALLOC(&c->al, uint8_t, src_count); /* after collapsing, capped at 255 */
-    float *cost = collapse ? BVH__ALLOC(&c->al, float, src_count) : NULL;
+    /* with blocks, the costs' array is also pass 2's pos (bvh__place) */
+    bvh__fu *cost = collapse || blocks ? BVH__ALLOC(&c->al, bvh__fu, src_count) : NULL;
     uint32_t stack[3 * (BVH_MAX_DEPTH + 2)], small[2 * BVH__MAX_LEAF + 8], *gather = NULL, sp = 0, prims;
     bvh_result r = BVH_SUCCESS;
-    if (!cnt || !size || !height || (collapse && !cost)) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    if (!cnt || !size || !height || ((collapse || blocks) && !cost)) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
     {
         bvh__sizes q;
-        q.c = c; q.src = src; q.cnt = cnt; q.size = size; q.height = height; q.cost = cost;
+        q.c = c; q.src = src; q.cnt = cnt; q.size = size; q.height = height; q.cost = collapse ? cost : NULL;
         q.blocks = blocks ? blocks : &src_count;
         q.block_count = blocks ? block_count : 1;
         r = bvh__team_run(&c->al, blocks ? nthreads : 1, bvh__sizes_fn, &q);
@@ -1040,6 +1090,22 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
     /* exact size unless a subtree must be rebuilt for depth (then at most 2 n - 1 nodes) */
     r = bvh__out_init(c, o, height[src_count - 1] > BVH_MAX_DEPTH - 1 ? 2 * prims - 1 : size[src_count - 1], prims);
     if (r != BVH_SUCCESS) goto done;
+    if (blocks && block_count >= 2 && blocks[block_count - 1] == src_count && height[src_count - 1] <= BVH_MAX_DEPTH - 1 &&
+        !src[src_count - 1].count && !(cnt[src_count - 1] & BVH__COLLAPSE_BIT)) {
+        /* PLOC's runs: placed from the root down (bvh__place) */
+        bvh__place pl;
+        const bvh_node *root = &src[src_count - 1];
+        bvh_node *d = &o->nodes[0];
+        d->min = root->min; d->max = root->max; d->index = 1; d->count = 0;
+        cost[root->index].u = 1;
+        cost[root->index + 1].u = 0;
+        pl.src = src; pl.map = map; pl.cnt = cnt; pl.size = size; pl.blocks = blocks; pl.pos = cost; pl.o = o;
+        pl.block_count = block_count;
+        r = bvh__team_run(&c->al, nthreads, bvh__place_fn, &pl);
+        o->node_count = size[src_count - 1];
+        o->ref_count = prims;
+        goto done;
+    }
     if (height[src_count - 1] <= BVH_MAX_DEPTH - 1) {
         /* shallow enough: no subtree is rebuilt, so positions follow from the sizes and the
            subtrees can be written by the team. With several threads, the largest subtree is split

@@ -338,6 +338,13 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #include <immintrin.h>
 #define BVH__AVX2 1 /* compiled for AVX2 on its own (target attribute), used when the CPU has it */
 #endif
+#if defined(__GNUC__) || defined(__clang__)
+#define BVH__PREFETCH(p) __builtin_prefetch(p)
+#elif defined(BVH__SSE)
+#define BVH__PREFETCH(p) _mm_prefetch((const char *)(p), _MM_HINT_T0)
+#else
+#define BVH__PREFETCH(p) ((void)0)
+#endif
 #ifndef BVH_NO_THREADS
 #include <pthread.h>
 #include <unistd.h>
@@ -1006,6 +1013,7 @@ static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
         }
     }
 }
+#define BVH__SIZES_AHEAD 16
 static void bvh__sizes_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     const bvh__sizes *q = BVH__CAST(const bvh__sizes *, arg);
     uint32_t k, start = 0;
@@ -1013,7 +1021,18 @@ static void bvh__sizes_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     for (k = 0; k < q->block_count; k++) {
         uint32_t end = q->blocks[k];
         bvh__range(end - start, tid, nt, &b, &e);
-        for (i = b; i < e; i++) bvh__sizes_node(q, start + (uint32_t)i);
+        for (i = b; i < e; i++) {
+            /* a node's children lie anywhere in earlier runs: ask for theirs a few nodes ahead */
+            if (i + BVH__SIZES_AHEAD < e) {
+                const bvh_node *s = &q->src[start + i + BVH__SIZES_AHEAD];
+                if (!s->count) {
+                    BVH__PREFETCH(&q->cnt[s->index]); BVH__PREFETCH(&q->size[s->index]);
+                    BVH__PREFETCH(&q->height[s->index]);
+                    if (q->cost) BVH__PREFETCH(&q->cost[s->index]);
+                }
+            }
+            bvh__sizes_node(q, start + (uint32_t)i);
+        }
         bvh__team_sync(team);
         start = end;
     }

@@ -680,8 +680,8 @@ typedef struct bvh__sort {
     size_t n;
     uint32_t *hist; /* nthreads * BVH__RADIX_SIZE */
 } bvh__sort;
-/* Called by every thread of a team; on return the sorted data is in keys/vals. */
-static void bvh__radix_sort_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team) {
+/* LSD passes over all 64 bits (see bvh__radix_sort_team). */
+static void bvh__radix_lsd_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team) {
     int shift;
     size_t b, e, i;
     bvh__range(s->n, tid, nt, &b, &e);
@@ -727,6 +727,102 @@ static void bvh__radix_sort_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__t
         }
         bvh__team_sync(team);
     }
+}
+
+/* Sorts the pairs [lo, hi) of (ck, cv), whose keys agree above their low `bits` bits, stably by
+   key; the result lands in (ok, ov) when `into_other`, else in (ck, cv). MSD, 4 to 8 bits a level,
+   insertion sort from 16 pairs down: the range fits in cache, so no pass goes out to memory. */
+#define BVH__MSD_SMALL 16
+static void bvh__msd_local(uint64_t *ck, uint32_t *cv, uint64_t *ok, uint32_t *ov, size_t lo, size_t hi, int bits,
+                           int into_other) {
+    size_t m = hi - lo, i, j;
+    while (bits > 0 && m > BVH__MSD_SMALL) {
+        /* fewer buckets for fewer pairs, so that clearing and summing them does not dominate */
+        const int want = m > 1024 ? 8 : m > 128 ? 6 : 4;
+        uint32_t cnt[256], d, shift = (uint32_t)(bits > want ? bits - want : 0), width = (uint32_t)bits - shift;
+        uint32_t mask = (1u << width) - 1, first = (uint32_t)((ck[lo] >> shift) & mask), nd = mask + 1;
+        size_t off[257];
+        memset(cnt, 0, nd * sizeof cnt[0]);
+        for (i = lo; i < hi; i++) cnt[(ck[i] >> shift) & mask]++;
+        if (cnt[first] == m) { bits = (int)shift; continue; } /* one digit: nothing to move */
+        off[0] = lo;
+        for (d = 0; d < nd; d++) off[d + 1] = off[d] + cnt[d];
+        for (i = lo; i < hi; i++) {
+            size_t at = off[(ck[i] >> shift) & mask]++;
+            ok[at] = ck[i];
+            ov[at] = cv[i];
+        }
+        /* the digit buckets now sit in (ok, ov), each ending at off[d] */
+        for (d = 0, i = lo; d < nd; d++) {
+            if (off[d] > i) bvh__msd_local(ok, ov, ck, cv, i, off[d], (int)shift, !into_other);
+            i = off[d];
+        }
+        return;
+    }
+    /* equal high bits throughout, or a few pairs: insertion sort (stable), then move if asked */
+    if (bits > 0)
+        for (i = lo + 1; i < hi; i++) {
+            uint64_t k = ck[i];
+            uint32_t v = cv[i];
+            for (j = i; j > lo && ck[j - 1] > k; j--) { ck[j] = ck[j - 1]; cv[j] = cv[j - 1]; }
+            ck[j] = k; cv[j] = v;
+        }
+    if (into_other) {
+        memcpy(ok + lo, ck + lo, m * sizeof *ok);
+        memcpy(ov + lo, cv + lo, m * sizeof *ov);
+    }
+}
+/* Called by every thread of a team; on return the sorted data is in keys/vals. Stable, so equal
+   keys keep value order. One pass over memory scatters the pairs by their top 11 bits; each of
+   those ranges is then sorted on its own in cache (bvh__msd_local), ranges split over the team by
+   where they start. When one range would hold over a quarter of the pairs (clustered input) and
+   there are several threads, LSD passes over all bits run instead, which split evenly. Either
+   way the result is the one stable order, for any thread count. */
+static void bvh__radix_sort_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team) {
+    const int top = 64 - BVH__RADIX_BITS;
+    uint32_t *h = s->hist + (size_t)tid * BVH__RADIX_SIZE, d, t, big = 0;
+    size_t b, e, i, sum = 0;
+    bvh__range(s->n, tid, nt, &b, &e);
+    memset(h, 0, BVH__RADIX_SIZE * sizeof(uint32_t));
+    for (i = b; i < e; i++) h[s->keys[i] >> top]++;
+    bvh__team_sync(team);
+    for (d = 0; d < BVH__RADIX_SIZE; d++) {
+        size_t tot = 0;
+        for (t = 0; t < nt; t++) tot += s->hist[(size_t)t * BVH__RADIX_SIZE + d];
+        if (tot > s->n / 4) big = 1;
+    }
+    if (big && nt > 1) {
+        bvh__team_sync(team); /* everyone has read the histograms */
+        bvh__radix_lsd_team(s, tid, nt, team);
+        return;
+    }
+    {
+        uint32_t local[BVH__RADIX_SIZE];
+        for (d = 0; d < BVH__RADIX_SIZE; d++) {
+            for (t = 0; t < nt; t++) {
+                uint32_t c = s->hist[(size_t)t * BVH__RADIX_SIZE + d];
+                if (t == tid) local[d] = (uint32_t)sum;
+                sum += c;
+            }
+        }
+        bvh__team_sync(team); /* everyone has read the histograms */
+        for (i = b; i < e; i++) {
+            uint64_t k = s->keys[i];
+            uint32_t pos = local[k >> top]++;
+            s->keys_tmp[pos] = k;
+            s->vals_tmp[pos] = s->vals[i];
+        }
+    }
+    bvh__team_sync(team);
+    /* digit d's range: [start, end) from the summed histograms; this thread takes those that
+       start in [b, e) */
+    for (d = 0, sum = 0; d < BVH__RADIX_SIZE; d++) {
+        size_t start = sum;
+        for (t = 0; t < nt; t++) sum += s->hist[(size_t)t * BVH__RADIX_SIZE + d];
+        if (sum > start && start >= b && start < e)
+            bvh__msd_local(s->keys_tmp, s->vals_tmp, s->keys, s->vals, start, sum, top, 1);
+    }
+    bvh__team_sync(team);
 }
 
 /* ============================================================================================ */

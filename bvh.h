@@ -1398,8 +1398,8 @@ BVH__INLINE uint64_t bvh__ploc_offer(int32_t key, uint32_t dist, uint32_t lo_odd
     return (uint64_t)bits << 32 | dist << 2 | lo_odd << 1 | right;
 }
 BVH__INLINE uint32_t bvh__ploc_neighbour(uint32_t i, uint64_t best) {
-    uint32_t key = (uint32_t)best, dist = key >> 2;
-    return (key & 1u) ? i + dist : i - dist;
+    uint32_t key = (uint32_t)best, dist = key >> 2, left = (key & 1u) - 1u; /* all ones: j < i */
+    return i + ((dist ^ left) - left); /* no branch: the side is a coin toss to a predictor */
 }
 #define BVH__MIN64(a, b) ((b) < (a) ? (b) : (a))
 
@@ -2408,7 +2408,23 @@ static void bvh__back_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) 
     bvh__range(tree->ref_count, tid, nt, &b, &e);
     for (i = b; i < e; i++) {
         uint32_t local = tree->prims[i];
-        if (c->tris) bvh__ctx_triangle(c, local, tree->tris + 9 * i);
+        if (c->tris) {
+            /* the references are in tree order, the triangles in the caller's: ask ahead for the
+               indices of the 16th triangle on and for the vertices of the 8th */
+            const bvh_triangles *t = c->tris;
+            if (i + 16 < e) {
+                uint32_t id = tree->prims[i + 16];
+                id = c->orig ? c->orig[id] : id;
+                if (t->indices) BVH__PREFETCH(&t->indices[3 * (size_t)id]);
+                else BVH__PREFETCH(bvh__vertex(t, 3 * id));
+            }
+            if (t->indices && i + 8 < e) {
+                uint32_t id = tree->prims[i + 8];
+                const uint32_t *ix = &t->indices[3 * (size_t)(c->orig ? c->orig[id] : id)];
+                BVH__PREFETCH(bvh__vertex(t, ix[0])); BVH__PREFETCH(bvh__vertex(t, ix[1])); BVH__PREFETCH(bvh__vertex(t, ix[2]));
+            }
+            bvh__ctx_triangle(c, local, tree->tris + 9 * i);
+        }
         if (c->orig) tree->prims[i] = c->orig[local];
     }
 }

@@ -649,9 +649,10 @@ static uint64_t bvh__morton(bvh_vec3 p, const bvh__mscale *m) {
     f[0] = ((double)p.x - m->lo[0]) * m->scale[0];
     f[1] = ((double)p.y - m->lo[1]) * m->scale[1];
     f[2] = ((double)p.z - m->lo[2]) * m->scale[2];
-    for (a = 0; a < 3; a++) {
-        double x = !(f[a] > 0.0) ? 0.0 : f[a] > 2097151.0 ? 2097151.0 : f[a];
-        q[a] = (uint64_t)x;
+    for (a = 0; a < 3; a++) { /* written for maxsd/minsd and a signed 32-bit conversion */
+        double x = f[a] > 0.0 ? f[a] : 0.0; /* NaN: 0 */
+        x = x < 2097151.0 ? x : 2097151.0;
+        q[a] = (uint64_t)(int32_t)x;
     }
     return bvh__expand21(q[0]) << 2 | bvh__expand21(q[1]) << 1 | bvh__expand21(q[2]);
 }
@@ -866,7 +867,7 @@ static bvh_result bvh__out_init(const bvh__ctx *c, bvh__out *o, uint32_t node_ca
 }
 
 static const float *bvh__vertex(const bvh_triangles *t, uint32_t v);
-static void bvh__fetch_triangle(const bvh_triangles *t, uint32_t i, float out[9]);
+BVH__INLINE void bvh__fetch_triangle(const bvh_triangles *t, uint32_t i, float out[9]);
 static bvh_aabb bvh__tri_box(const float *t);
 /* Triangle of local primitive id, read from the caller's input (no copy is kept during builds). */
 static void bvh__ctx_triangle(const bvh__ctx *c, uint32_t id, float out[9]) {
@@ -893,7 +894,14 @@ static void bvh__morton_codes_team(bvh__morton_job *j, uint32_t tid, uint32_t nt
     size_t b, e, i;
     bvh__range(j->c->n, tid, nt, &b, &e);
     for (i = b; i < e; i++) {
-        j->sort.keys[i] = bvh__morton(bvh__prim_centroid(j->c, (uint32_t)i), &j->ms);
+        bvh_vec3 p;
+        if (j->c->boxes) { /* always, during builds; read in place (a call returning the box went through the stack) */
+            const bvh_aabb *x = &j->c->boxes[i];
+            p.x = 0.5f * (x->min.x + x->max.x); p.y = 0.5f * (x->min.y + x->max.y); p.z = 0.5f * (x->min.z + x->max.z);
+        } else {
+            p = bvh__prim_centroid(j->c, (uint32_t)i);
+        }
+        j->sort.keys[i] = bvh__morton(p, &j->ms);
         j->sort.vals[i] = (uint32_t)i;
     }
     bvh__team_sync(team);
@@ -2297,7 +2305,7 @@ static const float *bvh__vertex(const bvh_triangles *t, uint32_t v) {
     size_t stride = t->stride ? t->stride : 3 * sizeof(float);
     return BVH__CAST(const float *, BVH__CAST(const void *, BVH__CAST(const char *, BVH__CAST(const void *, t->positions)) + (size_t)v * stride));
 }
-static void bvh__fetch_triangle(const bvh_triangles *t, uint32_t i, float out[9]) {
+BVH__INLINE void bvh__fetch_triangle(const bvh_triangles *t, uint32_t i, float out[9]) {
     int k;
     for (k = 0; k < 3; k++) {
         uint32_t v = t->indices ? t->indices[3 * (size_t)i + k] : (uint32_t)(3 * (size_t)i + k);
@@ -2382,14 +2390,21 @@ static void bvh__front_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
             float t[9];
             bvh__fetch_triangle(&d->triangles, (uint32_t)i, t);
             ok = bvh__finite3(t) && bvh__finite3(t + 3) && bvh__finite3(t + 6);
-            box = bvh__tri_box(t);
+            box.min.x = bvh__minf(bvh__minf(t[0], t[3]), t[6]); box.max.x = bvh__maxf(bvh__maxf(t[0], t[3]), t[6]);
+            box.min.y = bvh__minf(bvh__minf(t[1], t[4]), t[7]); box.max.y = bvh__maxf(bvh__maxf(t[1], t[4]), t[7]);
+            box.min.z = bvh__minf(bvh__minf(t[2], t[5]), t[8]); box.max.z = bvh__maxf(bvh__maxf(t[2], t[5]), t[8]);
         }
         if (!ok) {
             box.min.x = NAN;
             invalid++;
-        } else {
-            bounds = bvh_aabb_merge(bounds, box);
-            bvh_aabb_grow(&cbounds, bvh_aabb_centroid(box));
+        } else { /* bvh_aabb_merge and bvh_aabb_grow(centroid), written out: the calls cost more */
+            float cx = 0.5f * (box.min.x + box.max.x), cy = 0.5f * (box.min.y + box.max.y), cz = 0.5f * (box.min.z + box.max.z);
+            bounds.min.x = bvh__minf(bounds.min.x, box.min.x); bounds.max.x = bvh__maxf(bounds.max.x, box.max.x);
+            bounds.min.y = bvh__minf(bounds.min.y, box.min.y); bounds.max.y = bvh__maxf(bounds.max.y, box.max.y);
+            bounds.min.z = bvh__minf(bounds.min.z, box.min.z); bounds.max.z = bvh__maxf(bounds.max.z, box.max.z);
+            cbounds.min.x = bvh__minf(cbounds.min.x, cx); cbounds.max.x = bvh__maxf(cbounds.max.x, cx);
+            cbounds.min.y = bvh__minf(cbounds.min.y, cy); cbounds.max.y = bvh__maxf(cbounds.max.y, cy);
+            cbounds.min.z = bvh__minf(cbounds.min.z, cz); cbounds.max.z = bvh__maxf(cbounds.max.z, cz);
         }
         f->boxes[i] = box;
     }

@@ -1385,7 +1385,9 @@ typedef struct bvh__ploc {
     uint64_t *bnd;     /* per thread, radius entries: best offers to the next chunk's clusters */
     uint32_t *merges, *survivors; /* per thread */
     uint8_t *role;     /* per cluster, this iteration: see the merging decisions */
-    bvh__nn *nn;       /* per thread: the neighbour search's block buffers */
+    bvh__nn *nn;       /* per thread: the neighbour search's block buffers, in nn_f and nn_i */
+    float *nn_f;
+    int32_t *nn_i;
     uint32_t *blocks;  /* end of src after each iteration, then after the root (for bvh__emit) */
     uint32_t block_count, block_cap, radius, root;
 } bvh__ploc;
@@ -1422,11 +1424,14 @@ BVH__INLINE uint32_t bvh__ploc_neighbour(uint32_t i, uint64_t best) {
    smaller distance, then smaller k, then the parity and side bits. Keys are the bits with the
    sign bit flipped, so that signed 32-bit comparisons order them as unsigned ones. */
 #define BVH__NN_BLOCK 256u
-struct bvh__nn {
-    float lo[3][BVH__NN_BLOCK + 256], hi[3][BVH__NN_BLOCK + 256]; /* boxes of i0 .. i0 + nb + r */
-    int32_t rd[BVH__NN_BLOCK], ld[BVH__NN_BLOCK + 256];           /* best distance key right/left */
-    int32_t rk[BVH__NN_BLOCK], lk[BVH__NN_BLOCK + 256];           /* its offset k; 0: no offer yet */
+struct bvh__nn { /* arrays of bvh__nn_block(n) entries (rd, rk) or that + r (the others) */
+    float *lo[3], *hi[3];  /* boxes of i0 .. i0 + nb + r */
+    int32_t *rd, *ld;      /* best distance key right/left */
+    int32_t *rk, *lk;      /* its offset k; 0: no offer yet */
 };
+/* Clusters per block: BVH__NN_BLOCK, or all of a smaller input rounded up to the vector width
+   (so that a small build does not hold buffers for 256). */
+static size_t bvh__nn_block(size_t n) { return n < BVH__NN_BLOCK ? (n + 7) & ~(size_t)7 : BVH__NN_BLOCK; }
 /* The distances of pairs (i0 + q, i0 + q + k) for q < nbr (a multiple of the vector width) and
    k = 1..r, kept as the best per side (see bvh__ploc_search). */
 #ifdef BVH__AVX2
@@ -1702,12 +1707,25 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
         p.src = BVH__ALLOC(&c->al, bvh_node, 2 * n - 1);
         p.bnd = BVH__ALLOC(&c->al, uint64_t, (size_t)nthreads * p.radius);
         p.nn = BVH__ALLOC(&c->al, bvh__nn, nthreads);
+        {
+            size_t nbk = bvh__nn_block(n), cap = nbk + p.radius, t;
+            p.nn_f = BVH__ALLOC(&c->al, float, (size_t)nthreads * 6 * cap);
+            p.nn_i = BVH__ALLOC(&c->al, int32_t, (size_t)nthreads * (2 * nbk + 2 * cap));
+            for (t = 0; p.nn && p.nn_f && p.nn_i && t < nthreads; t++) {
+                float *f = p.nn_f + t * 6 * cap;
+                int32_t *k = p.nn_i + t * (2 * nbk + 2 * cap);
+                bvh__nn *w = &p.nn[t];
+                w->lo[0] = f; w->lo[1] = f + cap; w->lo[2] = f + 2 * cap;
+                w->hi[0] = f + 3 * cap; w->hi[1] = f + 4 * cap; w->hi[2] = f + 5 * cap;
+                w->rd = k; w->rk = k + nbk; w->ld = k + 2 * nbk; w->lk = k + 2 * nbk + cap;
+            }
+        }
         p.role = BVH__ALLOC(&c->al, uint8_t, n);
         p.merges = BVH__ALLOC(&c->al, uint32_t, nthreads);
         p.survivors = BVH__ALLOC(&c->al, uint32_t, nthreads);
         p.block_cap = bvh__ploc_block_cap((uint32_t)n);
         p.blocks = BVH__ALLOC(&c->al, uint32_t, p.block_cap);
-        if (!p.cout || !p.src || !p.bnd || !p.nn || !p.role || !p.merges || !p.survivors || !p.blocks)
+        if (!p.cout || !p.src || !p.bnd || !p.nn || !p.nn_f || !p.nn_i || !p.role || !p.merges || !p.survivors || !p.blocks)
             r = BVH_ERROR_OUT_OF_MEMORY;
     }
     if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
@@ -1715,7 +1733,7 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     bvh__free(&c->al, p.cin); bvh__free(&c->al, p.cout);
     bvh__free(&c->al, p.mj.sort.keys);
     bvh__free(&c->al, p.bnd);
-    bvh__free(&c->al, p.nn);
+    bvh__free(&c->al, p.nn); bvh__free(&c->al, p.nn_f); bvh__free(&c->al, p.nn_i);
     bvh__free(&c->al, p.role);
     bvh__free(&c->al, p.merges); bvh__free(&c->al, p.survivors);
     if (r == BVH_SUCCESS)

@@ -683,6 +683,27 @@ typedef struct bvh__sort {
     size_t n;
     uint32_t *hist; /* nthreads * BVH__RADIX_SIZE */
 } bvh__sort;
+/* One stable scatter of this thread's pairs [b, e) from keys/vals to keys_tmp/vals_tmp by the
+   digit at `shift`, from the team's histograms: the offset of (digit d, thread tid) is the count
+   of keys with a smaller digit plus those with digit d in earlier threads. */
+static void bvh__radix_scatter(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team, int shift, size_t b, size_t e) {
+    uint32_t local[BVH__RADIX_SIZE], d, t;
+    size_t sum = 0, i;
+    for (d = 0; d < BVH__RADIX_SIZE; d++) {
+        for (t = 0; t < nt; t++) {
+            uint32_t c = s->hist[(size_t)t * BVH__RADIX_SIZE + d];
+            if (t == tid) local[d] = (uint32_t)sum;
+            sum += c;
+        }
+    }
+    bvh__team_sync(team); /* everyone has read the histograms */
+    for (i = b; i < e; i++) {
+        uint64_t k = s->keys[i];
+        uint32_t pos = local[(k >> shift) & (BVH__RADIX_SIZE - 1)]++;
+        s->keys_tmp[pos] = k;
+        s->vals_tmp[pos] = s->vals[i];
+    }
+}
 /* LSD passes over all 64 bits (see bvh__radix_sort_team). */
 static void bvh__radix_lsd_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team) {
     int shift;
@@ -691,7 +712,6 @@ static void bvh__radix_lsd_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__te
     for (shift = 0; shift < 64; shift += BVH__RADIX_BITS) {
         uint32_t *h = s->hist + (size_t)tid * BVH__RADIX_SIZE;
         uint32_t d, t, all_same = 0;
-        size_t sum;
         memset(h, 0, BVH__RADIX_SIZE * sizeof(uint32_t));
         for (i = b; i < e; i++) h[(s->keys[i] >> shift) & (BVH__RADIX_SIZE - 1)]++;
         bvh__team_sync(team);
@@ -703,25 +723,7 @@ static void bvh__radix_lsd_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__te
             if (tot != 0) break;
         }
         if (all_same) { bvh__team_sync(team); continue; }
-        /* offset of (digit d, thread tid) = keys with a smaller digit + same digit, earlier threads */
-        sum = 0;
-        {
-            uint32_t local[BVH__RADIX_SIZE];
-            for (d = 0; d < BVH__RADIX_SIZE; d++) {
-                for (t = 0; t < nt; t++) {
-                    uint32_t c = s->hist[(size_t)t * BVH__RADIX_SIZE + d];
-                    if (t == tid) local[d] = (uint32_t)sum;
-                    sum += c;
-                }
-            }
-            bvh__team_sync(team); /* everyone has read the histograms */
-            for (i = b; i < e; i++) {
-                uint64_t k = s->keys[i];
-                uint32_t pos = local[(k >> shift) & (BVH__RADIX_SIZE - 1)]++;
-                s->keys_tmp[pos] = k;
-                s->vals_tmp[pos] = s->vals[i];
-            }
-        }
+        bvh__radix_scatter(s, tid, nt, team, shift, b, e);
         bvh__team_sync(team);
         if (tid == 0) {
             uint64_t *tk = s->keys; uint32_t *tv = s->vals;
@@ -799,23 +801,7 @@ static void bvh__radix_sort_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__t
         bvh__radix_lsd_team(s, tid, nt, team);
         return;
     }
-    {
-        uint32_t local[BVH__RADIX_SIZE];
-        for (d = 0; d < BVH__RADIX_SIZE; d++) {
-            for (t = 0; t < nt; t++) {
-                uint32_t c = s->hist[(size_t)t * BVH__RADIX_SIZE + d];
-                if (t == tid) local[d] = (uint32_t)sum;
-                sum += c;
-            }
-        }
-        bvh__team_sync(team); /* everyone has read the histograms */
-        for (i = b; i < e; i++) {
-            uint64_t k = s->keys[i];
-            uint32_t pos = local[k >> top]++;
-            s->keys_tmp[pos] = k;
-            s->vals_tmp[pos] = s->vals[i];
-        }
-    }
+    bvh__radix_scatter(s, tid, nt, team, top, b, e);
     bvh__team_sync(team);
     /* digit d's range: [start, end) from the summed histograms; this thread takes those that
        start in [b, e) */

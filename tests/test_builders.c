@@ -260,6 +260,67 @@ static void options_build_valid(void **state) {
     tu_scene_free(&s);
 }
 
+/* The Morton sort on its own (bvh__radix_sort_team): it must give the one stable order, keys
+   ascending and equal keys in value order, on 1, 2 and 3 threads. Key patterns: spread over the
+   top digit (one scatter, then each range in cache), one top digit (on several threads, the LSD
+   passes instead), three top digits (ranges over a quarter: LSD on several threads), few
+   distinct keys (ties), all equal; sizes around the insertion-sort threshold and larger. */
+typedef struct sort_job { bvh__sort *s; } sort_job;
+static void sort_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__radix_sort_team(((sort_job *)arg)->s, tid, nt, team);
+}
+typedef struct sort_pair { uint64_t key; uint32_t val; } sort_pair;
+static int sort_pair_cmp(const void *a, const void *b) {
+    const sort_pair *x = (const sort_pair *)a, *y = (const sort_pair *)b;
+    if (x->key != y->key) return x->key < y->key ? -1 : 1;
+    return x->val < y->val ? -1 : x->val > y->val;
+}
+static uint64_t sort_key(tu_rng *r, int pattern) {
+    uint64_t lo = (uint64_t)tu_u32(r) << 32 | tu_u32(r);
+    switch (pattern) {
+    case 0: return lo >> 1;                                                   /* 63 random bits */
+    case 1: return (uint64_t)0x5a5 << 52 | (lo & (((uint64_t)1 << 52) - 1)); /* one top digit */
+    case 2: return (uint64_t)(1 + tu_below(r, 3)) << 53 | (lo >> 20);         /* three top digits */
+    case 3: return (uint64_t)tu_below(r, 5) << 40 | tu_below(r, 3);           /* few distinct keys */
+    default: return 42;                                                       /* all equal */
+    }
+}
+static void morton_sort_alone(void **state) {
+    static const size_t sizes[] = {1, 2, 15, 16, 17, 33, 257, 1000, 50000};
+    const bvh_allocator al = {NULL, NULL, NULL};
+    size_t z, i;
+    int pattern;
+    uint32_t nt;
+    (void)state;
+    for (pattern = 0; pattern < 5; pattern++)
+        for (z = 0; z < sizeof sizes / sizeof sizes[0]; z++)
+            for (nt = 1; nt <= 3; nt++) {
+                size_t n = sizes[z];
+                tu_rng r = tu_rng_make(0x736f7274ULL + (uint64_t)(pattern * 100 + (int)z));
+                sort_pair *want = (sort_pair *)malloc(n * sizeof *want);
+                bvh__sort s;
+                sort_job job;
+                s.n = n;
+                s.keys = (uint64_t *)malloc(n * sizeof(uint64_t));
+                s.keys_tmp = (uint64_t *)malloc(n * sizeof(uint64_t));
+                s.vals = (uint32_t *)malloc(n * sizeof(uint32_t));
+                s.vals_tmp = (uint32_t *)malloc(n * sizeof(uint32_t));
+                s.hist = (uint32_t *)malloc((size_t)nt * BVH__RADIX_SIZE * sizeof(uint32_t));
+                assert_true(want && s.keys && s.keys_tmp && s.vals && s.vals_tmp && s.hist);
+                for (i = 0; i < n; i++) {
+                    want[i].key = s.keys[i] = sort_key(&r, pattern);
+                    want[i].val = s.vals[i] = (uint32_t)i;
+                }
+                qsort(want, n, sizeof *want, sort_pair_cmp);
+                job.s = &s;
+                assert_int_equal(bvh__team_run(&al, nt, sort_team_fn, &job), BVH_SUCCESS);
+                for (i = 0; i < n; i++)
+                    if (s.keys[i] != want[i].key || s.vals[i] != want[i].val)
+                        fail_msg("pattern %d, %zu keys, %u threads: position %zu differs", pattern, n, nt, i);
+                free(want); free(s.keys); free(s.keys_tmp); free(s.vals); free(s.vals_tmp); free(s.hist);
+            }
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         TU_EVERY_SCENE(every_builder_valid),
@@ -268,6 +329,7 @@ int main(void) {
         cmocka_unit_test(ploc_parallel_equals_ploc_options),
         cmocka_unit_test(leaf_sizes),
         cmocka_unit_test(options_build_valid),
+        cmocka_unit_test(morton_sort_alone),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -1,4 +1,4 @@
-/* bvh.h - v0.2.1 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.3.0 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -57,13 +57,15 @@
    THREADS
      No global mutable state: any function may be called from several threads on different trees.
      Parallel builders create their worker threads once per build phase (six per build, eight
-     with the 4-wide copy), never per iteration; at barriers they spin for up to about half a millisecond before sleeping,
+     with the 4-wide copy, one more for PLOC's SAH top), never per iteration; at barriers they spin for up to about half a millisecond before sleeping,
      unless the build has more threads than the machine has CPUs.
 
    LICENSE
      MIT, see the end of this file.
 
    CHANGELOG
+     0.3.0  PLOC's SAH top (desc.ploc_top, on by default; BVH_PLOC_TOP_OFF for the paper's PLOC):
+            a binned-SAH top over PLOC's last n / 8 clusters, kept where it is cheaper.
      0.2.1  faster PLOC builds, same trees: AVX2 neighbour search, root-down emission, MSD Morton
             sort, fewer stalls in the front end (BVH_NO_AVX2 to keep SSE).
      0.2.0  4-wide copy of the tree for CPU traversal (bvh_node4, tree.nodes4, trace_width),
@@ -74,8 +76,8 @@
 #define BVH_H_INCLUDED
 
 #define BVH_VERSION_MAJOR 0
-#define BVH_VERSION_MINOR 2
-#define BVH_VERSION_PATCH 1
+#define BVH_VERSION_MINOR 3
+#define BVH_VERSION_PATCH 0
 
 #include <math.h>
 #include <stddef.h>
@@ -101,6 +103,7 @@
 #define BVH_INF HUGE_VALF
 #define BVH_INVALID 0xFFFFFFFFu
 #define BVH_SAH_MIDPOINT_ONLY 0xFFFFFFFFu
+#define BVH_PLOC_TOP_OFF 0xFFFFFFFFu
 
 #ifdef __cplusplus
 extern "C" {
@@ -198,6 +201,11 @@ typedef struct bvh_build_desc {
     uint32_t threads;         /* ploc-parallel: 0 = all online CPUs; above 256 clamped to 256;
                                  at most one per 8192 primitives (the tree is the same) */
     uint32_t ploc_radius;     /* PLOC search radius in Morton order; 0 = 16; above 256 refused */
+    uint32_t ploc_top;        /* ploc builders: when PLOC has merged the n primitives down to
+                                 n / ploc_top clusters or fewer, a binned-SAH top is built over
+                                 those (with PLOC's own split among the candidates) and replaces
+                                 PLOC's top if its SAH cost is lower; 0 = 8 (1 acts as 2);
+                                 BVH_PLOC_TOP_OFF = PLOC alone, as the paper and the study */
     float split_budget;       /* sah-midpoint: extra references allowed, as a fraction of the
                                  primitive count; 0 = 0.3; negative = no splits; above 1 refused */
     uint32_t sah_bins;        /* sah-midpoint: binned SAH object-split candidates per axis costed
@@ -828,7 +836,7 @@ typedef struct bvh__ctx {
     const bvh_aabb *in_boxes;  /* the caller's boxes, NULL for triangle input */
     const uint32_t *orig;  /* local id -> caller index when primitives were left out, else NULL */
     bvh_aabb bounds, cbounds;
-    uint32_t max_leaf, threads, radius, sah_bins;
+    uint32_t max_leaf, threads, radius, sah_bins, ploc_top; /* ploc_top: 0 = off, else >= 2 */
     float ci, cl, ct, split_budget;
 } bvh__ctx;
 
@@ -1362,7 +1370,14 @@ done:
    the clusters by the thread count and every result is independent of it, so both give exactly
    the same tree. Differences from the paper: CPU threads instead of GPU work groups; the merged
    node is written back in place of the left cluster before compaction, as the study's
-   pseudo-code does. */
+   pseudo-code does.
+   Added to the paper (desc.ploc_top; BVH_PLOC_TOP_OFF gives the paper's PLOC): PLOC merges
+   greedily and locally, which leaves its trees 5-10% above a binned-SAH build on scanned meshes
+   at every level. So when the clusters first number n / ploc_top or fewer (n / 8 by default),
+   the loop notes where it is and runs on to the root; then bvh__ploc_top builds a second top over
+   those clusters, top-down by binned SAH (Wald 2007) with, from 64 clusters up, PLOC's own split
+   of the node's clusters as one more candidate (that keeps the few huge clusters, a ground plane
+   say, as high as PLOC put them), and keeps whichever top has the lower summed node area. */
 /* ============================================================================================ */
 typedef struct bvh__nn bvh__nn;
 typedef struct bvh__ploc {
@@ -1378,6 +1393,8 @@ typedef struct bvh__ploc {
     int32_t *nn_i;
     uint32_t *blocks;  /* end of src after each iteration, then after the root (for bvh__emit) */
     uint32_t block_count, block_cap, radius, root;
+    uint32_t top_cut;  /* bvh__ploc_top: top_m clusters were left when their count first fell */
+    uint32_t top_m, top_slots, top_blocks; /* to top_cut; then src and blocks held this much */
 } bvh__ploc;
 /* Room for every iteration's end and the root's: each iteration merges at least a 32nd of the
    clusters (or pairs them all), which bounds the count (about 660 for 2^30 primitives). */
@@ -1583,6 +1600,9 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     size_t b, e, i;
     while (count > 1) {
         uint32_t active = count / (4 * r + 256), pos = 0, slot = 0, total_surv = 0, total_merge = 0;
+        if (tid == 0 && !p->top_m && count <= p->top_cut) { /* where the SAH top would start */
+            p->top_m = count; p->top_slots = slots; p->top_blocks = p->block_count;
+        }
         uint64_t *bnd = p->bnd + (size_t)tid * r;
         if (active < 1) active = 1;
         if (active > nt) active = nt;
@@ -1671,6 +1691,393 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     }
 }
 
+/* -- SAH top over PLOC's clusters ------------------------------------------------------------ */
+/* Four floats (SSE where there is SSE): the binned SAH top works on boxes as lanes 0-2. */
+#ifdef BVH__SSE
+typedef __m128 bvh__f4;
+BVH__INLINE bvh__f4 bvh__f4_at(const void *p) { return _mm_loadu_ps((const float *)p); }
+/* lanes 0-2 of p, lane 3 zero (a node's index or count there would be a denormal float: slow) */
+BVH__INLINE bvh__f4 bvh__f4_at3(const void *p) {
+    return _mm_and_ps(_mm_loadu_ps((const float *)p), _mm_castsi128_ps(_mm_set_epi32(0, -1, -1, -1)));
+}
+BVH__INLINE bvh__f4 bvh__f4_set(float x) { return _mm_set1_ps(x); }
+BVH__INLINE bvh__f4 bvh__f4_min(bvh__f4 a, bvh__f4 b) { return _mm_min_ps(a, b); }
+BVH__INLINE bvh__f4 bvh__f4_max(bvh__f4 a, bvh__f4 b) { return _mm_max_ps(a, b); }
+BVH__INLINE bvh__f4 bvh__f4_add(bvh__f4 a, bvh__f4 b) { return _mm_add_ps(a, b); }
+BVH__INLINE bvh__f4 bvh__f4_sub(bvh__f4 a, bvh__f4 b) { return _mm_sub_ps(a, b); }
+BVH__INLINE bvh__f4 bvh__f4_mul(bvh__f4 a, bvh__f4 b) { return _mm_mul_ps(a, b); }
+BVH__INLINE void bvh__f4_put(float *p, bvh__f4 a) { _mm_storeu_ps(p, a); }
+BVH__INLINE void bvh__f4_trunc(int32_t *p, bvh__f4 a) { _mm_storeu_si128((__m128i *)(void *)p, _mm_cvttps_epi32(a)); }
+BVH__INLINE void bvh__f4_slots(uint32_t *p, bvh__f4 a) { /* lanes 0-2 truncated, without a trip through memory */
+    __m128i x = _mm_cvttps_epi32(a);
+    p[0] = (uint32_t)_mm_cvtsi128_si32(x);
+    p[1] = (uint32_t)_mm_cvtsi128_si32(_mm_shuffle_epi32(x, 1));
+    p[2] = (uint32_t)_mm_cvtsi128_si32(_mm_shuffle_epi32(x, 2));
+}
+#else
+typedef struct bvh__f4 { float v[4]; } bvh__f4;
+BVH__INLINE bvh__f4 bvh__f4_at(const void *p) { bvh__f4 r; memcpy(r.v, p, sizeof r.v); return r; }
+BVH__INLINE bvh__f4 bvh__f4_at3(const void *p) { bvh__f4 r; memcpy(r.v, p, 3 * sizeof(float)); r.v[3] = 0.0f; return r; }
+BVH__INLINE bvh__f4 bvh__f4_set(float x) { bvh__f4 r; r.v[0] = r.v[1] = r.v[2] = r.v[3] = x; return r; }
+#define BVH__F4_OP(name, expr) \
+    BVH__INLINE bvh__f4 name(bvh__f4 a, bvh__f4 b) { bvh__f4 r; int k; for (k = 0; k < 4; k++) r.v[k] = expr; return r; }
+BVH__F4_OP(bvh__f4_min, a.v[k] < b.v[k] ? a.v[k] : b.v[k])
+BVH__F4_OP(bvh__f4_max, a.v[k] > b.v[k] ? a.v[k] : b.v[k])
+BVH__F4_OP(bvh__f4_add, a.v[k] + b.v[k])
+BVH__F4_OP(bvh__f4_sub, a.v[k] - b.v[k])
+BVH__F4_OP(bvh__f4_mul, a.v[k] * b.v[k])
+BVH__INLINE void bvh__f4_put(float *p, bvh__f4 a) { memcpy(p, a.v, sizeof a.v); }
+BVH__INLINE void bvh__f4_trunc(int32_t *p, bvh__f4 a) { int k; for (k = 0; k < 4; k++) p[k] = (int32_t)a.v[k]; }
+BVH__INLINE void bvh__f4_slots(uint32_t *p, bvh__f4 a) { int k; for (k = 0; k < 3; k++) p[k] = (uint32_t)a.v[k]; }
+#endif
+#ifdef BVH__SSE
+BVH__INLINE float bvh__f4_half_area(bvh__f4 lo, bvh__f4 hi) { /* lanes 0-2; in registers */
+    __m128 d = _mm_sub_ps(hi, lo), p = _mm_mul_ps(d, _mm_shuffle_ps(d, d, _MM_SHUFFLE(3, 0, 2, 1)));
+    __m128 s = _mm_add_ps(p, _mm_movehl_ps(p, p)); /* xy + zx, yz + 0 */
+    return _mm_cvtss_f32(_mm_add_ss(s, _mm_shuffle_ps(s, s, _MM_SHUFFLE(1, 1, 1, 1))));
+}
+#else
+BVH__INLINE float bvh__f4_half_area(bvh__f4 lo, bvh__f4 hi) {
+    float d[4];
+    bvh__f4_put(d, bvh__f4_sub(hi, lo));
+    return d[0] * d[1] + d[2] * d[0] + d[1] * d[2];
+}
+#endif
+
+#define BVH__TOP_BINS 32
+#define BVH__TOP_CLUSTER 0x80000000u
+#define BVH__TOP_NONE 0xffffffffu
+#define BVH__TOP_PLOC_MIN 64 /* PLOC's split is a candidate from this many clusters up */
+/* The top's nodes are bvh_node with the children in index and count (top bit: a cluster). */
+static double bvh__half_area_d(const bvh_node *n);
+/* Clusters [b, e) of buffer `buf` (0 or 1) become internal node `id` and the nodes below it (ids
+   in pre-order: the left subtree from id + 1, the right from id + its left count); lo, hi: the
+   bounds of their boxes; clo, chi: a range of their centroids (doubled: lo + hi) to bin over. */
+typedef struct bvh__top_task { bvh__f4 lo, hi, clo, chi; uint32_t id, b, e, buf, pmin, pmax; } bvh__top_task;
+typedef struct bvh__top_bin { bvh__f4 lo, hi; } bvh__top_bin;
+typedef struct bvh__top_job {
+    bvh_node *v[2]; /* the clusters (index: their place in PLOC's order) and a second buffer */
+    bvh_node *nodes;
+    bvh__top_task *tasks;
+    /* PLOC's top, by x = place in src - top_slots: parent, first cluster, clusters below, the
+       left child's clusters; leaf[k]: the x of cluster k */
+    const uint32_t *par, *first, *cc, *lcc, *leaf;
+    uint32_t task_count, busy, grain;
+} bvh__top_job;
+BVH__INLINE bvh__f4 bvh__top_centre(const bvh_node *x) { return bvh__f4_add(bvh__f4_at3(&x->min), bvh__f4_at3(&x->max)); }
+static void bvh__top_bounds(const bvh_node *v, uint32_t b, uint32_t e, bvh__top_task *t) {
+    bvh__f4 lo = bvh__f4_set(BVH_INF), hi = bvh__f4_set(-BVH_INF), clo = lo, chi = hi;
+    uint32_t i, pmin = BVH__TOP_NONE, pmax = 0;
+    for (i = b; i < e; i++) {
+        bvh__f4 l = bvh__f4_at3(&v[i].min), h = bvh__f4_at3(&v[i].max), c = bvh__f4_add(l, h);
+        lo = bvh__f4_min(lo, l); hi = bvh__f4_max(hi, h);
+        clo = bvh__f4_min(clo, c); chi = bvh__f4_max(chi, c);
+        pmin = v[i].index < pmin ? v[i].index : pmin;
+        pmax = v[i].index > pmax ? v[i].index : pmax;
+    }
+    t->lo = lo; t->hi = hi; t->clo = clo; t->chi = chi; t->b = b; t->e = e; t->pmin = pmin; t->pmax = pmax;
+}
+/* PLOC's own split of clusters in [a, b] (a < b; clusters numbered in PLOC's left-to-right
+   order): that of their lowest common ancestor in PLOC's top, as the first cluster number on
+   its right. */
+static uint32_t bvh__top_ploc_split(const bvh__top_job *j, uint32_t a, uint32_t b) {
+    uint32_t y = j->par[j->leaf[a]];
+    while (j->first[y] + j->cc[y] <= b) y = j->par[y];
+    return j->first[y] + j->lcc[y];
+}
+/* Splits task t (two clusters or more) by binned SAH over the centroids (per axis, as many bins
+   as clusters up to BVH__TOP_BINS), writes its node and returns in kids its children that hold
+   two or more clusters (how many: the result). The clusters are partitioned into the other
+   buffer without a branch; the children's boxes come from the bins, their centroid ranges from
+   their boxes and the split plane (a range only needs to be near the centroids' bounds: slots
+   are clamped). The middle of the range when no plane separates. */
+static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bvh__top_task kids[2]) {
+    uint32_t b = t->b, e = t->e, n = e - b, nb = n < BVH__TOP_BINS ? n : BVH__TOP_BINS, i, k, mid = b, out = 0, bb = 0;
+    bvh_node *v = j->v[t->buf], *w = j->v[t->buf ^ 1u], *node = &j->nodes[t->id];
+    float ext[4], lo4[4], hi4[4], best = BVH_INF;
+    uint32_t ps, pc[2] = {0, 0};
+    bvh__f4 plo[2], phi[2];
+    int ba = -1, a;
+    bvh__f4 scale, last = bvh__f4_set((float)(nb - 1)), blo[2], bhi[2];
+    bvh__f4_put(ext, bvh__f4_sub(t->chi, t->clo));
+    bvh__f4_put(lo4, t->lo); bvh__f4_put(hi4, t->hi);
+    node->min.x = lo4[0]; node->min.y = lo4[1]; node->min.z = lo4[2];
+    node->max.x = hi4[0]; node->max.y = hi4[1]; node->max.z = hi4[2];
+    {
+        float s[4];
+        for (a = 0; a < 3; a++) s[a] = ext[a] > 0.0f ? (float)nb / ext[a] : 0.0f;
+        s[3] = 0.0f;
+        scale = bvh__f4_at(s);
+    }
+    blo[0] = blo[1] = bvh__f4_set(BVH_INF); bhi[0] = bhi[1] = bvh__f4_set(-BVH_INF);
+    ps = n >= BVH__TOP_PLOC_MIN && t->pmin < t->pmax ? bvh__top_ploc_split(j, t->pmin, t->pmax) : 0;
+    if (n > 2) {
+        /* two sets of bins, even and odd clusters, so that neighbours (which often share a bin)
+           do not wait for each other's update */
+        bvh__top_bin bin[2][3][BVH__TOP_BINS];
+        uint32_t cnt[2][3][BVH__TOP_BINS], sets = n >= 64 ? 2 : 1, qm = sets - 1, q;
+        for (q = 0; q < sets; q++)
+            for (a = 0; a < 3; a++)
+                for (k = 0; k < nb; k++) {
+                    bin[q][a][k].lo = bvh__f4_set(BVH_INF); bin[q][a][k].hi = bvh__f4_set(-BVH_INF);
+                    cnt[q][a][k] = 0;
+                }
+        plo[0] = plo[1] = bvh__f4_set(BVH_INF); phi[0] = phi[1] = bvh__f4_set(-BVH_INF);
+        for (i = b; i < e; i++) {
+            uint32_t s[3], side = v[i].index >= ps;
+            q = i & qm;
+            bvh__top_bin *x;
+            bvh__f4 l = bvh__f4_at3(&v[i].min), h = bvh__f4_at3(&v[i].max);
+            bvh__f4_slots(s, bvh__f4_min(bvh__f4_max(bvh__f4_mul(bvh__f4_sub(bvh__f4_add(l, h), t->clo), scale),
+                                                     bvh__f4_set(0.0f)), last));
+            x = &bin[q][0][s[0]]; x->lo = bvh__f4_min(x->lo, l); x->hi = bvh__f4_max(x->hi, h);
+            x = &bin[q][1][s[1]]; x->lo = bvh__f4_min(x->lo, l); x->hi = bvh__f4_max(x->hi, h);
+            x = &bin[q][2][s[2]]; x->lo = bvh__f4_min(x->lo, l); x->hi = bvh__f4_max(x->hi, h);
+            cnt[q][0][s[0]]++; cnt[q][1][s[1]]++; cnt[q][2][s[2]]++;
+            plo[side] = bvh__f4_min(plo[side], l); phi[side] = bvh__f4_max(phi[side], h); pc[side]++;
+        }
+        if (ps && pc[0] && pc[1]) { /* PLOC's split of these clusters, costed the same way */
+            float cost = bvh__f4_half_area(plo[0], phi[0]) * (float)pc[0] + bvh__f4_half_area(plo[1], phi[1]) * (float)pc[1];
+            if (cost < best) { best = cost; ba = 3; }
+        }
+        for (a = 0; a < 3; a++) {
+            float right[BVH__TOP_BINS];
+            bvh__f4 lo = bvh__f4_set(BVH_INF), hi = bvh__f4_set(-BVH_INF);
+            uint32_t c = 0;
+            if (!(ext[a] > 0.0f)) continue;
+            for (k = 0; qm && k < nb; k++) {
+                bin[0][a][k].lo = bvh__f4_min(bin[0][a][k].lo, bin[1][a][k].lo);
+                bin[0][a][k].hi = bvh__f4_max(bin[0][a][k].hi, bin[1][a][k].hi);
+                cnt[0][a][k] += cnt[1][a][k];
+            }
+            for (k = nb - 1; k > 0; k--) {
+                lo = bvh__f4_min(lo, bin[0][a][k].lo); hi = bvh__f4_max(hi, bin[0][a][k].hi);
+                c += cnt[0][a][k];
+                right[k] = c ? bvh__f4_half_area(lo, hi) * (float)c : -1.0f;
+            }
+            lo = bvh__f4_set(BVH_INF); hi = bvh__f4_set(-BVH_INF); c = 0;
+            for (k = 0; k + 1 < nb; k++) {
+                float cost;
+                lo = bvh__f4_min(lo, bin[0][a][k].lo); hi = bvh__f4_max(hi, bin[0][a][k].hi);
+                c += cnt[0][a][k];
+                if (!c || right[k + 1] < 0.0f) continue;
+                cost = bvh__f4_half_area(lo, hi) * (float)c + right[k + 1];
+                if (cost < best) { best = cost; ba = a; bb = k; }
+            }
+        }
+        if (ba == 3) { blo[0] = plo[0]; blo[1] = plo[1]; bhi[0] = phi[0]; bhi[1] = phi[1]; }
+        else if (ba >= 0)
+            for (k = 0; k < nb; k++) {
+                uint32_t q = k > bb;
+                blo[q] = bvh__f4_min(blo[q], bin[0][ba][k].lo);
+                bhi[q] = bvh__f4_max(bhi[q], bin[0][ba][k].hi);
+            }
+    }
+    if (ba >= 0) { /* left side from b up, right side from e - 1 down */
+        uint32_t l = b, r = e - 1, pmin[2] = {BVH__TOP_NONE, BVH__TOP_NONE}, pmax[2] = {0, 0};
+        int axis = ba < 3 ? ba : 0;
+        for (i = b; i < e; i++) {
+            int32_t s[4];
+            uint32_t left, at, id = v[i].index;
+            bvh__f4_trunc(s, bvh__f4_min(bvh__f4_max(bvh__f4_mul(bvh__f4_sub(bvh__top_centre(&v[i]), t->clo), scale),
+                                                     bvh__f4_set(0.0f)), last));
+            left = ba == 3 ? id < ps : (uint32_t)s[axis] <= bb;
+            at = left ? l : r;
+            w[at] = v[i];
+            l += left; r -= 1u - left;
+            pmin[1 - left] = id < pmin[1 - left] ? id : pmin[1 - left];
+            pmax[1 - left] = id > pmax[1 - left] ? id : pmax[1 - left];
+        }
+        mid = l;
+        /* centroid ranges: within twice the child's box and the parent's range */
+        for (k = 0; k < 2; k++) {
+            kids[k].clo = bvh__f4_max(t->clo, bvh__f4_add(blo[k], blo[k]));
+            kids[k].chi = bvh__f4_min(t->chi, bvh__f4_add(bhi[k], bhi[k]));
+            kids[k].lo = blo[k]; kids[k].hi = bhi[k];
+            kids[k].buf = t->buf ^ 1u;
+            kids[k].pmin = pmin[k]; kids[k].pmax = pmax[k];
+        }
+        kids[0].b = b; kids[0].e = mid; kids[1].b = mid; kids[1].e = e;
+    }
+    if (ba < 0 || mid == b || mid == e) { /* in place: the middle of the range */
+        mid = b + n / 2;
+        bvh__top_bounds(v, b, mid, &kids[0]);
+        bvh__top_bounds(v, mid, e, &kids[1]);
+        kids[0].buf = kids[1].buf = t->buf;
+        w = v;
+    }
+    kids[0].id = t->id + 1;
+    kids[1].id = t->id + (mid - b);
+    node->index = mid - b == 1 ? BVH__TOP_CLUSTER | w[b].index : kids[0].id;
+    node->count = e - mid == 1 ? BVH__TOP_CLUSTER | w[mid].index : kids[1].id;
+    if (mid - b > 1) out++;
+    if (e - mid > 1) { if (!out) kids[0] = kids[1]; out++; }
+    return out;
+}
+/* The whole subtree of task t, depth first, the larger side waiting (at most log2 n + 1 tasks wait). */
+static void bvh__top_subtree(const bvh__top_job *j, const bvh__top_task *t) {
+    bvh__top_task st[40];
+    uint32_t sp = 0;
+    st[sp++] = *t;
+    while (sp) {
+        bvh__top_task cur = st[--sp], kids[2];
+        uint32_t k = bvh__top_split(j, &cur, kids);
+        if (k == 2 && kids[0].e - kids[0].b < kids[1].e - kids[1].b) { bvh__top_task x = kids[0]; kids[0] = kids[1]; kids[1] = x; }
+        if (k >= 1) st[sp++] = kids[0];
+        if (k == 2) st[sp++] = kids[1];
+    }
+}
+#define BVH__TOP_TASKS 128
+/* The team takes tasks from a queue, largest first: one larger than grain is split and its
+   children queued, a smaller one is built whole. Which thread builds what varies; the tree does
+   not (every task writes only its own nodes and clusters). */
+static void bvh__top_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__top_job *j = BVH__CAST(bvh__top_job *, arg);
+    (void)tid;
+    if (nt == 1) {
+        uint32_t i;
+        for (i = 0; i < j->task_count; i++) bvh__top_subtree(j, &j->tasks[i]);
+        return;
+    }
+#ifndef BVH_NO_THREADS
+    pthread_mutex_lock(&team->mutex);
+    for (;;) {
+        bvh__top_task t, kids[2];
+        uint32_t k = 0, i, big = 0;
+        while (!j->task_count && j->busy) pthread_cond_wait(&team->cond, &team->mutex);
+        if (!j->task_count) break;
+        for (i = 1; i < j->task_count; i++)
+            if (j->tasks[i].e - j->tasks[i].b > j->tasks[big].e - j->tasks[big].b) big = i;
+        t = j->tasks[big];
+        j->tasks[big] = j->tasks[--j->task_count];
+        j->busy++;
+        pthread_mutex_unlock(&team->mutex);
+        if (t.e - t.b > j->grain) k = bvh__top_split(j, &t, kids);
+        else bvh__top_subtree(j, &t);
+        pthread_mutex_lock(&team->mutex);
+        for (i = 0; i < k; i++) {
+            if (j->task_count < BVH__TOP_TASKS) { j->tasks[j->task_count++] = kids[i]; continue; }
+            pthread_mutex_unlock(&team->mutex); /* full (not expected): build it here */
+            bvh__top_subtree(j, &kids[i]);
+            pthread_mutex_lock(&team->mutex);
+        }
+        j->busy--;
+        pthread_cond_broadcast(&team->cond);
+    }
+    pthread_mutex_unlock(&team->mutex);
+#else
+    (void)team;
+#endif
+}
+/* After the clustering, when the clusters once numbered top_m <= top_cut: builds a binned-SAH
+   top over those clusters (the team takes tasks from a queue) and, when its summed node area is
+   below that of PLOC's own top, writes it over src from top_slots on, in runs by height
+   (children before parents), as bvh__emit expects. The tree does not depend on the thread count.
+   Memory: PLOC's cin, cout and offers are free by then and hold the clusters, both build
+   buffers and the costs; the rest is about 64 bytes per cluster (n / 8 of them by default). */
+static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
+    const bvh__ctx *c = p->c;
+    uint32_t m = p->top_m, base = p->top_slots, L = p->root - base + 1, i, h, H = 0, x, k = 0, sp = 0;
+    uint32_t *height = NULL, *slot = NULL, *off = NULL, *par = NULL, *first = NULL, *cc = NULL, *lcc = NULL;
+    uint32_t *leaf = NULL, *stack = NULL;
+    bvh_node *nodes = NULL;
+    bvh__top_job jb, *job = &jb;
+    bvh__top_task tasks[BVH__TOP_TASKS];
+    double ploc_cost = 0.0, top_cost = 0.0, *cost;
+    bvh_result r = BVH_SUCCESS;
+    if (m < 3 || L != 2 * m - 1) return BVH_SUCCESS;
+    nodes = BVH__ALLOC(&c->al, bvh_node, m - 1);
+    cost = BVH__CAST(double *, (void *)p->best); /* n 64-bit offers, free now */
+    height = BVH__ALLOC(&c->al, uint32_t, m - 1);
+    slot = BVH__ALLOC(&c->al, uint32_t, m - 1);
+    off = BVH__ALLOC(&c->al, uint32_t, p->block_cap + 2);
+    par = BVH__ALLOC(&c->al, uint32_t, L);
+    first = BVH__ALLOC(&c->al, uint32_t, L);
+    cc = BVH__ALLOC(&c->al, uint32_t, L);
+    lcc = BVH__ALLOC(&c->al, uint32_t, L);
+    leaf = BVH__ALLOC(&c->al, uint32_t, m);
+    stack = BVH__ALLOC(&c->al, uint32_t, L + 1);
+    if (!nodes || !height || !slot || !off || !par || !first || !cc || !lcc || !leaf || !stack) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    /* PLOC's top is src[base + x], x < L, children before parents: the m clusters are the
+       entries made before the cut (or primitives), the others PLOC's nodes above them */
+    for (x = 0; x < L; x++) {
+        const bvh_node *s = &p->src[base + x];
+        if (s->count || s->index < base) { cc[x] = 1; lcc[x] = 0; }
+        else {
+            uint32_t l = s->index - base;
+            cc[x] = cc[l] + cc[l + 1]; lcc[x] = cc[l];
+            par[l] = par[l + 1] = x;
+            ploc_cost += bvh__half_area_d(s);
+        }
+    }
+    par[L - 1] = BVH__TOP_NONE;
+    if (cc[L - 1] != m) goto done; /* cannot happen */
+    /* clusters numbered left to right (copied to cin in that order), every node's first */
+    stack[sp++] = L - 1;
+    while (sp) {
+        const bvh_node *s;
+        x = stack[--sp];
+        s = &p->src[base + x];
+        first[x] = k;
+        if (cc[x] == 1) { leaf[k] = x; p->cin[k++] = *s; }
+        else { stack[sp++] = s->index - base + 1; stack[sp++] = s->index - base; }
+    }
+    job->v[0] = p->cout;
+    job->v[1] = p->cout + m;
+    for (i = 0; i < m; i++) { job->v[0][i] = p->cin[i]; job->v[0][i].index = i; }
+    job->par = par; job->first = first; job->cc = cc; job->lcc = lcc; job->leaf = leaf;
+    job->nodes = nodes;
+    job->tasks = tasks;
+    job->task_count = 1;
+    job->busy = 0;
+    job->grain = m / (4 * nthreads) > BVH__MIN_PRIMS_PER_THREAD / 4 ? m / (4 * nthreads) : BVH__MIN_PRIMS_PER_THREAD / 4;
+    tasks[0].id = 0; tasks[0].buf = 0;
+    bvh__top_bounds(job->v[0], 0, m, &tasks[0]);
+    r = bvh__team_run(&c->al, nthreads, bvh__top_team_fn, job);
+    if (r != BVH_SUCCESS) goto done;
+    for (i = m - 1; i-- > 0;) {
+        uint32_t k, hh = 0;
+        double cc = bvh__half_area_d(&nodes[i]);
+        for (k = 0; k < 2; k++) {
+            uint32_t x = k ? nodes[i].count : nodes[i].index;
+            if (!(x & BVH__TOP_CLUSTER)) { cc += cost[x]; if (height[x] > hh) hh = height[x]; }
+        }
+        cost[i] = cc; height[i] = hh + 1;
+        if (height[i] > H) H = height[i];
+    }
+    top_cost = cost[0];
+    if (!(top_cost < ploc_cost) || p->top_blocks + H + 1 > p->block_cap) goto done;
+    /* runs 1..H: pairs of the nodes of that height */
+    for (h = 0; h <= H + 1; h++) off[h] = 0;
+    for (i = 0; i < m - 1; i++) off[height[i]]++;
+    {
+        uint32_t at = p->top_slots;
+        for (h = 1; h <= H; h++) { uint32_t k = off[h]; off[h] = at; at += 2 * k; p->blocks[p->top_blocks + h - 1] = at; }
+        p->root = at;
+        p->blocks[p->top_blocks + H] = at + 1;
+        p->block_count = p->top_blocks + H + 1;
+    }
+    for (i = 0; i < m - 1; i++) { slot[i] = off[height[i]]; off[height[i]] += 2; }
+    for (i = 0; i < m - 1; i++) {
+        uint32_t k;
+        for (k = 0; k < 2; k++) {
+            uint32_t x = k ? nodes[i].count : nodes[i].index;
+            bvh_node *d = &p->src[slot[i] + k];
+            if (x & BVH__TOP_CLUSTER) *d = p->cin[x & ~BVH__TOP_CLUSTER];
+            else { d->min = nodes[x].min; d->max = nodes[x].max; d->index = slot[x]; d->count = 0; }
+        }
+    }
+    p->src[p->root].min = nodes[0].min; p->src[p->root].max = nodes[0].max;
+    p->src[p->root].index = slot[0];
+    p->src[p->root].count = 0;
+done:
+    bvh__free(&c->al, nodes);
+    bvh__free(&c->al, height); bvh__free(&c->al, slot); bvh__free(&c->al, off);
+    bvh__free(&c->al, par); bvh__free(&c->al, first); bvh__free(&c->al, cc); bvh__free(&c->al, lcc);
+    bvh__free(&c->al, leaf); bvh__free(&c->al, stack);
+    return r;
+}
+
 /* Memory: the clustering needs cin, cout, the node pairs (2n nodes) and the offers; it is run
    after the boxes and the sort's scratch are released, so the peak stays near 140 bytes per
    primitive instead of the ~230 that holding everything at once would take. */
@@ -1713,10 +2120,12 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
         p.survivors = BVH__ALLOC(&c->al, uint32_t, nthreads);
         p.block_cap = bvh__ploc_block_cap((uint32_t)n);
         p.blocks = BVH__ALLOC(&c->al, uint32_t, p.block_cap);
+        p.top_cut = c->ploc_top ? (uint32_t)(n / c->ploc_top) : 0; /* 0: never */
         if (!p.cout || !p.src || !p.bnd || !p.nn || !p.nn_f || !p.nn_i || !p.role || !p.merges || !p.survivors || !p.blocks)
             r = BVH_ERROR_OUT_OF_MEMORY;
     }
     if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
+    if (r == BVH_SUCCESS && p.top_m && p.block_count <= p.block_cap) r = bvh__ploc_top(&p, nthreads);
     /* release the clustering scratch before emission, which needs its own */
     bvh__free(&c->al, p.cin); bvh__free(&c->al, p.cout);
     bvh__free(&c->al, p.mj.sort.keys);
@@ -2475,6 +2884,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     }
     c.threads = builder == BVH_BUILDER_PLOC_PARALLEL ? bvh__resolve_threads(desc->threads) : 1;
     c.radius = desc->ploc_radius ? desc->ploc_radius : 16;
+    c.ploc_top = desc->ploc_top == BVH_PLOC_TOP_OFF ? 0 : desc->ploc_top == 0 ? 8 : desc->ploc_top < 2 ? 2 : desc->ploc_top;
     c.sah_bins = desc->sah_bins == BVH_SAH_MIDPOINT_ONLY ? 0 : desc->sah_bins ? desc->sah_bins : 32;
     if (desc->costs.interior == 0.0f && desc->costs.leaf == 0.0f && desc->costs.triangle == 0.0f) {
         c.ci = 1.0f; c.cl = 0.0f; c.ct = 1.0f;

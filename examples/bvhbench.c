@@ -71,7 +71,7 @@ typedef struct options {
     int nqualities;
     uint32_t threads;  /* as given, 0 = all cores */
     uint32_t nthreads; /* resolved */
-    uint32_t repeat, width, height, brute_max, trace_width;
+    uint32_t repeat, width, height, brute_max, trace_width, ploc_top;
     int trace_cpu, trace_cl, trace_auto;
     const char *md, *json, *plots, *argv0;
     int quiet, strict;
@@ -457,6 +457,7 @@ static int build_repeated(run_ctx *c, row *r, bvh_tree *tree) {
     desc.builder = r->builder;
     desc.threads = o->threads;
     desc.trace_width = o->trace_width;
+    desc.ploc_top = o->ploc_top;
     desc.skip_invalid = 1;
     desc.triangles.positions = c->s->v;
     desc.triangles.vertex_count = 3 * c->s->triangles;
@@ -1021,6 +1022,8 @@ static void header_lines(FILE *f, const options *o, const header_info *h, const 
     fprintf(f, "%sCPU: %s, %u cores online; threads %u (ploc-parallel, multi-thread tracing, Embree)\n", prefix,
             h->cpu, online_cpus(), o->nthreads);
     fprintf(f, "%sEmbree: %s\n", prefix, h->embree);
+    if (o->ploc_top == BVH_PLOC_TOP_OFF) fprintf(f, "%sPLOC: the paper's, without the SAH top (--ploc-top off)\n", prefix);
+    else fprintf(f, "%sPLOC: with the SAH top over the last n/%u clusters (--ploc-top)\n", prefix, o->ploc_top ? o->ploc_top : 8);
     fprintf(f, "%sOpenCL: %s\n", prefix, h->opencl);
     fprintf(f, "%sbuild: median of %u timed build(s) after one warm-up; frame: %ux%u primary rays of the standard camera, "
                "traced %s (CPU, OpenCL and Embree: median of %d frames); frame ms = fastest tracer; CPU tracing walks the "
@@ -1310,6 +1313,8 @@ static void usage(FILE *f) {
             "  --repeat R       timed builds after one warm-up; the median is reported (default 5)\n"
             "  --size WxH       frame size (default 1024x1024)\n"
             "  --trace-width W  4: builds add the 4-wide copy CPU tracing uses (default); 2: binary only\n"
+            "  --ploc-top N     ploc builders: binned-SAH top over the last n/N clusters, kept where\n"
+            "                   cheaper (0 = the library's default, 8); 'off': PLOC alone, as the study\n"
             "  --trace MODE     cpu, opencl, both or none (default: both when OpenCL works, else cpu)\n"
             "  --brute-max N    brute force only up to N triangles (default 20000) and %.0e tests\n"
             "  --md FILE        Markdown tables, best value per column and scene in bold\n"
@@ -1409,6 +1414,12 @@ static int parse_args(int argc, char **argv, options *o) {
         } else if (!strcmp(a, "--threads")) {
             if (parse_u32(v, 0, 256, &o->threads, NULL)) {
                 fprintf(stderr, "bvhbench: --threads wants 0 (all cores) to 256, not '%s'\n", v);
+                return 2;
+            }
+        } else if (!strcmp(a, "--ploc-top")) {
+            if (v && !strcmp(v, "off")) o->ploc_top = BVH_PLOC_TOP_OFF;
+            else if (parse_u32(v, 0, 1u << 30, &o->ploc_top, NULL)) {
+                fprintf(stderr, "bvhbench: --ploc-top wants a divisor (0 = default) or off, not '%s'\n", v ? v : "");
                 return 2;
             }
         } else if (!strcmp(a, "--trace-width")) {

@@ -5,7 +5,7 @@
    the input's, the same input gives the same tree twice; every builder hits the same primitives
    at the same distances as every other; ploc-parallel gives exactly ploc's tree (memcmp of nodes,
    references and triangles) on 1, 2, 3, 8 and all threads; leaf size, cost and option variants
-   build valid trees. */
+   build valid trees; PLOC's SAH top at every setting hits as brute force does. */
 #define BVH_IMPLEMENTATION
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
@@ -197,6 +197,52 @@ static void ploc_parallel_equals_ploc_options(void **state) {
     tu_scene_free(&s);
 }
 
+/* PLOC's SAH top (desc.ploc_top): off, at every other cut (2, 3), the default (8) and a late one
+   (64) give valid trees with exactly the brute-force hits; ploc-parallel gives ploc's tree at
+   every setting; the SAH top is used where it lowers the cost (random triangles) and never
+   raises it above PLOC alone by more than rounding. */
+static void ploc_top_variants(void **state) {
+    enum { RAYS = 3000 };
+    static const uint32_t tops[] = {BVH_PLOC_TOP_OFF, 1, 2, 3, 0, 64};
+    int scene;
+    size_t k, i;
+    (void)state;
+    for (scene = 0; scene < 4; scene++) {
+        tu_scene s;
+        float *tris;
+        bvh_ray *rays = (bvh_ray *)malloc(RAYS * sizeof *rays);
+        double sah[sizeof tops / sizeof tops[0]];
+        assert_non_null(rays);
+        if (scene == 0) tu_scene_random(&s, 6000, 0x544f50ULL);
+        else if (scene == 1) tu_scene_grid(&s);
+        else if (scene == 2) tu_scene_duplicates(&s);
+        else if (!tu_scene_bunny(&s)) { free(rays); continue; }
+        tris = tu_scene_tris(&s);
+        tu_make_rays(tris, s.tri_count, 0x746f70ULL + (uint64_t)scene, rays, RAYS);
+        for (k = 0; k < sizeof tops / sizeof tops[0]; k++) {
+            bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
+            bvh_tree t;
+            d.ploc_top = tops[k];
+            tu_build_valid(&s, &d, &t);
+            check_stats(&s, &t, 8);
+            assert_int_equal(bvh_sah(&t, NULL, &sah[k]), BVH_SUCCESS);
+            for (i = 0; i < RAYS; i++) {
+                bvh_hit h, want;
+                int hit = bvh_intersect(&t, &rays[i], &h), bf = tu_brute(tris, s.tri_count, &rays[i], &want);
+                if (hit != bf || (hit && !tu_hit_equal(&h, &want)))
+                    fail_msg("%s: ploc_top %u: ray %zu differs from brute force", s.name, tops[k], i);
+            }
+            bvh_free(&t);
+            if (scene < 3) ploc_parallel_same_tree(&s, &d);
+            print_message("%-18s ploc_top %10u: SAH %.4f\n", s.name, tops[k], sah[k]);
+            if (k > 0) assert_true(sah[k] <= sah[0] * 1.001);
+        }
+        if (scene == 0) assert_true(sah[4] < sah[0] * 0.99); /* the default top is taken and better */
+        free(rays); free(tris);
+        tu_scene_free(&s);
+    }
+}
+
 /* Leaf size limits are kept: 1 (one triangle per leaf), 2, 3, 7, 255, on two scenes. */
 static void leaf_sizes(void **state) {
     static const uint32_t leaf[] = {1, 2, 3, 7, 255};
@@ -327,6 +373,7 @@ int main(void) {
         TU_EVERY_SCENE(builders_agree),
         TU_EVERY_SCENE(ploc_parallel_equals_ploc),
         cmocka_unit_test(ploc_parallel_equals_ploc_options),
+        cmocka_unit_test(ploc_top_variants),
         cmocka_unit_test(leaf_sizes),
         cmocka_unit_test(options_build_valid),
         cmocka_unit_test(morton_sort_alone),

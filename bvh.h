@@ -1977,27 +1977,28 @@ static void bvh__top_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *te
    buffers and the costs; the rest is about 64 bytes per cluster (n / 8 of them by default). */
 static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
     const bvh__ctx *c = p->c;
-    uint32_t m = p->top_m, base = p->top_slots, L = p->root - base + 1, i, h, H = 0, x, k = 0, sp = 0;
+    uint32_t m = p->top_m, base = p->top_slots, L = p->root - base + 1, i, h, H = 0, x, k = 0;
     uint32_t *height = NULL, *slot = NULL, *off = NULL, *par = NULL, *first = NULL, *cc = NULL, *lcc = NULL;
-    uint32_t *leaf = NULL, *stack = NULL;
+    uint32_t *leaf = NULL, *scratch = NULL;
     bvh_node *nodes = NULL;
     bvh__top_job jb, *job = &jb;
     bvh__top_task tasks[BVH__TOP_TASKS];
     double ploc_cost = 0.0, top_cost = 0.0, *cost;
     bvh_result r = BVH_SUCCESS;
     if (m < 3 || L != 2 * m - 1) return BVH_SUCCESS;
-    nodes = BVH__ALLOC(&c->al, bvh_node, m - 1);
-    cost = BVH__CAST(double *, (void *)p->best); /* n 64-bit offers, free now */
-    height = BVH__ALLOC(&c->al, uint32_t, m - 1);
-    slot = BVH__ALLOC(&c->al, uint32_t, m - 1);
-    off = BVH__ALLOC(&c->al, uint32_t, p->block_cap + 2);
-    par = BVH__ALLOC(&c->al, uint32_t, L);
-    first = BVH__ALLOC(&c->al, uint32_t, L);
-    cc = BVH__ALLOC(&c->al, uint32_t, L);
-    lcc = BVH__ALLOC(&c->al, uint32_t, L);
-    leaf = BVH__ALLOC(&c->al, uint32_t, m);
-    stack = BVH__ALLOC(&c->al, uint32_t, L + 1);
-    if (!nodes || !height || !slot || !off || !par || !first || !cc || !lcc || !leaf || !stack) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    /* Scratch: the nodes go to cin after the clusters, the costs to the offers' array; the
+       3 m + 4 L + block_cap + 2 integers to cout after both build buffers when they fit there
+       (they do for n / 8 clusters: memory the clustering has touched already), else allocated. */
+    nodes = p->cin + m;
+    cost = BVH__CAST(double *, (void *)p->best);
+    {
+        size_t need = 3 * (size_t)m + 4 * (size_t)L + p->block_cap + 2, room = ((size_t)c->n - 2 * (size_t)m) * 8;
+        uint32_t *u = need <= room ? BVH__CAST(uint32_t *, (void *)(p->cout + 2 * (size_t)m)) : NULL;
+        if (!u) u = scratch = BVH__ALLOC(&c->al, uint32_t, need);
+        if (!u) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+        height = u; slot = height + m; leaf = slot + m; par = leaf + m; first = par + L; cc = first + L;
+        lcc = cc + L; off = lcc + L;
+    }
     /* PLOC's top is src[base + x], x < L, children before parents: the m clusters are the
        entries made before the cut (or primitives), the others PLOC's nodes above them */
     for (x = 0; x < L; x++) {
@@ -2012,19 +2013,25 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
     }
     par[L - 1] = BVH__TOP_NONE;
     if (cc[L - 1] != m) goto done; /* cannot happen */
-    /* clusters numbered left to right (copied to cin in that order), every node's first */
-    stack[sp++] = L - 1;
-    while (sp) {
-        const bvh_node *s;
-        x = stack[--sp];
-        s = &p->src[base + x];
-        first[x] = k;
-        if (cc[x] == 1) { leaf[k] = x; p->cin[k++] = *s; }
-        else { stack[sp++] = s->index - base + 1; stack[sp++] = s->index - base; }
-    }
+    /* clusters numbered left to right (copied to cin in that order, and to the build buffer
+       with their number as index): every node's first from its parent's, root down */
     job->v[0] = p->cout;
     job->v[1] = p->cout + m;
-    for (i = 0; i < m; i++) { job->v[0][i] = p->cin[i]; job->v[0][i].index = i; }
+    first[L - 1] = 0;
+    for (x = L; x-- > 0;) {
+        const bvh_node *s = &p->src[base + x];
+        if (cc[x] == 1) {
+            k = first[x];
+            leaf[k] = x;
+            p->cin[k] = *s;
+            job->v[0][k] = *s;
+            job->v[0][k].index = k;
+        } else {
+            uint32_t l = s->index - base;
+            first[l] = first[x];
+            first[l + 1] = first[x] + cc[l];
+        }
+    }
     job->par = par; job->first = first; job->cc = cc; job->lcc = lcc; job->leaf = leaf;
     job->nodes = nodes;
     job->tasks = tasks;
@@ -2071,10 +2078,7 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
     p->src[p->root].index = slot[0];
     p->src[p->root].count = 0;
 done:
-    bvh__free(&c->al, nodes);
-    bvh__free(&c->al, height); bvh__free(&c->al, slot); bvh__free(&c->al, off);
-    bvh__free(&c->al, par); bvh__free(&c->al, first); bvh__free(&c->al, cc); bvh__free(&c->al, lcc);
-    bvh__free(&c->al, leaf); bvh__free(&c->al, stack);
+    bvh__free(&c->al, scratch);
     return r;
 }
 

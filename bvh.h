@@ -1791,6 +1791,41 @@ static uint32_t bvh__top_ploc_split(const bvh__top_job *j, uint32_t a, uint32_t 
    buffer without a branch; the children's boxes come from the bins, their centroid ranges from
    their boxes and the split plane (a range only needs to be near the centroids' bounds: slots
    are clamped). The middle of the range when no plane separates. */
+/* Node `id` over two or three clusters at v: for three, the pair whose box is smallest goes
+   under node id + 1 (the best of the three trees); no bins. */
+static void bvh__top_put(bvh_node *d, bvh__f4 lo, bvh__f4 hi) {
+    float l[4], h[4];
+    bvh__f4_put(l, lo); bvh__f4_put(h, hi);
+    d->min.x = l[0]; d->min.y = l[1]; d->min.z = l[2];
+    d->max.x = h[0]; d->max.y = h[1]; d->max.z = h[2];
+}
+static void bvh__top_small(const bvh__top_job *j, const bvh__top_task *t) {
+    const bvh_node *v = j->v[t->buf] + t->b;
+    bvh_node *node = &j->nodes[t->id];
+    bvh__top_put(node, t->lo, t->hi);
+    if (t->e - t->b == 2) {
+        node->index = BVH__TOP_CLUSTER | v[0].index;
+        node->count = BVH__TOP_CLUSTER | v[1].index;
+    } else {
+        static const uint8_t pairs[3][3] = {{0, 1, 2}, {0, 2, 1}, {1, 2, 0}};
+        bvh__f4 lo[3], hi[3], plo[3], phi[3];
+        float best = BVH_INF;
+        int k, q = 0;
+        for (k = 0; k < 3; k++) { lo[k] = bvh__f4_at3(&v[k].min); hi[k] = bvh__f4_at3(&v[k].max); }
+        for (k = 0; k < 3; k++) {
+            float a;
+            plo[k] = bvh__f4_min(lo[pairs[k][0]], lo[pairs[k][1]]);
+            phi[k] = bvh__f4_max(hi[pairs[k][0]], hi[pairs[k][1]]);
+            a = bvh__f4_half_area(plo[k], phi[k]);
+            if (a < best) { best = a; q = k; }
+        }
+        node->index = t->id + 1;
+        node->count = BVH__TOP_CLUSTER | v[pairs[q][2]].index;
+        bvh__top_put(node + 1, plo[q], phi[q]);
+        node[1].index = BVH__TOP_CLUSTER | v[pairs[q][0]].index;
+        node[1].count = BVH__TOP_CLUSTER | v[pairs[q][1]].index;
+    }
+}
 static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bvh__top_task kids[2]) {
     uint32_t b = t->b, e = t->e, n = e - b, nb = n < BVH__TOP_BINS ? n : BVH__TOP_BINS, i, k, mid = b, out = 0, bb = 0;
     bvh_node *v = j->v[t->buf], *w = j->v[t->buf ^ 1u], *node = &j->nodes[t->id];
@@ -1799,6 +1834,7 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
     bvh__f4 plo[2], phi[2];
     int ba = -1, a;
     bvh__f4 scale, last = bvh__f4_set((float)(nb - 1)), blo[2], bhi[2];
+    if (n <= 3) { bvh__top_small(j, t); return 0; }
     bvh__f4_put(ext, bvh__f4_sub(t->chi, t->clo));
     bvh__f4_put(lo4, t->lo); bvh__f4_put(hi4, t->hi);
     node->min.x = lo4[0]; node->min.y = lo4[1]; node->min.z = lo4[2];

@@ -8,7 +8,7 @@
    `build/fuzz/fuzz_build build/fuzz/crash-...`, and once fixed add it to tests/fuzz/ so that every
    later run replays it first.
 
-   The input bytes become build options (two builders, max_leaf_size, ploc_radius, threads 1-3,
+   The input bytes become build options (two builders, max_leaf_size, ploc_radius, threads 1-3, ploc_top,
    skip_invalid, costs, split budget, trace_width 0 or 2, stride, an allocation to fail) and a triangle list: vertex
    coordinates straight from the bytes (raw floats: NaN, Inf, huge, denormal values occur), or
    quantized to small multiples of 1/4 (exact coincidences, shared edges, axis-aligned and
@@ -135,6 +135,10 @@ static void fz_parse_options(fz_in *in, fz_case *c, uint8_t *flags, uint8_t *ext
     d->max_leaf_size = (*extra & 4) ? fz_u16(in) : lf;
     d->ploc_radius = rad >= 240 ? 256u + (rad - 240u) % 3u : rad % 20u;
     d->threads = 1u + th % 3u;
+    { /* PLOC's SAH top: default, every other cut, off (the byte's other bits) */
+        static const uint32_t tops[5] = {0, 2, 3, 1, BVH_PLOC_TOP_OFF};
+        d->ploc_top = tops[(th / 3u) % 5u];
+    }
     d->triangles.stride = strides[st % 8];
     c->fail_alloc = (*flags & 0x80) != 0;
     c->alloc.fail_at = c->fail_alloc ? (long)fail : -1;

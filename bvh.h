@@ -2018,8 +2018,9 @@ static void bvh__top_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *te
    top over those clusters (the team takes tasks from a queue) and, when its summed node area is
    below that of PLOC's own top, writes it over src from top_slots on, in runs by height
    (children before parents), as bvh__emit expects. The tree does not depend on the thread count.
-   Memory: PLOC's cin, cout and offers are free by then and hold the clusters, both build
-   buffers and the costs; the rest is about 64 bytes per cluster (n / 8 of them by default). */
+   Memory: PLOC's cin, cout and offers are free by then and hold the clusters, the top's nodes,
+   both build buffers, the costs and (when they fit, as for n / 8 clusters) the integers, about
+   44 bytes per cluster; else those are allocated. */
 static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
     const bvh__ctx *c = p->c;
     uint32_t m = p->top_m, base = p->top_slots, L = p->root - base + 1, i, h, H = 0, x, k = 0;

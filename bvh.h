@@ -1609,10 +1609,10 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     size_t b, e, i;
     while (count > 1) {
         uint32_t active = count / (4 * r + 256), pos = 0, slot = 0, total_surv = 0, total_merge = 0;
+        uint64_t *bnd = p->bnd + (size_t)tid * r;
         if (tid == 0 && !p->top_m && count <= p->top_cut) { /* where the SAH top would start */
             p->top_m = count; p->top_slots = slots; p->top_blocks = p->block_count;
         }
-        uint64_t *bnd = p->bnd + (size_t)tid * r;
         if (active < 1) active = 1;
         if (active > nt) active = nt;
         if (tid < active) bvh__range(count, tid, active, &b, &e);
@@ -1856,7 +1856,7 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
     }
     blo[0] = blo[1] = bvh__f4_set(BVH_INF); bhi[0] = bhi[1] = bvh__f4_set(-BVH_INF);
     ps = n >= BVH__TOP_PLOC_MIN && t->pmin < t->pmax ? bvh__top_ploc_split(j, t->pmin, t->pmax) : 0;
-    if (n > 2) {
+    { /* n >= 4 here */
         /* two sets of bins, even and odd clusters, so that neighbours (which often share a bin)
            do not wait for each other's update */
         bvh__top_bin bin[2][3][BVH__TOP_BINS];
@@ -1870,9 +1870,9 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
         plo[0] = plo[1] = bvh__f4_set(BVH_INF); phi[0] = phi[1] = bvh__f4_set(-BVH_INF);
         for (i = b; i < e; i++) {
             uint32_t s[3], side = v[i].index >= ps;
-            q = i & qm;
             bvh__top_bin *x;
             bvh__f4 l = bvh__f4_at3(&v[i].min), h = bvh__f4_at3(&v[i].max);
+            q = i & qm;
             bvh__f4_slots(s, bvh__f4_min(bvh__f4_max(bvh__f4_mul(bvh__f4_sub(bvh__f4_add(l, h), t->clo), scale),
                                                      bvh__f4_set(0.0f)), last));
             x = &bin[q][0][s[0]]; x->lo = bvh__f4_min(x->lo, l); x->hi = bvh__f4_max(x->hi, h);

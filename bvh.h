@@ -1913,7 +1913,7 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
         if (ba == 3) { blo[0] = plo[0]; blo[1] = plo[1]; bhi[0] = phi[0]; bhi[1] = phi[1]; }
         else if (ba >= 0)
             for (k = 0; k < nb; k++) {
-                uint32_t q = k > bb;
+                q = k > bb; /* the side of bin k */
                 blo[q] = bvh__f4_min(blo[q], bin[0][ba][k].lo);
                 bhi[q] = bvh__f4_max(bhi[q], bin[0][ba][k].hi);
             }
@@ -2088,14 +2088,14 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
     bvh__top_bounds(job->v[0], 0, m, &tasks[0]);
     r = bvh__team_run(&c->al, nthreads, bvh__top_team_fn, job);
     if (r != BVH_SUCCESS) goto done;
-    for (i = m - 1; i-- > 0;) {
-        uint32_t k, hh = 0;
-        double cc = bvh__half_area_d(&nodes[i]);
-        for (k = 0; k < 2; k++) {
-            uint32_t x = k ? nodes[i].count : nodes[i].index;
-            if (!(x & BVH__TOP_CLUSTER)) { cc += cost[x]; if (height[x] > hh) hh = height[x]; }
+    for (i = m - 1; i-- > 0;) { /* children have larger ids: summed areas and heights from the last */
+        uint32_t hh = 0;
+        double sum = bvh__half_area_d(&nodes[i]);
+        for (h = 0; h < 2; h++) {
+            uint32_t y = h ? nodes[i].count : nodes[i].index;
+            if (!(y & BVH__TOP_CLUSTER)) { sum += cost[y]; if (height[y] > hh) hh = height[y]; }
         }
-        cost[i] = cc; height[i] = hh + 1;
+        cost[i] = sum; height[i] = hh + 1;
         if (height[i] > H) H = height[i];
     }
     top_cost = cost[0];
@@ -2105,21 +2105,19 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
     for (i = 0; i < m - 1; i++) off[height[i]]++;
     {
         uint32_t at = p->top_slots;
-        for (h = 1; h <= H; h++) { uint32_t k = off[h]; off[h] = at; at += 2 * k; p->blocks[p->top_blocks + h - 1] = at; }
+        for (h = 1; h <= H; h++) { uint32_t pairs = off[h]; off[h] = at; at += 2 * pairs; p->blocks[p->top_blocks + h - 1] = at; }
         p->root = at;
         p->blocks[p->top_blocks + H] = at + 1;
         p->block_count = p->top_blocks + H + 1;
     }
     for (i = 0; i < m - 1; i++) { slot[i] = off[height[i]]; off[height[i]] += 2; }
-    for (i = 0; i < m - 1; i++) {
-        uint32_t k;
-        for (k = 0; k < 2; k++) {
-            uint32_t x = k ? nodes[i].count : nodes[i].index;
-            bvh_node *d = &p->src[slot[i] + k];
-            if (x & BVH__TOP_CLUSTER) *d = p->cin[x & ~BVH__TOP_CLUSTER];
-            else { d->min = nodes[x].min; d->max = nodes[x].max; d->index = slot[x]; d->count = 0; }
+    for (i = 0; i < m - 1; i++)
+        for (h = 0; h < 2; h++) {
+            uint32_t y = h ? nodes[i].count : nodes[i].index;
+            bvh_node *d = &p->src[slot[i] + h];
+            if (y & BVH__TOP_CLUSTER) *d = p->cin[y & ~BVH__TOP_CLUSTER];
+            else { d->min = nodes[y].min; d->max = nodes[y].max; d->index = slot[y]; d->count = 0; }
         }
-    }
     p->src[p->root].min = nodes[0].min; p->src[p->root].max = nodes[0].max;
     p->src[p->root].index = slot[0];
     p->src[p->root].count = 0;

@@ -1716,7 +1716,6 @@ BVH__INLINE bvh__f4 bvh__f4_add(bvh__f4 a, bvh__f4 b) { return _mm_add_ps(a, b);
 BVH__INLINE bvh__f4 bvh__f4_sub(bvh__f4 a, bvh__f4 b) { return _mm_sub_ps(a, b); }
 BVH__INLINE bvh__f4 bvh__f4_mul(bvh__f4 a, bvh__f4 b) { return _mm_mul_ps(a, b); }
 BVH__INLINE void bvh__f4_put(float *p, bvh__f4 a) { _mm_storeu_ps(p, a); }
-BVH__INLINE void bvh__f4_trunc(int32_t *p, bvh__f4 a) { _mm_storeu_si128((__m128i *)(void *)p, _mm_cvttps_epi32(a)); }
 BVH__INLINE void bvh__f4_slots(uint32_t *p, bvh__f4 a) { /* lanes 0-2 truncated, without a trip through memory */
     __m128i x = _mm_cvttps_epi32(a);
     p[0] = (uint32_t)_mm_cvtsi128_si32(x);
@@ -1736,7 +1735,6 @@ BVH__F4_OP(bvh__f4_add, a.v[k] + b.v[k])
 BVH__F4_OP(bvh__f4_sub, a.v[k] - b.v[k])
 BVH__F4_OP(bvh__f4_mul, a.v[k] * b.v[k])
 BVH__INLINE void bvh__f4_put(float *p, bvh__f4 a) { memcpy(p, a.v, sizeof a.v); }
-BVH__INLINE void bvh__f4_trunc(int32_t *p, bvh__f4 a) { int k; for (k = 0; k < 4; k++) p[k] = (int32_t)a.v[k]; }
 BVH__INLINE void bvh__f4_slots(uint32_t *p, bvh__f4 a) { int k; for (k = 0; k < 3; k++) p[k] = (uint32_t)a.v[k]; }
 #endif
 #ifdef BVH__SSE
@@ -1774,6 +1772,10 @@ typedef struct bvh__top_job {
     uint32_t task_count, busy, grain;
 } bvh__top_job;
 BVH__INLINE bvh__f4 bvh__top_centre(const bvh_node *x) { return bvh__f4_add(bvh__f4_at3(&x->min), bvh__f4_at3(&x->max)); }
+/* The bin of centre c (doubled) on each axis, clamped to [0, last]: binning and partition agree. */
+BVH__INLINE void bvh__top_slots(bvh__f4 c, const bvh__top_task *t, bvh__f4 scale, bvh__f4 last, uint32_t s[3]) {
+    bvh__f4_slots(s, bvh__f4_min(bvh__f4_max(bvh__f4_mul(bvh__f4_sub(c, t->clo), scale), bvh__f4_set(0.0f)), last));
+}
 static void bvh__top_bounds(const bvh_node *v, uint32_t b, uint32_t e, bvh__top_task *t) {
     bvh__f4 lo = bvh__f4_set(BVH_INF), hi = bvh__f4_set(-BVH_INF), clo = lo, chi = hi;
     uint32_t i, pmin = BVH__TOP_NONE, pmax = 0;
@@ -1873,8 +1875,7 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
             bvh__top_bin *x;
             bvh__f4 l = bvh__f4_at3(&v[i].min), h = bvh__f4_at3(&v[i].max);
             q = i & qm;
-            bvh__f4_slots(s, bvh__f4_min(bvh__f4_max(bvh__f4_mul(bvh__f4_sub(bvh__f4_add(l, h), t->clo), scale),
-                                                     bvh__f4_set(0.0f)), last));
+            bvh__top_slots(bvh__f4_add(l, h), t, scale, last, s);
             x = &bin[q][0][s[0]]; x->lo = bvh__f4_min(x->lo, l); x->hi = bvh__f4_max(x->hi, h);
             x = &bin[q][1][s[1]]; x->lo = bvh__f4_min(x->lo, l); x->hi = bvh__f4_max(x->hi, h);
             x = &bin[q][2][s[2]]; x->lo = bvh__f4_min(x->lo, l); x->hi = bvh__f4_max(x->hi, h);
@@ -1922,11 +1923,9 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
         uint32_t l = b, r = e - 1, pmin[2] = {BVH__TOP_NONE, BVH__TOP_NONE}, pmax[2] = {0, 0};
         int axis = ba < 3 ? ba : 0;
         for (i = b; i < e; i++) {
-            int32_t s[4];
-            uint32_t left, at, id = v[i].index;
-            bvh__f4_trunc(s, bvh__f4_min(bvh__f4_max(bvh__f4_mul(bvh__f4_sub(bvh__top_centre(&v[i]), t->clo), scale),
-                                                     bvh__f4_set(0.0f)), last));
-            left = ba == 3 ? id < ps : (uint32_t)s[axis] <= bb;
+            uint32_t s[3], left, at, id = v[i].index;
+            bvh__top_slots(bvh__top_centre(&v[i]), t, scale, last, s);
+            left = ba == 3 ? id < ps : s[axis] <= bb;
             at = left ? l : r;
             w[at] = v[i];
             l += left; r -= 1u - left;

@@ -1,4 +1,4 @@
-/* bvh.h - v0.3.0 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.4.0 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -64,6 +64,9 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.4.0  PLOC's memory budget (desc.max_bytes_per_prim, 40 by default; BVH_NO_MEMORY_LIMIT):
+            where the SAH collapse leaves a tree over it (random triangle soups), leaves grow
+            until it fits. Smaller neighbour-search buffers on inputs under 1024 primitives.
      0.3.0  PLOC's SAH top (desc.ploc_top, on by default; BVH_PLOC_TOP_OFF for the paper's PLOC):
             a binned-SAH top over PLOC's last n / 8 clusters, kept where it is cheaper.
      0.2.1  faster PLOC builds, same trees: AVX2 neighbour search, root-down emission, MSD Morton
@@ -76,7 +79,7 @@
 #define BVH_H_INCLUDED
 
 #define BVH_VERSION_MAJOR 0
-#define BVH_VERSION_MINOR 3
+#define BVH_VERSION_MINOR 4
 #define BVH_VERSION_PATCH 0
 
 #include <math.h>
@@ -104,6 +107,7 @@
 #define BVH_INVALID 0xFFFFFFFFu
 #define BVH_SAH_MIDPOINT_ONLY 0xFFFFFFFFu
 #define BVH_PLOC_TOP_OFF 0xFFFFFFFFu
+#define BVH_NO_MEMORY_LIMIT 0xFFFFFFFFu
 
 #ifdef __cplusplus
 extern "C" {
@@ -213,6 +217,12 @@ typedef struct bvh_build_desc {
                                  BVH_SAH_MIDPOINT_ONLY = the study's variant (mid-point only) */
     bvh_costs costs;          /* build-time SAH costs, zero = (1, 0, 1) (PLOC's collapse: (1.2,
                                  0, 1), for smaller trees at the same SAH); negative/NaN refused */
+    uint32_t max_bytes_per_prim; /* ploc builders: the tree (nodes + reference indices) at most
+                                 this many bytes per primitive; when the SAH collapse gives more,
+                                 it is redone with a dearer interior node until the tree fits
+                                 (larger leaves, a higher SAH cost; below what leaves of
+                                 max_leaf_size allow: the smallest such tree); 0 = 40;
+                                 BVH_NO_MEMORY_LIMIT = the SAH alone decides */
     int skip_invalid;         /* 0: NaN/Inf geometry is refused with BVH_ERROR_INVALID_GEOMETRY;
                                  1: such primitives are left out and counted in tree.excluded */
     int keep_triangles;       /* reserved, 0 */
@@ -838,6 +848,7 @@ typedef struct bvh__ctx {
     const uint32_t *orig;  /* local id -> caller index when primitives were left out, else NULL */
     bvh_aabb bounds, cbounds;
     uint32_t max_leaf, threads, radius, sah_bins, ploc_top; /* ploc_top: 0 = off, else >= 2 */
+    uint32_t budget;       /* collapse: tree bytes per primitive at most; 0 = no limit */
     float ci, cl, ct, split_budget;
 } bvh__ctx;
 
@@ -1147,6 +1158,53 @@ static void bvh__sizes_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     }
 }
 
+/* The memory budget (desc.max_bytes_per_prim) as output nodes, for a tree of `prims` references. */
+static uint64_t bvh__budget_nodes(const bvh__ctx *c, uint32_t prims) {
+    uint64_t bytes = (uint64_t)c->budget * prims, idx = (uint64_t)prims * sizeof(uint32_t);
+    return bytes > idx ? (bytes - idx) / sizeof(bvh_node) : 0;
+}
+#define BVH__BUDGET_STEPS 8
+/* Pass 1 gave a tree over the budget: it is redone with a dearer interior node, which turns the
+   subtrees where a leaf costs least extra into leaves first (a Lagrange multiplier on the node
+   count). The cost is doubled until the tree fits, then narrowed by interpolation between the
+   last cost over and the last that fits (node counts against costs, both on log scales) until
+   the tree is within 1% of the budget or BVH__BUDGET_STEPS tries; the tree kept is the one of the
+   lowest cost found to fit, so it always fits if any does. If even an unbounded cost (every
+   subtree of max_leaf primitives or fewer a leaf) does not fit, that smallest tree is kept. Each
+   try is one more pass 1, O(n); random triangle soups take 3 to 5. */
+static bvh_result bvh__fit_budget(const bvh__ctx *c, bvh__sizes *q, uint32_t nthreads) {
+    bvh__ctx cc = *c;
+    uint32_t root = q->blocks[q->block_count - 1] - 1, k;
+    uint64_t limit = bvh__budget_nodes(c, q->cnt[root] & ~BVH__COLLAPSE_BIT);
+    double lo = c->ci > 0.0f ? c->ci : 1.0, hi = 2.0 * lo, top = 1e6 * lo, nlo = q->size[root], nhi;
+    int held = 1; /* the arrays hold the tree of cost hi */
+    bvh_result r;
+    q->c = &cc;
+    for (;;) { /* double until it fits */
+        cc.ci = (float)hi;
+        if ((r = bvh__team_run(&c->al, nthreads, bvh__sizes_fn, q)) != BVH_SUCCESS) return r;
+        nhi = q->size[root];
+        if (nhi <= (double)limit) break;
+        if (hi > top) { /* the smallest tree the leaf size allows */
+            cc.ci = 3.0e38f; /* finite: a zero area times it stays zero */
+            return bvh__team_run(&c->al, nthreads, bvh__sizes_fn, q);
+        }
+        lo = hi; nlo = nhi; hi *= 2.0;
+    }
+    for (k = 0; k < BVH__BUDGET_STEPS && nhi < 0.99 * (double)limit; k++) {
+        double aim = 0.995 * (double)limit, f = (log(nlo) - log(aim)) / (log(nlo) - log(nhi > 1.0 ? nhi : 1.0));
+        double mid = lo * pow(hi / lo, f < 0.1 ? 0.1 : f > 0.9 ? 0.9 : f), n;
+        cc.ci = (float)mid;
+        if ((r = bvh__team_run(&c->al, nthreads, bvh__sizes_fn, q)) != BVH_SUCCESS) return r;
+        n = q->size[root];
+        if (n > (double)limit) { lo = mid; nlo = n; held = 0; }
+        else { hi = mid; nhi = n; held = 1; }
+    }
+    if (held) return BVH_SUCCESS;
+    cc.ci = (float)hi;
+    return bvh__team_run(&c->al, nthreads, bvh__sizes_fn, q);
+}
+
 /* Pass 2 of bvh__emit with `blocks`, when no subtree is rebuilt: src is walked from the root down,
    run by run from the last (parents before children), each run's pairs split over the team. A
    children pair (l, l + 1) gets from its parent, in pos[l], the output index of its first node
@@ -1212,6 +1270,9 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
         q.blocks = blocks ? blocks : &src_count;
         q.block_count = blocks ? block_count : 1;
         r = bvh__team_run(&c->al, blocks ? nthreads : 1, bvh__sizes_fn, &q);
+        if (r == BVH_SUCCESS && collapse && c->budget &&
+            size[src_count - 1] > bvh__budget_nodes(c, cnt[src_count - 1] & ~BVH__COLLAPSE_BIT))
+            r = bvh__fit_budget(c, &q, blocks ? nthreads : 1);
         if (r != BVH_SUCCESS) goto done;
     }
     prims = cnt[src_count - 1] & ~BVH__COLLAPSE_BIT;
@@ -1442,10 +1503,14 @@ struct bvh__nn { /* arrays of bvh__nn_block(n) entries (rd, rk) or that + r (the
     float *lo[3], *hi[3];  /* boxes of i0 .. i0 + nb + r */
     int32_t *rd, *ld;      /* best distance key right/left */
     int32_t *rk, *lk;      /* its offset k; 0: no offer yet */
+    size_t block;          /* clusters per block, bvh__nn_block(n) */
 };
-/* Clusters per block: BVH__NN_BLOCK, or all of a smaller input rounded up to the vector width
-   (so that a small build does not hold buffers for 256). */
-static size_t bvh__nn_block(size_t n) { return n < BVH__NN_BLOCK ? (n + 7) & ~(size_t)7 : BVH__NN_BLOCK; }
+/* Clusters per block: BVH__NN_BLOCK, or on inputs under 4 blocks n / 4 rounded up to the vector
+   width, at least 64: there the buffers are a good part of the peak memory (500 triangles: 10 of
+   154 KB). The results do not depend on the block size. */
+static size_t bvh__nn_block(size_t n) {
+    return n >= 4 * BVH__NN_BLOCK ? BVH__NN_BLOCK : n / 4 > 64 ? (n / 4 + 7) & ~(size_t)7 : 64;
+}
 /* The distances of pairs (i0 + q, i0 + q + k) for q < nbr (a multiple of the vector width) and
    k = 1..r, kept as the best per side (see bvh__ploc_search). */
 #ifdef BVH__AVX2
@@ -1548,12 +1613,12 @@ static void bvh__ploc_search(bvh__nn *w, const bvh_node *cin, uint32_t count, ui
     const int wide = bvh__have_avx2();
     const size_t vw = wide ? 8 : 4;
     for (q = 0; q < r; q++) { w->ld[q] = 0; w->lk[q] = 0; }
-    for (i0 = b; i0 < e; i0 += BVH__NN_BLOCK) {
+    for (i0 = b; i0 < e; i0 += w->block) {
         /* Rounded up to the vector width (8 pairs at a time with AVX2, else 4): clusters past e
            make genuine offers, which the thread that owns them makes too (a minimum does not mind
            a repeated offer), and their own results are not used; pairs reaching past the last
            cluster are masked out. */
-        size_t nb = e - i0 < BVH__NN_BLOCK ? e - i0 : BVH__NN_BLOCK, nbr = (nb + vw - 1) & ~(vw - 1);
+        size_t nb = e - i0 < w->block ? e - i0 : w->block, nbr = (nb + vw - 1) & ~(vw - 1);
         const int32_t lim = (int32_t)(count - i0); /* pair (i0 + q, i0 + q + k) exists iff q + k < lim */
         for (q = 0; q < nbr + r; q++) {
             if (i0 + q < count) {
@@ -2160,6 +2225,7 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
                 w->lo[0] = f; w->lo[1] = f + cap; w->lo[2] = f + 2 * cap;
                 w->hi[0] = f + 3 * cap; w->hi[1] = f + 4 * cap; w->hi[2] = f + 5 * cap;
                 w->rd = k; w->rk = k + nbk; w->ld = k + 2 * nbk; w->lk = k + 2 * nbk + cap;
+                w->block = nbk;
             }
         }
         p.role = BVH__ALLOC(&c->al, uint8_t, n);
@@ -2940,6 +3006,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     } else {
         c.ci = desc->costs.interior; c.cl = desc->costs.leaf; c.ct = desc->costs.triangle;
     }
+    c.budget = desc->max_bytes_per_prim == BVH_NO_MEMORY_LIMIT ? 0 : desc->max_bytes_per_prim ? desc->max_bytes_per_prim : 40;
     c.split_budget = desc->split_budget == 0.0f ? 0.3f : desc->split_budget < 0.0f ? 0.0f : desc->split_budget;
     if (count == 0) return BVH_SUCCESS; /* an empty tree: node_count 0, every ray misses */
     /* a thread per BVH__MIN_PRIMS_PER_THREAD primitives at most: on small inputs, creating threads

@@ -71,7 +71,7 @@ typedef struct options {
     int nqualities;
     uint32_t threads;  /* as given, 0 = all cores */
     uint32_t nthreads; /* resolved */
-    uint32_t repeat, width, height, brute_max, trace_width, ploc_top;
+    uint32_t repeat, width, height, brute_max, trace_width, ploc_top, max_bytes;
     int trace_cpu, trace_cl, trace_auto;
     const char *md, *json, *plots, *argv0;
     int quiet, strict;
@@ -458,6 +458,7 @@ static int build_repeated(run_ctx *c, row *r, bvh_tree *tree) {
     desc.threads = o->threads;
     desc.trace_width = o->trace_width;
     desc.ploc_top = o->ploc_top;
+    desc.max_bytes_per_prim = o->max_bytes;
     desc.skip_invalid = 1;
     desc.triangles.positions = c->s->v;
     desc.triangles.vertex_count = 3 * c->s->triangles;
@@ -1024,6 +1025,8 @@ static void header_lines(FILE *f, const options *o, const header_info *h, const 
     fprintf(f, "%sEmbree: %s\n", prefix, h->embree);
     if (o->ploc_top == BVH_PLOC_TOP_OFF) fprintf(f, "%sPLOC: the paper's, without the SAH top (--ploc-top off)\n", prefix);
     else fprintf(f, "%sPLOC: with the SAH top over the last n/%u clusters (--ploc-top)\n", prefix, o->ploc_top ? o->ploc_top : 8);
+    if (o->max_bytes == BVH_NO_MEMORY_LIMIT) fprintf(f, "%sPLOC's collapse: the SAH alone (--max-bytes off)\n", prefix);
+    else fprintf(f, "%sPLOC's collapse: tree at most %u bytes per triangle (--max-bytes)\n", prefix, o->max_bytes ? o->max_bytes : 40);
     fprintf(f, "%sOpenCL: %s\n", prefix, h->opencl);
     fprintf(f, "%sbuild: median of %u timed build(s) after one warm-up; frame: %ux%u primary rays of the standard camera, "
                "traced %s (CPU, OpenCL and Embree: median of %d frames); frame ms = fastest tracer; CPU tracing walks the "
@@ -1315,6 +1318,8 @@ static void usage(FILE *f) {
             "  --trace-width W  4: builds add the 4-wide copy CPU tracing uses (default); 2: binary only\n"
             "  --ploc-top N     ploc builders: binned-SAH top over the last n/N clusters, kept where\n"
             "                   cheaper (0 = the library's default, 8); 'off': PLOC alone, as the study\n"
+            "  --max-bytes N    ploc builders: tree (nodes + indices) at most N bytes per triangle, by\n"
+            "                   bigger leaves where needed (0 = the library's default, 40); 'off': the SAH alone\n"
             "  --trace MODE     cpu, opencl, both or none (default: both when OpenCL works, else cpu)\n"
             "  --brute-max N    brute force only up to N triangles (default 20000) and %.0e tests\n"
             "  --md FILE        Markdown tables, best value per column and scene in bold\n"
@@ -1420,6 +1425,12 @@ static int parse_args(int argc, char **argv, options *o) {
             if (v && !strcmp(v, "off")) o->ploc_top = BVH_PLOC_TOP_OFF;
             else if (parse_u32(v, 0, 1u << 30, &o->ploc_top, NULL)) {
                 fprintf(stderr, "bvhbench: --ploc-top wants a divisor (0 = default) or off, not '%s'\n", v ? v : "");
+                return 2;
+            }
+        } else if (!strcmp(a, "--max-bytes")) {
+            if (v && !strcmp(v, "off")) o->max_bytes = BVH_NO_MEMORY_LIMIT;
+            else if (parse_u32(v, 0, 1u << 30, &o->max_bytes, NULL)) {
+                fprintf(stderr, "bvhbench: --max-bytes wants bytes per triangle (0 = default) or off, not '%s'\n", v ? v : "");
                 return 2;
             }
         } else if (!strcmp(a, "--trace-width")) {

@@ -8,8 +8,9 @@
    `build/fuzz/fuzz_build build/fuzz/crash-...`, and once fixed add it to tests/fuzz/ so that every
    later run replays it first.
 
-   The input bytes become build options (two builders, max_leaf_size, ploc_radius, threads 1-3, ploc_top,
-   skip_invalid, costs, split budget, trace_width 0 or 2, stride, an allocation to fail) and a triangle list: vertex
+   The input bytes become build options (two builders, max_leaf_size, ploc_radius, threads 1-3,
+   ploc_top, max_bytes_per_prim, skip_invalid, costs, split budget, trace_width 0 or 2, stride, an
+   allocation to fail) and a triangle list: vertex
    coordinates straight from the bytes (raw floats: NaN, Inf, huge, denormal values occur), or
    quantized to small multiples of 1/4 (exact coincidences, shared edges, axis-aligned and
    degenerate triangles), optionally indexed with indices from the bytes. The vertex buffer is
@@ -138,6 +139,10 @@ static void fz_parse_options(fz_in *in, fz_case *c, uint8_t *flags, uint8_t *ext
     { /* PLOC's SAH top: default, every other cut, off (the byte's other bits) */
         static const uint32_t tops[5] = {0, 2, 3, 1, BVH_PLOC_TOP_OFF};
         d->ploc_top = tops[(th / 3u) % 5u];
+    }
+    { /* PLOC's memory budget: default (40), none, unreachable (1 byte), 60 */
+        static const uint32_t budgets[4] = {0, BVH_NO_MEMORY_LIMIT, 1, 60};
+        d->max_bytes_per_prim = budgets[(th / 15u) % 4u];
     }
     d->triangles.stride = strides[st % 8];
     c->fail_alloc = (*flags & 0x80) != 0;

@@ -245,6 +245,84 @@ static void ploc_top_variants(void **state) {
     }
 }
 
+/* PLOC's memory budget (desc.max_bytes_per_prim): random triangles, whose SAH-best leaves are
+   one triangle each, give trees over 40 bytes per triangle without it; by default the tree fits
+   in 40 and stays within 1% of it, at a higher but bounded SAH cost; a budget of 60 fits between
+   the two; the smallest budget gives the smallest tree leaves of 8 allow; leaves of one triangle
+   cannot fit, and the tree is then the unbudgeted one. Every tree is valid, hits as brute force
+   does, and ploc-parallel gives ploc's tree on any thread count. */
+static double tree_bytes_per_tri(const bvh_tree *t) {
+    return ((double)t->node_count * sizeof(bvh_node) + (double)t->ref_count * sizeof(uint32_t)) / t->prim_count;
+}
+static void memory_budget(void **state) {
+    enum { RAYS = 2000 };
+    static const uint32_t sizes[] = {500, 5000, 40000};
+    size_t z, i, k;
+    (void)state;
+    for (z = 0; z < sizeof sizes / sizeof sizes[0]; z++) {
+        static const uint32_t budgets[] = {BVH_NO_MEMORY_LIMIT, 0, 60, 1};
+        tu_scene s;
+        float *tris;
+        bvh_ray *rays = (bvh_ray *)malloc(RAYS * sizeof *rays);
+        bvh_hit *want = (bvh_hit *)malloc(RAYS * sizeof *want);
+        double bytes[4], sah[4];
+        assert_true(rays && want);
+        tu_scene_random(&s, sizes[z], 0x4d454dULL + z);
+        tris = tu_scene_tris(&s);
+        tu_make_rays(tris, s.tri_count, 0x627564ULL + z, rays, RAYS);
+        tu_oracle_run(tris, s.tri_count, rays, RAYS, want);
+        for (k = 0; k < 4; k++) {
+            bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
+            bvh_tree t;
+            d.max_bytes_per_prim = budgets[k];
+            tu_build_valid(&s, &d, &t);
+            check_stats(&s, &t, 8);
+            bytes[k] = tree_bytes_per_tri(&t);
+            assert_int_equal(bvh_sah(&t, NULL, &sah[k]), BVH_SUCCESS);
+            for (i = 0; i < RAYS; i++) {
+                bvh_hit h;
+                int hit = bvh_intersect(&t, &rays[i], &h), bf = want[i].prim != BVH_INVALID;
+                if (hit != bf || (hit && !tu_hit_equal(&h, &want[i])))
+                    fail_msg("%s: budget %u: ray %zu differs from brute force", s.name, budgets[k], i);
+            }
+            if (k == 3) { /* the smallest tree: no subtree of 8 or fewer triangles is a node */
+                for (i = 0; i < t.node_count; i++)
+                    if (!t.nodes[i].count) {
+                        const bvh_node *l = &t.nodes[t.nodes[i].index], *r = l + 1;
+                        if (l->count && r->count) assert_true(l->count + r->count > 8);
+                    }
+            }
+            bvh_free(&t);
+            if (z == 0) ploc_parallel_same_tree(&s, &d);
+            print_message("random:%-6u budget %10u: %.2f bytes/tri, SAH %.4f\n", sizes[z], budgets[k], bytes[k], sah[k]);
+        }
+        assert_true(bytes[0] > 40.0);                      /* the budget has something to do */
+        assert_true(bytes[1] <= 40.0 && bytes[1] >= 0.99 * 40.0 - 0.01);
+        assert_true(bytes[2] <= 60.0 && bytes[2] > bytes[1]);
+        assert_true(bytes[3] <= bytes[1]);
+        assert_true(sah[1] >= sah[0] && sah[1] <= 1.06 * sah[0]); /* a bounded price for the bytes */
+        assert_true(sah[2] <= sah[1]);
+        free(rays); free(want); free(tris);
+        tu_scene_free(&s);
+    }
+    { /* leaves of one triangle cannot fit in 40 bytes: the tree is then the unbudgeted one */
+        tu_scene s;
+        bvh_build_desc d;
+        bvh_tree a, b;
+        tu_scene_random(&s, 3000, 0x4f4e45ULL);
+        d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
+        d.max_leaf_size = 1;
+        tu_build_valid(&s, &d, &a);
+        d.max_bytes_per_prim = BVH_NO_MEMORY_LIMIT;
+        tu_build_valid(&s, &d, &b);
+        assert_int_equal(a.node_count, 2 * s.tri_count - 1);
+        assert_int_equal(a.node_count, b.node_count);
+        assert_memory_equal(a.nodes, b.nodes, a.node_count * sizeof(bvh_node));
+        bvh_free(&a); bvh_free(&b);
+        tu_scene_free(&s);
+    }
+}
+
 /* Leaf size limits are kept: 1 (one triangle per leaf), 2, 3, 7, 255, on two scenes. */
 static void leaf_sizes(void **state) {
     static const uint32_t leaf[] = {1, 2, 3, 7, 255};
@@ -376,6 +454,7 @@ int main(void) {
         TU_EVERY_SCENE(ploc_parallel_equals_ploc),
         cmocka_unit_test(ploc_parallel_equals_ploc_options),
         cmocka_unit_test(ploc_top_variants),
+        cmocka_unit_test(memory_budget),
         cmocka_unit_test(leaf_sizes),
         cmocka_unit_test(options_build_valid),
         cmocka_unit_test(morton_sort_alone),

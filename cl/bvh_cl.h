@@ -1,4 +1,4 @@
-/* bvh_cl.h - v0.1.0 - OpenCL companion of bvh.h: trace bvh.h trees on any OpenCL 1.2 device
+/* bvh_cl.h - v0.2.0 - OpenCL companion of bvh.h: trace bvh.h trees on any OpenCL 1.2 device
 
    WHAT
      Uploads a bvh_tree (nodes, reference-ordered triangles, primitive ids) to an OpenCL device as
@@ -59,7 +59,7 @@
 #endif
 
 #define BVH_CL_VERSION_MAJOR 0
-#define BVH_CL_VERSION_MINOR 1
+#define BVH_CL_VERSION_MINOR 2
 #define BVH_CL_VERSION_PATCH 0
 
 #ifndef BVH_CL_API
@@ -104,7 +104,11 @@ typedef struct bvh_cl_desc {
     const char *build_options; /* appended to the options bvh_cl_create passes (-D..., -cl-...) */
     size_t max_alloc;          /* largest buffer in bytes: 0 = CL_DEVICE_MAX_MEM_ALLOC_SIZE, else
                                   the lower of both (batches and frames are split to fit) */
-    size_t local_size;         /* work-group size: 0 = 64 (frames: 8 x 8 pixels) */
+    size_t local_size;         /* work-group size: 0 = 64 (frames: 8 x 8 work-items) */
+    int frame_rays;            /* rays per work-item of bvh_cl_render_frame: 0 = by device (CPU:
+                                  8, GPU: 1); 8 = a 4 x 2 pixel packet whose box tests run as
+                                  float8 (what a CPU driver vectorises); 1 = one ray. Frames
+                                  that ask for visited counts always take one ray. Else refused */
     char *log;                 /* optional: on failure of bvh_cl_create, receives the compiler's
                                   log (BUILD_FAILED) or the failing call; NUL-terminated */
     size_t log_size;
@@ -155,7 +159,9 @@ BVH_CL_API bvh_cl_result bvh_cl_occluded(bvh_cl_tree *tree, const bvh_ray *rays,
    on the device. Outputs, each optional (NULL), width*height entries in row-major order:
    rgba     4 bytes per pixel: hits grey * (0.2 + 0.8 |dot(n, d)|) (headlight), misses a gradient
    hits     bvh_hit per pixel, equal to bvh_intersect of bvh_camera_ray(cam, x, y)
-   visited  nodes visited per pixel, equal to bvh_intersect_counted (for heat maps) */
+   visited  nodes visited per pixel, equal to bvh_intersect_counted (for heat maps)
+   On a CPU device (desc.frame_rays), frames without visited counts trace packets of 4 x 2 pixels
+   per work-item, box tests for the eight rays in float8 (PoCL: 1.2-1.6x the one-ray kernel). */
 BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera *cam, uint8_t *rgba,
                                              bvh_hit *hits, uint32_t *visited);
 
@@ -274,10 +280,10 @@ typedef char bvh_cl__hit_is_16_bytes[sizeof(bvh_hit) == 16 ? 1 : -1];
 #define BVH_CL__PLATFORM_NOT_FOUND (-1001) /* CL_PLATFORM_NOT_FOUND_KHR of the ICD loader */
 #define BVH_CL__MAX_IDS 64
 #define BVH_CL__CHUNK ((size_t)1 << 20) /* rays or pixels per kernel launch at most */
-enum { BVH_CL__K_CLOSEST, BVH_CL__K_ANY, BVH_CL__K_FRAME, BVH_CL__K_COUNT };
+enum { BVH_CL__K_CLOSEST, BVH_CL__K_ANY, BVH_CL__K_FRAME, BVH_CL__K_FRAME8, BVH_CL__K_COUNT };
 enum { BVH_CL__S_IN, BVH_CL__S_OUT, BVH_CL__S_RGBA, BVH_CL__S_VISITED, BVH_CL__S_COUNT };
 static const char *const bvh_cl__kernel_names[BVH_CL__K_COUNT] = {"bvh_intersect_kernel", "bvh_occluded_kernel",
-                                                                   "bvh_frame_kernel"};
+                                                                   "bvh_frame_kernel", "bvh_frame_packet_kernel"};
 
 struct bvh_cl_context {
     cl_platform_id platform;
@@ -289,6 +295,7 @@ struct bvh_cl_context {
     cl_mem scratch[BVH_CL__S_COUNT]; /* grown on demand, reused across calls */
     size_t scratch_size[BVH_CL__S_COUNT];
     size_t local_size, max_alloc, max_items[3]; /* work-group size, buffer limit, per-dimension limits */
+    int frame_rays;                             /* 1 or 8 (desc.frame_rays resolved) */
     bvh_cl_device_info info;
     char *build_log;
     cl_int last_error;
@@ -567,6 +574,7 @@ BVH_CL_API bvh_cl_result bvh_cl_create(bvh_cl_context **out, const bvh_cl_desc *
     *out = NULL;
     if (!desc) { memset(&zero, 0, sizeof zero); desc = &zero; }
     if (desc->log && desc->log_size) desc->log[0] = '\0';
+    if (desc->frame_rays != 0 && desc->frame_rays != 1 && desc->frame_rays != 8) return BVH_CL_ERROR_INVALID_ARGUMENT;
     c = BVH_CL__CAST(bvh_cl_context *, BVH_CL_MALLOC(sizeof *c));
     if (!c) return BVH_CL_ERROR_OUT_OF_RESOURCES;
     memset(c, 0, sizeof *c);
@@ -593,6 +601,7 @@ BVH_CL_API bvh_cl_result bvh_cl_create(bvh_cl_context **out, const bvh_cl_desc *
     if (desc->max_alloc && desc->max_alloc < c->info.max_alloc) c->info.max_alloc = desc->max_alloc;
     c->max_alloc = c->info.max_alloc > (uint64_t)(size_t)-1 ? (size_t)-1 : (size_t)c->info.max_alloc;
     bvh_cl__local_size(c, desc->local_size);
+    c->frame_rays = desc->frame_rays ? desc->frame_rays : c->info.is_gpu ? 1 : 8;
     *out = c;
     return BVH_CL_SUCCESS;
 }
@@ -758,10 +767,11 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *t, const bvh_camera *c
     bvh_cl_result r;
     cl_int err;
     cl_event ev;
-    int i;
+    int i, packets;
     if (!t || !cam) return BVH_CL_ERROR_INVALID_ARGUMENT;
     c = t->ctx;
-    k = c->kernels[BVH_CL__K_FRAME];
+    packets = c->frame_rays == 8 && !visited;
+    k = c->kernels[packets ? BVH_CL__K_FRAME8 : BVH_CL__K_FRAME];
     c->kernel_ms = 0.0;
     w = cam->width; h = cam->height;
     if (!w || !h) return BVH_CL_SUCCESS;
@@ -786,7 +796,8 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *t, const bvh_camera *c
     err |= clSetKernelArg(k, 5, sizeof cv, &cv);
     err |= clSetKernelArg(k, 6, sizeof(cl_uint), &w);
     err |= clSetKernelArg(k, 7, sizeof(cl_uint), &h);
-    for (i = 0; i < 3; i++) err |= clSetKernelArg(k, 10 + i, sizeof(cl_mem), dst[i] ? &c->scratch[slot[i]] : NULL);
+    for (i = 0; i < (packets ? 2 : 3); i++)
+        err |= clSetKernelArg(k, 10 + i, sizeof(cl_mem), dst[i] ? &c->scratch[slot[i]] : NULL);
     if (err != CL_SUCCESS) return bvh_cl__fail(c, CL_INVALID_KERNEL_ARGS, "clSetKernelArg");
     lx = c->local_size >= 8 && c->local_size % 8 == 0 ? 8 : c->local_size; /* 8 x 8 tiles by default */
     ly = c->local_size / lx;
@@ -794,8 +805,9 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *t, const bvh_camera *c
     local[0] = lx; local[1] = ly;
     for (y0 = 0; y0 < h; y0 += rows) {
         rows = h - y0 < band ? h - y0 : band;
-        global[0] = bvh_cl__round_up(w, lx);
-        global[1] = bvh_cl__round_up(rows, ly);
+        /* packets: a work-item per 4 x 2 pixels */
+        global[0] = bvh_cl__round_up(packets ? (w + 3) / 4 : w, lx);
+        global[1] = bvh_cl__round_up(packets ? (rows + 1) / 2 : rows, ly);
         err = clSetKernelArg(k, 8, sizeof(cl_uint), &y0);
         err |= clSetKernelArg(k, 9, sizeof(cl_uint), &rows);
         if (err != CL_SUCCESS) return bvh_cl__fail(c, CL_INVALID_KERNEL_ARGS, "clSetKernelArg");

@@ -221,6 +221,7 @@ static int bcl_open(bench_cl *b, const char *argv0, char *msg, size_t msglen) {
     d.kernel_path = path;
     d.log = log;
     d.log_size = sizeof log;
+    if (getenv("BVH_CL_FRAME_RAYS")) d.frame_rays = atoi(getenv("BVH_CL_FRAME_RAYS")); /* 1 or 8: compare */
     r = bvh_cl_create(&b->ctx, &d);
     if (r != BVH_CL_SUCCESS) {
         const char *what = bvh_cl_result_string(r);

@@ -337,9 +337,11 @@ static void frame_equals_cpu(void **state) {
     uint8_t *rgba = (uint8_t *)malloc(4 * (size_t)w * h);
     bvh_hit *hits = (bvh_hit *)malloc(sizeof(bvh_hit) * w * h);
     uint32_t *vis = (uint32_t *)malloc(sizeof(uint32_t) * w * h);
+    uint8_t *rgba2 = (uint8_t *)malloc(4 * (size_t)w * h);
+    bvh_hit *hits2 = (bvh_hit *)malloc(sizeof(bvh_hit) * w * h);
     size_t bad = 0;
     NEED_DEVICE();
-    assert_true(rgba && hits && vis && oc_scene_make(id, &s));
+    assert_true(rgba && hits && vis && rgba2 && hits2 && oc_scene_make(id, &s));
     for (b = BVH_BUILDER_TOP_DOWN; b <= BVH_BUILDER_PLOC_PARALLEL; b++) {
         bvh_tree t;
         bvh_cl_tree *g = NULL;
@@ -349,11 +351,18 @@ static void frame_equals_cpu(void **state) {
         assert_int_equal(bvh_cl_upload(g_cl, &t, &g), BVH_CL_SUCCESS);
         assert_int_equal(bvh_cl_render_frame(g, &cam, rgba, hits, vis), BVH_CL_SUCCESS);
         bad += oc_frame_check(&s, (bvh_builder)b, &t, &cam, rgba, hits, vis);
+        /* without visited counts a CPU device takes the packet kernel: the same pixels and hits */
+        assert_int_equal(bvh_cl_render_frame(g, &cam, rgba2, hits2, NULL), BVH_CL_SUCCESS);
+        assert_memory_equal(hits2, hits, sizeof(bvh_hit) * w * h);
+        assert_memory_equal(rgba2, rgba, 4 * (size_t)w * h);
+        memset(hits2, 0, sizeof(bvh_hit) * w * h);
+        assert_int_equal(bvh_cl_render_frame(g, &cam, NULL, hits2, NULL), BVH_CL_SUCCESS);
+        assert_memory_equal(hits2, hits, sizeof(bvh_hit) * w * h);
         assert_int_equal(bvh_cl_render_frame(g, &cam, NULL, NULL, NULL), BVH_CL_SUCCESS); /* timing only */
         bvh_cl_tree_free(g);
         bvh_free(&t);
     }
-    free(rgba); free(hits); free(vis); free(s.v);
+    free(rgba); free(hits); free(vis); free(rgba2); free(hits2); free(s.v);
     assert_int_equal(bad, 0);
 }
 
@@ -407,8 +416,62 @@ static void small_allocations_split_work(void **state) {
     assert_memory_equal(fa, fb, sizeof(bvh_hit) * w * h);
     assert_memory_equal(ra, rb, 4 * w * h);
     assert_memory_equal(va, vb, 4 * w * h);
+    /* packets (no visited) in bands of 5 rows (4 KiB / 50 pixels / 16 bytes): tiles cut by bands */
+    memset(fb, 0, sizeof(bvh_hit) * w * h); memset(rb, 0, 4 * w * h);
+    assert_int_equal(bvh_cl_render_frame(g_small, &cam, rb, fb, NULL), BVH_CL_SUCCESS);
+    assert_memory_equal(fa, fb, sizeof(bvh_hit) * w * h);
+    assert_memory_equal(ra, rb, 4 * w * h);
     bvh_cl_tree_free(g); bvh_cl_tree_free(g_small); bvh_cl_destroy(c);
     bvh_free(&t); free(s.v); free(fa); free(fb); free(ra); free(rb); free(va); free(vb);
+}
+
+/* desc.frame_rays: 1 (a ray per work-item) and 8 (4 x 2 pixel packets) give the same frames on
+   every builder's tree of a scene; anything else is refused. */
+static void frame_rays_option(void **state) {
+    static const uint32_t w = 37, h = 23; /* tiles cut at the right and the bottom */
+    bvh_cl_context *c1 = NULL, *c8 = NULL, *bad = NULL;
+    bvh_cl_desc d;
+    oc_scene s;
+    int b;
+    uint8_t *r1 = (uint8_t *)malloc(4 * w * h), *r8 = (uint8_t *)malloc(4 * w * h);
+    bvh_hit *h1 = (bvh_hit *)malloc(sizeof(bvh_hit) * w * h), *h8 = (bvh_hit *)malloc(sizeof(bvh_hit) * w * h);
+    (void)state;
+    NEED_DEVICE();
+    assert_true(r1 && r8 && h1 && h8 && oc_scene_make(SC_RANDOM, &s));
+    memset(&d, 0, sizeof d);
+    d.frame_rays = 3;
+    assert_int_equal(bvh_cl_create(&bad, &d), BVH_CL_ERROR_INVALID_ARGUMENT);
+    assert_null(bad);
+    d.frame_rays = 1;
+    assert_int_equal(bvh_cl_create(&c1, &d), BVH_CL_SUCCESS);
+    d.frame_rays = 8;
+    assert_int_equal(bvh_cl_create(&c8, &d), BVH_CL_SUCCESS);
+    for (b = BVH_BUILDER_TOP_DOWN; b <= BVH_BUILDER_PLOC_PARALLEL; b++) {
+        bvh_tree t;
+        bvh_cl_tree *g1 = NULL, *g8 = NULL;
+        bvh_camera cam;
+        size_t i, nhit = 0;
+        assert_int_equal(oc_build(&s, (bvh_builder)b, &t), BVH_SUCCESS);
+        cam = bvh_camera_standard(bvh_tree_bounds(&t), w, h);
+        assert_int_equal(bvh_cl_upload(c1, &t, &g1), BVH_CL_SUCCESS);
+        assert_int_equal(bvh_cl_upload(c8, &t, &g8), BVH_CL_SUCCESS);
+        assert_int_equal(bvh_cl_render_frame(g1, &cam, r1, h1, NULL), BVH_CL_SUCCESS);
+        assert_int_equal(bvh_cl_render_frame(g8, &cam, r8, h8, NULL), BVH_CL_SUCCESS);
+        assert_memory_equal(h1, h8, sizeof(bvh_hit) * w * h);
+        assert_memory_equal(r1, r8, 4 * w * h);
+        for (i = 0; i < (size_t)w * h; i++) {
+            bvh_ray ray = bvh_camera_ray(&cam, (uint32_t)(i % w), (uint32_t)(i / w));
+            bvh_hit cpu;
+            bvh_intersect(&t, &ray, &cpu);
+            nhit += cpu.prim != BVH_INVALID;
+            if (!oc_hit_equal(&ray, &cpu, &h8[i])) fail_msg("builder %d pixel %zu: packet hit differs from the CPU", b, i);
+        }
+        assert_true(nhit > 0);
+        bvh_cl_tree_free(g1); bvh_cl_tree_free(g8);
+        bvh_free(&t);
+    }
+    bvh_cl_destroy(c1); bvh_cl_destroy(c8);
+    free(r1); free(r8); free(h1); free(h8); free(s.v);
 }
 
 static void buffer_too_large(void **state) {
@@ -549,6 +612,7 @@ int main(void) {
         SCENE_TEST("frame_quads", frame_equals_cpu, SC_QUADS),
         SCENE_TEST("frame_huge_triangle", frame_equals_cpu, SC_HUGE),
         cmocka_unit_test(small_allocations_split_work),
+        cmocka_unit_test(frame_rays_option),
         cmocka_unit_test(buffer_too_large),
         cmocka_unit_test(bad_kernel_source),
         cmocka_unit_test(no_platform_or_device),

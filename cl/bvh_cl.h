@@ -106,9 +106,10 @@ typedef struct bvh_cl_desc {
                                   the lower of both (batches and frames are split to fit) */
     size_t local_size;         /* work-group size: 0 = 64 (frames: 8 x 8 work-items) */
     int frame_rays;            /* rays per work-item of bvh_cl_render_frame: 0 = by device (CPU:
-                                  8, GPU: 1); 8 = a 4 x 2 pixel packet whose box tests run as
-                                  float8 (what a CPU driver vectorises); 1 = one ray. Frames
-                                  that ask for visited counts always take one ray. Else refused */
+                                  16, GPU: 1); 16 or 8 = a packet of 4 x 4 or 4 x 2 pixels whose
+                                  setup and box tests run as float16 / float8 (what a CPU driver
+                                  vectorises); 1 = one ray. Frames that ask for visited counts
+                                  always take one ray. Anything else is refused */
     char *log;                 /* optional: on failure of bvh_cl_create, receives the compiler's
                                   log (BUILD_FAILED) or the failing call; NUL-terminated */
     size_t log_size;
@@ -160,8 +161,8 @@ BVH_CL_API bvh_cl_result bvh_cl_occluded(bvh_cl_tree *tree, const bvh_ray *rays,
    rgba     4 bytes per pixel: hits grey * (0.2 + 0.8 |dot(n, d)|) (headlight), misses a gradient
    hits     bvh_hit per pixel, equal to bvh_intersect of bvh_camera_ray(cam, x, y)
    visited  nodes visited per pixel, equal to bvh_intersect_counted (for heat maps)
-   On a CPU device (desc.frame_rays), frames without visited counts trace packets of 4 x 2 pixels
-   per work-item, box tests for the eight rays in float8 (PoCL: 1.2-1.6x the one-ray kernel). */
+   On a CPU device (desc.frame_rays), frames without visited counts trace packets of 4 x 4 pixels
+   per work-item, set up and box-tested as float16 (PoCL: 1.5-2.3x the one-ray kernel). */
 BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera *cam, uint8_t *rgba,
                                              bvh_hit *hits, uint32_t *visited);
 
@@ -279,6 +280,7 @@ typedef char bvh_cl__hit_is_16_bytes[sizeof(bvh_hit) == 16 ? 1 : -1];
 
 #define BVH_CL__PLATFORM_NOT_FOUND (-1001) /* CL_PLATFORM_NOT_FOUND_KHR of the ICD loader */
 #define BVH_CL__MAX_IDS 64
+#define BVH_CL__PACKET_DEFAULT 16 /* frame rays per work-item on CPU devices */
 #define BVH_CL__CHUNK ((size_t)1 << 20) /* rays or pixels per kernel launch at most */
 enum { BVH_CL__K_CLOSEST, BVH_CL__K_ANY, BVH_CL__K_FRAME, BVH_CL__K_FRAME8, BVH_CL__K_COUNT };
 enum { BVH_CL__S_IN, BVH_CL__S_OUT, BVH_CL__S_RGBA, BVH_CL__S_VISITED, BVH_CL__S_COUNT };
@@ -295,7 +297,7 @@ struct bvh_cl_context {
     cl_mem scratch[BVH_CL__S_COUNT]; /* grown on demand, reused across calls */
     size_t scratch_size[BVH_CL__S_COUNT];
     size_t local_size, max_alloc, max_items[3]; /* work-group size, buffer limit, per-dimension limits */
-    int frame_rays;                             /* 1 or 8 (desc.frame_rays resolved) */
+    int frame_rays;                             /* 1, 8 or 16 (desc.frame_rays resolved) */
     bvh_cl_device_info info;
     char *build_log;
     cl_int last_error;
@@ -507,10 +509,10 @@ static bvh_cl_result bvh_cl__build(bvh_cl_context *c, const bvh_cl_desc *desc) {
     clGetDeviceInfo(c->device, CL_DEVICE_SINGLE_FP_CONFIG, sizeof sp, &sp, NULL);
     opts = BVH_CL__CAST(char *, BVH_CL_MALLOC(strlen(extra) + 128));
     if (!opts) return BVH_CL_ERROR_OUT_OF_RESOURCES;
-    sprintf(opts, "%s%s-DBVH_MAX_DEPTH=%d %s",
+    sprintf(opts, "%s%s-DBVH_MAX_DEPTH=%d -DBVH_CL_PACKET=%d %s",
             strncmp(cver, "OpenCL C 1.0", 12) && strncmp(cver, "OpenCL C 1.1", 12) ? "-cl-std=CL1.2 " : "",
             (sp & CL_FP_CORRECTLY_ROUNDED_DIVIDE_SQRT) ? "-cl-fp32-correctly-rounded-divide-sqrt " : "",
-            (int)BVH_MAX_DEPTH, extra);
+            (int)BVH_MAX_DEPTH, c->frame_rays > 1 ? c->frame_rays : 8, extra);
     err = clBuildProgram(c->program, 1, &c->device, opts, NULL, NULL);
     BVH_CL_FREE(opts);
     c->build_log = bvh_cl__program_log(c);
@@ -574,7 +576,8 @@ BVH_CL_API bvh_cl_result bvh_cl_create(bvh_cl_context **out, const bvh_cl_desc *
     *out = NULL;
     if (!desc) { memset(&zero, 0, sizeof zero); desc = &zero; }
     if (desc->log && desc->log_size) desc->log[0] = '\0';
-    if (desc->frame_rays != 0 && desc->frame_rays != 1 && desc->frame_rays != 8) return BVH_CL_ERROR_INVALID_ARGUMENT;
+    if (desc->frame_rays != 0 && desc->frame_rays != 1 && desc->frame_rays != 8 && desc->frame_rays != 16)
+        return BVH_CL_ERROR_INVALID_ARGUMENT;
     c = BVH_CL__CAST(bvh_cl_context *, BVH_CL_MALLOC(sizeof *c));
     if (!c) return BVH_CL_ERROR_OUT_OF_RESOURCES;
     memset(c, 0, sizeof *c);
@@ -596,12 +599,12 @@ BVH_CL_API bvh_cl_result bvh_cl_create(bvh_cl_context **out, const bvh_cl_desc *
             r = bvh_cl__fail(c, err, "clCreateCommandQueue");
         }
     }
+    c->frame_rays = desc->frame_rays ? desc->frame_rays : c->info.is_gpu ? 1 : BVH_CL__PACKET_DEFAULT;
     if (r == BVH_CL_SUCCESS) r = bvh_cl__build(c, desc);
     if (r != BVH_CL_SUCCESS) { bvh_cl_destroy(c); return r; }
     if (desc->max_alloc && desc->max_alloc < c->info.max_alloc) c->info.max_alloc = desc->max_alloc;
     c->max_alloc = c->info.max_alloc > (uint64_t)(size_t)-1 ? (size_t)-1 : (size_t)c->info.max_alloc;
     bvh_cl__local_size(c, desc->local_size);
-    c->frame_rays = desc->frame_rays ? desc->frame_rays : c->info.is_gpu ? 1 : 8;
     *out = c;
     return BVH_CL_SUCCESS;
 }
@@ -770,7 +773,7 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *t, const bvh_camera *c
     int i, packets;
     if (!t || !cam) return BVH_CL_ERROR_INVALID_ARGUMENT;
     c = t->ctx;
-    packets = c->frame_rays == 8 && !visited;
+    packets = c->frame_rays > 1 && !visited ? c->frame_rays / 4 : 0; /* tile height */
     k = c->kernels[packets ? BVH_CL__K_FRAME8 : BVH_CL__K_FRAME];
     c->kernel_ms = 0.0;
     w = cam->width; h = cam->height;
@@ -805,9 +808,9 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *t, const bvh_camera *c
     local[0] = lx; local[1] = ly;
     for (y0 = 0; y0 < h; y0 += rows) {
         rows = h - y0 < band ? h - y0 : band;
-        /* packets: a work-item per 4 x 2 pixels */
+        /* packets: a work-item per 4 x `packets` pixels */
         global[0] = bvh_cl__round_up(packets ? (w + 3) / 4 : w, lx);
-        global[1] = bvh_cl__round_up(packets ? (rows + 1) / 2 : rows, ly);
+        global[1] = bvh_cl__round_up(packets ? (rows + packets - 1) / packets : rows, ly);
         err = clSetKernelArg(k, 8, sizeof(cl_uint), &y0);
         err |= clSetKernelArg(k, 9, sizeof(cl_uint), &rows);
         if (err != CL_SUCCESS) return bvh_cl__fail(c, CL_INVALID_KERNEL_ARGS, "clSetKernelArg");

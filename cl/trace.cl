@@ -372,31 +372,67 @@ __kernel void bvh_frame_kernel(__global const uint4 *nodes, uint node_count, __g
 }
 
 /* ============================================================================================ */
-/* == packets: eight rays per work-item (frames on CPU devices) ================================= */
+/* == packets: 8 or 16 rays per work-item (frames on CPU devices) =============================== */
 /* ============================================================================================ */
 /* A CPU OpenCL driver such as PoCL runs the one-ray kernels above as scalar code: its vectoriser
-   does not take their data-dependent loops across work-items. Here one work-item traces the 4 x 2
-   pixels of a tile together: every box test is done for the eight rays at once in float8 (one
-   vector instruction per step), the node is entered when any ray of the packet reaches it, and
+   does not take their data-dependent loops across work-items. Here one work-item traces the
+   4 x BVH_CL_PACKET_H pixels of a tile together (BVH_CL_PACKET = 4 BVH_CL_PACKET_H rays, 8 or
+   16, set by the host): the rays are set up and every box test is done for all of them at once
+   in vectors of that width (a vector instruction or two per step), the node is entered when any ray of the packet reaches it, and
    the triangles of a leaf are tested ray by ray with the scalar watertight test, for the rays
    that reach the leaf. The slab test is bvh_cl_slab's, step for step, so every ray gets exactly
    its one-ray hit (visiting a node more for some ray never changes a closest hit: the triangle
    test alone decides). The node counts of a heat map are the one-ray kernel's. */
+#ifndef BVH_CL_PACKET
+#define BVH_CL_PACKET 8
+#endif
+#if BVH_CL_PACKET == 16
+typedef float16 bvh_pkf;
+typedef int16 bvh_pki;
+typedef uint16 bvh_pku;
+#define BVH_PK_LOAD vload16
+#define BVH_PK_STORE vstore16
+#define BVH_PK_CONVERT convert_float16
+#define BVH_PK_ASU as_uint16
+#define BVH_PK_IOTA ((bvh_pki)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#define BVH_PK_OR(v) bvh_cl_or8((v).lo | (v).hi)
+#elif BVH_CL_PACKET == 8
+typedef float8 bvh_pkf;
+typedef int8 bvh_pki;
+typedef uint8 bvh_pku;
+#define BVH_PK_LOAD vload8
+#define BVH_PK_STORE vstore8
+#define BVH_PK_CONVERT convert_float8
+#define BVH_PK_ASU as_uint8
+#define BVH_PK_IOTA ((bvh_pki)(0, 1, 2, 3, 4, 5, 6, 7))
+#define BVH_PK_OR(v) bvh_cl_or8(v)
+#else
+#error "BVH_CL_PACKET must be 8 or 16"
+#endif
+#define BVH_CL_PACKET_H (BVH_CL_PACKET / 4)
+BVH_CL_FN uint bvh_cl_or8(int8 v) {
+    int4 a = v.lo | v.hi;
+    int2 b = a.lo | a.hi;
+    return (uint)(b.x | b.y);
+}
+/* the lanes of a mask (all bits or none per lane) as the bits of a uint */
+BVH_CL_FN uint bvh_cl_bits(bvh_pki m) { return BVH_PK_OR(m & ((bvh_pki)(1) << BVH_PK_IOTA)); }
+
 typedef struct bvh_cl_packet {
-    float8 ox, oy, oz, ix, iy, iz, tmin;
-    int8 nx, ny, nz; /* inv < 0 (all bits set): the near plane is the max plane */
-    int8 kz;         /* dominant axis, for the entry's widening */
+    bvh_pkf ox, oy, oz, ix, iy, iz, tmin;
+    bvh_pki nx, ny, nz; /* inv < 0 (all bits set): the near plane is the max plane */
+    bvh_pki kz;         /* dominant axis, for the entry's widening */
 } bvh_cl_packet;
 
-/* bvh_cl_slab for eight rays: entry distances, +inf where a ray does not enter before tfar. */
-BVH_CL_FN float8 bvh_cl_slab8(const bvh_cl_packet *p, float4 lo, float4 hi, float8 tfar) {
-    float8 a0x = (select((float8)lo.x, (float8)hi.x, p->nx) - p->ox) * p->ix;
-    float8 a1x = (select((float8)hi.x, (float8)lo.x, p->nx) - p->ox) * p->ix;
-    float8 a0y = (select((float8)lo.y, (float8)hi.y, p->ny) - p->oy) * p->iy;
-    float8 a1y = (select((float8)hi.y, (float8)lo.y, p->ny) - p->oy) * p->iy;
-    float8 a0z = (select((float8)lo.z, (float8)hi.z, p->nz) - p->oz) * p->iz;
-    float8 a1z = (select((float8)hi.z, (float8)lo.z, p->nz) - p->oz) * p->iz;
-    float8 tn = p->tmin, tf = (float8)(INFINITY), k0, k1;
+/* bvh_cl_slab for a packet's rays: entry distances, +inf where a ray does not enter before tfar. */
+BVH_CL_FN bvh_pkf bvh_cl_slab8(const bvh_cl_packet *p, float4 lo, float4 hi, bvh_pkf tfar) {
+    bvh_pkf a0x = (select((bvh_pkf)lo.x, (bvh_pkf)hi.x, p->nx) - p->ox) * p->ix;
+    bvh_pkf a1x = (select((bvh_pkf)hi.x, (bvh_pkf)lo.x, p->nx) - p->ox) * p->ix;
+    bvh_pkf a0y = (select((bvh_pkf)lo.y, (bvh_pkf)hi.y, p->ny) - p->oy) * p->iy;
+    bvh_pkf a1y = (select((bvh_pkf)hi.y, (bvh_pkf)lo.y, p->ny) - p->oy) * p->iy;
+    bvh_pkf a0z = (select((bvh_pkf)lo.z, (bvh_pkf)hi.z, p->nz) - p->oz) * p->iz;
+    bvh_pkf a1z = (select((bvh_pkf)hi.z, (bvh_pkf)lo.z, p->nz) - p->oz) * p->iz;
+    bvh_pkf tn = p->tmin, tf = (bvh_pkf)(INFINITY), k0, k1;
     tn = select(tn, a0x, a0x > tn); /* NaN (origin on the plane) leaves tn as it is */
     tf = select(tf, a1x, a1x < tf);
     tn = select(tn, a0y, a0y > tn);
@@ -404,11 +440,11 @@ BVH_CL_FN float8 bvh_cl_slab8(const bvh_cl_packet *p, float4 lo, float4 hi, floa
     tn = select(tn, a0z, a0z > tn);
     tf = select(tf, a1z, a1z < tf);
     tf *= 1.0000004f;
-    k0 = fabs(select(select(a0z, a0y, p->kz == (int8)(1)), a0x, p->kz == (int8)(0)));
-    k1 = fabs(select(select(a1z, a1y, p->kz == (int8)(1)), a1x, p->kz == (int8)(0)));
+    k0 = fabs(select(select(a0z, a0y, p->kz == (bvh_pki)(1)), a0x, p->kz == (bvh_pki)(0)));
+    k1 = fabs(select(select(a1z, a1y, p->kz == (bvh_pki)(1)), a1x, p->kz == (bvh_pki)(0)));
     tn -= select(k1, k0, k0 > k1) * 0x1p-18f;
     tf = select(tfar, tf, tf < tfar);
-    return select((float8)(INFINITY), tn, tn <= tf);
+    return select((bvh_pkf)(INFINITY), tn, tn <= tf);
 }
 
 /* Closest hits of the packet's rays; best[] holds each ray's tmax on entry (-inf: no ray, which
@@ -416,49 +452,51 @@ BVH_CL_FN float8 bvh_cl_slab8(const bvh_cl_packet *p, float4 lo, float4 hi, floa
 BVH_CL_FN void bvh_cl_traverse8(const bvh_cl_scene *s, const bvh_cl_packet *p, const bvh_cl_rayx *rx, float *best,
                                 float *u, float *v, uint *prim, uint *ref) {
     uint stack[BVH_CL_STACK];
-    float8 stack_t[BVH_CL_STACK]; /* entry distances of each pushed node */
-    float te_l[8];
+    bvh_pkf stack_t[BVH_CL_STACK]; /* entry distances of each pushed node */
     uint sp = 0;
-    float8 bt = vload8(0, best);
+    bvh_pkf bt = BVH_PK_LOAD(0, best);
     uint4 lo = s->nodes[0], hi = s->nodes[1];
-    float8 te = bvh_cl_slab8(p, as_float4(lo), as_float4(hi), bt);
-    if (!any(te != (float8)(INFINITY))) return;
+    bvh_pkf te = bvh_cl_slab8(p, as_float4(lo), as_float4(hi), bt);
+    if (!any(te != (bvh_pkf)(INFINITY))) return;
     for (;;) {
         int descended = 0;
         if (hi.w) {
             uint k, end = lo.w + hi.w, l;
+            /* the rays that reach the leaf, as bits; ray by ray, triangle by triangle */
+            uint m = bvh_cl_bits((te != (bvh_pkf)(INFINITY)) & (te <= bt));
             if (end > s->ref_count || end < lo.w) return;
-            vstore8(te, 0, te_l);
-            for (k = lo.w; k < end; k++) {
-                __global const float *tri = s->tris + 9 * (size_t)k;
-                for (l = 0; l < 8; l++) {
+            for (; m; m &= m - 1) {
+                const bvh_cl_rayx *r;
+                float bl;
+                l = 31 - clz(m & (0u - m));
+                r = &rx[l];
+                bl = best[l];
+                for (k = lo.w; k < end; k++) {
                     float t, tu, tv;
                     uint pr;
-                    if (!(te_l[l] != INFINITY && te_l[l] <= best[l])) continue;
-                    if (!bvh_cl_tri_test(&rx[l], tri, best[l], &t, &tu, &tv)) continue;
+                    if (!bvh_cl_tri_test(r, s->tris + 9 * (size_t)k, bl, &t, &tu, &tv)) continue;
                     pr = s->prims[k];
-                    if (t == best[l] && pr > prim[l]) continue; /* ties: lowest index */
-                    best[l] = t; u[l] = tu; v[l] = tv; prim[l] = pr; ref[l] = k;
+                    if (t == bl && pr > prim[l]) continue; /* ties: lowest index */
+                    bl = t; u[l] = tu; v[l] = tv; prim[l] = pr; ref[l] = k;
                 }
+                best[l] = bl;
             }
-            bt = vload8(0, best);
+            bt = BVH_PK_LOAD(0, best);
         } else {
             uint c = lo.w;
             uint4 lo0, hi0, lo1, hi1;
-            float8 t0, t1;
+            bvh_pkf t0, t1;
             int h0, h1;
             if (c >= s->node_count - 1) return;
             lo0 = s->nodes[2 * c]; hi0 = s->nodes[2 * c + 1];
             lo1 = s->nodes[2 * c + 2]; hi1 = s->nodes[2 * c + 3];
             t0 = bvh_cl_slab8(p, as_float4(lo0), as_float4(hi0), bt);
             t1 = bvh_cl_slab8(p, as_float4(lo1), as_float4(hi1), bt);
-            h0 = any(t0 != (float8)(INFINITY));
-            h1 = any(t1 != (float8)(INFINITY));
+            h0 = any(t0 != (bvh_pkf)(INFINITY));
+            h1 = any(t1 != (bvh_pkf)(INFINITY));
             if (h0 || h1) {
                 /* near child first: the one more of the packet's rays enter first */
-                int8 first1 = t1 < t0;
-                int n1 = -(first1.s0 + first1.s1 + first1.s2 + first1.s3 + first1.s4 + first1.s5 + first1.s6 + first1.s7);
-                int one = h1 && (!h0 || n1 > 4);
+                int one = h1 && (!h0 || 2 * popcount(bvh_cl_bits(t1 < t0)) > BVH_CL_PACKET);
                 if (one) { lo = lo1; hi = hi1; te = t1; } else { lo = lo0; hi = hi0; te = t0; }
                 if (h0 && h1) {
                     if (sp == BVH_CL_STACK) return; /* a tree deeper than the validator allows */
@@ -472,7 +510,7 @@ BVH_CL_FN void bvh_cl_traverse8(const bvh_cl_scene *s, const bvh_cl_packet *p, c
             for (;;) { /* pop the next node some ray still reaches before its best */
                 if (!sp) return;
                 --sp;
-                if (any((stack_t[sp] != (float8)(INFINITY)) & (stack_t[sp] <= bt))) {
+                if (any((stack_t[sp] != (bvh_pkf)(INFINITY)) & (stack_t[sp] <= bt))) {
                     lo = s->nodes[2 * stack[sp]]; hi = s->nodes[2 * stack[sp] + 1]; te = stack_t[sp];
                     break;
                 }
@@ -481,54 +519,54 @@ BVH_CL_FN void bvh_cl_traverse8(const bvh_cl_scene *s, const bvh_cl_packet *p, c
     }
 }
 
-/* bvh_cl_ray_setup for the eight camera rays of a packet at once (the same operations lane by
+/* bvh_cl_ray_setup for the camera rays of a packet at once (the same operations lane by
    lane, so the same bits), into the packet and the lanes' one-ray records for the triangle
    tests; a lane that is no ray (outside the image, or invalid) gets tmin = +inf and best = -inf,
    so that it enters no box. Vector divisions and square roots cost about what one scalar does. */
-BVH_CL_FN void bvh_cl_packet_setup(float3 o, float8 dx, float8 dy, float8 dz, int8 live, bvh_cl_packet *p,
+BVH_CL_FN void bvh_cl_packet_setup(float3 o, bvh_pkf dx, bvh_pkf dy, bvh_pkf dz, bvh_pki live, bvh_cl_packet *p,
                                    bvh_cl_rayx *rx, float *best) {
-    float8 ax, ay, az, dkx, dky, dkz, sx, sy, sz, okx, oky, okz, inf = (float8)(INFINITY);
-    int8 kx, ky, kz, sw, ok, t;
-    float a[9][8];
-    int m[6][8];
+    bvh_pkf ax, ay, az, dkx, dky, dkz, sx, sy, sz, okx, oky, okz, inf = (bvh_pkf)(INFINITY);
+    bvh_pki kx, ky, kz, sw, ok, t;
+    float a[9][BVH_CL_PACKET];
+    int m[6][BVH_CL_PACKET];
     uint l;
     ok = live & isfinite(dx) & isfinite(dy) & isfinite(dz);
-    if (!(isfinite(o.x) && isfinite(o.y) && isfinite(o.z))) ok = (int8)(0);
-    dx = select(dx, (float8)(0.0f), fabs(dx) < (float8)(FLT_MIN));
-    dy = select(dy, (float8)(0.0f), fabs(dy) < (float8)(FLT_MIN));
-    dz = select(dz, (float8)(0.0f), fabs(dz) < (float8)(FLT_MIN));
-    ok &= (dx != (float8)(0.0f)) | (dy != (float8)(0.0f)) | (dz != (float8)(0.0f));
-    p->ox = (float8)(o.x); p->oy = (float8)(o.y); p->oz = (float8)(o.z);
-    p->ix = select((float8)(1.0f) / dx, inf, dx == (float8)(0.0f));
-    p->iy = select((float8)(1.0f) / dy, inf, dy == (float8)(0.0f));
-    p->iz = select((float8)(1.0f) / dz, inf, dz == (float8)(0.0f));
-    p->nx = p->ix < (float8)(0.0f); p->ny = p->iy < (float8)(0.0f); p->nz = p->iz < (float8)(0.0f);
+    if (!(isfinite(o.x) && isfinite(o.y) && isfinite(o.z))) ok = (bvh_pki)(0);
+    dx = select(dx, (bvh_pkf)(0.0f), fabs(dx) < (bvh_pkf)(FLT_MIN));
+    dy = select(dy, (bvh_pkf)(0.0f), fabs(dy) < (bvh_pkf)(FLT_MIN));
+    dz = select(dz, (bvh_pkf)(0.0f), fabs(dz) < (bvh_pkf)(FLT_MIN));
+    ok &= (dx != (bvh_pkf)(0.0f)) | (dy != (bvh_pkf)(0.0f)) | (dz != (bvh_pkf)(0.0f));
+    p->ox = (bvh_pkf)(o.x); p->oy = (bvh_pkf)(o.y); p->oz = (bvh_pkf)(o.z);
+    p->ix = select((bvh_pkf)(1.0f) / dx, inf, dx == (bvh_pkf)(0.0f));
+    p->iy = select((bvh_pkf)(1.0f) / dy, inf, dy == (bvh_pkf)(0.0f));
+    p->iz = select((bvh_pkf)(1.0f) / dz, inf, dz == (bvh_pkf)(0.0f));
+    p->nx = p->ix < (bvh_pkf)(0.0f); p->ny = p->iy < (bvh_pkf)(0.0f); p->nz = p->iz < (bvh_pkf)(0.0f);
     ax = fabs(dx); ay = fabs(dy); az = fabs(dz);
-    kz = select(select((int8)(2), (int8)(1), ay > az), select((int8)(2), (int8)(0), ax > az), ax > ay);
-    kx = select(kz + 1, (int8)(0), kz == (int8)(2));
-    ky = select(kx + 1, (int8)(0), kx == (int8)(2));
-    dkz = select(select(dz, dy, kz == (int8)(1)), dx, kz == (int8)(0));
-    sw = dkz < (float8)(0.0f);
+    kz = select(select((bvh_pki)(2), (bvh_pki)(1), ay > az), select((bvh_pki)(2), (bvh_pki)(0), ax > az), ax > ay);
+    kx = select(kz + 1, (bvh_pki)(0), kz == (bvh_pki)(2));
+    ky = select(kx + 1, (bvh_pki)(0), kx == (bvh_pki)(2));
+    dkz = select(select(dz, dy, kz == (bvh_pki)(1)), dx, kz == (bvh_pki)(0));
+    sw = dkz < (bvh_pkf)(0.0f);
     t = kx; kx = select(kx, ky, sw); ky = select(ky, t, sw);
-    dkx = select(select(dz, dy, kx == (int8)(1)), dx, kx == (int8)(0));
-    dky = select(select(dz, dy, ky == (int8)(1)), dx, ky == (int8)(0));
-    sx = dkx / dkz; sy = dky / dkz; sz = (float8)(1.0f) / dkz;
-    okx = select(select(p->oz, p->oy, kx == (int8)(1)), p->ox, kx == (int8)(0));
-    oky = select(select(p->oz, p->oy, ky == (int8)(1)), p->ox, ky == (int8)(0));
-    okz = select(select(p->oz, p->oy, kz == (int8)(1)), p->ox, kz == (int8)(0));
+    dkx = select(select(dz, dy, kx == (bvh_pki)(1)), dx, kx == (bvh_pki)(0));
+    dky = select(select(dz, dy, ky == (bvh_pki)(1)), dx, ky == (bvh_pki)(0));
+    sx = dkx / dkz; sy = dky / dkz; sz = (bvh_pkf)(1.0f) / dkz;
+    okx = select(select(p->oz, p->oy, kx == (bvh_pki)(1)), p->ox, kx == (bvh_pki)(0));
+    oky = select(select(p->oz, p->oy, ky == (bvh_pki)(1)), p->ox, ky == (bvh_pki)(0));
+    okz = select(select(p->oz, p->oy, kz == (bvh_pki)(1)), p->ox, kz == (bvh_pki)(0));
     /* lanes that are no ray: finite stand-ins that enter no box */
-    p->ix = select((float8)(1.0f), p->ix, ok); p->iy = select((float8)(1.0f), p->iy, ok);
-    p->iz = select((float8)(1.0f), p->iz, ok);
+    p->ix = select((bvh_pkf)(1.0f), p->ix, ok); p->iy = select((bvh_pkf)(1.0f), p->iy, ok);
+    p->iz = select((bvh_pkf)(1.0f), p->iz, ok);
     p->nx &= ok; p->ny &= ok; p->nz &= ok;
-    p->tmin = select(inf, (float8)(0.0f), ok);
-    p->kz = select((int8)(0), kz, ok);
-    vstore8(p->ix, 0, a[0]); vstore8(p->iy, 0, a[1]); vstore8(p->iz, 0, a[2]);
-    vstore8(sx, 0, a[3]); vstore8(sy, 0, a[4]); vstore8(sz, 0, a[5]);
-    vstore8(okx, 0, a[6]); vstore8(oky, 0, a[7]); vstore8(okz, 0, a[8]);
-    vstore8(kx, 0, m[0]); vstore8(ky, 0, m[1]); vstore8(kz, 0, m[2]);
-    vstore8(p->nx, 0, m[3]); vstore8(p->ny, 0, m[4]); vstore8(p->nz, 0, m[5]);
-    vstore8(select(-inf, inf, ok), 0, best);
-    for (l = 0; l < 8; l++) {
+    p->tmin = select(inf, (bvh_pkf)(0.0f), ok);
+    p->kz = select((bvh_pki)(0), kz, ok);
+    BVH_PK_STORE(p->ix, 0, a[0]); BVH_PK_STORE(p->iy, 0, a[1]); BVH_PK_STORE(p->iz, 0, a[2]);
+    BVH_PK_STORE(sx, 0, a[3]); BVH_PK_STORE(sy, 0, a[4]); BVH_PK_STORE(sz, 0, a[5]);
+    BVH_PK_STORE(okx, 0, a[6]); BVH_PK_STORE(oky, 0, a[7]); BVH_PK_STORE(okz, 0, a[8]);
+    BVH_PK_STORE(kx, 0, m[0]); BVH_PK_STORE(ky, 0, m[1]); BVH_PK_STORE(kz, 0, m[2]);
+    BVH_PK_STORE(p->nx, 0, m[3]); BVH_PK_STORE(p->ny, 0, m[4]); BVH_PK_STORE(p->nz, 0, m[5]);
+    BVH_PK_STORE(select(-inf, inf, ok), 0, best);
+    for (l = 0; l < BVH_CL_PACKET; l++) {
         rx[l].o = o;
         rx[l].inv = (float3)(a[0][l], a[1][l], a[2][l]);
         rx[l].neg = (int3)(m[3][l], m[4][l], m[5][l]);
@@ -539,43 +577,45 @@ BVH_CL_FN void bvh_cl_packet_setup(float3 o, float8 dx, float8 dy, float8 dz, in
     }
 }
 
-/* bvh_frame_kernel with a 4 x 2 pixel tile per work-item: work-item (gx, gy) traces pixels
-   x = 4 gx .. 4 gx + 3 of rows 2 gy, 2 gy + 1 of the band; the same outputs but no visited. */
+/* bvh_frame_kernel with a 4 x BVH_CL_PACKET_H pixel tile per work-item: work-item (gx, gy) traces
+   pixels x = 4 gx .. 4 gx + 3 of rows BVH_CL_PACKET_H gy .. of the band; the same outputs as
+   bvh_frame_kernel but no visited counts. */
 __kernel void bvh_frame_packet_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,
                                       __global const uint *prims, uint ref_count, float16 cam, uint width,
                                       uint height, uint y0, uint rows, __global uchar *rgba, __global uint4 *hits) {
     uint gx = (uint)get_global_id(0), gy = (uint)get_global_id(1), l;
     bvh_cl_scene s;
-    bvh_cl_rayx rx[8];
+    bvh_cl_rayx rx[BVH_CL_PACKET];
     bvh_cl_packet p;
-    float best[8], u[8], v[8], dxl[8], dyl[8], dzl[8], syl[8];
-    uint prim[8], ref[8];
-    int livel[8];
-    uint8 x8, row8;
-    float8 sx, sy, dx, dy, dz, ln;
-    int8 live;
-    if (4 * gx >= width || 2 * gy >= rows) return;
+    float best[BVH_CL_PACKET], u[BVH_CL_PACKET], v[BVH_CL_PACKET], dxl[BVH_CL_PACKET], dyl[BVH_CL_PACKET];
+    float dzl[BVH_CL_PACKET], syl[BVH_CL_PACKET];
+    uint prim[BVH_CL_PACKET], ref[BVH_CL_PACKET];
+    int livel[BVH_CL_PACKET];
+    bvh_pku x8, row8;
+    bvh_pkf sx, sy, dx, dy, dz, ln;
+    bvh_pki live;
+    if (4 * gx >= width || BVH_CL_PACKET_H * gy >= rows) return;
     s.nodes = nodes; s.tris = tris; s.prims = prims; s.node_count = node_count; s.ref_count = ref_count;
-    x8 = (uint8)(4 * gx) + (uint8)(0, 1, 2, 3, 0, 1, 2, 3);
-    row8 = (uint8)(2 * gy) + (uint8)(0, 0, 0, 0, 1, 1, 1, 1);
-    live = (x8 < (uint8)(width)) & (row8 < (uint8)(rows));
+    x8 = (bvh_pku)(4 * gx) + BVH_PK_ASU(BVH_PK_IOTA & (bvh_pki)(3));
+    row8 = (bvh_pku)(BVH_CL_PACKET_H * gy) + BVH_PK_ASU(BVH_PK_IOTA >> (bvh_pki)(2));
+    live = (x8 < (bvh_pku)(width)) & (row8 < (bvh_pku)(rows));
     /* bvh_camera_ray, as in bvh_frame_kernel */
-    sx = 2.0f * (convert_float8(x8) + 0.5f) / (float)width - 1.0f;
-    sy = 1.0f - 2.0f * (convert_float8(row8 + (uint8)(y0)) + 0.5f) / (float)height;
-    dx = (float8)(cam.s3) + sx * cam.s6 + sy * cam.s9;
-    dy = (float8)(cam.s4) + sx * cam.s7 + sy * cam.sa;
-    dz = (float8)(cam.s5) + sx * cam.s8 + sy * cam.sb;
+    sx = 2.0f * (BVH_PK_CONVERT(x8) + 0.5f) / (float)width - 1.0f;
+    sy = 1.0f - 2.0f * (BVH_PK_CONVERT(row8 + (bvh_pku)(y0)) + 0.5f) / (float)height;
+    dx = (bvh_pkf)(cam.s3) + sx * cam.s6 + sy * cam.s9;
+    dy = (bvh_pkf)(cam.s4) + sx * cam.s7 + sy * cam.sa;
+    dz = (bvh_pkf)(cam.s5) + sx * cam.s8 + sy * cam.sb;
     ln = sqrt(dx * dx + dy * dy + dz * dz);
-    dx = select(dx, dx / ln, ln > (float8)(0.0f));
-    dy = select(dy, dy / ln, ln > (float8)(0.0f));
-    dz = select(dz, dz / ln, ln > (float8)(0.0f));
-    vstore8(dx, 0, dxl); vstore8(dy, 0, dyl); vstore8(dz, 0, dzl); vstore8(sy, 0, syl);
-    vstore8(live, 0, livel);
+    dx = select(dx, dx / ln, ln > (bvh_pkf)(0.0f));
+    dy = select(dy, dy / ln, ln > (bvh_pkf)(0.0f));
+    dz = select(dz, dz / ln, ln > (bvh_pkf)(0.0f));
+    BVH_PK_STORE(dx, 0, dxl); BVH_PK_STORE(dy, 0, dyl); BVH_PK_STORE(dz, 0, dzl); BVH_PK_STORE(sy, 0, syl);
+    BVH_PK_STORE(live, 0, livel);
     bvh_cl_packet_setup(cam.s012, dx, dy, dz, live, &p, rx, best);
-    for (l = 0; l < 8; l++) { u[l] = v[l] = 0.0f; prim[l] = BVH_CL_INVALID; ref[l] = 0; }
+    for (l = 0; l < BVH_CL_PACKET; l++) { u[l] = v[l] = 0.0f; prim[l] = BVH_CL_INVALID; ref[l] = 0; }
     if (node_count) bvh_cl_traverse8(&s, &p, rx, best, u, v, prim, ref);
-    for (l = 0; l < 8; l++) {
-        uint x = 4 * gx + (l & 3), row = 2 * gy + (l >> 2);
+    for (l = 0; l < BVH_CL_PACKET; l++) {
+        uint x = 4 * gx + (l & 3), row = BVH_CL_PACKET_H * gy + (l >> 2);
         size_t pix = (size_t)row * width + x;
         float3 c, d = (float3)(dxl[l], dyl[l], dzl[l]);
         if (!livel[l]) continue;

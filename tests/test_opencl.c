@@ -351,7 +351,7 @@ static void frame_equals_cpu(void **state) {
         assert_int_equal(bvh_cl_upload(g_cl, &t, &g), BVH_CL_SUCCESS);
         assert_int_equal(bvh_cl_render_frame(g, &cam, rgba, hits, vis), BVH_CL_SUCCESS);
         bad += oc_frame_check(&s, (bvh_builder)b, &t, &cam, rgba, hits, vis);
-        /* without visited counts a CPU device takes the packet kernel: the same pixels and hits */
+        /* without visited counts a CPU device takes packets of 4 x 4: the same pixels and hits */
         assert_int_equal(bvh_cl_render_frame(g, &cam, rgba2, hits2, NULL), BVH_CL_SUCCESS);
         assert_memory_equal(hits2, hits, sizeof(bvh_hit) * w * h);
         assert_memory_equal(rgba2, rgba, 4 * (size_t)w * h);
@@ -425,11 +425,12 @@ static void small_allocations_split_work(void **state) {
     bvh_free(&t); free(s.v); free(fa); free(fb); free(ra); free(rb); free(va); free(vb);
 }
 
-/* desc.frame_rays: 1 (a ray per work-item) and 8 (4 x 2 pixel packets) give the same frames on
-   every builder's tree of a scene; anything else is refused. */
+/* desc.frame_rays: 1 (a ray per work-item), 8 and 16 (4 x 2 and 4 x 4 pixel packets) give the
+   same frames on every builder's tree of a scene, equal to the CPU's hits; anything else is
+   refused. */
 static void frame_rays_option(void **state) {
     static const uint32_t w = 37, h = 23; /* tiles cut at the right and the bottom */
-    bvh_cl_context *c1 = NULL, *c8 = NULL, *bad = NULL;
+    bvh_cl_context *c1 = NULL, *c8 = NULL, *c16 = NULL, *bad = NULL;
     bvh_cl_desc d;
     oc_scene s;
     int b;
@@ -446,9 +447,11 @@ static void frame_rays_option(void **state) {
     assert_int_equal(bvh_cl_create(&c1, &d), BVH_CL_SUCCESS);
     d.frame_rays = 8;
     assert_int_equal(bvh_cl_create(&c8, &d), BVH_CL_SUCCESS);
+    d.frame_rays = 16;
+    assert_int_equal(bvh_cl_create(&c16, &d), BVH_CL_SUCCESS);
     for (b = BVH_BUILDER_TOP_DOWN; b <= BVH_BUILDER_PLOC_PARALLEL; b++) {
         bvh_tree t;
-        bvh_cl_tree *g1 = NULL, *g8 = NULL;
+        bvh_cl_tree *g1 = NULL, *g8 = NULL, *g16 = NULL;
         bvh_camera cam;
         size_t i, nhit = 0;
         assert_int_equal(oc_build(&s, (bvh_builder)b, &t), BVH_SUCCESS);
@@ -459,6 +462,11 @@ static void frame_rays_option(void **state) {
         assert_int_equal(bvh_cl_render_frame(g8, &cam, r8, h8, NULL), BVH_CL_SUCCESS);
         assert_memory_equal(h1, h8, sizeof(bvh_hit) * w * h);
         assert_memory_equal(r1, r8, 4 * w * h);
+        assert_int_equal(bvh_cl_upload(c16, &t, &g16), BVH_CL_SUCCESS);
+        memset(h8, 0, sizeof(bvh_hit) * w * h); memset(r8, 0, 4 * w * h);
+        assert_int_equal(bvh_cl_render_frame(g16, &cam, r8, h8, NULL), BVH_CL_SUCCESS);
+        assert_memory_equal(h1, h8, sizeof(bvh_hit) * w * h);
+        assert_memory_equal(r1, r8, 4 * w * h);
         for (i = 0; i < (size_t)w * h; i++) {
             bvh_ray ray = bvh_camera_ray(&cam, (uint32_t)(i % w), (uint32_t)(i / w));
             bvh_hit cpu;
@@ -467,10 +475,10 @@ static void frame_rays_option(void **state) {
             if (!oc_hit_equal(&ray, &cpu, &h8[i])) fail_msg("builder %d pixel %zu: packet hit differs from the CPU", b, i);
         }
         assert_true(nhit > 0);
-        bvh_cl_tree_free(g1); bvh_cl_tree_free(g8);
+        bvh_cl_tree_free(g1); bvh_cl_tree_free(g8); bvh_cl_tree_free(g16);
         bvh_free(&t);
     }
-    bvh_cl_destroy(c1); bvh_cl_destroy(c8);
+    bvh_cl_destroy(c1); bvh_cl_destroy(c8); bvh_cl_destroy(c16);
     free(r1); free(r8); free(h1); free(h8); free(s.v);
 }
 

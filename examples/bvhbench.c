@@ -72,6 +72,7 @@ typedef struct options {
     uint32_t threads;  /* as given, 0 = all cores */
     uint32_t nthreads; /* resolved */
     uint32_t repeat, width, height, brute_max, trace_width, ploc_top, max_bytes;
+    uint32_t paired;   /* rounds of interleaved builds against Embree medium (0: none) */
     int trace_cpu, trace_cl, trace_auto;
     const char *md, *json, *plots, *argv0;
     int quiet, strict;
@@ -92,6 +93,8 @@ typedef struct row {
     double ms_1t, mrays_1t, ms_mt, mrays_mt, ms_cl, mrays_cl, cl_kernel_ms;
     double frame_ms, fps, hits, t_sum;
     double x_build, x_sah, x_mrays;           /* ours / Embree medium */
+    double x_pair, x_pair_min, x_pair_max;    /* build time / Embree medium's in paired rounds:
+                                                 median, min, max of the rounds' ratios */
     double emb_bvh_ms, emb_prim_diff;         /* Embree: rtcBuildBVH time; pixels whose triangle
                                                  differs from bvh.h's */
     const char *frame_tracer;
@@ -157,6 +160,7 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->ms_1t = r->mrays_1t = r->ms_mt = r->mrays_mt = r->ms_cl = r->mrays_cl = r->cl_kernel_ms = NAN;
     r->frame_ms = r->fps = r->hits = r->t_sum = NAN;
     r->x_build = r->x_sah = r->x_mrays = r->emb_bvh_ms = r->emb_prim_diff = NAN;
+    r->x_pair = r->x_pair_min = r->x_pair_max = NAN;
     r->frame_tracer = NULL;
 }
 
@@ -449,21 +453,25 @@ thread_fail:
    through the counting allocator for the peak memory; the timed ones use the library's default
    allocator, as a user's would (no atomic counting in the timings, and on Linux the library's
    huge-page advice, which it gives only to its default allocator's blocks). */
+static void bench_desc(const run_ctx *c, bvh_builder builder, bvh_build_desc *desc) {
+    const options *o = c->o;
+    memset(desc, 0, sizeof *desc);
+    desc->builder = builder;
+    desc->threads = o->threads;
+    desc->trace_width = o->trace_width;
+    desc->ploc_top = o->ploc_top;
+    desc->max_bytes_per_prim = o->max_bytes;
+    desc->skip_invalid = 1;
+    desc->triangles.positions = c->s->v;
+    desc->triangles.vertex_count = 3 * c->s->triangles;
+    desc->triangles.triangle_count = c->s->triangles;
+}
 static int build_repeated(run_ctx *c, row *r, bvh_tree *tree) {
     const options *o = c->o;
     bvh_build_desc desc;
     double ms[BENCH_MAX_REPEAT], peak = 0.0;
     uint32_t rep, i;
-    memset(&desc, 0, sizeof desc);
-    desc.builder = r->builder;
-    desc.threads = o->threads;
-    desc.trace_width = o->trace_width;
-    desc.ploc_top = o->ploc_top;
-    desc.max_bytes_per_prim = o->max_bytes;
-    desc.skip_invalid = 1;
-    desc.triangles.positions = c->s->v;
-    desc.triangles.vertex_count = 3 * c->s->triangles;
-    desc.triangles.triangle_count = c->s->triangles;
+    bench_desc(c, r->builder, &desc);
     for (rep = 0; rep <= o->repeat; rep++) {
         double t0;
         size_t live;
@@ -732,6 +740,70 @@ static void run_embree(run_ctx *c, row *r) {
     r->max_depth = sah.max_depth; r->max_leaf = sah.max_leaf_size; r->emb_bvh_ms = sah.build.ms;
 }
 
+/* Paired rounds (--paired N): on a shared machine a builder's five builds and Embree's five
+   later ones can fall into different moments of noise, and their medians' ratio with them. Here
+   each round builds once with every bvh.h builder of the table and once with Embree medium, one
+   after the other, and the ratio is taken within the round; the median over N rounds (after one
+   warm-up round) is reported beside the table's ratio. */
+static void run_paired(run_ctx *c, bench_scene *out) {
+    const options *o = c->o;
+    emb_builder *eb = NULL;
+    char msg[160];
+    double *ratio = NULL, ems = 0.0;
+    int i, nb = 0, have_medium = 0;
+    uint32_t k;
+    for (i = 0; i < out->nrows; i++) {
+        const row *r = &out->rows[i];
+        if (r->kind == ROW_EMBREE && r->quality == EMB_QUALITY_MEDIUM && r->state == ROW_OK) have_medium = 1;
+        if (r->kind == ROW_BVH && r->state == ROW_OK) nb++;
+    }
+    if (!o->paired || !have_medium || !nb) return;
+    if (emb_builder_open(&eb, EMB_QUALITY_MEDIUM, o->threads, msg) != EMB_OK) {
+        say("%s: paired rounds: %s", out->name, msg);
+        return;
+    }
+    ratio = (double *)malloc((size_t)out->nrows * o->paired * sizeof *ratio);
+    if (!ratio) { emb_builder_close(eb); say("%s: paired rounds: out of memory", out->name); return; }
+    for (k = 0; k <= o->paired; k++) { /* round 0: warm-up */
+        double ms[BENCH_MAX_ROWS];
+        for (i = 0; i < out->nrows; i++) {
+            row *r = &out->rows[i];
+            bvh_build_desc desc;
+            bvh_tree t;
+            double t0;
+            if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
+            progress("%s: paired round %u/%u%s, %s", out->name, k, o->paired, k ? "" : " (warm-up)", r->name);
+            bench_desc(c, r->builder, &desc);
+            t0 = scene_now_ms();
+            if (bvh_build(&t, &desc) != BVH_SUCCESS) { say("%s: paired rounds: %s failed", out->name, r->name); goto done; }
+            ms[i] = scene_now_ms() - t0;
+            bvh_free(&t);
+        }
+        progress("%s: paired round %u/%u%s, embree-medium", out->name, k, o->paired, k ? "" : " (warm-up)");
+        if (emb_builder_time(eb, c->s->v, c->s->triangles, &ems) != EMB_OK || !(ems > 0.0)) {
+            say("%s: paired rounds: Embree build failed", out->name);
+            goto done;
+        }
+        for (i = 0; k && i < out->nrows; i++)
+            if (out->rows[i].kind == ROW_BVH && out->rows[i].state == ROW_OK)
+                ratio[(size_t)i * o->paired + k - 1] = ms[i] / ems;
+    }
+    for (i = 0; i < out->nrows; i++) {
+        row *r = &out->rows[i];
+        double *x = ratio + (size_t)i * o->paired;
+        if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
+        r->x_pair_min = r->x_pair_max = x[0];
+        for (k = 1; k < o->paired; k++) {
+            if (x[k] < r->x_pair_min) r->x_pair_min = x[k];
+            if (x[k] > r->x_pair_max) r->x_pair_max = x[k];
+        }
+        r->x_pair = scene_median(x, o->paired);
+    }
+done:
+    free(ratio);
+    emb_builder_close(eb);
+}
+
 /* ours / Embree medium */
 static void ratios(bench_scene *s) {
     const row *m = NULL;
@@ -807,6 +879,7 @@ static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene
         }
     }
     ratios(out);
+    run_paired(&c, out);
 done:
     progress_end();
     free(c.ids);
@@ -926,6 +999,19 @@ static void head_text(int col, const options *o, int md, char *b, size_t n) {
 }
 
 /* ---- the text table ------------------------------------------------------------------------ */
+/* The paired rounds' build ratios, one line per builder (none without --paired). */
+static void paired_lines(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
+    int i, any = 0;
+    for (i = 0; i < s->nrows; i++) {
+        const row *r = &s->rows[i];
+        if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(r->x_pair)) continue;
+        if (!any++)
+            fprintf(f, "%sbuild / embree-medium in %u paired rounds (one build each, interleaved): median (min-max)\n",
+                    prefix, o->paired);
+        fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, r->x_pair, r->x_pair_min, r->x_pair_max);
+    }
+}
+
 static void print_block(FILE *f, const options *o, const bench_scene *s) {
     char b[220];
     int col, i;
@@ -954,6 +1040,7 @@ static void print_block(FILE *f, const options *o, const bench_scene *s) {
     for (i = 0; i < s->nrows; i++)
         if (s->rows[i].disagree) fprintf(f, "(!) HITS DISAGREE: %s\n", s->rows[i].disagree_msg);
         else if (s->rows[i].refereed) fprintf(f, "(e) %s\n", s->rows[i].referee_msg);
+    paired_lines(f, o, s, "");
 }
 
 /* ---- Markdown --------------------------------------------------------------------------------- */
@@ -994,6 +1081,12 @@ static void md_block(FILE *f, const options *o, const bench_scene *s) {
         else if (r->refereed) fprintf(f, "\n(e) %s\n", r->referee_msg);
         if (r->state != ROW_OK) fprintf(f, "\n%s: %s\n", r->name, r->note);
     }
+    for (i = 0; i < s->nrows; i++)
+        if (s->rows[i].kind == ROW_BVH && !isnan(s->rows[i].x_pair)) {
+            fputc('\n', f);
+            paired_lines(f, o, s, "");
+            break;
+        }
 }
 
 /* ---- the top lines ------------------------------------------------------------------------------ */
@@ -1129,6 +1222,9 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         if (r->frame_tracer) json_str(f, r->frame_tracer);
         else fputs("null", f);
         json_num(f, "ratio_build", r->x_build, 4);
+        json_num(f, "ratio_build_paired", r->x_pair, 4);
+        json_num(f, "ratio_build_paired_min", r->x_pair_min, 4);
+        json_num(f, "ratio_build_paired_max", r->x_pair_max, 4);
         json_num(f, "ratio_sah", r->x_sah, 4);
         json_num(f, "ratio_mrays", r->x_mrays, 4);
         if (r->kind == ROW_EMBREE) {
@@ -1319,6 +1415,9 @@ static void usage(FILE *f) {
             "  --trace-width W  4: builds add the 4-wide copy CPU tracing uses (default); 2: binary only\n"
             "  --ploc-top N     ploc builders: binned-SAH top over the last n/N clusters, kept where\n"
             "                   cheaper (0 = the library's default, 8); 'off': PLOC alone, as the study\n"
+            "  --paired N       after the table, N rounds each building once with every builder and\n"
+            "                   once with Embree medium, interleaved; median of the rounds' build\n"
+            "                   ratios (robust to a shared machine's slow moments; default 0: none)\n"
             "  --max-bytes N    ploc builders: tree (nodes + indices) at most N bytes per triangle, by\n"
             "                   bigger leaves where needed (0 = the library's default, 40); 'off': the SAH alone\n"
             "  --trace MODE     cpu, opencl, both or none (default: both when OpenCL works, else cpu)\n"
@@ -1426,6 +1525,11 @@ static int parse_args(int argc, char **argv, options *o) {
             if (v && !strcmp(v, "off")) o->ploc_top = BVH_PLOC_TOP_OFF;
             else if (parse_u32(v, 0, 1u << 30, &o->ploc_top, NULL)) {
                 fprintf(stderr, "bvhbench: --ploc-top wants a divisor (0 = default) or off, not '%s'\n", v ? v : "");
+                return 2;
+            }
+        } else if (!strcmp(a, "--paired")) {
+            if (parse_u32(v, 0, 1000, &o->paired, NULL)) {
+                fprintf(stderr, "bvhbench: --paired wants 0 to 1000 rounds, not '%s'\n", v ? v : "");
                 return 2;
             }
         } else if (!strcmp(a, "--max-bytes")) {

@@ -9,6 +9,9 @@
                         bvh_camera_ray per pixel centre: bit-identical rays to bvh.h's) traced
                         with rtcIntersect1 on 1 thread and on T pthreads (rows interleaved):
                         hits, t_sum, Mrays/s.
+       emb_builder_*    one timed scene build at a time on a device kept open, so that a
+                        benchmark can interleave Embree's builds with its own (paired rounds
+                        on a shared machine: both see the same moments of noise).
        emb_bvh_sah      Embree's BVH builder API (rtcBuildBVH) making a binary tree of our own
                         nodes over the triangle boxes, with maxBranchingFactor 2, maxDepth 64,
                         sahBlockSize 1, minLeafSize 1, maxLeafSize 8 (a parameter), traversal
@@ -147,6 +150,14 @@ EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *de
                             emb_scene_result *out);
 EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *desc, emb_sah_result *out);
 
+/* A device for single timed scene builds (as emb_scene_bench's, robust flag set): open once,
+   then emb_builder_time builds, times and releases one scene per call (*ms as emb_scene_bench's
+   build time). message: at least 160 bytes, or NULL. */
+typedef struct emb_builder emb_builder;
+EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, char *message);
+EMB_API int emb_builder_time(emb_builder *b, const float *v, uint32_t n, double *ms);
+EMB_API void emb_builder_close(emb_builder *b);
+
 #ifdef __cplusplus
 }
 #endif
@@ -207,6 +218,18 @@ EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *d, emb_s
     if (o) { memset(o, 0, sizeof *o); emb__msg(o->message, "Embree not installed"); }
     return EMB_ERR_UNAVAILABLE;
 }
+EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, char *message) {
+    (void)quality; (void)threads;
+    if (out) *out = NULL;
+    if (message) emb__msg(message, "Embree not installed");
+    return EMB_ERR_UNAVAILABLE;
+}
+EMB_API int emb_builder_time(emb_builder *b, const float *v, uint32_t n, double *ms) {
+    (void)b; (void)v; (void)n;
+    if (ms) *ms = 0.0;
+    return EMB_ERR_UNAVAILABLE;
+}
+EMB_API void emb_builder_close(emb_builder *b) { (void)b; }
 #else
 /* ---- Embree ------------------------------------------------------------------------------- */
 #include <embree3/rtcore.h>
@@ -444,6 +467,57 @@ static int emb__trace(RTCScene scene, const bvh_ray *rays, uint32_t w, uint32_t 
         free(tid);
         return st;
     }
+}
+
+/* ---- single timed builds (emb_builder) ---------------------------------------------------- */
+struct emb_builder {
+    RTCDevice dev;
+    enum RTCBuildQuality bq;
+    emb__err err;
+    char message[160]; /* the last error */
+};
+EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, char *message) {
+    emb_builder *b;
+    if (!out) return EMB_ERR_ARGUMENT;
+    *out = NULL;
+    if ((int)quality < 0 || quality >= EMB_QUALITY_COUNT) return EMB_ERR_ARGUMENT;
+    b = (emb_builder *)calloc(1, sizeof *b);
+    if (!b) { if (message) emb__msg(message, "out of memory"); return EMB_ERR_MEMORY; }
+    b->err.message = b->message;
+    b->err.failed = 0;
+    pthread_mutex_init(&b->err.lock, NULL);
+    b->bq = emb__rtc_quality(quality);
+    b->dev = emb__device(threads, &b->err);
+    if (!b->dev) {
+        if (message) emb__msg(message, b->message);
+        pthread_mutex_destroy(&b->err.lock);
+        free(b);
+        return EMB_ERR_EMBREE;
+    }
+    if (message) emb__msg(message, "ok");
+    *out = b;
+    return EMB_OK;
+}
+EMB_API int emb_builder_time(emb_builder *b, const float *v, uint32_t n, double *ms) {
+    double total = 0.0, commit = 0.0;
+    RTCScene scene;
+    if (ms) *ms = 0.0;
+    if (!b || !ms || (!v && n) || n > EMB__MAX_TRIANGLES) return EMB_ERR_ARGUMENT;
+    b->err.failed = 0;
+    scene = emb__build_scene(b->dev, v, n, b->bq, 1, &total, &commit);
+    if (!scene || emb__check(b->dev, &b->err, "scene build")) {
+        if (scene) rtcReleaseScene(scene);
+        return EMB_ERR_EMBREE;
+    }
+    rtcReleaseScene(scene);
+    *ms = total;
+    return EMB_OK;
+}
+EMB_API void emb_builder_close(emb_builder *b) {
+    if (!b) return;
+    rtcReleaseDevice(b->dev);
+    pthread_mutex_destroy(&b->err.lock);
+    free(b);
 }
 
 EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *desc,

@@ -7,7 +7,9 @@
 #     BENCH_OUT=DIR         output directory (default out/bench)
 #     BENCH_SCENES="..."    scenes instead of the defaults (as build/render takes them)
 #     BENCH_ARGS="..."      more options, e.g. BENCH_ARGS="--repeat 2 --size 512x512 --threads 2"
+#     BENCH_PAIRED=N        rounds of interleaved builds against Embree medium (default 5; 0: none)
 BENCH_OUT    ?= out/bench
+BENCH_PAIRED ?= 5
 BENCH_SCENES ?=
 BENCH_ARGS   ?=
 
@@ -15,4 +17,4 @@ bench: deps-bench
 	@$(MAKE) --no-print-directory $(BUILD)/bvhbench
 	@mkdir -p $(BENCH_OUT)
 	$(BUILD)/bvhbench --md $(BENCH_OUT)/bench.md --json $(BENCH_OUT)/bench.json --plots $(BENCH_OUT) \
-	    $(BENCH_ARGS) $(BENCH_SCENES)
+	    --paired $(BENCH_PAIRED) $(BENCH_ARGS) $(BENCH_SCENES)

@@ -95,6 +95,7 @@ typedef struct row {
     double x_build, x_sah, x_mrays;           /* ours / Embree medium */
     double x_pair, x_pair_min, x_pair_max;    /* build time / Embree medium's in paired rounds:
                                                  median, min, max of the rounds' ratios */
+    double x_ptrace, x_ptrace_min, x_ptrace_max; /* 1-thread Mrays/s / Embree medium's, paired */
     double emb_bvh_ms, emb_prim_diff;         /* Embree: rtcBuildBVH time; pixels whose triangle
                                                  differs from bvh.h's */
     const char *frame_tracer;
@@ -161,6 +162,7 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->frame_ms = r->fps = r->hits = r->t_sum = NAN;
     r->x_build = r->x_sah = r->x_mrays = r->emb_bvh_ms = r->emb_prim_diff = NAN;
     r->x_pair = r->x_pair_min = r->x_pair_max = NAN;
+    r->x_ptrace = r->x_ptrace_min = r->x_ptrace_max = NAN;
     r->frame_tracer = NULL;
 }
 
@@ -740,6 +742,64 @@ static void run_embree(run_ctx *c, row *r) {
     r->max_depth = sah.max_depth; r->max_leaf = sah.max_leaf_size; r->emb_bvh_ms = sah.build.ms;
 }
 
+static void median_range(double *x, uint32_t n, double *med, double *lo, double *hi) {
+    uint32_t k;
+    *lo = *hi = x[0];
+    for (k = 1; k < n; k++) {
+        if (x[k] < *lo) *lo = x[k];
+        if (x[k] > *hi) *hi = x[k];
+    }
+    *med = scene_median(x, n);
+}
+
+/* The same for one-thread tracing: every builder's tree and Embree medium's scene are made
+   once, then each round traces one frame with each tree and one with Embree, on one thread. */
+static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *ratio) {
+    const options *o = c->o;
+    bvh_tree trees[BENCH_MAX_ROWS];
+    int i, made = 0;
+    uint32_t k;
+    memset(trees, 0, sizeof trees);
+    progress("%s: paired tracing, building the trees", out->name);
+    if (emb_builder_keep(eb, c->s->v, c->s->triangles) != EMB_OK) {
+        say("%s: paired tracing: Embree scene build failed", out->name);
+        return;
+    }
+    for (i = 0; i < out->nrows; i++) {
+        bvh_build_desc desc;
+        if (out->rows[i].kind != ROW_BVH || out->rows[i].state != ROW_OK) continue;
+        bench_desc(c, out->rows[i].builder, &desc);
+        if (bvh_build(&trees[i], &desc) != BVH_SUCCESS) { say("%s: paired tracing: build failed", out->name); goto done; }
+        made = i + 1;
+    }
+    for (k = 0; k <= o->paired; k++) { /* round 0: warm-up */
+        double ms[BENCH_MAX_ROWS], ems = 0.0;
+        for (i = 0; i < made; i++) {
+            double t0;
+            if (!trees[i].node_count) continue;
+            progress("%s: paired tracing round %u/%u%s, %s", out->name, k, o->paired, k ? "" : " (warm-up)",
+                     out->rows[i].name);
+            t0 = scene_now_ms();
+            if (bvh_intersect_batch(&trees[i], c->rays, c->hits, c->npix, 1) != BVH_SUCCESS) goto done;
+            ms[i] = scene_now_ms() - t0;
+        }
+        if (emb_builder_trace(eb, c->rays, o->width, o->height, 1, &ems) != EMB_OK || !(ems > 0.0)) {
+            say("%s: paired tracing: Embree frame failed", out->name);
+            goto done;
+        }
+        for (i = 0; k && i < made; i++)
+            if (trees[i].node_count) ratio[(size_t)i * o->paired + k - 1] = ems / ms[i];
+    }
+    for (i = 0; i < made; i++) {
+        row *r = &out->rows[i];
+        if (trees[i].node_count)
+            median_range(ratio + (size_t)i * o->paired, o->paired, &r->x_ptrace, &r->x_ptrace_min, &r->x_ptrace_max);
+    }
+done:
+    for (i = 0; i < made; i++) bvh_free(&trees[i]);
+}
+
+
 /* Paired rounds (--paired N): on a shared machine a builder's five builds and Embree's five
    later ones can fall into different moments of noise, and their medians' ratio with them. Here
    each round builds once with every bvh.h builder of the table and once with Embree medium, one
@@ -790,15 +850,10 @@ static void run_paired(run_ctx *c, bench_scene *out) {
     }
     for (i = 0; i < out->nrows; i++) {
         row *r = &out->rows[i];
-        double *x = ratio + (size_t)i * o->paired;
-        if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
-        r->x_pair_min = r->x_pair_max = x[0];
-        for (k = 1; k < o->paired; k++) {
-            if (x[k] < r->x_pair_min) r->x_pair_min = x[k];
-            if (x[k] > r->x_pair_max) r->x_pair_max = x[k];
-        }
-        r->x_pair = scene_median(x, o->paired);
+        if (r->kind == ROW_BVH && r->state == ROW_OK)
+            median_range(ratio + (size_t)i * o->paired, o->paired, &r->x_pair, &r->x_pair_min, &r->x_pair_max);
     }
+    if (o->trace_cpu) paired_trace(c, out, eb, ratio);
 done:
     free(ratio);
     emb_builder_close(eb);
@@ -1009,6 +1064,14 @@ static void paired_lines(FILE *f, const options *o, const bench_scene *s, const 
             fprintf(f, "%sbuild / embree-medium in %u paired rounds (one build each, interleaved): median (min-max)\n",
                     prefix, o->paired);
         fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, r->x_pair, r->x_pair_min, r->x_pair_max);
+    }
+    for (i = 0, any = 0; i < s->nrows; i++) {
+        const row *r = &s->rows[i];
+        if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(r->x_ptrace)) continue;
+        if (!any++)
+            fprintf(f, "%sMrays/s on 1 thread / embree-medium's in %u paired rounds (one frame each): median (min-max)\n",
+                    prefix, o->paired);
+        fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, r->x_ptrace, r->x_ptrace_min, r->x_ptrace_max);
     }
 }
 
@@ -1225,6 +1288,9 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "ratio_build_paired", r->x_pair, 4);
         json_num(f, "ratio_build_paired_min", r->x_pair_min, 4);
         json_num(f, "ratio_build_paired_max", r->x_pair_max, 4);
+        json_num(f, "ratio_mrays_1t_paired", r->x_ptrace, 4);
+        json_num(f, "ratio_mrays_1t_paired_min", r->x_ptrace_min, 4);
+        json_num(f, "ratio_mrays_1t_paired_max", r->x_ptrace_max, 4);
         json_num(f, "ratio_sah", r->x_sah, 4);
         json_num(f, "ratio_mrays", r->x_mrays, 4);
         if (r->kind == ROW_EMBREE) {
@@ -1416,8 +1482,9 @@ static void usage(FILE *f) {
             "  --ploc-top N     ploc builders: binned-SAH top over the last n/N clusters, kept where\n"
             "                   cheaper (0 = the library's default, 8); 'off': PLOC alone, as the study\n"
             "  --paired N       after the table, N rounds each building once with every builder and\n"
-            "                   once with Embree medium, interleaved; median of the rounds' build\n"
-            "                   ratios (robust to a shared machine's slow moments; default 0: none)\n"
+            "                   once with Embree medium, interleaved, then N rounds tracing a frame\n"
+            "                   on 1 thread with each; medians of the rounds' ratios (robust to a\n"
+            "                   shared machine's slow moments; default 0: none)\n"
             "  --max-bytes N    ploc builders: tree (nodes + indices) at most N bytes per triangle, by\n"
             "                   bigger leaves where needed (0 = the library's default, 40); 'off': the SAH alone\n"
             "  --trace MODE     cpu, opencl, both or none (default: both when OpenCL works, else cpu)\n"

@@ -156,6 +156,11 @@ EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *desc, em
 typedef struct emb_builder emb_builder;
 EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, char *message);
 EMB_API int emb_builder_time(emb_builder *b, const float *v, uint32_t n, double *ms);
+/* Builds a scene (untimed) and keeps it for emb_builder_trace, which traces one w x h frame of
+   rays on it with rtcIntersect1 on `threads` threads, as emb_scene_bench's frames (*ms). */
+EMB_API int emb_builder_keep(emb_builder *b, const float *v, uint32_t n);
+EMB_API int emb_builder_trace(emb_builder *b, const bvh_ray *rays, uint32_t w, uint32_t h, uint32_t threads,
+                              double *ms);
 EMB_API void emb_builder_close(emb_builder *b);
 
 #ifdef __cplusplus
@@ -226,6 +231,16 @@ EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t th
 }
 EMB_API int emb_builder_time(emb_builder *b, const float *v, uint32_t n, double *ms) {
     (void)b; (void)v; (void)n;
+    if (ms) *ms = 0.0;
+    return EMB_ERR_UNAVAILABLE;
+}
+EMB_API int emb_builder_keep(emb_builder *b, const float *v, uint32_t n) {
+    (void)b; (void)v; (void)n;
+    return EMB_ERR_UNAVAILABLE;
+}
+EMB_API int emb_builder_trace(emb_builder *b, const bvh_ray *rays, uint32_t w, uint32_t h, uint32_t threads,
+                              double *ms) {
+    (void)b; (void)rays; (void)w; (void)h; (void)threads;
     if (ms) *ms = 0.0;
     return EMB_ERR_UNAVAILABLE;
 }
@@ -475,6 +490,10 @@ struct emb_builder {
     enum RTCBuildQuality bq;
     emb__err err;
     char message[160]; /* the last error */
+    RTCScene kept;     /* emb_builder_keep's scene */
+    float *t;          /* a frame's t and triangle per pixel */
+    uint32_t *prim;
+    size_t npix;
 };
 EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, char *message) {
     emb_builder *b;
@@ -513,8 +532,37 @@ EMB_API int emb_builder_time(emb_builder *b, const float *v, uint32_t n, double 
     *ms = total;
     return EMB_OK;
 }
+EMB_API int emb_builder_keep(emb_builder *b, const float *v, uint32_t n) {
+    double total, commit;
+    if (!b || (!v && n) || n > EMB__MAX_TRIANGLES) return EMB_ERR_ARGUMENT;
+    if (b->kept) rtcReleaseScene(b->kept);
+    b->err.failed = 0;
+    b->kept = emb__build_scene(b->dev, v, n, b->bq, 1, &total, &commit);
+    if (!b->kept || emb__check(b->dev, &b->err, "scene build")) {
+        if (b->kept) rtcReleaseScene(b->kept);
+        b->kept = NULL;
+        return EMB_ERR_EMBREE;
+    }
+    return EMB_OK;
+}
+EMB_API int emb_builder_trace(emb_builder *b, const bvh_ray *rays, uint32_t w, uint32_t h, uint32_t threads,
+                              double *ms) {
+    size_t npix = (size_t)w * h;
+    if (ms) *ms = 0.0;
+    if (!b || !b->kept || !rays || !ms || !npix) return EMB_ERR_ARGUMENT;
+    if (npix > b->npix) {
+        free(b->t); free(b->prim);
+        b->t = (float *)malloc(npix * sizeof *b->t);
+        b->prim = (uint32_t *)malloc(npix * sizeof *b->prim);
+        b->npix = b->t && b->prim ? npix : 0;
+        if (!b->npix) return EMB_ERR_MEMORY;
+    }
+    return emb__trace(b->kept, rays, w, h, threads, b->t, b->prim, ms);
+}
 EMB_API void emb_builder_close(emb_builder *b) {
     if (!b) return;
+    if (b->kept) rtcReleaseScene(b->kept);
+    free(b->t); free(b->prim);
     rtcReleaseDevice(b->dev);
     pthread_mutex_destroy(&b->err.lock);
     free(b);

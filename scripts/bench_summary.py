@@ -32,7 +32,8 @@ def main(paths):
             ("4-wide B/tri", "wide_bytes_per_tri", 1), ("peak B/tri", "peak_build_bytes_per_tri", 0), ("Mrays/s 1t", "mrays_1t", 1),
             ("Mrays/s 2t", "mrays_mt", 1), ("Mrays/s OpenCL", "mrays_opencl", 1),
             ("frame ms", "frame_ms", 1), ("hits", "hits", 0), ("build / Embree med.", "ratio_build", 2),
-            ("paired build / Embree med.", "ratio_build_paired", 2), ("SAH / Embree med.", "ratio_sah", 3), ("Mrays 1t / Embree med.", None, 2)]
+            ("paired build / Embree med.", "ratio_build_paired", 2), ("SAH / Embree med.", "ratio_sah", 3), ("Mrays 1t / Embree med.", None, 2),
+            ("paired Mrays 1t / Embree med.", "ratio_mrays_1t_paired", 2)]
     for s in scenes:
         sr = [r for r in rows if r["scene"] == s and r.get("status") == "ok" and r["builder"] != "none"]
         if not sr:

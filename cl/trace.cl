@@ -221,6 +221,15 @@ typedef struct bvh_cl_scene {
     uint node_count, ref_count;
 } bvh_cl_scene;
 
+/* The children pair (c, c + 1) of an interior node as two uint4 each; 0 when the pair lies
+   outside the array (a corrupt tree: the traversal ends). */
+BVH_CL_FN int bvh_cl_children(const bvh_cl_scene *s, uint c, uint4 *lo0, uint4 *hi0, uint4 *lo1, uint4 *hi1) {
+    if (c >= s->node_count - 1) return 0;
+    *lo0 = s->nodes[2 * c]; *hi0 = s->nodes[2 * c + 1];
+    *lo1 = s->nodes[2 * c + 2]; *hi1 = s->nodes[2 * c + 3];
+    return 1;
+}
+
 /* Closest hit (any = 0) or first hit found (any = 1) of a set-up ray in [tmin, tmax]. A child
    index or leaf range outside the arrays (a corrupt tree) ends the traversal, so that no read
    ever leaves the buffers; a tree deeper than the stack does too, as on the CPU. */
@@ -252,9 +261,7 @@ BVH_CL_FN void bvh_cl_traverse(const bvh_cl_scene *s, const bvh_cl_rayx *rx, flo
             uint c = lo.w;
             uint4 lo0, hi0, lo1, hi1;
             float t0, t1;
-            if (c >= s->node_count - 1) break;
-            lo0 = s->nodes[2 * c]; hi0 = s->nodes[2 * c + 1];
-            lo1 = s->nodes[2 * c + 2]; hi1 = s->nodes[2 * c + 3];
+            if (!bvh_cl_children(s, c, &lo0, &hi0, &lo1, &hi1)) break;
             t0 = bvh_cl_slab(rx, as_float4(lo0), as_float4(hi0), best_t);
             t1 = bvh_cl_slab(rx, as_float4(lo1), as_float4(hi1), best_t);
             nvis += 2;
@@ -327,6 +334,25 @@ __kernel void bvh_occluded_kernel(__global const uint4 *nodes, uint node_count, 
     occluded[i] = res.prim != BVH_CL_INVALID ? (uchar)1 : (uchar)0;
 }
 
+/* The colour of a frame's pixel (ray direction d, sy as in bvh_frame_kernel): a hit grey by a
+   headlight, grey * (0.2 + 0.8 |dot(n, d)|), a miss a vertical gradient. */
+BVH_CL_FN uchar4 bvh_cl_shade(__global const float *tris, uint prim, uint ref, float3 d, float sy) {
+    float3 c;
+    if (prim != BVH_CL_INVALID) {
+        __global const float *t = tris + 9 * (size_t)ref;
+        float3 e1 = (float3)(t[3] - t[0], t[4] - t[1], t[5] - t[2]);
+        float3 e2 = (float3)(t[6] - t[0], t[7] - t[1], t[8] - t[2]);
+        float3 n = cross(e1, e2);
+        float nl = sqrt(dot(n, n)), k = nl > 0.0f ? fabs(dot(n, d)) / nl : 0.0f;
+        c = (float3)(0.82f, 0.82f, 0.80f) * (0.2f + 0.8f * k);
+    } else {
+        float g = 0.5f * (sy + 1.0f); /* 1 at the top */
+        c = mix((float3)(0.16f, 0.18f, 0.22f), (float3)(0.36f, 0.44f, 0.56f), g);
+    }
+    c = clamp(c, 0.0f, 1.0f) * 255.0f + 0.5f;
+    return (uchar4)((uchar)c.x, (uchar)c.y, (uchar)c.z, (uchar)255);
+}
+
 /* Rows y0 .. y0 + rows - 1 of a frame seen by a bvh_camera packed as cam.s0-2 eye, s3-5 forward,
    s6-8 right, s9-b up. Ray of pixel (x, y), y = 0 at the top, exactly as bvh_camera_ray:
    d = normalize(forward + sx*right + sy*up), sx = 2(x+0.5)/w - 1, sy = 1 - 2(y+0.5)/h.
@@ -342,7 +368,7 @@ __kernel void bvh_frame_kernel(__global const uint4 *nodes, uint node_count, __g
     bvh_cl_scene s;
     bvh_cl_hitrec res;
     float sx, sy, l;
-    float3 d, c;
+    float3 d;
     if (x >= width || row >= rows) return;
     s.nodes = nodes; s.tris = tris; s.prims = prims; s.node_count = node_count; s.ref_count = ref_count;
     sx = 2.0f * ((float)x + 0.5f) / (float)width - 1.0f;
@@ -355,20 +381,7 @@ __kernel void bvh_frame_kernel(__global const uint4 *nodes, uint node_count, __g
     bvh_cl_trace(&s, cam.s012, 0.0f, d, INFINITY, 0, &res);
     if (hits) hits[pix] = (uint4)(as_uint(res.t), as_uint(res.u), as_uint(res.v), res.prim);
     if (visited) visited[pix] = res.visited;
-    if (!rgba) return;
-    if (res.prim != BVH_CL_INVALID) {
-        __global const float *t = tris + 9 * (size_t)res.ref;
-        float3 e1 = (float3)(t[3] - t[0], t[4] - t[1], t[5] - t[2]);
-        float3 e2 = (float3)(t[6] - t[0], t[7] - t[1], t[8] - t[2]);
-        float3 n = cross(e1, e2);
-        float nl = sqrt(dot(n, n)), k = nl > 0.0f ? fabs(dot(n, d)) / nl : 0.0f;
-        c = (float3)(0.82f, 0.82f, 0.80f) * (0.2f + 0.8f * k);
-    } else {
-        float g = 0.5f * (sy + 1.0f); /* 1 at the top */
-        c = mix((float3)(0.16f, 0.18f, 0.22f), (float3)(0.36f, 0.44f, 0.56f), g);
-    }
-    c = clamp(c, 0.0f, 1.0f) * 255.0f + 0.5f;
-    vstore4((uchar4)((uchar)c.x, (uchar)c.y, (uchar)c.z, (uchar)255), pix, rgba);
+    if (rgba) vstore4(bvh_cl_shade(tris, res.prim, res.ref, d, sy), pix, rgba);
 }
 
 /* ============================================================================================ */
@@ -487,9 +500,7 @@ BVH_CL_FN void bvh_cl_traverse8(const bvh_cl_scene *s, const bvh_cl_packet *p, c
             uint4 lo0, hi0, lo1, hi1;
             bvh_pkf t0, t1;
             int h0, h1;
-            if (c >= s->node_count - 1) return;
-            lo0 = s->nodes[2 * c]; hi0 = s->nodes[2 * c + 1];
-            lo1 = s->nodes[2 * c + 2]; hi1 = s->nodes[2 * c + 3];
+            if (!bvh_cl_children(s, c, &lo0, &hi0, &lo1, &hi1)) return;
             t0 = bvh_cl_slab8(p, as_float4(lo0), as_float4(hi0), bt);
             t1 = bvh_cl_slab8(p, as_float4(lo1), as_float4(hi1), bt);
             h0 = any(t0 != (bvh_pkf)(INFINITY));
@@ -617,23 +628,10 @@ __kernel void bvh_frame_packet_kernel(__global const uint4 *nodes, uint node_cou
     for (l = 0; l < BVH_CL_PACKET; l++) {
         uint x = 4 * gx + (l & 3), row = BVH_CL_PACKET_H * gy + (l >> 2);
         size_t pix = (size_t)row * width + x;
-        float3 c, d = (float3)(dxl[l], dyl[l], dzl[l]);
+        float3 d = (float3)(dxl[l], dyl[l], dzl[l]);
         if (!livel[l]) continue;
         if (prim[l] == BVH_CL_INVALID) { best[l] = INFINITY; u[l] = v[l] = 0.0f; }
         if (hits) hits[pix] = (uint4)(as_uint(best[l]), as_uint(u[l]), as_uint(v[l]), prim[l]);
-        if (!rgba) continue;
-        if (prim[l] != BVH_CL_INVALID) {
-            __global const float *t = tris + 9 * (size_t)ref[l];
-            float3 e1 = (float3)(t[3] - t[0], t[4] - t[1], t[5] - t[2]);
-            float3 e2 = (float3)(t[6] - t[0], t[7] - t[1], t[8] - t[2]);
-            float3 n = cross(e1, e2);
-            float nl = sqrt(dot(n, n)), k = nl > 0.0f ? fabs(dot(n, d)) / nl : 0.0f;
-            c = (float3)(0.82f, 0.82f, 0.80f) * (0.2f + 0.8f * k);
-        } else {
-            float g = 0.5f * (syl[l] + 1.0f); /* 1 at the top */
-            c = mix((float3)(0.16f, 0.18f, 0.22f), (float3)(0.36f, 0.44f, 0.56f), g);
-        }
-        c = clamp(c, 0.0f, 1.0f) * 255.0f + 0.5f;
-        vstore4((uchar4)((uchar)c.x, (uchar)c.y, (uchar)c.z, (uchar)255), pix, rgba);
+        if (rgba) vstore4(bvh_cl_shade(tris, prim[l], ref[l], d, syl[l]), pix, rgba);
     }
 }

@@ -3,6 +3,7 @@
 
    build/bvhbench [--builder all|LIST] [--embree all|none|LIST] [--threads N] [--repeat R]
                   [--size WxH] [--trace cpu|opencl|both|none] [--brute-max N] [--strict]
+                  [--paired N] [--ploc-top N|off] [--max-bytes N|off] [--trace-width 2|4]
                   [--md FILE] [--json FILE|-] [--plots DIR] [--quiet] [SCENE...]
    e.g. build/bvhbench --repeat 2 --size 256x256 gen:random:500 /usr/share/glmark2/models/bunny.obj
         make bench          (the default scenes below, writing out/bench/)
@@ -15,8 +16,13 @@
    and of the 4-wide copy CPU traversal uses (built by default, --trace-width), peak memory of
    the build (a counting bvh_allocator), the standard camera's primary rays (bvh_camera_standard
    over the tree bounds, bvh_camera_ray per pixel) traced on 1 CPU thread and on N CPU threads
-   (bvh_intersect_batch; median time of 3 frames each) and with OpenCL (cl/bvh_cl.h, binary
-   nodes); frame ms = the fastest of those tracers, FPS = 1000 / frame ms.
+   (bvh_intersect_batch; median time of 3 frames each) and with OpenCL (cl/bvh_cl.h: packets
+   of 4 x 4 rays on a CPU device); frame ms = the fastest of those tracers, FPS = 1000 / frame ms.
+   With --paired N, N rounds then each build once with every builder and once with Embree
+   medium, and N more each trace one 1-thread frame with every tree and with Embree's scene, one
+   right after the other: the medians of the rounds' ratios are printed under the table and
+   written to the JSON (ratio_build_paired, ratio_mrays_1t_paired), robust to a shared machine's
+   slow moments in a way the ratio of two medians taken seconds apart is not.
    Rows: "none" (brute force, the study's first row; only up to --brute-max triangles), the five
    builders, and Embree's scene API at build quality low, medium and high (rtcIntersect1 for the
    frame; the SAH, nodes and leaves of a binary tree from rtcBuildBVH at the same quality).

@@ -57,7 +57,8 @@
    THREADS
      No global mutable state: any function may be called from several threads on different trees.
      Parallel builders create their worker threads once per build phase (six per build, eight
-     with the 4-wide copy, one more for PLOC's SAH top), never per iteration; at barriers they spin for up to about half a millisecond before sleeping,
+     with the 4-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
+     memory budget applies), never per iteration; at barriers they spin for up to about half a millisecond before sleeping,
      unless the build has more threads than the machine has CPUs.
 
    LICENSE

@@ -68,6 +68,7 @@
      0.4.0  PLOC's memory budget (desc.max_bytes_per_prim, 40 by default; BVH_NO_MEMORY_LIMIT):
             where the SAH collapse leaves a tree over it (random triangle soups), leaves grow
             until it fits. Smaller neighbour-search buffers on inputs under 1024 primitives.
+            CPU traversal makes the triangle test's shear only when a ray reaches a leaf.
      0.3.0  PLOC's SAH top (desc.ploc_top, on by default; BVH_PLOC_TOP_OFF for the paper's PLOC):
             a binned-SAH top over PLOC's last n / 8 clusters, kept where it is cheaper.
      0.2.1  faster PLOC builds, same trees: AVX2 neighbour search, root-down emission, MSD Morton

@@ -3332,8 +3332,8 @@ typedef struct bvh__rayx {
     float o[3], d[3], inv[3], tmin;
     int near[3];     /* float offset in a node of the near plane on each axis: 0..2 min, 4..6 max */
     int near4[3], far4[3]; /* the same in a bvh_node4 (slot 0): 0, 4, 8 min, 12, 16, 20 max */
-    int kx, ky, kz;  /* watertight: kz = dominant axis */
-    float sx, sy, sz;
+    int kx, ky, kz;  /* watertight: kz = dominant axis (bvh__ray_setup); kx, ky and the shear */
+    float sx, sy, sz; /* sx, sy, sz are made by bvh__ray_shear before the first triangle test */
 } bvh__rayx;
 
 BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {

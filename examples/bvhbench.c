@@ -20,9 +20,10 @@
    of 4 x 4 rays on a CPU device); frame ms = the fastest of those tracers, FPS = 1000 / frame ms.
    With --paired N, N rounds then each build once with every builder and once with Embree
    medium, and N more each trace one 1-thread frame with every tree and with Embree's scene, one
-   right after the other: the medians of the rounds' ratios are printed under the table and
-   written to the JSON (ratio_build_paired, ratio_mrays_1t_paired), robust to a shared machine's
-   slow moments in a way the ratio of two medians taken seconds apart is not.
+   right after the other, and N more each render a frame with OpenCL and trace it on the CPU's
+   N threads: the medians of the rounds' ratios are printed under the table and written to the
+   JSON (ratio_build_paired, ratio_mrays_1t_paired, ratio_opencl_mt_paired), robust to a shared
+   machine's slow moments in a way the ratio of two medians taken seconds apart is not.
    Rows: "none" (brute force, the study's first row; only up to --brute-max triangles), the five
    builders, and Embree's scene API at build quality low, medium and high (rtcIntersect1 for the
    frame; the SAH, nodes and leaves of a binary tree from rtcBuildBVH at the same quality).
@@ -102,6 +103,7 @@ typedef struct row {
     double x_pair, x_pair_min, x_pair_max;    /* build time / Embree medium's in paired rounds:
                                                  median, min, max of the rounds' ratios */
     double x_ptrace, x_ptrace_min, x_ptrace_max; /* 1-thread Mrays/s / Embree medium's, paired */
+    double x_pcl, x_pcl_min, x_pcl_max;       /* OpenCL frame Mrays/s / the CPU's on N threads, paired */
     double emb_bvh_ms, emb_prim_diff;         /* Embree: rtcBuildBVH time; pixels whose triangle
                                                  differs from bvh.h's */
     const char *frame_tracer;
@@ -169,6 +171,7 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->x_build = r->x_sah = r->x_mrays = r->emb_bvh_ms = r->emb_prim_diff = NAN;
     r->x_pair = r->x_pair_min = r->x_pair_max = NAN;
     r->x_ptrace = r->x_ptrace_min = r->x_ptrace_max = NAN;
+    r->x_pcl = r->x_pcl_min = r->x_pcl_max = NAN;
     r->frame_tracer = NULL;
 }
 
@@ -758,6 +761,42 @@ static void median_range(double *x, uint32_t n, double *med, double *lo, double 
     *med = scene_median(x, n);
 }
 
+/* OpenCL against the CPU on N threads, paired: each round renders one frame of every tree with
+   bvh_cl_render_frame (hits read back, as the table's OpenCL column) and traces it with
+   bvh_intersect_batch on N threads, one right after the other. */
+static void paired_opencl(run_ctx *c, bench_scene *out, bvh_tree *trees, int made, double *ratio) {
+    const options *o = c->o;
+    bvh_cl_tree *g[BENCH_MAX_ROWS];
+    bvh_camera cam = bvh_camera_standard(c->bounds, o->width, o->height);
+    int i, ok = 1;
+    uint32_t k;
+    memset(g, 0, sizeof g);
+    for (i = 0; i < made; i++)
+        if (trees[i].node_count && bvh_cl_upload(c->cl->ctx, &trees[i], &g[i]) != BVH_CL_SUCCESS) ok = 0;
+    for (k = 0; ok && k <= o->paired; k++) { /* round 0: warm-up */
+        for (i = 0; ok && i < made; i++) {
+            double t0, mt, cl;
+            if (!g[i]) continue;
+            progress("%s: paired OpenCL round %u/%u%s, %s", out->name, k, o->paired, k ? "" : " (warm-up)",
+                     out->rows[i].name);
+            t0 = scene_now_ms();
+            ok = bvh_intersect_batch(&trees[i], c->rays, c->hits, c->npix, o->nthreads) == BVH_SUCCESS;
+            mt = scene_now_ms() - t0;
+            t0 = scene_now_ms();
+            ok = ok && bvh_cl_render_frame(g[i], &cam, NULL, c->hits, NULL) == BVH_CL_SUCCESS;
+            cl = scene_now_ms() - t0;
+            if (ok && k) ratio[(size_t)i * o->paired + k - 1] = mt / cl;
+        }
+    }
+    if (!ok) say("%s: paired OpenCL rounds failed", out->name);
+    for (i = 0; ok && i < made; i++)
+        if (g[i]) {
+            row *r = &out->rows[i];
+            median_range(ratio + (size_t)i * o->paired, o->paired, &r->x_pcl, &r->x_pcl_min, &r->x_pcl_max);
+        }
+    for (i = 0; i < made; i++) bvh_cl_tree_free(g[i]);
+}
+
 /* The same for one-thread tracing: every builder's tree and Embree medium's scene are made
    once, then each round traces one frame with each tree and one with Embree, on one thread. */
 static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *ratio) {
@@ -801,6 +840,7 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
         if (trees[i].node_count)
             median_range(ratio + (size_t)i * o->paired, o->paired, &r->x_ptrace, &r->x_ptrace_min, &r->x_ptrace_max);
     }
+    if (c->cl && o->trace_cl) paired_opencl(c, out, trees, made, ratio);
 done:
     for (i = 0; i < made; i++) bvh_free(&trees[i]);
 }
@@ -1079,6 +1119,14 @@ static void paired_lines(FILE *f, const options *o, const bench_scene *s, const 
                     prefix, o->paired);
         fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, r->x_ptrace, r->x_ptrace_min, r->x_ptrace_max);
     }
+    for (i = 0, any = 0; i < s->nrows; i++) {
+        const row *r = &s->rows[i];
+        if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(r->x_pcl)) continue;
+        if (!any++)
+            fprintf(f, "%sOpenCL Mrays/s / the CPU's on %u threads in %u paired rounds (one frame each): median (min-max)\n",
+                    prefix, o->nthreads, o->paired);
+        fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, r->x_pcl, r->x_pcl_min, r->x_pcl_max);
+    }
 }
 
 static void print_block(FILE *f, const options *o, const bench_scene *s) {
@@ -1297,6 +1345,9 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "ratio_mrays_1t_paired", r->x_ptrace, 4);
         json_num(f, "ratio_mrays_1t_paired_min", r->x_ptrace_min, 4);
         json_num(f, "ratio_mrays_1t_paired_max", r->x_ptrace_max, 4);
+        json_num(f, "ratio_opencl_mt_paired", r->x_pcl, 4);
+        json_num(f, "ratio_opencl_mt_paired_min", r->x_pcl_min, 4);
+        json_num(f, "ratio_opencl_mt_paired_max", r->x_pcl_max, 4);
         json_num(f, "ratio_sah", r->x_sah, 4);
         json_num(f, "ratio_mrays", r->x_mrays, 4);
         if (r->kind == ROW_EMBREE) {
@@ -1489,7 +1540,8 @@ static void usage(FILE *f) {
             "                   cheaper (0 = the library's default, 8); 'off': PLOC alone, as the study\n"
             "  --paired N       after the table, N rounds each building once with every builder and\n"
             "                   once with Embree medium, interleaved, then N rounds tracing a frame\n"
-            "                   on 1 thread with each; medians of the rounds' ratios (robust to a\n"
+            "                   on 1 thread with each, and N rendering a frame with OpenCL and with\n"
+            "                   the CPU on all threads; medians of the rounds' ratios (robust to a\n"
             "                   shared machine's slow moments; default 0: none)\n"
             "  --max-bytes N    ploc builders: tree (nodes + indices) at most N bytes per triangle, by\n"
             "                   bigger leaves where needed (0 = the library's default, 40); 'off': the SAH alone\n"

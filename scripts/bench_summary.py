@@ -33,7 +33,8 @@ def main(paths):
             ("Mrays/s 2t", "mrays_mt", 1), ("Mrays/s OpenCL", "mrays_opencl", 1),
             ("frame ms", "frame_ms", 1), ("hits", "hits", 0), ("build / Embree med.", "ratio_build", 2),
             ("paired build / Embree med.", "ratio_build_paired", 2), ("SAH / Embree med.", "ratio_sah", 3), ("Mrays 1t / Embree med.", None, 2),
-            ("paired Mrays 1t / Embree med.", "ratio_mrays_1t_paired", 2)]
+            ("paired Mrays 1t / Embree med.", "ratio_mrays_1t_paired", 2),
+            ("paired OpenCL / CPU 2t", "ratio_opencl_mt_paired", 2)]
     for s in scenes:
         sr = [r for r in rows if r["scene"] == s and r.get("status") == "ok" and r["builder"] != "none"]
         if not sr:

@@ -1100,33 +1100,29 @@ static void head_text(int col, const options *o, int md, char *b, size_t n) {
 }
 
 /* ---- the text table ------------------------------------------------------------------------ */
-/* The paired rounds' build ratios, one line per builder (none without --paired). */
-static void paired_lines(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
+/* One block of paired ratios, a line per builder that has them (none without --paired): which
+   0 = build time, 1 = one-thread tracing against Embree, 2 = OpenCL against the CPU. */
+static void paired_block(FILE *f, const bench_scene *s, const char *prefix, int which, const char *title) {
     int i, any = 0;
     for (i = 0; i < s->nrows; i++) {
         const row *r = &s->rows[i];
-        if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(r->x_pair)) continue;
-        if (!any++)
-            fprintf(f, "%sbuild / embree-medium in %u paired rounds (one build each, interleaved): median (min-max)\n",
-                    prefix, o->paired);
-        fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, r->x_pair, r->x_pair_min, r->x_pair_max);
+        double med = which == 0 ? r->x_pair : which == 1 ? r->x_ptrace : r->x_pcl;
+        double lo = which == 0 ? r->x_pair_min : which == 1 ? r->x_ptrace_min : r->x_pcl_min;
+        double hi = which == 0 ? r->x_pair_max : which == 1 ? r->x_ptrace_max : r->x_pcl_max;
+        if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(med)) continue;
+        if (!any++) fprintf(f, "%s%s: median (min-max)\n", prefix, title);
+        fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, med, lo, hi);
     }
-    for (i = 0, any = 0; i < s->nrows; i++) {
-        const row *r = &s->rows[i];
-        if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(r->x_ptrace)) continue;
-        if (!any++)
-            fprintf(f, "%sMrays/s on 1 thread / embree-medium's in %u paired rounds (one frame each): median (min-max)\n",
-                    prefix, o->paired);
-        fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, r->x_ptrace, r->x_ptrace_min, r->x_ptrace_max);
-    }
-    for (i = 0, any = 0; i < s->nrows; i++) {
-        const row *r = &s->rows[i];
-        if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(r->x_pcl)) continue;
-        if (!any++)
-            fprintf(f, "%sOpenCL Mrays/s / the CPU's on %u threads in %u paired rounds (one frame each): median (min-max)\n",
-                    prefix, o->nthreads, o->paired);
-        fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, r->x_pcl, r->x_pcl_min, r->x_pcl_max);
-    }
+}
+static void paired_lines(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
+    char t[200];
+    snprintf(t, sizeof t, "build / embree-medium in %u paired rounds (one build each, interleaved)", o->paired);
+    paired_block(f, s, prefix, 0, t);
+    snprintf(t, sizeof t, "Mrays/s on 1 thread / embree-medium's in %u paired rounds (one frame each)", o->paired);
+    paired_block(f, s, prefix, 1, t);
+    snprintf(t, sizeof t, "OpenCL Mrays/s / the CPU's on %u threads in %u paired rounds (one frame each)", o->nthreads,
+             o->paired);
+    paired_block(f, s, prefix, 2, t);
 }
 
 static void print_block(FILE *f, const options *o, const bench_scene *s) {

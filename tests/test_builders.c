@@ -197,6 +197,18 @@ static void ploc_parallel_equals_ploc_options(void **state) {
     tu_scene_free(&s);
 }
 
+/* Every ray hits in t what brute force (the culled oracle's `want`) hits, or misses with it. */
+static void hits_as_brute_force(const tu_scene *s, const bvh_tree *t, const bvh_ray *rays, const bvh_hit *want,
+                                size_t n, const char *option, uint32_t value) {
+    size_t i;
+    for (i = 0; i < n; i++) {
+        bvh_hit h;
+        int hit = bvh_intersect(t, &rays[i], &h), bf = want[i].prim != BVH_INVALID;
+        if (hit != bf || (hit && !tu_hit_equal(&h, &want[i])))
+            fail_msg("%s: %s %u: ray %zu differs from brute force", s->name, option, value, i);
+    }
+}
+
 /* PLOC's SAH top (desc.ploc_top): off, at every other cut (2, 3), the default (8) and a late one
    (64) give valid trees with exactly the brute-force hits; ploc-parallel gives ploc's tree at
    every setting; the SAH top is used where it lowers the cost (random triangles) and never
@@ -205,7 +217,7 @@ static void ploc_top_variants(void **state) {
     enum { RAYS = 3000 };
     static const uint32_t tops[] = {BVH_PLOC_TOP_OFF, 1, 2, 3, 0, 64};
     int scene;
-    size_t k, i;
+    size_t k;
     (void)state;
     for (scene = 0; scene < 4; scene++) {
         tu_scene s;
@@ -228,12 +240,7 @@ static void ploc_top_variants(void **state) {
             tu_build_valid(&s, &d, &t);
             check_stats(&s, &t, 8);
             assert_int_equal(bvh_sah(&t, NULL, &sah[k]), BVH_SUCCESS);
-            for (i = 0; i < RAYS; i++) {
-                bvh_hit h;
-                int hit = bvh_intersect(&t, &rays[i], &h), bf = want[i].prim != BVH_INVALID;
-                if (hit != bf || (hit && !tu_hit_equal(&h, &want[i])))
-                    fail_msg("%s: ploc_top %u: ray %zu differs from brute force", s.name, tops[k], i);
-            }
+            hits_as_brute_force(&s, &t, rays, want, RAYS, "ploc_top", tops[k]);
             bvh_free(&t);
             if (scene < 3) ploc_parallel_same_tree(&s, &d);
             print_message("%-18s ploc_top %10u: SAH %.4f\n", s.name, tops[k], sah[k]);
@@ -279,12 +286,7 @@ static void memory_budget(void **state) {
             check_stats(&s, &t, 8);
             bytes[k] = tree_bytes_per_tri(&t);
             assert_int_equal(bvh_sah(&t, NULL, &sah[k]), BVH_SUCCESS);
-            for (i = 0; i < RAYS; i++) {
-                bvh_hit h;
-                int hit = bvh_intersect(&t, &rays[i], &h), bf = want[i].prim != BVH_INVALID;
-                if (hit != bf || (hit && !tu_hit_equal(&h, &want[i])))
-                    fail_msg("%s: budget %u: ray %zu differs from brute force", s.name, budgets[k], i);
-            }
+            hits_as_brute_force(&s, &t, rays, want, RAYS, "budget", budgets[k]);
             if (k == 3) { /* the smallest tree: no subtree of 8 or fewer triangles is a node */
                 for (i = 0; i < t.node_count; i++)
                     if (!t.nodes[i].count) {

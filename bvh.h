@@ -1135,7 +1135,10 @@ static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
         }
     }
 }
+/* Prefetch distances of the loops that read or write at random (in elements, or pairs for place). */
 #define BVH__SIZES_AHEAD 16
+#define BVH__PLACE_AHEAD 8
+#define BVH__GATHER_AHEAD 24
 static void bvh__sizes_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     const bvh__sizes *q = BVH__CAST(const bvh__sizes *, arg);
     uint32_t k, start = 0;
@@ -1248,6 +1251,12 @@ static void bvh__place_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
         for (i = b; i < e; i++) {
             uint32_t l = start + 2 * (uint32_t)i, di = q->pos[l].u, ref = q->pos[l + 1].u;
             uint32_t lcnt = q->cnt[l] & ~BVH__COLLAPSE_BIT;
+            if (i + BVH__PLACE_AHEAD < e) { /* the output nodes and the children's pos lie anywhere */
+                const bvh_node *a = &q->src[l + 2 * BVH__PLACE_AHEAD];
+                BVH__PREFETCH(&q->o->nodes[q->pos[l + 2 * BVH__PLACE_AHEAD].u]);
+                if (!a[0].count) BVH__PREFETCH(&q->pos[a[0].index]);
+                if (!a[1].count) BVH__PREFETCH(&q->pos[a[1].index]);
+            }
             bvh__place_node(q, l, di, di + 2, ref);
             bvh__place_node(q, l + 1, di ? di + 1 : 0, di + 1 + q->size[l], ref + lcnt);
         }
@@ -1660,6 +1669,10 @@ static void bvh__ploc_init_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     bvh__morton_codes_team(&p->mj, tid, nt, team);
     bvh__range(c->n, tid, nt, &b, &e);
     for (i = b; i < e; i++) {
+        if (i + BVH__GATHER_AHEAD < e) { /* the boxes are read in Morton order, at random: ask ahead */
+            const char *x = (const char *)&c->boxes[p->mj.sort.vals[i + BVH__GATHER_AHEAD]];
+            BVH__PREFETCH(x); BVH__PREFETCH(x + sizeof(bvh_aabb) - 1);
+        }
         bvh__set_box(&p->cin[i], c->boxes[p->mj.sort.vals[i]]);
         p->cin[i].index = (uint32_t)i;
         p->cin[i].count = 1;

@@ -102,6 +102,8 @@ typedef struct row {
     double x_build, x_sah, x_mrays;           /* ours / Embree medium */
     double x_pair, x_pair_min, x_pair_max;    /* build time / Embree medium's in paired rounds:
                                                  median, min, max of the rounds' ratios */
+    double pair_ms;                           /* median build ms in the paired rounds (bvh.h rows
+                                                 and the Embree medium row) */
     double x_ptrace, x_ptrace_min, x_ptrace_max; /* 1-thread Mrays/s / Embree medium's, paired */
     double x_pcl, x_pcl_min, x_pcl_max;       /* OpenCL frame Mrays/s / the CPU's on N threads, paired */
     double emb_bvh_ms, emb_prim_diff;         /* Embree: rtcBuildBVH time; pixels whose triangle
@@ -169,7 +171,7 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->ms_1t = r->mrays_1t = r->ms_mt = r->mrays_mt = r->ms_cl = r->mrays_cl = r->cl_kernel_ms = NAN;
     r->frame_ms = r->fps = r->hits = r->t_sum = NAN;
     r->x_build = r->x_sah = r->x_mrays = r->emb_bvh_ms = r->emb_prim_diff = NAN;
-    r->x_pair = r->x_pair_min = r->x_pair_max = NAN;
+    r->x_pair = r->x_pair_min = r->x_pair_max = r->pair_ms = NAN;
     r->x_ptrace = r->x_ptrace_min = r->x_ptrace_max = NAN;
     r->x_pcl = r->x_pcl_min = r->x_pcl_max = NAN;
     r->frame_tracer = NULL;
@@ -855,7 +857,7 @@ static void run_paired(run_ctx *c, bench_scene *out) {
     const options *o = c->o;
     emb_builder *eb = NULL;
     char msg[160];
-    double *ratio = NULL, ems = 0.0;
+    double *ratio = NULL, *pms, ems = 0.0;
     int i, nb = 0, have_medium = 0;
     uint32_t k;
     for (i = 0; i < out->nrows; i++) {
@@ -868,8 +870,9 @@ static void run_paired(run_ctx *c, bench_scene *out) {
         say("%s: paired rounds: %s", out->name, msg);
         return;
     }
-    ratio = (double *)malloc((size_t)out->nrows * o->paired * sizeof *ratio);
+    ratio = (double *)malloc((size_t)(2 * out->nrows + 1) * o->paired * sizeof *ratio);
     if (!ratio) { emb_builder_close(eb); say("%s: paired rounds: out of memory", out->name); return; }
+    pms = ratio + (size_t)out->nrows * o->paired; /* build ms per row and round; Embree's last */
     for (k = 0; k <= o->paired; k++) { /* round 0: warm-up */
         double ms[BENCH_MAX_ROWS];
         for (i = 0; i < out->nrows; i++) {
@@ -891,13 +894,20 @@ static void run_paired(run_ctx *c, bench_scene *out) {
             goto done;
         }
         for (i = 0; k && i < out->nrows; i++)
-            if (out->rows[i].kind == ROW_BVH && out->rows[i].state == ROW_OK)
+            if (out->rows[i].kind == ROW_BVH && out->rows[i].state == ROW_OK) {
                 ratio[(size_t)i * o->paired + k - 1] = ms[i] / ems;
+                pms[(size_t)i * o->paired + k - 1] = ms[i];
+            }
+        if (k) pms[(size_t)out->nrows * o->paired + k - 1] = ems;
     }
     for (i = 0; i < out->nrows; i++) {
         row *r = &out->rows[i];
-        if (r->kind == ROW_BVH && r->state == ROW_OK)
+        if (r->kind == ROW_BVH && r->state == ROW_OK) {
             median_range(ratio + (size_t)i * o->paired, o->paired, &r->x_pair, &r->x_pair_min, &r->x_pair_max);
+            r->pair_ms = scene_median(pms + (size_t)i * o->paired, o->paired);
+        }
+        if (r->kind == ROW_EMBREE && r->quality == EMB_QUALITY_MEDIUM && r->state == ROW_OK)
+            r->pair_ms = scene_median(pms + (size_t)out->nrows * o->paired, o->paired);
     }
     if (o->trace_cpu) paired_trace(c, out, eb, ratio);
 done:
@@ -1111,12 +1121,23 @@ static void paired_block(FILE *f, const bench_scene *s, const char *prefix, int 
         double hi = which == 0 ? r->x_pair_max : which == 1 ? r->x_ptrace_max : r->x_pcl_max;
         if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(med)) continue;
         if (!any++) fprintf(f, "%s%s: median (min-max)\n", prefix, title);
-        fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, med, lo, hi);
+        fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)", prefix, r->name, med, lo, hi);
+        if (which == 0 && !isnan(r->pair_ms)) fprintf(f, "   median build %.4g ms (table: %.4g)", r->pair_ms, r->build_ms);
+        fputc('\n', f);
     }
 }
 static void paired_lines(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
     char t[200];
-    snprintf(t, sizeof t, "build / embree-medium in %u paired rounds (one build each, interleaved)", o->paired);
+    const row *em = NULL;
+    int i;
+    for (i = 0; i < s->nrows; i++)
+        if (s->rows[i].kind == ROW_EMBREE && s->rows[i].quality == EMB_QUALITY_MEDIUM && !isnan(s->rows[i].pair_ms))
+            em = &s->rows[i];
+    if (em)
+        snprintf(t, sizeof t, "build / embree-medium in %u paired rounds (one build each, interleaved; embree-medium's "
+                 "median build %.4g ms, table: %.4g)", o->paired, em->pair_ms, em->build_ms);
+    else
+        snprintf(t, sizeof t, "build / embree-medium in %u paired rounds (one build each, interleaved)", o->paired);
     paired_block(f, s, prefix, 0, t);
     snprintf(t, sizeof t, "Mrays/s on 1 thread / embree-medium's in %u paired rounds (one frame each)", o->paired);
     paired_block(f, s, prefix, 1, t);
@@ -1336,6 +1357,7 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         else fputs("null", f);
         json_num(f, "ratio_build", r->x_build, 4);
         json_num(f, "ratio_build_paired", r->x_pair, 4);
+        json_num(f, "build_ms_paired", r->pair_ms, 4);
         json_num(f, "ratio_build_paired_min", r->x_pair_min, 4);
         json_num(f, "ratio_build_paired_max", r->x_pair_max, 4);
         json_num(f, "ratio_mrays_1t_paired", r->x_ptrace, 4);

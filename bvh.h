@@ -1,4 +1,4 @@
-/* bvh.h - v0.4.0 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.4.1 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -65,6 +65,8 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.4.1  PLOC builds ask ahead for the boxes gathered into Morton order and for the nodes
+            that root-down emission writes (same trees, a few % faster).
      0.4.0  PLOC's memory budget (desc.max_bytes_per_prim, 40 by default; BVH_NO_MEMORY_LIMIT):
             where the SAH collapse leaves a tree over it (random triangle soups), leaves grow
             until it fits. Smaller neighbour-search buffers on inputs under 1024 primitives.
@@ -82,7 +84,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 4
-#define BVH_VERSION_PATCH 0
+#define BVH_VERSION_PATCH 1
 
 #include <math.h>
 #include <stddef.h>

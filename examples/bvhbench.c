@@ -1589,6 +1589,12 @@ static int parse_u32(const char *s, uint32_t lo, uint32_t hi, uint32_t *out, con
     return 0;
 }
 
+/* "off" (gives `off`) or a count up to 2^30: the --ploc-top and --max-bytes values */
+static int parse_count_or_off(const char *s, uint32_t off, uint32_t *out) {
+    if (s && !strcmp(s, "off")) { *out = off; return 0; }
+    return parse_u32(s, 0, 1u << 30, out, NULL);
+}
+
 static int parse_builders(const char *list, options *o) {
     char buf[256], *tok, *save = NULL;
     int i;
@@ -1665,8 +1671,7 @@ static int parse_args(int argc, char **argv, options *o) {
                 return 2;
             }
         } else if (!strcmp(a, "--ploc-top")) {
-            if (v && !strcmp(v, "off")) o->ploc_top = BVH_PLOC_TOP_OFF;
-            else if (parse_u32(v, 0, 1u << 30, &o->ploc_top, NULL)) {
+            if (parse_count_or_off(v, BVH_PLOC_TOP_OFF, &o->ploc_top)) {
                 fprintf(stderr, "bvhbench: --ploc-top wants a divisor (0 = default) or off, not '%s'\n", v ? v : "");
                 return 2;
             }
@@ -1676,8 +1681,7 @@ static int parse_args(int argc, char **argv, options *o) {
                 return 2;
             }
         } else if (!strcmp(a, "--max-bytes")) {
-            if (v && !strcmp(v, "off")) o->max_bytes = BVH_NO_MEMORY_LIMIT;
-            else if (parse_u32(v, 0, 1u << 30, &o->max_bytes, NULL)) {
+            if (parse_count_or_off(v, BVH_NO_MEMORY_LIMIT, &o->max_bytes)) {
                 fprintf(stderr, "bvhbench: --max-bytes wants bytes per triangle (0 = default) or off, not '%s'\n", v ? v : "");
                 return 2;
             }

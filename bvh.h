@@ -3551,9 +3551,11 @@ static uint32_t bvh__wide_subtree(const bvh_node *nodes, uint32_t b, bvh_node4 *
     return next - w;
 }
 /* Wide nodes on the build's team: the first levels breadth-first on one thread until there are
-   8 subtrees per thread, then the subtrees counted, and written, in parallel, each numbered after
-   the ones before it. On one thread: one subtree, the whole tree. */
+   BVH__WIDE_SUBTREES subtrees, then the subtrees counted, and written, in parallel, each numbered
+   after the ones before it. The split depends on the tree alone, never on the thread count, so
+   the numbering is the same for any team. */
 #define BVH__WIDE_TOP 1024u
+#define BVH__WIDE_SUBTREES 64u
 typedef struct bvh__wide_job {
     const bvh_node *nodes;
     bvh_node4 *out;
@@ -3571,15 +3573,14 @@ static void bvh__wide_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) 
     }
 }
 static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32_t threads) {
-    uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], qlen = 1, top = 0, want = threads > 1 ? 8 * threads : 1;
+    uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], qlen = 1, top = 0;
     uint32_t i, k, pos, total, nt, kids[4];
     const bvh_node *nodes = tree->nodes;
     bvh__wide_job job;
     bvh_result r;
     if (!tree->node_count) return BVH_SUCCESS;
-    if (want > BVH__WIDE_TOP / 8) want = BVH__WIDE_TOP / 8;
     queue[0] = 0;
-    while (top < qlen && qlen - top < want && qlen + 4 <= BVH__WIDE_TOP) { /* breadth-first top */
+    while (top < qlen && qlen - top < BVH__WIDE_SUBTREES && qlen + 4 <= BVH__WIDE_TOP) { /* breadth-first top */
         k = bvh__wide_node(nodes, queue[top++], NULL, kids);
         for (i = 0; i < k; i++)
             if (!nodes[kids[i]].count) queue[qlen++] = kids[i];

@@ -10,6 +10,7 @@
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
 #include "test_util.h"
+#include "tree_diff.h"
 
 /* The statistics agree with a walk over the tree done here. */
 static void check_stats(const tu_scene *s, const bvh_tree *t, uint32_t max_leaf) {
@@ -53,7 +54,9 @@ static void check_tree(const tu_scene *s, const float *tris, const bvh_aabb *box
 }
 
 static void every_builder_valid(void **state) {
+    static const uint32_t threads[] = {1, 2, 3, 8, 0};
     int id = tu_state_id(state), b;
+    size_t th;
     tu_scene s;
     float *tris;
     bvh_aabb *boxes;
@@ -69,13 +72,15 @@ static void every_builder_valid(void **state) {
         tu_build_valid(&s, &d, &t);
         check_tree(&s, tris, boxes, &t, tu_builder(b));
         check_stats(&s, &t, tu_default_leaf(tu_builder(b)));
-        /* deterministic: the same input gives the same tree */
-        tu_build_valid(&s, &d, &again);
-        assert_int_equal(again.node_count, t.node_count);
-        assert_int_equal(again.ref_count, t.ref_count);
-        assert_memory_equal(again.nodes, t.nodes, t.node_count * sizeof(bvh_node));
-        assert_memory_equal(again.prims, t.prims, t.ref_count * sizeof(uint32_t));
-        bvh_free(&again);
+        /* deterministic: the same input gives the same tree, every array of it, on any threads */
+        for (th = 0; th < sizeof threads / sizeof threads[0]; th++) {
+            const char *diff;
+            d.threads = threads[th];
+            tu_build_valid(&s, &d, &again);
+            diff = tree_diff(&t, &again);
+            if (diff) fail_msg("%s/%s: %s differ on %u threads", s.name, bvh_builder_name(tu_builder(b)), diff, threads[th]);
+            bvh_free(&again);
+        }
         bvh_free(&t);
     }
     free(boxes);
@@ -126,14 +131,12 @@ static void builders_agree(void **state) {
     tu_scene_free(&s);
 }
 
-/* Two trees are the same: counts and bytes of nodes, references and triangles. */
+/* Two trees are the same: every public array (tree_diff.h). */
 static void assert_same_tree(const tu_scene *s, const bvh_tree *a, const bvh_tree *b, uint32_t threads) {
-    if (a->node_count != b->node_count || a->ref_count != b->ref_count ||
-        memcmp(a->nodes, b->nodes, a->node_count * sizeof(bvh_node)) != 0 ||
-        memcmp(a->prims, b->prims, a->ref_count * sizeof(uint32_t)) != 0 ||
-        memcmp(a->tris, b->tris, a->ref_count * 9 * sizeof(float)) != 0)
-        fail_msg("%s: ploc-parallel on %u threads (%u nodes, %u refs) differs from ploc (%u nodes, %u refs)", s->name,
-                 threads, b->node_count, b->ref_count, a->node_count, a->ref_count);
+    const char *diff = tree_diff(a, b);
+    if (diff)
+        fail_msg("%s: ploc-parallel on %u threads differs from ploc in %s (%u/%u nodes, %u/%u refs)", s->name, threads,
+                 diff, b->node_count, a->node_count, b->ref_count, a->ref_count);
 }
 static void ploc_parallel_same_tree(const tu_scene *s, const bvh_build_desc *base) {
     static const uint32_t threads[] = {1, 2, 3, 8, 0};

@@ -39,6 +39,8 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "tree_diff.h"
+
 #define RB_FIRST BVH_BUILDER_TOP_DOWN
 #define RB_LAST BVH_BUILDER_PLOC_PARALLEL
 #define RB_FOR_EACH_BUILDER(b) for ((b) = RB_FIRST; (b) <= RB_LAST; (b) = (bvh_builder)((int)(b) + 1))
@@ -1369,11 +1371,8 @@ static void test_ploc_chain_time(void **state) {
 
 /* == threads (also run under TSan) =========================================================== */
 static void rb_same_tree(const bvh_tree *a, const bvh_tree *b, const char *what) {
-    assert_int_equal(a->node_count, b->node_count);
-    assert_int_equal(a->ref_count, b->ref_count);
-    if (memcmp(a->nodes, b->nodes, a->node_count * sizeof(bvh_node)) != 0 ||
-        memcmp(a->prims, b->prims, a->ref_count * sizeof(uint32_t)) != 0)
-        fail_msg("%s: ploc-parallel's tree differs from ploc's", what);
+    const char *diff = tree_diff(a, b);
+    if (diff) fail_msg("%s: ploc-parallel's tree differs from ploc's in %s", what, diff);
 }
 static void rb_threads_scene(rb_scene *s, int which) {
     if (which == 0) rb_scene_random(s, 20000, -10, 10, 1, 121);

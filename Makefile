@@ -54,7 +54,9 @@ CHECK_CC_clang  = clang
 CHECK_CXX_clang = clang++
 CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
            $(addprefix $(BUILD)/check/$(c)/,static static-no-threads two-tu cxx11 cxx11-links-c)) \
-         $(BUILD)/check/traversal-no-simd $(BUILD)/check/builders-no-avx2
+         $(if $(HAVE_CLANG),$(BUILD)/check/clang/fast-math-refused $(BUILD)/check/clang/traversal-fast-math) \
+         $(BUILD)/check/traversal-no-simd $(BUILD)/check/builders-no-avx2 \
+         $(BUILD)/check/traversal-fast-math $(BUILD)/check/robust-fast-math
 
 $(BUILD)/check/%/static: tests/compile_static.c bvh.h
 	@mkdir -p $(dir $@)
@@ -66,6 +68,23 @@ $(BUILD)/check/%/static-no-threads: tests/compile_static.c bvh.h
 $(BUILD)/check/traversal-no-simd: tests/test_traversal.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_SIMD -I. $< -o $@ -lcmocka $(LDLIBS)
+# The traversal and robust suites again as many renderers compile: -O3 -march=native -ffast-math
+# (the implementation keeps IEEE semantics under any flags; see its first lines).
+FAST_MATH = -O3 -march=native -ffast-math
+$(BUILD)/check/%-fast-math: tests/test_%.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(FAST_MATH) -D_GNU_SOURCE -I. $< -o $@ -lcmocka $(LDLIBS)
+# clang cannot undo -ffinite-math-only for the implementation: the header refuses it with #error
+# (checked here), and the rest of -ffast-math is tested.
+$(BUILD)/check/clang/fast-math-refused: tests/compile_static.c bvh.h
+	@mkdir -p $(dir $@)
+	@if clang $(STD) -ffast-math -DBVH_STATIC -I. -c $< -o $@.o 2>$@.log; then echo "clang -ffast-math was not refused"; exit 1; fi
+	@grep -q "add -fno-finite-math-only" $@.log || { cat $@.log; exit 1; }
+	@printf '#!/bin/sh\necho "clang -ffast-math: the implementation is refused with #error, as documented"\n' >$@
+	@chmod +x $@
+$(BUILD)/check/clang/traversal-fast-math: tests/test_traversal.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	clang $(STD) $(WARN) $(FAST_MATH) -fno-finite-math-only -D_GNU_SOURCE -I. $< -o $@ -lcmocka $(LDLIBS)
 # The builder tests again with PLOC's neighbour search on SSE only (BVH_NO_AVX2), where the CPU
 # would take the AVX2 path.
 $(BUILD)/check/builders-no-avx2: tests/test_builders.c $(HEADERS)
@@ -89,9 +108,10 @@ deps-demo:
 deps-bench:
 	@scripts/deps.sh bench
 
+# tests/exit_codes.sh runs $(BUILD)/render and $(BUILD)/cl_info.
 test: deps-test
-	@$(MAKE) --no-print-directory $(TESTS) $(CHECKS)
-	@scripts/run-tests.sh $(TESTS) $(CHECKS)
+	@$(MAKE) --no-print-directory $(TESTS) $(CHECKS) $(BUILD)/render $(BUILD)/cl_info
+	@BUILD=$(BUILD) scripts/run-tests.sh $(TESTS) $(CHECKS) tests/exit_codes.sh
 
 demo: deps-demo
 	@$(MAKE) --no-print-directory $(BUILD)/render

@@ -283,19 +283,24 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc);
 BVH_API void bvh_free(bvh_tree *tree);
 
 /* SAH = Ci * sum_I A(n)/A(root) + Cl * sum_L A(n)/A(root) + Ct * sum_L A(n) N(n)/A(root).
-   costs NULL or all zero = (1, 0, 1). A tree whose root has zero area uses A(n)/A(root) = 1. */
+   costs NULL or all zero = (1, 0, 1). A tree whose root has zero area uses A(n)/A(root) = 1.
+   Like bvh_get_stats, it walks the tree from the root and returns BVH_ERROR_INVALID_TREE where
+   the structure is broken (an index out of range, a cycle, nodes not reached exactly once). */
 BVH_API bvh_result bvh_sah(const bvh_tree *tree, const bvh_costs *costs, double *out_cost);
 
 /* Checks the structure: every node reached once, children inside parents, leaves contain their
    primitives (prim_boxes, or the tree's triangles when NULL; for split references: overlap),
-   every primitive referenced (exactly once unless the builder splits), depth <= BVH_MAX_DEPTH. */
+   every primitive referenced (exactly once unless the builder splits), depth <= BVH_MAX_DEPTH.
+   A tree built from boxes needs its prim_boxes (NULL: BVH_ERROR_INVALID_ARGUMENT). */
 BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes,
                                 bvh_validation *report);
 BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *out);
 
 /* Closest hit (returns 1 and fills *hit) or 0 with hit->prim = BVH_INVALID. Rays with NaN, a
    zero direction, tmin > tmax or a non-finite origin hit nothing. Ties in t go to the lowest
-   primitive index, so that any builder gives exactly the hits of a brute-force loop. */
+   primitive index, so that any builder gives exactly the hits of a brute-force loop. A tree
+   built from boxes has no triangles to trace: every ray misses, in these calls and in the batch
+   calls, which also return BVH_ERROR_NO_TRIANGLES so that the mistake is seen. */
 BVH_API int bvh_intersect(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit);
 /* Any hit in [tmin, tmax]: 1 if the ray is blocked. */
 BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray);
@@ -315,6 +320,7 @@ BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const 
 /* The tree's bounds (empty box for an empty tree). */
 BVH_API bvh_aabb bvh_tree_bounds(const bvh_tree *tree);
 
+/* width or height 0 is taken as 1. */
 BVH_API bvh_camera bvh_camera_standard(bvh_aabb bounds, uint32_t width, uint32_t height);
 /* Primary ray through the centre of pixel (x, y), y = 0 at the top; unit direction. */
 BVH_API bvh_ray bvh_camera_ray(const bvh_camera *cam, uint32_t x, uint32_t y);
@@ -390,13 +396,40 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #define BVH__MAX_LEAF 255u
 #define BVH__MAX_THREADS 256u
 
+/* The implementation keeps IEEE semantics whatever the floating-point flags of the file that
+   includes it (-ffast-math, -Ofast, -ffp-contract=fast): its input checks must see NaN and Inf,
+   its traversal relies on Inf boxes and on the order of NaN in min and max, and the SIMD and
+   scalar tests must give the same bits as the brute-force loop. gcc switches the flags off for
+   the implementation; clang can do so for all but -ffinite-math-only, which it cannot undo. */
+#if defined(__clang__)
+#if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
+#error "bvh.h: clang cannot compile BVH_IMPLEMENTATION with -ffinite-math-only (part of -ffast-math and -Ofast): add -fno-finite-math-only for the file that defines BVH_IMPLEMENTATION (the rest of -ffast-math is fine), or use gcc"
+#endif
+#pragma float_control(precise, on, push)
+#define BVH__FP_POP _Pragma("float_control(pop)")
+#elif defined(__GNUC__)
+#pragma GCC push_options
+#pragma GCC optimize("no-fast-math", "fp-contract=off")
+#define BVH__FP_POP _Pragma("GCC pop_options")
+#else
+#define BVH__FP_POP
+#endif
+
 /* ============================================================================================ */
 /* == math and AABB ============================================================================ */
 /* ============================================================================================ */
 BVH__INLINE float bvh__minf(float a, float b) { return a < b ? a : b; }
 BVH__INLINE float bvh__maxf(float a, float b) { return a > b ? a : b; }
 static float bvh__get(bvh_vec3 v, int axis) { return axis == 0 ? v.x : axis == 1 ? v.y : v.z; }
-static int bvh__finite3(const float *p) { return isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2]); }
+/* NaN and Inf by their bits: no floating-point flag can fold these tests away. */
+static uint32_t bvh__bits(float f) {
+    uint32_t u;
+    memcpy(&u, &f, sizeof u);
+    return u;
+}
+static int bvh__finite(float f) { return (bvh__bits(f) & 0x7f800000u) != 0x7f800000u; }
+static int bvh__nan(float f) { return (bvh__bits(f) & 0x7fffffffu) > 0x7f800000u; }
+static int bvh__finite3(const float *p) { return bvh__finite(p[0]) && bvh__finite(p[1]) && bvh__finite(p[2]); }
 
 BVH_API bvh_aabb bvh_aabb_empty(void) {
     bvh_aabb b;
@@ -479,13 +512,24 @@ BVH_API bvh_result bvh_builder_from_name(const char *name, bvh_builder *out) {
 /* == memory ==================================================================================== */
 /* ============================================================================================ */
 
+/* Blocks must be aligned as malloc's are (BVH__ALIGN): the library stores structs in them. A
+   caller allocator's block aligned less is given back and counts as a failed allocation;
+   bvh_build refuses such an allocator up front (bvh__allocator_ok). */
+#define BVH__ALIGN (sizeof(void *) >= 8 ? 16u : 8u)
 static void *bvh__alloc(const bvh_allocator *al, size_t count, size_t elem) {
     size_t size;
     void *p;
     if (count == 0) count = 1;
     if (count > (size_t)-1 / elem) return NULL;
     size = count * elem;
-    if (al->alloc) return al->alloc(size, al->user);
+    if (al->alloc) {
+        p = al->alloc(size, al->user);
+        if (p && (uintptr_t)p % BVH__ALIGN) {
+            al->free(p, al->user);
+            return NULL;
+        }
+        return p;
+    }
     p = BVH_MALLOC(size, al->user);
 #if defined(__linux__) && defined(BVH__DEFAULT_MALLOC) && !defined(BVH_NO_HUGEPAGES) && defined(MADV_HUGEPAGE)
     /* Big build arrays and the tree itself are touched once each, at random (sort scatter, node
@@ -506,6 +550,15 @@ static void bvh__free(const bvh_allocator *al, void *p) {
     else BVH_FREE(p, al->user);
 }
 #define BVH__ALLOC(al, T, n) BVH__CAST(T *, bvh__alloc((al), (size_t)(n), sizeof(T)))
+/* A caller allocator, tried once: BVH_ERROR_INVALID_ARGUMENT if its blocks are aligned less than
+   malloc's, BVH_ERROR_OUT_OF_MEMORY if it gives none. */
+static bvh_result bvh__allocator_ok(const bvh_allocator *al) {
+    void *p;
+    if (!al->alloc) return BVH_SUCCESS;
+    if (!(p = al->alloc(64, al->user))) return BVH_ERROR_OUT_OF_MEMORY;
+    al->free(p, al->user);
+    return (uintptr_t)p % BVH__ALIGN ? BVH_ERROR_INVALID_ARGUMENT : BVH_SUCCESS;
+}
 #ifndef BVH__MIN_PRIMS_PER_THREAD /* private; the tests set it to 1 to run small inputs threaded */
 #define BVH__MIN_PRIMS_PER_THREAD 8192u
 #endif
@@ -2850,16 +2903,16 @@ static const float *bvh__vertex(const bvh_triangles *t, uint32_t v) {
     size_t stride = t->stride ? t->stride : 3 * sizeof(float);
     return BVH__CAST(const float *, BVH__CAST(const void *, BVH__CAST(const char *, BVH__CAST(const void *, t->positions)) + (size_t)v * stride));
 }
+/* memcpy: a stride that is no multiple of 4 (or an unaligned positions pointer) is read as well */
 BVH__INLINE void bvh__fetch_triangle(const bvh_triangles *t, uint32_t i, float out[9]) {
     int k;
     for (k = 0; k < 3; k++) {
         uint32_t v = t->indices ? t->indices[3 * (size_t)i + k] : (uint32_t)(3 * (size_t)i + k);
-        const float *p = bvh__vertex(t, v);
-        out[3 * k] = p[0]; out[3 * k + 1] = p[1]; out[3 * k + 2] = p[2];
+        memcpy(out + 3 * k, bvh__vertex(t, v), 3 * sizeof(float));
     }
 }
 static int bvh__costs_valid(const bvh_costs *k) {
-    return isfinite(k->interior) && isfinite(k->leaf) && isfinite(k->triangle) &&
+    return bvh__finite(k->interior) && bvh__finite(k->leaf) && bvh__finite(k->triangle) &&
            k->interior >= 0.0f && k->leaf >= 0.0f && k->triangle >= 0.0f;
 }
 static bvh_result bvh__check_desc(const bvh_build_desc *d, uint32_t *count) {
@@ -2869,8 +2922,9 @@ static bvh_result bvh__check_desc(const bvh_build_desc *d, uint32_t *count) {
     if (d->max_leaf_size > BVH__MAX_LEAF || d->ploc_radius > 256) return BVH_ERROR_INVALID_ARGUMENT;
     if (d->trace_width != 0 && d->trace_width != 2 && d->trace_width != 4) return BVH_ERROR_INVALID_ARGUMENT;
     if (d->sah_bins > 64 && d->sah_bins != BVH_SAH_MIDPOINT_ONLY) return BVH_ERROR_INVALID_ARGUMENT;
-    if (!bvh__costs_valid(&d->costs) || d->split_budget != d->split_budget || d->split_budget > 1.0f)
+    if (!bvh__costs_valid(&d->costs) || bvh__nan(d->split_budget) || d->split_budget > 1.0f)
         return BVH_ERROR_INVALID_ARGUMENT;
+    if (!d->allocator.alloc != !d->allocator.free) return BVH_ERROR_INVALID_ARGUMENT; /* both or none */
     if (t->triangle_count && (d->boxes || d->box_count)) return BVH_ERROR_INVALID_ARGUMENT;
     if (d->box_count) {
         if (!d->boxes) return BVH_ERROR_INVALID_ARGUMENT;
@@ -2882,6 +2936,7 @@ static bvh_result bvh__check_desc(const bvh_build_desc *d, uint32_t *count) {
     if (!t->triangle_count) return BVH_SUCCESS;
     if (!t->positions) return BVH_ERROR_INVALID_ARGUMENT;
     if (t->stride != 0 && t->stride < 3 * sizeof(float)) return BVH_ERROR_INVALID_ARGUMENT;
+    if ((uintptr_t)t->indices % sizeof(uint32_t)) return BVH_ERROR_INVALID_ARGUMENT;
     if (t->triangle_count > BVH__MAX_PRIMS) return BVH_ERROR_TOO_MANY_PRIMITIVES;
     if (!t->indices) {
         if ((uint64_t)t->vertex_count < 3 * (uint64_t)t->triangle_count) return BVH_ERROR_INDEX_OUT_OF_RANGE;
@@ -3001,6 +3056,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     if (!desc) return BVH_ERROR_INVALID_ARGUMENT;
     tree->allocator = desc->allocator;
     r = bvh__check_desc(desc, &count);
+    if (r == BVH_SUCCESS) r = bvh__allocator_ok(&desc->allocator);
     if (r != BVH_SUCCESS) return r;
     builder = desc->builder == BVH_BUILDER_DEFAULT ? BVH_BUILDER_PLOC_PARALLEL : desc->builder;
     tree->builder = builder;
@@ -3057,7 +3113,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
         c.bounds = c.cbounds = bvh_aabb_empty();
         for (i = 0, n = 0; i < count; i++) {
             bvh_aabb box = c.boxes[i];
-            if (isnan(box.min.x)) continue;
+            if (bvh__nan(box.min.x)) continue;
             orig[n] = i;
             c.boxes[n++] = box;
             c.bounds = bvh_aabb_merge(c.bounds, box);
@@ -3133,29 +3189,76 @@ static double bvh__half_area_d(const bvh_node *n) {
     if (!(dx >= 0.0 && dy >= 0.0 && dz >= 0.0)) return 0.0;
     return dx * dy + dy * dz + dz * dx;
 }
+/* Visits every node reached from the root, parents before children, with its depth (root 1).
+   Trusts nothing: BVH_ERROR_INVALID_TREE for a child index out of range, a tree deeper than
+   BVH_MAX_DEPTH (so a cycle ends) or a node count that differs from the nodes reached. */
+typedef void (*bvh__visit_fn)(void *ctx, const bvh_node *n, uint32_t depth);
+static bvh_result bvh__walk(const bvh_tree *tree, bvh__visit_fn visit, void *ctx) {
+    uint32_t stack[2 * BVH_MAX_DEPTH + 2], sp = 0, reached = 0;
+    if (!tree->node_count) return BVH_SUCCESS;
+    if (!tree->nodes) return BVH_ERROR_INVALID_TREE;
+    stack[sp++] = 0;
+    stack[sp++] = 1;
+    while (sp) {
+        uint32_t depth = stack[--sp], ni = stack[--sp];
+        const bvh_node *n = &tree->nodes[ni];
+        visit(ctx, n, depth);
+        reached++;
+        if (n->count) continue;
+        if (depth > BVH_MAX_DEPTH || n->index == 0 || n->index + 1 >= tree->node_count ||
+            sp + 4 > 2 * BVH_MAX_DEPTH + 2)
+            return BVH_ERROR_INVALID_TREE;
+        stack[sp++] = n->index;
+        stack[sp++] = depth + 1;
+        stack[sp++] = n->index + 1;
+        stack[sp++] = depth + 1;
+    }
+    return reached == tree->node_count ? BVH_SUCCESS : BVH_ERROR_INVALID_TREE;
+}
+
+typedef struct bvh__sah_sum {
+    double root, si, sl, st;
+} bvh__sah_sum;
+static void bvh__sah_visit(void *ctx, const bvh_node *n, uint32_t depth) {
+    bvh__sah_sum *s = BVH__CAST(bvh__sah_sum *, ctx);
+    double a = s->root > 0.0 ? bvh__half_area_d(n) / s->root : 1.0;
+    (void)depth;
+    if (n->count) {
+        s->sl += a;
+        s->st += a * n->count;
+    } else {
+        s->si += a;
+    }
+}
 BVH_API bvh_result bvh_sah(const bvh_tree *tree, const bvh_costs *costs, double *out) {
-    double ci = 1.0, cl = 0.0, ct = 1.0, si = 0.0, sl = 0.0, st = 0.0, root;
-    uint32_t i;
+    double ci = 1.0, cl = 0.0, ct = 1.0;
+    bvh__sah_sum sum;
+    bvh_result r;
     if (!tree || !out) return BVH_ERROR_INVALID_ARGUMENT;
     if (costs && !bvh__costs_valid(costs)) return BVH_ERROR_INVALID_ARGUMENT;
     if (costs && (costs->interior != 0.0f || costs->leaf != 0.0f || costs->triangle != 0.0f)) {
-        ci = costs->interior; cl = costs->leaf; ct = costs->triangle;
+        ci = costs->interior;
+        cl = costs->leaf;
+        ct = costs->triangle;
     }
     *out = 0.0;
     if (!tree->node_count) return BVH_SUCCESS;
-    root = bvh__half_area_d(&tree->nodes[0]);
-    for (i = 0; i < tree->node_count; i++) {
-        const bvh_node *n = &tree->nodes[i];
-        double a = root > 0.0 ? bvh__half_area_d(n) / root : 1.0;
-        if (n->count) { sl += a; st += a * n->count; }
-        else si += a;
-    }
-    *out = ci * si + cl * sl + ct * st;
+    if (!tree->nodes) return BVH_ERROR_INVALID_TREE;
+    memset(&sum, 0, sizeof sum);
+    sum.root = bvh__half_area_d(&tree->nodes[0]);
+    if ((r = bvh__walk(tree, bvh__sah_visit, &sum)) != BVH_SUCCESS) return r;
+    *out = ci * sum.si + cl * sum.sl + ct * sum.st;
     return BVH_SUCCESS;
 }
 
+static void bvh__stats_visit(void *ctx, const bvh_node *n, uint32_t depth) {
+    bvh_stats *s = BVH__CAST(bvh_stats *, ctx);
+    if (depth > s->max_depth) s->max_depth = depth;
+    if (!n->count) return;
+    s->leaves++;
+    if (n->count > s->max_leaf_size) s->max_leaf_size = n->count;
+}
 BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *s) {
-    uint32_t stack[2 * BVH_MAX_DEPTH + 2], sp = 0;
     if (!tree || !s) return BVH_ERROR_INVALID_ARGUMENT;
     memset(s, 0, sizeof *s);
     s->nodes = tree->node_count;
@@ -3163,23 +3266,7 @@ BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *s) {
     s->bytes = (size_t)tree->node_count * sizeof(bvh_node) + (size_t)tree->ref_count * sizeof(uint32_t);
     s->triangle_bytes = tree->tris ? (size_t)tree->ref_count * 9 * sizeof(float) : 0;
     s->wide_bytes = (size_t)tree->node4_count * sizeof(bvh_node4);
-    if (!tree->node_count) return BVH_SUCCESS;
-    stack[sp++] = 0; stack[sp++] = 1;
-    while (sp) {
-        uint32_t depth = stack[--sp], ni = stack[--sp];
-        const bvh_node *n = &tree->nodes[ni];
-        if (depth > s->max_depth) s->max_depth = depth;
-        if (n->count) {
-            s->leaves++;
-            if (n->count > s->max_leaf_size) s->max_leaf_size = n->count;
-            continue;
-        }
-        if (depth > BVH_MAX_DEPTH || n->index + 1 >= tree->node_count || sp + 4 > 2 * BVH_MAX_DEPTH + 2)
-            return BVH_ERROR_INVALID_TREE;
-        stack[sp++] = n->index; stack[sp++] = depth + 1;
-        stack[sp++] = n->index + 1; stack[sp++] = depth + 1;
-    }
-    return BVH_SUCCESS;
+    return bvh__walk(tree, bvh__stats_visit, s);
 }
 
 static bvh_result bvh__invalid(bvh_validation *rep, uint32_t node, const char *msg) {
@@ -3273,7 +3360,10 @@ BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
         return BVH_SUCCESS;
     }
     if (!tree->nodes || !tree->prims) return bvh__invalid(rep, BVH_INVALID, "node or reference array missing");
-    if (!prim_boxes && !tree->tris) return bvh__invalid(rep, BVH_INVALID, "no primitive boxes to check leaves against");
+    if (!prim_boxes && !tree->tris) {
+        bvh__invalid(rep, BVH_INVALID, "a tree built from boxes is checked against those boxes: prim_boxes is NULL");
+        return BVH_ERROR_INVALID_ARGUMENT;
+    }
     splits = tree->ref_count != tree->prim_count - tree->excluded;
     if (splits && tree->builder != BVH_BUILDER_SAH_MIDPOINT)
         return bvh__invalid(rep, BVH_INVALID, "reference count differs from primitive count for a builder that does not split");
@@ -3355,7 +3445,7 @@ BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
     const float *o = &ray->origin.x, *d = &ray->dir.x;
     float ax, ay, az;
     int a;
-    if (!bvh__finite3(o) || !bvh__finite3(d) || ray->tmin != ray->tmin || ray->tmax != ray->tmax || ray->tmin > ray->tmax)
+    if (!bvh__finite3(o) || !bvh__finite3(d) || bvh__nan(ray->tmin) || bvh__nan(ray->tmax) || ray->tmin > ray->tmax)
         return 0;
     for (a = 0; a < 3; a++) {
         rx->o[a] = o[a];
@@ -3817,7 +3907,14 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
     bvh__batch b;
     uint32_t nt;
     if (!tree || (count && (!rays || (!hits && !occ)))) return BVH_ERROR_INVALID_ARGUMENT;
-    if (tree->node_count && !tree->tris) return BVH_ERROR_NO_TRIANGLES;
+    if (tree->node_count && !tree->tris) { /* as the single-ray calls: every ray misses */
+        size_t i;
+        for (i = 0; i < count; i++) {
+            if (hits) bvh__traverse(tree, &rays[i], &hits[i], 0, NULL);
+            else occ[i] = 0;
+        }
+        return BVH_ERROR_NO_TRIANGLES;
+    }
     b.tree = tree; b.rays = rays; b.hits = hits; b.occluded = occ; b.count = count; b.next = 0;
     nt = bvh__resolve_threads(threads);
     if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
@@ -3851,10 +3948,13 @@ BVH_API bvh_camera bvh_camera_standard(bvh_aabb b, uint32_t width, uint32_t heig
     bvh_vec3 c = bvh_aabb_centroid(b), d = bvh__normalize(bvh__v3(1.0f, 0.6f, 1.3f));
     float dx = b.max.x - b.min.x, dy = b.max.y - b.min.y, dz = b.max.z - b.min.z;
     float diag = sqrtf(dx * dx + dy * dy + dz * dz), th = tanf(30.0f * 3.14159265f / 180.0f);
-    float aspect = height ? (float)width / (float)height : 1.0f;
+    float aspect;
     bvh_vec3 r, u;
-    if (!(diag > 0.0f) || !isfinite(diag)) diag = 1.0f;
-    if (!isfinite(c.x) || !isfinite(c.y) || !isfinite(c.z)) c = bvh__v3(0.0f, 0.0f, 0.0f);
+    width = width ? width : 1;
+    height = height ? height : 1;
+    aspect = (float)width / (float)height;
+    if (!(diag > 0.0f) || !bvh__finite(diag)) diag = 1.0f;
+    if (!bvh__finite(c.x) || !bvh__finite(c.y) || !bvh__finite(c.z)) c = bvh__v3(0.0f, 0.0f, 0.0f);
     cam.eye = bvh__v3(c.x + d.x * 1.5f * diag, c.y + d.y * 1.5f * diag, c.z + d.z * 1.5f * diag);
     cam.forward = bvh__v3(-d.x, -d.y, -d.z);
     r = bvh__normalize(bvh__cross(cam.forward, bvh__v3(0.0f, 1.0f, 0.0f)));
@@ -3867,8 +3967,8 @@ BVH_API bvh_camera bvh_camera_standard(bvh_aabb b, uint32_t width, uint32_t heig
 }
 BVH_API bvh_ray bvh_camera_ray(const bvh_camera *cam, uint32_t x, uint32_t y) {
     bvh_ray ray;
-    float sx = 2.0f * ((float)x + 0.5f) / (float)cam->width - 1.0f;
-    float sy = 1.0f - 2.0f * ((float)y + 0.5f) / (float)cam->height;
+    float sx = 2.0f * ((float)x + 0.5f) / (float)(cam->width ? cam->width : 1) - 1.0f;
+    float sy = 1.0f - 2.0f * ((float)y + 0.5f) / (float)(cam->height ? cam->height : 1);
     bvh_vec3 d = bvh__v3(cam->forward.x + sx * cam->right.x + sy * cam->up.x,
                          cam->forward.y + sx * cam->right.y + sy * cam->up.y,
                          cam->forward.z + sx * cam->right.z + sy * cam->up.z);
@@ -3879,6 +3979,7 @@ BVH_API bvh_ray bvh_camera_ray(const bvh_camera *cam, uint32_t x, uint32_t y) {
     return ray;
 }
 
+BVH__FP_POP
 #endif /* BVH_IMPLEMENTATION_DONE */
 #endif /* BVH_IMPLEMENTATION */
 

@@ -6,7 +6,12 @@
    Prints every platform/device with its limits; then builds a BVH over a wavy grid of 2 x 64 x 64
    triangles, renders a 256 x 256 frame of the standard camera with bvh_cl_render_frame and compares
    every pixel's hit with bvh_intersect. Without OpenCL (built without BVH_HAVE_OPENCL, or no
-   device) it says so and traces on the CPU only, which is the fallback every example can use. */
+   device) it says so and traces on the CPU only, which is the fallback every example can use;
+   but a device named in $BVH_CL_DEVICE is asked for explicitly, and never falls back.
+
+   Exit status: 0 when the device's hits are the CPU's, or when there is no OpenCL here and
+   $BVH_CL_DEVICE is not set; 1 when they differ, when the device $BVH_CL_DEVICE names cannot be
+   used, or when a device was found but could not trace (said in one line on stderr). */
 #define BVH_IMPLEMENTATION
 #include "bvh.h"
 #define BVH_CL_IMPLEMENTATION
@@ -31,6 +36,13 @@ static void list_devices(void) {
                dev[i].compute_units, (unsigned long long)(dev[i].max_alloc >> 20),
                (unsigned long long)(dev[i].global_mem >> 20), dev[i].is_gpu ? "GPU" : "not a GPU",
                dev[i].exact ? ", hits bit-identical to the CPU" : "");
+}
+
+/* Whether a failed OpenCL step may fall back to the CPU: only when there is no OpenCL here at all
+   and no device was asked for. */
+static int may_fall_back(bvh_cl_result r, const char *want) {
+    if (want && *want) return 0;
+    return r == BVH_CL_ERROR_NOT_AVAILABLE || r == BVH_CL_ERROR_NO_PLATFORM || r == BVH_CL_ERROR_NO_DEVICE;
 }
 
 /* a height field z = 0.2 sin(3x) cos(2y) over [0, 1]^2, two triangles per cell */
@@ -65,7 +77,9 @@ int main(void) {
     bvh_hit *hits = (bvh_hit *)malloc(sizeof(bvh_hit) * SIZE * SIZE);
     uint8_t *rgba = (uint8_t *)malloc(4 * SIZE * SIZE);
     char log[2048] = "";
-    uint32_t n = 0, x, y, same = 0, hit = 0;
+    const char *want = getenv("BVH_CL_DEVICE");
+    uint32_t n = 0, x, y, same = 0, hit = 0, i;
+    int failed = 0;
     float *v = wavy_grid(&n);
     bvh_result br;
     bvh_cl_result r;
@@ -86,7 +100,13 @@ int main(void) {
     r = bvh_cl_create(&cl, &cd);
     if (r == BVH_CL_SUCCESS) r = bvh_cl_upload(cl, &tree, &gpu);
     if (r == BVH_CL_SUCCESS) r = bvh_cl_render_frame(gpu, &cam, rgba, hits, NULL);
-    if (r != BVH_CL_SUCCESS) {
+    if (r != BVH_CL_SUCCESS && !may_fall_back(r, want)) {
+        for (i = 0; log[i]; i++) /* one line, even with a compiler's build log */
+            if (log[i] == '\n' || log[i] == '\r') log[i] = ' ';
+        fprintf(stderr, "cl_info: %s%s cannot be used: %s%s%s\n", want && *want ? "BVH_CL_DEVICE=" : "OpenCL",
+                want && *want ? want : "", bvh_cl_result_string(r), log[0] ? ": " : "", log);
+        failed = 1;
+    } else if (r != BVH_CL_SUCCESS) {
         printf("OpenCL: %s%s%s\nfalling back to the CPU\n", bvh_cl_result_string(r), log[0] ? "\n" : "", log);
         for (y = 0; y < SIZE; y++)
             for (x = 0; x < SIZE; x++) {
@@ -111,5 +131,5 @@ int main(void) {
     bvh_cl_destroy(cl);
     bvh_free(&tree);
     free(v); free(hits); free(rgba);
-    return r == BVH_CL_SUCCESS && same != SIZE * SIZE ? 1 : 0;
+    return failed || (r == BVH_CL_SUCCESS && same != SIZE * SIZE) ? 1 : 0;
 }

@@ -21,7 +21,9 @@
    frame_ms is the median of the F frames of the backend used. Then headlight shading of the
    backend's hits (--out) and the heat map of the nodes visited (--heatmap, heatmap.h).
    Default: ploc-parallel, all cores, 800x600, OpenCL when a device is found (else the CPU, said
-   once on stderr), 5 frames, heat scale 0..200 nodes, no image, human-readable report. */
+   once on stderr), 5 frames, heat scale 0..200 nodes, no image, human-readable report. An explicit
+   --trace opencl never falls back: without a usable device render says so and exits with status 1.
+   Exit status: 0 done; 1 an error (said on stderr in one line); 2 a bad command line. */
 #define BVH_IMPLEMENTATION
 #include "bvh.h"
 #define BVH_CL_IMPLEMENTATION
@@ -100,7 +102,8 @@ static void usage(FILE *f) {
             "  --threads N     build (ploc-parallel) and CPU trace threads, 0 = all cores (default 0)\n"
             "  --size WxH      image size in pixels (default 800x600)\n"
             "  --trace B       cpu, or opencl (default when a device is found; $BVH_CL_DEVICE=P:D\n"
-            "                  picks one); opencl also traces one frame on the CPU to check the hits\n"
+            "                  picks one); opencl also traces one frame on the CPU to check the hits,\n"
+            "                  and fails (status 1) when no OpenCL device can be used\n"
             "  --frames F      frames timed after a warm-up frame, the median reported (default 5)\n"
             "  --out FILE      write the frame as PNG or binary PPM (by extension)\n"
             "  --heatmap FILE  write the nodes visited per pixel as a heat map with a legend\n"
@@ -110,6 +113,8 @@ static void usage(FILE *f) {
             "  --repeat R      build R times and report the median build time (default 1)\n"
             "  --help          this text\n"
             "%s"
+            "exit status: 0 done, 1 error (scene, build, --trace opencl without a device, OpenCL\n"
+            "             hits not the CPU's), 2 bad command line\n"
             "built with: assimp=%s png=%s opencl=%s\n",
             scene_spec_help(), scene_can_use_assimp() ? "yes" : "no (only .obj files load)",
             scene_can_write_png() ? "yes" : "no (use .ppm)", RENDER_OPENCL);
@@ -370,22 +375,28 @@ static void gpu_close(gpu *g) {
 }
 
 /* Opens the device ($BVH_CL_DEVICE or the first) and uploads the tree. 0: ready; 1: OpenCL cannot
-   be used, said once on stderr (the caller traces on the CPU). */
-static int gpu_open(gpu *g, const bvh_tree *tree) {
+   be used, said in one line on stderr: an error when `required` (--trace opencl), else a note (the
+   caller traces on the CPU). */
+static int gpu_open(gpu *g, const bvh_tree *tree, int required) {
     char log[2048] = "";
+    const char *pre = required ? "render: --trace opencl: " : "render: ";
+    const char *post = required ? "" : ": tracing on the CPU";
     bvh_cl_desc desc;
     bvh_cl_result r;
+    size_t i;
     memset(&desc, 0, sizeof desc);
     desc.log = log;
     desc.log_size = sizeof log;
     r = bvh_cl_create(&g->ctx, &desc);
     if (r == BVH_CL_SUCCESS) r = bvh_cl_upload(g->ctx, tree, &g->tree);
     if (r == BVH_CL_SUCCESS) r = bvh_cl_get_info(g->ctx, &g->info);
+    for (i = 0; log[i]; i++) /* one line, even with a compiler's build log */
+        if (log[i] == '\n' || log[i] == '\r') log[i] = ' ';
     if (r == BVH_CL_ERROR_NOT_AVAILABLE)
-        fprintf(stderr, "render: built without OpenCL (BVH_HAVE_OPENCL): tracing on the CPU\n");
+        fprintf(stderr, "%sbuilt without OpenCL (BVH_HAVE_OPENCL)%s\n", pre, post);
     else if (r != BVH_CL_SUCCESS)
-        fprintf(stderr, "render: OpenCL cannot be used (%s%s%s): tracing on the CPU\n", bvh_cl_result_string(r),
-                log[0] ? ": " : "", log);
+        fprintf(stderr, "%sOpenCL cannot be used (%s%s%s)%s\n", pre, bvh_cl_result_string(r), log[0] ? ": " : "",
+                log, post);
     if (r != BVH_CL_SUCCESS) {
         gpu_close(g);
         return 1;
@@ -474,14 +485,16 @@ static void heat_summary(const frame *f, const options *o, report *r) {
     if (!r->heat_scale) r->heat_scale = 1;
 }
 
-/* Traces with the chosen backend (see the top of the file). 0, 1 (error, said) or
-   RENDER_MISMATCH. */
+/* Traces with the chosen backend (see the top of the file). 0, 1 (error, said; also --trace opencl
+   without a usable device) or RENDER_MISMATCH. */
 static int trace(const options *o, const bvh_tree *tree, frame *f, report *r) {
     size_t n = (size_t)f->width * f->height;
     gpu g;
-    int rc;
+    int rc, use_cl;
     memset(&g, 0, sizeof g);
-    if (o->trace != TRACE_CPU && gpu_open(&g, tree) == 0) {
+    use_cl = o->trace != TRACE_CPU && gpu_open(&g, tree, o->trace == TRACE_OPENCL) == 0;
+    if (!use_cl && o->trace == TRACE_OPENCL) return 1; /* asked for by name: no fallback */
+    if (use_cl) {
         f->cl_hits = (bvh_hit *)malloc(n * sizeof(bvh_hit));
         if (!f->cl_hits) {
             fprintf(stderr, "render: out of memory for a %ux%u frame\n", f->width, f->height);

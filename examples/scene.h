@@ -24,7 +24,7 @@
 
    SCENE SPECS (scene_load)
      PATH                  any file assimp reads (OBJ, PLY, glTF/GLB, 3DS, ...), all meshes
-                           flattened to world space; faces that are not triangles are dropped
+                           flattened to world space; polygons are triangulated, points and lines dropped
      gen:random:N          N small random triangles in the unit cube (fixed seed)
      gen:field:K           K Stanford bunnies on a ground plane: K*69666+2 triangles
                            (gen:field:15 = 1,044,992; gen:field:44 = 3,065,306); needs the Debian
@@ -46,8 +46,10 @@
      Functions that can fail return 0 on success and non-zero on failure, with a one-line message
      in err (when err is not NULL). Nothing here prints, exits or aborts. Missing, empty and
      unreadable files, truncated GLB and PLY files (checked here first: assimp 5.2 hangs, aborts or
-     crashes on some truncated PLY files), files assimp cannot read and files without a triangle
-     are all refused with a message; a deliberately corrupted file may still trip assimp itself.
+     crashes on some truncated PLY files), faces without indices or with an index past their
+     mesh's vertices (checked with assimp's validator and here, before assimp's post-processing,
+     which aborts or crashes on them), files assimp cannot read and files without a triangle are
+     all refused with a message; a deliberately corrupted file may still trip an assimp reader.
 
    LICENSE
      MIT, like bvh.h.
@@ -74,7 +76,7 @@ extern "C" {
 typedef struct scene {
     float *v;           /* triangle i is v[9i .. 9i+8]: x0 y0 z0 x1 y1 z1 x2 y2 z2, world space */
     uint32_t triangles; /* > 0 after a successful load */
-    uint32_t skipped;   /* faces the loader dropped (points, lines, bad indices) */
+    uint32_t skipped;   /* faces the loader dropped (points, lines) */
     char name[256];     /* file name without its directory, or the generator spec */
 } scene;
 
@@ -482,10 +484,43 @@ static int scene__load_obj(const char *path, scene__buf *b, uint32_t *skipped, c
 }
 
 #ifdef BVH_HAVE_ASSIMP
+/* assimp 5.2's post-processing trusts the faces a reader made, whatever the format: triangulation
+   asserts on a face without indices, and a polygon with an index past its mesh's vertices crashes
+   it. So the file is first imported without post-processing, with assimp's validator (which, run
+   this early, checks the indices but not the index counts), and every face is checked here; only
+   then is it imported for real. aiApplyPostProcessing would save the second parse, but in assimp
+   5.2.5 it frees the scene twice when a step fails. */
+static int scene__check_assimp(const char *path, char *err, size_t errlen) {
+    const struct aiScene *s = aiImportFile(path, aiProcess_ValidateDataStructure);
+    unsigned m, f, k;
+    int rc = 0;
+    if (!s && strstr(aiGetErrorString(), "contains no faces"))
+        return scene__fail(err, errlen, "'%s' contains no triangles (assimp: %s)", path, aiGetErrorString());
+    if (!s) return scene__fail(err, errlen, "cannot read '%s' as a mesh: %s", path, aiGetErrorString());
+    for (m = 0; m < s->mNumMeshes && !rc; m++) {
+        const struct aiMesh *mesh = s->mMeshes[m];
+        if (!mesh || (mesh->mNumFaces && !mesh->mFaces))
+            rc = scene__fail(err, errlen, "'%s': mesh %u has no face array", path, m);
+        for (f = 0; !rc && f < mesh->mNumFaces; f++) {
+            const struct aiFace *face = &mesh->mFaces[f];
+            if (!face->mNumIndices || !face->mIndices)
+                rc = scene__fail(err, errlen, "'%s': face %u of mesh %u has no vertex indices", path, f, m);
+            for (k = 0; !rc && k < face->mNumIndices; k++)
+                if (face->mIndices[k] >= mesh->mNumVertices)
+                    rc = scene__fail(err, errlen, "'%s': face %u of mesh %u uses vertex %u, the mesh has %u", path,
+                                     f, m, face->mIndices[k], mesh->mNumVertices);
+        }
+    }
+    aiReleaseImport(s);
+    return rc;
+}
+
 static int scene__load_assimp(const char *path, scene__buf *b, uint32_t *skipped, char *err, size_t errlen) {
-    const struct aiScene *s = aiImportFile(path, aiProcess_Triangulate | aiProcess_PreTransformVertices);
+    const struct aiScene *s;
     size_t total = 0;
     unsigned m, f;
+    if (scene__check_assimp(path, err, errlen)) return 1;
+    s = aiImportFile(path, aiProcess_Triangulate | aiProcess_PreTransformVertices);
     if (!s && strstr(aiGetErrorString(), "No output meshes"))
         return scene__fail(err, errlen, "'%s' contains no triangles (assimp: %s)", path, aiGetErrorString());
     if (!s) return scene__fail(err, errlen, "cannot read '%s' as a mesh: %s", path, aiGetErrorString());

@@ -39,6 +39,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "fp_bits.h"
 #include "tree_diff.h"
 
 #define FZ_MAX_RAYS 96
@@ -113,11 +114,11 @@ typedef struct fz_case {
 static int fz_finite9(const float *t) {
     int k;
     for (k = 0; k < 9; k++)
-        if (!isfinite(t[k])) return 0;
+        if (!fp_finite(t[k])) return 0;
     return 1;
 }
 static int fz_costs_ok(const bvh_costs *c) {
-    return isfinite(c->interior) && isfinite(c->leaf) && isfinite(c->triangle) && c->interior >= 0.0f &&
+    return fp_finite(c->interior) && fp_finite(c->leaf) && fp_finite(c->triangle) && c->interior >= 0.0f &&
            c->leaf >= 0.0f && c->triangle >= 0.0f;
 }
 
@@ -302,10 +303,10 @@ static void fz_check_rays(const fz_case *c, const bvh_tree *t) {
         bvh_hit want, h;
         int w = fz_brute(c, r, &want), got = bvh_intersect(t, r, &h);
 #ifdef FZ_SKIP_KNOWN_BUGS
-        if (w && !(isfinite(want.t) && isfinite(want.u) && isfinite(want.v))) continue;
+        if (w && !(fp_finite(want.t) && fp_finite(want.u) && fp_finite(want.v))) continue;
         if ((got != w || h.prim != want.prim) && fz_known_bug(c, r, got, &h, w, &want)) continue;
 #endif
-        FZ_CHECK(!w || (isfinite(want.t) && isfinite(want.u) && isfinite(want.v)),
+        FZ_CHECK(!w || (fp_finite(want.t) && fp_finite(want.u) && fp_finite(want.v)),
                  "bvh_intersect_triangle: hit on triangle %u at t=%a u=%a v=%a", want.prim, (double)want.t,
                  (double)want.u, (double)want.v);
         if (got != w || h.prim != want.prim) { /* print the triangles involved */

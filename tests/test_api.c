@@ -5,6 +5,7 @@
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
 #include "test_util.h"
+#include "tree_diff.h"
 
 static void assert_tree_empty(const bvh_tree *t) {
     assert_null(t->nodes);
@@ -315,7 +316,7 @@ static void box_input(void **state) {
         assert_int_equal(t.prim_count, n);
         if (bvh_validate(&t, boxes, &rep) != BVH_SUCCESS)
             fail_msg("%s: box tree: %s (node %u)", bvh_builder_name(t.builder), rep.message, rep.node);
-        assert_int_equal(bvh_validate(&t, NULL, &rep), BVH_ERROR_INVALID_TREE); /* nothing to check leaves against */
+        assert_int_equal(bvh_validate(&t, NULL, &rep), BVH_ERROR_INVALID_ARGUMENT); /* nothing to check leaves against */
         assert_int_equal(bvh_get_stats(&t, &st), BVH_SUCCESS);
         assert_int_equal(st.triangle_bytes, 0);
         assert_true(st.bytes == (size_t)st.nodes * 32 + (size_t)st.refs * 4);
@@ -327,8 +328,14 @@ static void box_input(void **state) {
             assert_int_equal(h.prim, BVH_INVALID);
             assert_int_equal(bvh_occluded(&t, &rays[i]), 0);
         }
+        memset(hits, 0x5a, sizeof hits);
+        memset(occ, 0x5a, sizeof occ);
         assert_int_equal(bvh_intersect_batch(&t, rays, hits, 600, 2), BVH_ERROR_NO_TRIANGLES);
         assert_int_equal(bvh_occluded_batch(&t, rays, occ, 600, 2), BVH_ERROR_NO_TRIANGLES);
+        for (i = 0; i < 600; i++) { /* every ray misses, as in the single-ray calls */
+            assert_int_equal(hits[i].prim, BVH_INVALID);
+            assert_int_equal(occ[i], 0);
+        }
         bvh_free(&t);
         /* bad boxes: NaN, Inf, inverted; refused, or skipped and counted */
         {
@@ -417,6 +424,90 @@ static void failing_allocator(void **state) {
             assert_int_equal(c.live, 0);
         }
         print_message("%-14s %ld allocations, each failure handled\n", bvh_builder_name(tu_builder(b)), total);
+    }
+    tu_scene_free(&s);
+}
+
+/* An allocator whose blocks sit `offset` bytes past malloc's alignment. */
+typedef struct skewed {
+    size_t offset;
+    long live;
+} skewed;
+static void *skewed_alloc(size_t size, void *user) {
+    skewed *k = (skewed *)user;
+    char *p = (char *)malloc(size + 16);
+    void *start = p;
+    if (!p) return NULL;
+    k->live++;
+    memcpy(p, &start, sizeof start); /* the block's start, found again by skewed_free */
+    return p + 16 - k->offset;
+}
+static void skewed_free(void *q, void *user) {
+    skewed *k = (skewed *)user;
+    void *p;
+    if (!q) return;
+    memcpy(&p, (char *)q - (16 - k->offset), sizeof p);
+    k->live--;
+    free(p);
+}
+
+/* Vertices at any byte alignment (strides 13-15, a positions pointer one byte off) are read
+   safely (make asan's UBSan checks alignment) and give the tree of the aligned copy; indices not
+   aligned to 4 bytes, an allocator aligned less than malloc, and an allocator without its free
+   are refused with BVH_ERROR_INVALID_ARGUMENT, nothing leaked. */
+static void unaligned_input(void **state) {
+    static const size_t offsets[] = {1, 4, 8, 12};
+    tu_scene s;
+    size_t stride, k;
+    uint32_t v;
+    int b;
+    (void)state;
+    tu_scene_random(&s, 300, 0x616c6eULL);
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
+        bvh_tree ref, t;
+        tu_build_valid(&s, &d, &ref);
+        for (stride = 12; stride <= 16; stride++) {
+            char *buf = (char *)malloc(stride * s.vertex_count + 1), *base = buf + (stride == 12 ? 1 : 0);
+            const char *diff;
+            assert_non_null(buf);
+            for (v = 0; v < s.vertex_count; v++) memcpy(base + stride * v, tu_vertex(&s, v), 3 * sizeof(float));
+            d.triangles.positions = (const float *)(const void *)base;
+            d.triangles.stride = stride;
+            tu_build_valid(&s, &d, &t);
+            diff = tree_diff(&ref, &t);
+            if (diff) fail_msg("%s: stride %zu differs in %s", bvh_builder_name(tu_builder(b)), stride, diff);
+            bvh_free(&t);
+            free(buf);
+        }
+        d = tu_scene_desc(&s, tu_builder(b));
+        for (k = 0; k < sizeof offsets / sizeof offsets[0]; k++) {
+            skewed sk;
+            sk.offset = offsets[k];
+            sk.live = 0;
+            d.allocator.alloc = skewed_alloc;
+            d.allocator.free = skewed_free;
+            d.allocator.user = &sk;
+            build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
+            assert_int_equal(sk.live, 0);
+        }
+        d.allocator.free = NULL; /* alloc without free */
+        build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
+        d.allocator.alloc = NULL;
+        d.allocator.free = skewed_free; /* free without alloc */
+        build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
+        bvh_free(&ref);
+    }
+    tu_scene_free(&s);
+    tu_scene_strided32(&s);
+    {
+        uint32_t *idx = (uint32_t *)malloc(3 * sizeof(uint32_t) * s.tri_count + 2);
+        bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
+        assert_non_null(idx);
+        memcpy((char *)idx + 2, s.indices, 3 * sizeof(uint32_t) * s.tri_count);
+        d.triangles.indices = (const uint32_t *)(const void *)((char *)idx + 2);
+        build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
+        free(idx);
     }
     tu_scene_free(&s);
 }
@@ -577,6 +668,12 @@ static void triangle_and_camera(void **state) {
     }
     r = bvh_camera_ray(&cam, 0, 0); /* y = 0 is the top row */
     assert_true(r.dir.y > bvh_camera_ray(&cam, 0, 2).dir.y);
+    for (x = 0; x < 3; x++) { /* a width or height of 0 is taken as 1: finite unit directions */
+        cam = bvh_camera_standard(box, x == 1 ? 7 : 0, x == 2 ? 7 : 0);
+        r = bvh_camera_ray(&cam, 0, 0);
+        assert_true(fp_finite(r.dir.x) && fp_finite(r.dir.y) && fp_finite(r.dir.z));
+        assert_true(fabsf(r.dir.x * r.dir.x + r.dir.y * r.dir.y + r.dir.z * r.dir.z - 1.0f) < 1e-5f);
+    }
 }
 
 /* == the validator catches corrupted trees ======================================================== */
@@ -612,6 +709,14 @@ static void expect_invalid(bvh_tree *c, const char *what) {
         fail_msg("%s/%s: no message", bvh_builder_name(c->builder), what);
     print_message("%-14s %-34s -> node %10u: %s\n", bvh_builder_name(c->builder), what, rep.node, rep.message);
     free_copy(c);
+}
+/* A broken structure: bvh_sah and bvh_get_stats refuse to walk it as bvh_validate does. */
+static void expect_broken(bvh_tree *c, const char *what) {
+    double sah;
+    bvh_stats st;
+    if (bvh_sah(c, NULL, &sah) != BVH_ERROR_INVALID_TREE) fail_msg("%s: bvh_sah accepted it", what);
+    if (bvh_get_stats(c, &st) != BVH_ERROR_INVALID_TREE) fail_msg("%s: bvh_get_stats accepted it", what);
+    expect_invalid(c, what);
 }
 static uint32_t first_leaf(const bvh_tree *t, uint32_t min_count) {
     uint32_t i;
@@ -677,7 +782,7 @@ static void corrupted_trees(void **state) {
 
         c = copy_tree(&t, 0); /* an interior node pointing past the node array */
         c.nodes[0].index = c.node_count - 1;
-        expect_invalid(&c, "children past the node array");
+        expect_broken(&c, "children past the node array");
 
         /* a cycle: an interior node's children are its own pair. All boxes are made the root's
            first, so that the cycle is the only defect. */
@@ -686,13 +791,13 @@ static void corrupted_trees(void **state) {
         assert_int_equal(bvh_validate(&c, NULL, &rep), BVH_SUCCESS);
         x = inner_interior(&c, &pair);
         c.nodes[x].index = pair;
-        expect_invalid(&c, "cycle (own pair as children)");
+        expect_broken(&c, "cycle (own pair as children)");
 
         c = copy_tree(&t, 0); /* a cycle back to the root */
         for (i = 0; i < c.node_count; i++) { c.nodes[i].min = c.nodes[0].min; c.nodes[i].max = c.nodes[0].max; }
         x = inner_interior(&c, &pair);
         c.nodes[x].index = 0;
-        expect_invalid(&c, "cycle (root as child)");
+        expect_broken(&c, "cycle (root as child)");
 
         c = copy_tree(&t, 0); /* a primitive referenced twice (and so another one missing) */
         c.prims[1] = c.prims[0];
@@ -814,6 +919,7 @@ int main(void) {
         cmocka_unit_test(zero_triangles),
         cmocka_unit_test(box_input),
         cmocka_unit_test(failing_allocator),
+        cmocka_unit_test(unaligned_input),
         cmocka_unit_test(failing_allocator_after_build),
         cmocka_unit_test(stats_and_free),
         cmocka_unit_test(aabb_helpers),

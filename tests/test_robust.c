@@ -39,6 +39,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "fp_bits.h"
 #include "tree_diff.h"
 
 #define RB_FIRST BVH_BUILDER_TOP_DOWN
@@ -162,7 +163,7 @@ static void rb_scene_random(rb_scene *s, uint32_t n, float lo, float hi, float s
 static int rb_finite9(const float *t) {
     int k;
     for (k = 0; k < 9; k++)
-        if (!isfinite(t[k])) return 0;
+        if (!fp_finite(t[k])) return 0;
     return 1;
 }
 static bvh_build_desc rb_desc(const rb_scene *s, bvh_builder b) {
@@ -200,9 +201,9 @@ static void rb_check_sah(const bvh_tree *t, const char *what) {
     double sah = -1.0;
     bvh_costs k = {1.0f, 0.5f, 2.0f};
     assert_int_equal(bvh_sah(t, NULL, &sah), BVH_SUCCESS);
-    if (!isfinite(sah) || sah < 0.0) fail_msg("%s (%s): SAH %g", what, bvh_builder_name(t->builder), sah);
+    if (!fp_finite(sah) || sah < 0.0) fail_msg("%s (%s): SAH %g", what, bvh_builder_name(t->builder), sah);
     assert_int_equal(bvh_sah(t, &k, &sah), BVH_SUCCESS);
-    if (!isfinite(sah) || sah < 0.0) fail_msg("%s (%s): SAH %g with costs (1, 0.5, 2)", what, bvh_builder_name(t->builder), sah);
+    if (!fp_finite(sah) || sah < 0.0) fail_msg("%s (%s): SAH %g with costs (1, 0.5, 2)", what, bvh_builder_name(t->builder), sah);
 }
 
 /* Closest hit over every finite triangle of the scene, lowest index first at equal t. */
@@ -894,13 +895,13 @@ static void test_hit_is_finite(void **state) {
     rb_scene_soup(&s, 1);
     rb_set_tri(s.pos, 0x1.0208p-113f, 0x1p-139f, 0x1.0008p-119f, -0x1.020208p+113f, 0x1.08p-31f, 0, 0, 0, 0);
     rb_scene_expand(&s);
-    if (bvh_intersect_triangle(&ray, s.tris, s.tris + 3, s.tris + 6, &h) && !(isfinite(h.t) && isfinite(h.u) && isfinite(h.v)))
+    if (bvh_intersect_triangle(&ray, s.tris, s.tris + 3, s.tris + 6, &h) && !(fp_finite(h.t) && fp_finite(h.u) && fp_finite(h.v)))
         fail_msg("bvh_intersect_triangle: hit at t=%a u=%a v=%a", (double)h.t, (double)h.u, (double)h.v);
     RB_FOR_EACH_BUILDER(b) {
         bvh_build_desc d = rb_desc(&s, b);
         bvh_tree t;
         assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
-        if (bvh_intersect(&t, &ray, &h) && !(isfinite(h.t) && isfinite(h.u) && isfinite(h.v)))
+        if (bvh_intersect(&t, &ray, &h) && !(fp_finite(h.t) && fp_finite(h.u) && fp_finite(h.v)))
             fail_msg("%s: hit at t=%a u=%a v=%a", bvh_builder_name(b), (double)h.t, (double)h.u, (double)h.v);
         bvh_free(&t);
     }

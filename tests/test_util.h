@@ -23,6 +23,7 @@
 #include <string.h>
 
 #include "bvh.h"
+#include "fp_bits.h"
 
 #define TU_FN static inline
 #define TU_BUNNY_PATH "/usr/share/glmark2/models/bunny.obj"
@@ -114,7 +115,7 @@ TU_FN float *tu_scene_tris(const tu_scene *s) {
 TU_FN int tu_finite9(const float *t) {
     int k;
     for (k = 0; k < 9; k++)
-        if (!isfinite(t[k])) return 0;
+        if (!fp_finite(t[k])) return 0;
     return 1;
 }
 TU_FN bvh_aabb tu_tri_box(const float *t) {
@@ -569,7 +570,7 @@ TU_FN int tu_brute_culled(const tu_oracle *o, const bvh_ray *ray, bvh_hit *best)
     int a;
     best->t = ray->tmax; best->u = best->v = 0.0f; best->prim = BVH_INVALID;
     for (a = 0; a < 3; a++) {
-        if (!isfinite(org[a]) || !isfinite(dir[a])) return 0; /* bvh_intersect_triangle refuses it */
+        if (!fp_finite(org[a]) || !fp_finite(dir[a])) return 0; /* bvh_intersect_triangle refuses it */
         inv[a] = dir[a] != 0.0f ? 1.0 / (double)dir[a] : 0.0;
         pad = fabs((double)org[a]) > pad ? fabs((double)org[a]) : pad;
     }

@@ -18,12 +18,23 @@
    over the tree bounds, bvh_camera_ray per pixel) traced on 1 CPU thread and on N CPU threads
    (bvh_intersect_batch; median time of 3 frames each) and with OpenCL (cl/bvh_cl.h: packets
    of 4 x 4 rays on a CPU device); frame ms = the fastest of those tracers, FPS = 1000 / frame ms.
-   With --paired N, N rounds then each build once with every builder and once with Embree
-   medium, and N more each trace one 1-thread frame with every tree and with Embree's scene, one
-   right after the other, and N more each render a frame with OpenCL and trace it on the CPU's
-   N threads: the medians of the rounds' ratios are printed under the table and written to the
-   JSON (ratio_build_paired, ratio_mrays_1t_paired, ratio_opencl_mt_paired), robust to a shared
-   machine's slow moments in a way the ratio of two medians taken seconds apart is not.
+   Beside the camera rays, the two sets of rays a renderer traces next (examples/rays.h, shared
+   with build/render), made once per scene from the first bvh.h frame's hits and traced by every
+   tracer on the same arrays, on 1 and on N CPU threads (median of 3 passes): "diffuse", one ray
+   per primary hit, cosine-weighted about the geometric normal turned toward the viewer, from
+   the hit point moved 1e-4 x the scene diagonal along that normal (fixed seed; closest hit:
+   bvh_intersect_batch, Embree rtcIntersect1), and "shadow", from the same points toward the
+   fixed light normalize(0.3, 1, 0.2) for the hits that face it (any hit, tmax infinite:
+   bvh_occluded_batch, Embree rtcOccluded1); columns diff/shad 1t and Nt, their counts under
+   the table. With --paired N, N rounds then each build once with every builder and once with
+   Embree medium, and N more each trace the camera rays, the diffuse and the shadow rays on one
+   thread with every tree and with Embree's scene, one right after the other, and N more each
+   render a frame with OpenCL and trace it on the CPU's N threads: the medians of the rounds'
+   ratios (and of the Mrays/s) are printed under the table and written to the JSON
+   (ratio_build_paired, ratio_mrays_1t_paired, ratio_diffuse_1t_paired, ratio_shadow_1t_paired,
+   ratio_opencl_mt_paired; mrays_1t_paired, diffuse_mrays_1t_paired, shadow_mrays_1t_paired),
+   robust to a shared machine's slow moments in a way the ratio of two medians taken seconds
+   apart is not.
    Rows: "none" (brute force, the study's first row; only up to --brute-max triangles), the five
    builders, and Embree's scene API at build quality low, medium and high (rtcIntersect1 for the
    frame; the SAH, nodes and leaves of a binary tree from rtcBuildBVH at the same quality).
@@ -32,8 +43,12 @@
    pixel by pixel with bvh.h's and an exact (long double) ray-triangle test referees each pixel
    where they differ: a pixel bvh.h loses is a disagreement; pixels it wins, or grazing rays
    within float precision of an edge, mark Embree's row "(e)" with a note (a disagreement only
-   with --strict). A disagreement is reported on stderr, marked "(!)" in the tables, and makes
-   the exit status 3.
+   with --strict). The diffuse rays (triangle and t to the bit) and the shadow rays (occluded or
+   not) of bvh.h's tracers (brute force, every builder, 1 and N threads) must agree exactly too;
+   Embree's N-thread answers must be its 1-thread ones, and its 1-thread answers may differ from
+   bvh.h's on at most 1e-3 of a set's rays (grazing rays: noted "(e)" under the table, counted in
+   the JSON's diffuse_rays_other_answer / shadow_rays_other_answer), beyond which they disagree.
+   A disagreement is reported on stderr, marked "(!)" in the tables, and makes the exit status 3.
 
    Exit status: 0 ok; 1 an error (a scene, build or output failed); 2 bad command line;
    3 the hits disagree. */
@@ -43,6 +58,8 @@
 #include "scene.h"
 #define EMB_IMPLEMENTATION
 #include "embree_side.h"
+#define RAYS_IMPLEMENTATION
+#include "rays.h"
 #define BVH_CL_IMPLEMENTATION
 #include "cl/bvh_cl.h"
 
@@ -67,6 +84,8 @@
 #define BENCH_TRACE_REPEAT 3 /* frames per CPU, OpenCL and Embree tracer; median time */
 #define BENCH_BRUTE_TESTS 1e9 /* brute force: at most this many ray-triangle tests per frame */
 #define BENCH_BUNNY "/usr/share/glmark2/models/bunny.obj"
+#define BENCH_SET_TOLERANCE 1e-3 /* Embree may answer another way on this fraction of a secondary
+                                    set's rays (grazing rays, float noise) before it disagrees */
 
 typedef struct options {
     const char *scenes[BENCH_MAX_SCENES];
@@ -84,6 +103,17 @@ typedef struct options {
     const char *md, *json, *plots, *argv0;
     int quiet, strict;
 } options;
+
+/* The secondary ray sets (examples/rays.h), made once per scene from the reference frame. */
+enum { SET_DIFFUSE, SET_SHADOW, SET_COUNT };
+static const char *const g_set_names[SET_COUNT] = {"diffuse", "shadow"};
+typedef struct set_figs {
+    double rays, count, t_sum;               /* count: diffuse hits, shadow rays occluded */
+    double ms_1t, mrays_1t, ms_mt, mrays_mt;
+    double x_p, x_p_min, x_p_max;            /* 1-thread Mrays/s / Embree medium's, paired rounds */
+    double p_mrays;                          /* median 1-thread Mrays/s of the paired rounds */
+    double other;                            /* Embree: rays answered otherwise than by bvh.h */
+} set_figs;
 
 /* One row of a scene's table. Every number is NAN when it does not apply ("-" / null). */
 typedef enum row_kind { ROW_BRUTE, ROW_BVH, ROW_EMBREE } row_kind;
@@ -106,6 +136,9 @@ typedef struct row {
                                                  and the Embree medium row) */
     double x_ptrace, x_ptrace_min, x_ptrace_max; /* 1-thread Mrays/s / Embree medium's, paired */
     double x_pcl, x_pcl_min, x_pcl_max;       /* OpenCL frame Mrays/s / the CPU's on N threads, paired */
+    double p_mrays;                           /* median 1-thread Mrays/s of the paired rounds */
+    set_figs set[SET_COUNT];                  /* the diffuse and shadow rays */
+    char set_note[320];                       /* Embree: its answers on the sets, where they differ */
     double emb_bvh_ms, emb_prim_diff;         /* Embree: rtcBuildBVH time; pixels whose triangle
                                                  differs from bvh.h's */
     const char *frame_tracer;
@@ -162,6 +195,7 @@ static uint32_t online_cpus(void) {
 }
 
 static void row_init(row *r, row_kind kind, const char *name) {
+    int k;
     memset(r, 0, sizeof *r);
     r->kind = kind;
     snprintf(r->name, sizeof r->name, "%s", name);
@@ -173,7 +207,12 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->x_build = r->x_sah = r->x_mrays = r->emb_bvh_ms = r->emb_prim_diff = NAN;
     r->x_pair = r->x_pair_min = r->x_pair_max = r->pair_ms = NAN;
     r->x_ptrace = r->x_ptrace_min = r->x_ptrace_max = NAN;
-    r->x_pcl = r->x_pcl_min = r->x_pcl_max = NAN;
+    r->x_pcl = r->x_pcl_min = r->x_pcl_max = r->p_mrays = NAN;
+    for (k = 0; k < SET_COUNT; k++) {
+        set_figs *f = &r->set[k];
+        f->rays = f->count = f->t_sum = f->ms_1t = f->mrays_1t = f->ms_mt = f->mrays_mt = NAN;
+        f->x_p = f->x_p_min = f->x_p_max = f->p_mrays = f->other = NAN;
+    }
     r->frame_tracer = NULL;
 }
 
@@ -304,6 +343,7 @@ typedef struct brute_job {
     bvh_hit *hits;
     size_t count;
     uint32_t tid, nt;
+    int any;             /* any hit: stop at the first (shadow rays) */
 } brute_job;
 
 /* Closest hit over every triangle in index order; ties in t keep the lower index, as bvh.h. */
@@ -318,6 +358,7 @@ static void brute_ray(const brute_job *j, size_t i) {
             best = h;
             best.prim = j->ids[k];
             ray.tmax = h.t;
+            if (j->any) break;
         }
     }
     j->hits[i] = best;
@@ -333,7 +374,7 @@ static void *brute_worker(void *arg) {
 }
 /* Traces on `threads` threads (the caller is one of them); 0 on success. */
 static int trace_brute(const float *v, const uint32_t *ids, uint32_t nids, const bvh_ray *rays, bvh_hit *hits,
-                       size_t count, uint32_t threads, double *ms) {
+                       size_t count, uint32_t threads, int any, double *ms) {
     brute_job jobs[256];
     pthread_t tid[256];
     uint32_t k, started = 1;
@@ -341,7 +382,7 @@ static int trace_brute(const float *v, const uint32_t *ids, uint32_t nids, const
     int rc = 0;
     for (k = 0; k < threads; k++) {
         jobs[k].v = v; jobs[k].ids = ids; jobs[k].nids = nids; jobs[k].rays = rays; jobs[k].hits = hits;
-        jobs[k].count = count; jobs[k].tid = k; jobs[k].nt = threads;
+        jobs[k].count = count; jobs[k].tid = k; jobs[k].nt = threads; jobs[k].any = any;
     }
     t0 = scene_now_ms();
     for (k = 1; k < threads; k++, started++)
@@ -371,6 +412,13 @@ typedef struct run_ctx {
     char ref_name[48];
     double ref_hits;        /* hit count of the first frame (bvh.h or Embree) ... */
     char ref_hits_name[48]; /* ... and its row */
+    rays_set sets;          /* diffuse and shadow rays from the reference frame, made once */
+    int has_sets;
+    bvh_hit *dhits, *dref;  /* a diffuse frame; the reference one (the first bvh.h traced) */
+    uint8_t *occ, *oref;    /* a shadow frame; the reference one */
+    int has_sref[SET_COUNT];
+    char sref_name[SET_COUNT][48];
+    double sref_count[SET_COUNT]; /* the reference's diffuse hits, shadow rays occluded */
     mem_counter mem;
 } run_ctx;
 
@@ -422,6 +470,136 @@ static void make_rays(run_ctx *c, bvh_aabb bounds, bvh_camera *cam) {
         for (x = 0; x < c->o->width; x++) c->rays[i++] = bvh_camera_ray(cam, x, y);
 }
 
+/* ---- the secondary ray sets (examples/rays.h) --------------------------------------------------- */
+/* Makes the diffuse and shadow rays from the reference frame (once per scene, the first bvh.h
+   frame: every tracer gets the same arrays) and the buffers of their answers. 0 when the sets
+   exist. */
+static int make_sets(run_ctx *c) {
+    bvh_camera cam;
+    size_t n;
+    if (c->has_sets) return 0;
+    if (!c->has_ref) return 1;
+    cam = bvh_camera_standard(c->bounds, c->o->width, c->o->height);
+    if (rays_make(&cam, c->ref, c->s->v, c->bounds, &c->sets)) return 1;
+    n = c->sets.ndiffuse ? c->sets.ndiffuse : 1; /* nshadow <= ndiffuse */
+    c->dhits = (bvh_hit *)malloc(n * sizeof *c->dhits);
+    c->dref = (bvh_hit *)malloc(n * sizeof *c->dref);
+    c->occ = (uint8_t *)malloc(n);
+    c->oref = (uint8_t *)malloc(n);
+    if (!c->dhits || !c->dref || !c->occ || !c->oref) {
+        say("%s: out of memory for the diffuse and shadow rays", c->out->name);
+        return 1;
+    }
+    c->has_sets = 1;
+    return 0;
+}
+static size_t set_size(const run_ctx *c, int set) { return set == SET_DIFFUSE ? c->sets.ndiffuse : c->sets.nshadow; }
+static const bvh_ray *set_rays(const run_ctx *c, int set) {
+    return set == SET_DIFFUSE ? c->sets.diffuse : c->sets.shadow;
+}
+
+/* The count (diffuse hits, shadow rays occluded) and t_sum of a set's answers (c->dhits or
+   c->occ); compares them ray by ray (prim and t to the bit; occluded or not) with the set's
+   reference, or makes them the reference. bvh.h's tracers must agree exactly. */
+static void check_set(run_ctx *c, row *r, int set, const char *tracer) {
+    size_t i, n = set_size(c, set), diff = 0, first = 0;
+    double count = 0.0, t_sum = 0.0;
+    set_figs *f = &r->set[set];
+    for (i = 0; i < n; i++) {
+        if (set == SET_SHADOW) count += c->occ[i];
+        else if (c->dhits[i].prim != BVH_INVALID) { count += 1.0; t_sum += (double)c->dhits[i].t; }
+    }
+    f->rays = (double)n;
+    if (isnan(f->count)) { f->count = count; f->t_sum = t_sum; }
+    if (!c->has_sref[set]) {
+        if (set == SET_SHADOW) memcpy(c->oref, c->occ, n);
+        else memcpy(c->dref, c->dhits, n * sizeof *c->dhits);
+        c->has_sref[set] = 1;
+        c->sref_count[set] = count;
+        snprintf(c->sref_name[set], sizeof c->sref_name[set], "%s %s", r->name, tracer);
+        return;
+    }
+    for (i = 0; i < n; i++) {
+        int same = set == SET_SHADOW ? c->occ[i] == c->oref[i]
+                 : c->dhits[i].prim == c->dref[i].prim &&
+                   (c->dhits[i].prim == BVH_INVALID || !memcmp(&c->dhits[i].t, &c->dref[i].t, sizeof(float)));
+        if (!same && !diff++) first = i;
+    }
+    if (diff)
+        flag(c, r, "%s %s %s rays: %.0f %s, %zu rays differ from %s (first: ray %zu)", r->name, tracer,
+             g_set_names[set], count, set == SET_SHADOW ? "occluded" : "hits", diff, c->sref_name[set], first);
+    else if (count != f->count || t_sum != f->t_sum)
+        flag(c, r, "%s %s %s rays: the answers differ from the row's first pass", r->name, tracer, g_set_names[set]);
+}
+
+/* BENCH_TRACE_REPEAT passes over a set on `threads` threads; *ms = the median time */
+static bvh_result trace_set(run_ctx *c, const bvh_tree *tree, int set, uint32_t threads, double *ms) {
+    double v[BENCH_TRACE_REPEAT];
+    uint32_t i;
+    for (i = 0; i < BENCH_TRACE_REPEAT; i++) {
+        double t0 = scene_now_ms();
+        bvh_result res = set == SET_DIFFUSE ? bvh_intersect_batch(tree, c->sets.diffuse, c->dhits, c->sets.ndiffuse, threads)
+                                            : bvh_occluded_batch(tree, c->sets.shadow, c->occ, c->sets.nshadow, threads);
+        v[i] = scene_now_ms() - t0;
+        if (res != BVH_SUCCESS) return res;
+    }
+    *ms = scene_median(v, BENCH_TRACE_REPEAT);
+    return BVH_SUCCESS;
+}
+
+/* Both sets with a tree, on 1 and on N threads. */
+static bvh_result tree_sets(run_ctx *c, row *r, const bvh_tree *tree) {
+    const options *o = c->o;
+    char tag[32];
+    int set;
+    if (make_sets(c)) return BVH_SUCCESS;
+    for (set = 0; set < SET_COUNT; set++) {
+        set_figs *f = &r->set[set];
+        size_t n = set_size(c, set);
+        bvh_result res;
+        progress("%s: %s, %s rays, 1 thread", c->out->name, r->name, g_set_names[set]);
+        if ((res = trace_set(c, tree, set, 1, &f->ms_1t)) != BVH_SUCCESS) return res;
+        f->mrays_1t = mrays_of(n, f->ms_1t);
+        check_set(c, r, set, "cpu-1t");
+        f->ms_mt = f->ms_1t;
+        if (o->nthreads > 1) {
+            progress("%s: %s, %s rays, %u threads", c->out->name, r->name, g_set_names[set], o->nthreads);
+            if ((res = trace_set(c, tree, set, o->nthreads, &f->ms_mt)) != BVH_SUCCESS) return res;
+            snprintf(tag, sizeof tag, "cpu-%ut", o->nthreads);
+            check_set(c, r, set, tag);
+        }
+        f->mrays_mt = mrays_of(n, f->ms_mt);
+    }
+    return BVH_SUCCESS;
+}
+
+/* Both sets by brute force (closest hit, or any hit for the shadow rays); one pass each. */
+static int brute_sets(run_ctx *c, row *r) {
+    uint32_t threads[2] = {1, c->o->nthreads}, passes = c->o->nthreads > 1 ? 2 : 1, k;
+    char tag[32];
+    int set;
+    if (make_sets(c)) return 0;
+    for (set = 0; set < SET_COUNT; set++) {
+        set_figs *f = &r->set[set];
+        size_t n = set_size(c, set), i;
+        for (k = 0; k < passes; k++) {
+            uint32_t th = threads[k];
+            double ms;
+            progress("%s: none (brute force), %s rays, %u thread(s)", c->out->name, g_set_names[set], th);
+            if (trace_brute(c->s->v, c->ids, c->nids, set_rays(c, set), c->dhits, n, th, set == SET_SHADOW, &ms))
+                return 1;
+            if (set == SET_SHADOW)
+                for (i = 0; i < n; i++) c->occ[i] = c->dhits[i].prim != BVH_INVALID;
+            snprintf(tag, sizeof tag, "cpu-%ut", th);
+            check_set(c, r, set, tag);
+            if (th == 1) { f->ms_1t = ms; f->mrays_1t = mrays_of(n, ms); }
+            f->ms_mt = ms;
+            f->mrays_mt = mrays_of(n, ms);
+        }
+    }
+    return 0;
+}
+
 static void run_brute(run_ctx *c, row *r) {
     const options *o = c->o;
     bvh_camera cam;
@@ -442,20 +620,21 @@ static void run_brute(run_ctx *c, row *r) {
     }
     make_rays(c, c->bounds, &cam);
     progress("%s: none (brute force), 1 thread", c->out->name);
-    if (trace_brute(c->s->v, c->ids, c->nids, c->rays, c->hits, c->npix, 1, &ms)) goto thread_fail;
+    if (trace_brute(c->s->v, c->ids, c->nids, c->rays, c->hits, c->npix, 1, 0, &ms)) goto thread_fail;
     r->ms_1t = ms;
     r->mrays_1t = mrays_of(c->npix, ms);
     frame_pick(r, ms, "cpu-1t");
     check_frame(c, r, "cpu-1t", c->hits);
     if (o->nthreads > 1) {
         progress("%s: none (brute force), %u threads", c->out->name, o->nthreads);
-        if (trace_brute(c->s->v, c->ids, c->nids, c->rays, c->hits, c->npix, o->nthreads, &ms)) goto thread_fail;
+        if (trace_brute(c->s->v, c->ids, c->nids, c->rays, c->hits, c->npix, o->nthreads, 0, &ms)) goto thread_fail;
         snprintf(tag, sizeof tag, "cpu-%ut", o->nthreads);
         check_frame(c, r, tag, c->hits);
     }
     r->ms_mt = ms;
     r->mrays_mt = mrays_of(c->npix, ms);
     frame_pick(r, ms, "cpu-mt");
+    if (brute_sets(c, r)) goto thread_fail;
     return;
 thread_fail:
     r->state = ROW_FAILED;
@@ -580,6 +759,7 @@ static void trace_tree(run_ctx *c, row *r, const bvh_tree *tree) {
         }
         r->mrays_mt = mrays_of(c->npix, r->ms_mt);
         frame_pick(r, r->ms_mt, "cpu-mt");
+        if ((res = tree_sets(c, r, tree)) != BVH_SUCCESS) goto fail;
     }
     if (c->cl) {
         progress("%s: %s, trace OpenCL", c->out->name, r->name);
@@ -659,6 +839,15 @@ static const char *prim_text(uint32_t prim, char *b, size_t n) {
    exact test referees: bvh.h is right when its triangle is hit (or grazed) and Embree's is
    missed, grazed or not nearer. Pixels bvh.h loses are disagreements (!); when it wins them all,
    the row is marked (e) and noted, and is a disagreement only with --strict. */
+/* 1 when an exact test says bvh.h's answer b (a triangle or BVH_INVALID) for the ray is wrong
+   and Embree's e (another) is right: b is missed, or e is surely hit and surely nearer. */
+static int ours_loses(const run_ctx *c, const bvh_ray *ray, uint32_t e, uint32_t b) {
+    long double te = 0.0L, tb = 0.0L;
+    int se = e == BVH_INVALID ? 0 : exact_hit(ray, c->s->v + 9 * (size_t)e, &te);
+    int sb = b == BVH_INVALID ? 0 : exact_hit(ray, c->s->v + 9 * (size_t)b, &tb);
+    return b == BVH_INVALID ? se == 1 : sb == 0 || (se == 1 && te < tb * (1.0L - 1e-6L));
+}
+
 static void referee_embree(run_ctx *c, row *r) {
     const options *o = c->o;
     bvh_camera cam = bvh_camera_standard(c->bounds, o->width, o->height);
@@ -667,14 +856,10 @@ static void referee_embree(run_ctx *c, row *r) {
     for (i = 0; i < c->npix; i++) {
         uint32_t e = c->emb_prims[i], b = c->ref[i].prim;
         bvh_ray ray;
-        long double te = 0.0L, tb = 0.0L;
-        int se, sb;
         if (e == b) continue;
         if (!diff++) first = i;
         ray = bvh_camera_ray(&cam, (uint32_t)(i % o->width), (uint32_t)(i / o->width));
-        se = e == BVH_INVALID ? 0 : exact_hit(&ray, c->s->v + 9 * (size_t)e, &te);
-        sb = b == BVH_INVALID ? 0 : exact_hit(&ray, c->s->v + 9 * (size_t)b, &tb);
-        if (b == BVH_INVALID ? se == 1 : sb == 0 || (se == 1 && te < tb * (1.0L - 1e-6L)))
+        if (ours_loses(c, &ray, e, b))
             if (!lost++) first_lost = i;
     }
     r->emb_prim_diff = (double)diff;
@@ -697,6 +882,102 @@ static void referee_embree(run_ctx *c, row *r) {
         if (o->strict) flag(c, r, "%s (--strict)", r->referee_msg);
         else say("note on %s: %s", c->out->name, r->referee_msg);
     }
+}
+
+/* Embree's answers on a set against bvh.h's reference: rays answered otherwise (another
+   triangle or none; blocked or not), counted. Up to BENCH_SET_TOLERANCE of the set's rays are
+   float noise (grazing rays; Embree's test is not watertight) and noted in the row; more are a
+   disagreement, and so is a diffuse ray where the exact test of referee_embree says bvh.h is
+   wrong (a shadow ray's blocker is not known, so those are held to the tolerance alone). */
+static void embree_set_compare(run_ctx *c, row *r, int set, const uint32_t *prim, const float *t, const uint8_t *occ) {
+    size_t i, n = set_size(c, set), other = 0, first = 0, lost = 0, first_lost = 0;
+    double count = 0.0, t_sum = 0.0;
+    set_figs *f = &r->set[set];
+    char line[160];
+    for (i = 0; i < n; i++) {
+        int differs;
+        if (set == SET_SHADOW) {
+            count += occ[i];
+            differs = occ[i] != c->oref[i];
+        } else {
+            if (prim[i] != BVH_INVALID) { count += 1.0; t_sum += (double)t[i]; }
+            differs = prim[i] != c->dref[i].prim;
+            if (differs && ours_loses(c, &c->sets.diffuse[i], prim[i], c->dref[i].prim) && !lost++) first_lost = i;
+        }
+        if (differs && !other++) first = i;
+    }
+    f->rays = (double)n;
+    f->count = count;
+    f->t_sum = t_sum;
+    f->other = (double)other;
+    if (lost)
+        flag(c, r, "%s: %zu %s rays answered otherwise, at %zu an exact test says bvh.h is wrong (first: ray %zu)",
+             r->name, other, g_set_names[set], lost, first_lost);
+    if (!other || !c->has_sref[set]) return;
+    snprintf(line, sizeof line, "%s rays: %.0f %s (%s: %.0f), %zu of %zu rays answered otherwise (first: ray %zu)",
+             g_set_names[set], count, set == SET_SHADOW ? "occluded" : "hits", c->sref_name[set],
+             c->sref_count[set], other, n, first);
+    if ((double)other > BENCH_SET_TOLERANCE * (double)n)
+        flag(c, r, "%s: %s, more than the tolerance of %g of the rays", r->name, line, BENCH_SET_TOLERANCE);
+    else if (!lost)
+        snprintf(r->set_note + strlen(r->set_note), sizeof r->set_note - strlen(r->set_note), "%s%s",
+                 r->set_note[0] ? "; " : "", line);
+}
+
+/* Embree on the diffuse and shadow sets: a scene of the row's quality (emb_builder, robust
+   flag, as the frame's), BENCH_TRACE_REPEAT passes on 1 and on N threads (median), the same
+   rays as bvh.h's (origin already offset, tnear 0). The N-thread answers must be the 1-thread
+   ones; the 1-thread ones are compared with bvh.h's (embree_set_compare). */
+static void embree_sets(run_ctx *c, row *r) {
+    const options *o = c->o;
+    emb_builder *eb = NULL;
+    char msg[160] = "out of memory";
+    size_t n = c->sets.ndiffuse ? c->sets.ndiffuse : 1;
+    float *t = (float *)malloc(2 * n * sizeof *t);
+    uint32_t *p = (uint32_t *)malloc(2 * n * sizeof *p), passes = o->nthreads > 1 ? 2 : 1, pass;
+    uint8_t *occ = (uint8_t *)malloc(2 * n);
+    int set, st = t && p && occ ? EMB_OK : EMB_ERR_MEMORY;
+    if (st == EMB_OK) st = emb_builder_open(&eb, r->quality, o->threads, msg);
+    if (st == EMB_OK && (st = emb_builder_keep(eb, c->s->v, c->s->triangles)) != EMB_OK)
+        snprintf(msg, sizeof msg, "scene build failed");
+    for (set = 0; st == EMB_OK && set < SET_COUNT; set++) {
+        set_figs *f = &r->set[set];
+        size_t m = set_size(c, set), i, mt_diff = 0;
+        for (pass = 0; st == EMB_OK && pass < passes; pass++) {
+            uint32_t th = pass ? o->nthreads : 1, k;
+            double v[BENCH_TRACE_REPEAT], ms;
+            progress("%s: %s, %s rays, %u thread(s)", c->out->name, r->name, g_set_names[set], th);
+            for (k = 0; st == EMB_OK && k < BENCH_TRACE_REPEAT; k++)
+                st = emb_builder_rays(eb, set_rays(c, set), m, th, t + pass * n, p + pass * n,
+                                      set == SET_SHADOW ? occ + pass * n : NULL, &v[k]);
+            if (st != EMB_OK) {
+                snprintf(msg, sizeof msg, "%s rays: %s", g_set_names[set], emb_status_string(st));
+                break;
+            }
+            ms = scene_median(v, BENCH_TRACE_REPEAT);
+            if (!pass) { f->ms_1t = ms; f->mrays_1t = mrays_of(m, ms); }
+            f->ms_mt = ms;
+            f->mrays_mt = mrays_of(m, ms);
+        }
+        if (st != EMB_OK) break;
+        for (i = 0; passes == 2 && i < m; i++)
+            mt_diff += set == SET_SHADOW ? occ[i] != occ[n + i]
+                     : p[i] != p[n + i] || (p[i] != BVH_INVALID && t[i] != t[n + i]);
+        if (mt_diff)
+            flag(c, r, "%s: %zu %s rays answered otherwise on %u threads than on 1", r->name, mt_diff, g_set_names[set],
+                 o->nthreads);
+        embree_set_compare(c, r, set, p, t, occ);
+    }
+    if (st != EMB_OK) {
+        r->state = ROW_FAILED;
+        snprintf(r->note, sizeof r->note, "failed: Embree on the secondary rays: %.150s", msg);
+    } else if (r->set_note[0]) {
+        say("note on %s: %s: %s", c->out->name, r->name, r->set_note);
+    }
+    emb_builder_close(eb);
+    free(t);
+    free(p);
+    free(occ);
 }
 
 static void run_embree(run_ctx *c, row *r) {
@@ -737,6 +1018,8 @@ static void run_embree(run_ctx *c, row *r) {
             snprintf(c->ref_hits_name, sizeof c->ref_hits_name, "%s", r->name);
         } else if (r->hits != c->ref_hits)
             flag(c, r, "%s: %.0f hits, %s has %.0f", r->name, r->hits, c->ref_hits_name, c->ref_hits);
+        if (c->has_sets) embree_sets(c, r);
+        if (r->state != ROW_OK) return;
     }
     memset(&sd, 0, sizeof sd);
     sd.quality = r->quality;
@@ -804,7 +1087,13 @@ static void paired_opencl(run_ctx *c, bench_scene *out, bvh_tree *trees, int mad
 static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *ratio) {
     const options *o = c->o;
     bvh_tree trees[BENCH_MAX_ROWS];
-    int i, made = 0;
+    double *pms = ratio + (size_t)(1 + SET_COUNT) * out->nrows * o->paired; /* ms per kind, tree, round */
+    double *ems = NULL;                                          /* Embree's ms per kind and round */
+    float *et = NULL;
+    uint32_t *ep = NULL;
+    uint8_t *eo = NULL;
+    size_t n = c->sets.ndiffuse ? c->sets.ndiffuse : 1;
+    int i, made = 0, kind, kinds;
     uint32_t k;
     memset(trees, 0, sizeof trees);
     progress("%s: paired tracing, building the trees", out->name);
@@ -819,32 +1108,73 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
         if (bvh_build(&trees[i], &desc) != BVH_SUCCESS) { say("%s: paired tracing: build failed", out->name); goto done; }
         made = i + 1;
     }
+    kinds = c->has_sets ? 1 + SET_COUNT : 1;
+    ems = (double *)malloc((size_t)kinds * o->paired * sizeof *ems);
+    et = (float *)malloc(n * sizeof *et);
+    ep = (uint32_t *)malloc(n * sizeof *ep);
+    eo = (uint8_t *)malloc(n);
+    if (!ems || !et || !ep || !eo) { say("%s: paired tracing: out of memory", out->name); goto done; }
     for (k = 0; k <= o->paired; k++) { /* round 0: warm-up */
-        double ms[BENCH_MAX_ROWS], ems = 0.0;
+        double ms[BENCH_MAX_ROWS][1 + SET_COUNT], em[1 + SET_COUNT];
         for (i = 0; i < made; i++) {
-            double t0;
             if (!trees[i].node_count) continue;
             progress("%s: paired tracing round %u/%u%s, %s", out->name, k, o->paired, k ? "" : " (warm-up)",
                      out->rows[i].name);
-            t0 = scene_now_ms();
-            if (bvh_intersect_batch(&trees[i], c->rays, c->hits, c->npix, 1) != BVH_SUCCESS) goto done;
-            ms[i] = scene_now_ms() - t0;
+            for (kind = 0; kind < kinds; kind++) { /* the camera rays, then each set */
+                double t0 = scene_now_ms();
+                bvh_result res = kind == 0 ? bvh_intersect_batch(&trees[i], c->rays, c->hits, c->npix, 1)
+                               : kind == 1 + SET_DIFFUSE
+                                   ? bvh_intersect_batch(&trees[i], c->sets.diffuse, c->dhits, c->sets.ndiffuse, 1)
+                                   : bvh_occluded_batch(&trees[i], c->sets.shadow, c->occ, c->sets.nshadow, 1);
+                ms[i][kind] = scene_now_ms() - t0;
+                if (res != BVH_SUCCESS) goto done;
+            }
         }
-        if (emb_builder_trace(eb, c->rays, o->width, o->height, 1, &ems) != EMB_OK || !(ems > 0.0)) {
-            say("%s: paired tracing: Embree frame failed", out->name);
-            goto done;
+        for (kind = 0; kind < kinds; kind++) {
+            int st = kind == 0 ? emb_builder_trace(eb, c->rays, o->width, o->height, 1, &em[kind])
+                   : emb_builder_rays(eb, set_rays(c, kind - 1), set_size(c, kind - 1), 1, et, ep,
+                                      kind == 1 + SET_SHADOW ? eo : NULL, &em[kind]);
+            if (st != EMB_OK || !(em[kind] > 0.0)) {
+                say("%s: paired tracing: Embree failed", out->name);
+                goto done;
+            }
         }
-        for (i = 0; k && i < made; i++)
-            if (trees[i].node_count) ratio[(size_t)i * o->paired + k - 1] = ems / ms[i];
+        for (kind = 0; k && kind < kinds; kind++) {
+            ems[kind * (size_t)o->paired + k - 1] = em[kind];
+            for (i = 0; i < made; i++)
+                if (trees[i].node_count) {
+                    ratio[((size_t)kind * made + i) * o->paired + k - 1] = em[kind] / ms[i][kind];
+                    pms[((size_t)kind * made + i) * o->paired + k - 1] = ms[i][kind];
+                }
+        }
     }
-    for (i = 0; i < made; i++) {
-        row *r = &out->rows[i];
-        if (trees[i].node_count)
-            median_range(ratio + (size_t)i * o->paired, o->paired, &r->x_ptrace, &r->x_ptrace_min, &r->x_ptrace_max);
+    for (kind = 0; kind < kinds; kind++) {
+        size_t rays = kind ? set_size(c, kind - 1) : c->npix;
+        for (i = 0; i < made; i++) {
+            row *r = &out->rows[i];
+            double *x = ratio + ((size_t)kind * made + i) * o->paired, *med, *lo, *hi;
+            if (!trees[i].node_count) continue;
+            med = kind ? &r->set[kind - 1].x_p : &r->x_ptrace;
+            lo = kind ? &r->set[kind - 1].x_p_min : &r->x_ptrace_min;
+            hi = kind ? &r->set[kind - 1].x_p_max : &r->x_ptrace_max;
+            median_range(x, o->paired, med, lo, hi);
+            *(kind ? &r->set[kind - 1].p_mrays : &r->p_mrays) =
+                mrays_of(rays, scene_median(pms + ((size_t)kind * made + i) * o->paired, o->paired));
+        }
+        for (i = 0; i < out->nrows; i++) {
+            row *r = &out->rows[i];
+            if (r->kind == ROW_EMBREE && r->quality == EMB_QUALITY_MEDIUM && r->state == ROW_OK)
+                *(kind ? &r->set[kind - 1].p_mrays : &r->p_mrays) =
+                    mrays_of(rays, scene_median(ems + (size_t)kind * o->paired, o->paired));
+        }
     }
     if (c->cl && o->trace_cl) paired_opencl(c, out, trees, made, ratio);
 done:
     for (i = 0; i < made; i++) bvh_free(&trees[i]);
+    free(ems);
+    free(et);
+    free(ep);
+    free(eo);
 }
 
 
@@ -870,7 +1200,8 @@ static void run_paired(run_ctx *c, bench_scene *out) {
         say("%s: paired rounds: %s", out->name, msg);
         return;
     }
-    ratio = (double *)malloc((size_t)(2 * out->nrows + 1) * o->paired * sizeof *ratio);
+    /* the builds' ratios and times; then paired_trace's: ratios and times per kind of ray */
+    ratio = (double *)malloc((size_t)(2 * (1 + SET_COUNT) * out->nrows + 1) * o->paired * sizeof *ratio);
     if (!ratio) { emb_builder_close(eb); say("%s: paired rounds: out of memory", out->name); return; }
     pms = ratio + (size_t)out->nrows * o->paired; /* build ms per row and round; Embree's last */
     for (k = 0; k <= o->paired; k++) { /* round 0: warm-up */
@@ -998,6 +1329,11 @@ done:
     free(c.hits);
     free(c.ref);
     free(c.emb_prims);
+    rays_free(&c.sets);
+    free(c.dhits);
+    free(c.dref);
+    free(c.occ);
+    free(c.oref);
     return failed;
 }
 
@@ -1006,7 +1342,7 @@ done:
 /* ============================================================================================ */
 enum {
     C_BUILDER, C_BUILD, C_RANGE, C_SAH, C_NODES, C_LEAVES, C_REFS, C_DEPTH, C_BPT, C_WBPT, C_PEAK, C_PEAKBPT, C_MR1,
-    C_MRN, C_MRCL, C_FRAME, C_FPS, C_HITS, C_XBUILD, C_XSAH, C_XMR, C_COUNT
+    C_MRN, C_MRCL, C_DMR1, C_DMRN, C_SMR1, C_SMRN, C_FRAME, C_FPS, C_HITS, C_XBUILD, C_XSAH, C_XMR, C_COUNT
 };
 typedef struct column {
     const char *head;  /* text table; "%u" becomes the thread count */
@@ -1030,6 +1366,10 @@ static const column g_cols[C_COUNT] = {
     {"Mr/s 1t", "CPU Mrays/s 1 thread", 8, +1},
     {"Mr/s %ut", "CPU Mrays/s %u threads", 8, +1},
     {"Mr/s CL", "OpenCL Mrays/s", 8, +1},
+    {"diff 1t", "Diffuse Mrays/s 1 thread", 8, +1},
+    {"diff %ut", "Diffuse Mrays/s %u threads", 8, +1},
+    {"shad 1t", "Shadow Mrays/s 1 thread", 8, +1},
+    {"shad %ut", "Shadow Mrays/s %u threads", 8, +1},
     {"frame ms", "Frame ms", 9, -1},
     {"FPS", "FPS", 7, +1},
     {"hits", "Hits", 13, 0},
@@ -1074,6 +1414,10 @@ static double cell(const bench_scene *s, const row *r, int col, char *b, size_t 
     case C_MR1: fmt_num(b, n, r->mrays_1t, 2); return r->mrays_1t;
     case C_MRN: fmt_num(b, n, r->mrays_mt, 2); return r->mrays_mt;
     case C_MRCL: fmt_num(b, n, r->mrays_cl, 2); return r->mrays_cl;
+    case C_DMR1: fmt_num(b, n, r->set[SET_DIFFUSE].mrays_1t, 2); return r->set[SET_DIFFUSE].mrays_1t;
+    case C_DMRN: fmt_num(b, n, r->set[SET_DIFFUSE].mrays_mt, 2); return r->set[SET_DIFFUSE].mrays_mt;
+    case C_SMR1: fmt_num(b, n, r->set[SET_SHADOW].mrays_1t, 2); return r->set[SET_SHADOW].mrays_1t;
+    case C_SMRN: fmt_num(b, n, r->set[SET_SHADOW].mrays_mt, 2); return r->set[SET_SHADOW].mrays_mt;
     case C_FRAME: fmt_ms(b, n, r->frame_ms); return r->frame_ms;
     case C_FPS: fmt_num(b, n, r->fps, r->fps < 10.0 ? 2 : 1); return r->fps;
     case C_HITS: fmt_num(b, n, r->hits, 0); return NAN;
@@ -1105,24 +1449,30 @@ static void best_cells(const bench_scene *s, char best[C_COUNT][40]) {
 
 static void head_text(int col, const options *o, int md, char *b, size_t n) {
     const char *h = md ? g_cols[col].md : g_cols[col].head;
-    if (col == C_MRN) snprintf(b, n, h, o->nthreads);
+    if (col == C_MRN || col == C_DMRN || col == C_SMRN) snprintf(b, n, h, o->nthreads);
     else snprintf(b, n, "%s", h);
 }
 
 /* ---- the text table ------------------------------------------------------------------------ */
 /* One block of paired ratios, a line per builder that has them (none without --paired): which
-   0 = build time, 1 = one-thread tracing against Embree, 2 = OpenCL against the CPU. */
-static void paired_block(FILE *f, const bench_scene *s, const char *prefix, int which, const char *title) {
+   0 = build time, 1 = one-thread tracing against Embree, 2 = OpenCL against the CPU, 3 and 4 =
+   one-thread tracing of the diffuse and the shadow rays against Embree. em: Embree medium's row. */
+static void paired_block(FILE *f, const bench_scene *s, const row *em, const char *prefix, int which,
+                         const char *title) {
     int i, any = 0;
     for (i = 0; i < s->nrows; i++) {
         const row *r = &s->rows[i];
-        double med = which == 0 ? r->x_pair : which == 1 ? r->x_ptrace : r->x_pcl;
-        double lo = which == 0 ? r->x_pair_min : which == 1 ? r->x_ptrace_min : r->x_pcl_min;
-        double hi = which == 0 ? r->x_pair_max : which == 1 ? r->x_ptrace_max : r->x_pcl_max;
+        const set_figs *sf = which >= 3 ? &r->set[which - 3] : NULL;
+        double med = which == 0 ? r->x_pair : which == 1 ? r->x_ptrace : which == 2 ? r->x_pcl : sf->x_p;
+        double lo = which == 0 ? r->x_pair_min : which == 1 ? r->x_ptrace_min : which == 2 ? r->x_pcl_min : sf->x_p_min;
+        double hi = which == 0 ? r->x_pair_max : which == 1 ? r->x_ptrace_max : which == 2 ? r->x_pcl_max : sf->x_p_max;
+        double mr = which == 1 ? r->p_mrays : sf ? sf->p_mrays : NAN;
+        double emr = !em ? NAN : which == 1 ? em->p_mrays : sf ? em->set[which - 3].p_mrays : NAN;
         if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(med)) continue;
         if (!any++) fprintf(f, "%s%s: median (min-max)\n", prefix, title);
         fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)", prefix, r->name, med, lo, hi);
         if (which == 0 && !isnan(r->pair_ms)) fprintf(f, "   median build %.4g ms (table: %.4g)", r->pair_ms, r->build_ms);
+        if (!isnan(mr)) fprintf(f, "   median %.3g Mrays/s (embree-medium %.3g)", mr, emr);
         fputc('\n', f);
     }
 }
@@ -1138,12 +1488,39 @@ static void paired_lines(FILE *f, const options *o, const bench_scene *s, const 
                  "median build %.4g ms, table: %.4g)", o->paired, em->pair_ms, em->build_ms);
     else
         snprintf(t, sizeof t, "build / embree-medium in %u paired rounds (one build each, interleaved)", o->paired);
-    paired_block(f, s, prefix, 0, t);
+    paired_block(f, s, em, prefix, 0, t);
+    for (i = 0; i < s->nrows; i++)
+        if (s->rows[i].kind == ROW_EMBREE && s->rows[i].quality == EMB_QUALITY_MEDIUM && !isnan(s->rows[i].p_mrays))
+            em = &s->rows[i];
     snprintf(t, sizeof t, "Mrays/s on 1 thread / embree-medium's in %u paired rounds (one frame each)", o->paired);
-    paired_block(f, s, prefix, 1, t);
+    paired_block(f, s, em, prefix, 1, t);
+    for (i = 0; i < SET_COUNT; i++) {
+        snprintf(t, sizeof t, "%s rays' Mrays/s on 1 thread / embree-medium's in %u paired rounds (one pass each)",
+                 g_set_names[i], o->paired);
+        paired_block(f, s, em, prefix, 3 + i, t);
+    }
     snprintf(t, sizeof t, "OpenCL Mrays/s / the CPU's on %u threads in %u paired rounds (one frame each)", o->nthreads,
              o->paired);
-    paired_block(f, s, prefix, 2, t);
+    paired_block(f, s, em, prefix, 2, t);
+}
+
+/* What the secondary ray sets are, and their counts (from the first row that traced them) */
+static void sets_lines(FILE *f, const bench_scene *s, const char *prefix) {
+    const row *r = NULL;
+    bvh_vec3 L = rays_light();
+    int i;
+    for (i = 0; i < s->nrows && !r; i++)
+        if (s->rows[i].kind != ROW_EMBREE && !isnan(s->rows[i].set[SET_SHADOW].count)) r = &s->rows[i];
+    if (!r) return;
+    fprintf(f, "%sdiffuse rays: %.0f (one per primary hit, cosine-weighted about the normal, origin %g x the scene "
+               "diagonal off the surface), %.0f hit; shadow rays: %.0f (to the light (%.3f, %.3f, %.3f) from the "
+               "hits facing it, any hit), %.0f occluded\n",
+            prefix, r->set[SET_DIFFUSE].rays, (double)RAYS_OFFSET, r->set[SET_DIFFUSE].count, r->set[SET_SHADOW].rays,
+            (double)L.x, (double)L.y, (double)L.z, r->set[SET_SHADOW].count);
+    for (i = 0; i < s->nrows; i++)
+        if (s->rows[i].set_note[0])
+            fprintf(f, "%s(e) %s on the secondary rays (tolerance %g of a set): %s\n", prefix, s->rows[i].name,
+                    BENCH_SET_TOLERANCE, s->rows[i].set_note);
 }
 
 static void print_block(FILE *f, const options *o, const bench_scene *s) {
@@ -1174,6 +1551,7 @@ static void print_block(FILE *f, const options *o, const bench_scene *s) {
     for (i = 0; i < s->nrows; i++)
         if (s->rows[i].disagree) fprintf(f, "(!) HITS DISAGREE: %s\n", s->rows[i].disagree_msg);
         else if (s->rows[i].refereed) fprintf(f, "(e) %s\n", s->rows[i].referee_msg);
+    sets_lines(f, s, "");
     paired_lines(f, o, s, "");
 }
 
@@ -1215,6 +1593,8 @@ static void md_block(FILE *f, const options *o, const bench_scene *s) {
         else if (r->refereed) fprintf(f, "\n(e) %s\n", r->referee_msg);
         if (r->state != ROW_OK) fprintf(f, "\n%s: %s\n", r->name, r->note);
     }
+    fputc('\n', f);
+    sets_lines(f, s, "- ");
     for (i = 0; i < s->nrows; i++)
         if (s->rows[i].kind == ROW_BVH && !isnan(s->rows[i].x_pair)) {
             fputc('\n', f);
@@ -1311,8 +1691,16 @@ static void json_num(FILE *f, const char *key, double v, int prec) {
     else fprintf(f, "%.*f", prec, v);
 }
 
+/* "diffuse_KEY" / "shadow_KEY" */
+static void json_set_num(FILE *f, int set, const char *key, double v, int prec) {
+    char k[64];
+    snprintf(k, sizeof k, "%s_%s", g_set_names[set], key);
+    json_num(f, k, v, prec);
+}
+
 static void json_rows(FILE *f, const options *o, const bench_scene *s) {
-    int i;
+    char key[64];
+    int i, k;
     for (i = 0; i < s->nrows; i++) {
         const row *r = &s->rows[i];
         double tris = (double)s->triangles;
@@ -1366,6 +1754,25 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "ratio_opencl_mt_paired", r->x_pcl, 4);
         json_num(f, "ratio_opencl_mt_paired_min", r->x_pcl_min, 4);
         json_num(f, "ratio_opencl_mt_paired_max", r->x_pcl_max, 4);
+        json_num(f, "mrays_1t_paired", r->p_mrays, 4);
+        for (k = 0; k < SET_COUNT; k++) {
+            const set_figs *sf = &r->set[k];
+            json_set_num(f, k, "rays", sf->rays, 0);
+            json_set_num(f, k, k == SET_SHADOW ? "occluded" : "hits", sf->count, 0);
+            if (k == SET_DIFFUSE) json_set_num(f, k, "t_sum", sf->t_sum, 6);
+            json_set_num(f, k, "trace_ms_1t", sf->ms_1t, 4);
+            json_set_num(f, k, "mrays_1t", sf->mrays_1t, 4);
+            json_set_num(f, k, "trace_ms_mt", sf->ms_mt, 4);
+            json_set_num(f, k, "mrays_mt", sf->mrays_mt, 4);
+            json_set_num(f, k, "mrays_1t_paired", sf->p_mrays, 4);
+            snprintf(key, sizeof key, "ratio_%s_1t_paired", g_set_names[k]);
+            json_num(f, key, sf->x_p, 4);
+            snprintf(key, sizeof key, "ratio_%s_1t_paired_min", g_set_names[k]);
+            json_num(f, key, sf->x_p_min, 4);
+            snprintf(key, sizeof key, "ratio_%s_1t_paired_max", g_set_names[k]);
+            json_num(f, key, sf->x_p_max, 4);
+            if (r->kind == ROW_EMBREE) json_set_num(f, k, "rays_other_answer", sf->other, 0);
+        }
         json_num(f, "ratio_sah", r->x_sah, 4);
         json_num(f, "ratio_mrays", r->x_mrays, 4);
         if (r->kind == ROW_EMBREE) {
@@ -1375,6 +1782,8 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         fprintf(f, ",\"hits_agree\":%s,\"hits_refereed\":%s,\"note\":", r->disagree || r->refereed ? "false" : "true",
                 r->refereed && !r->disagree ? "true" : "false");
         json_str(f, r->disagree ? r->disagree_msg : r->refereed ? r->referee_msg : r->note);
+        fputs(",\"sets_note\":", f);
+        json_str(f, r->set_note);
         fputs("}\n", f);
     }
     fflush(f);
@@ -1433,7 +1842,8 @@ static void fmt_count(char *b, size_t n, uint32_t v) {
 
 static double per_scene_value(const bench_scene *s, const char *name, int field) {
     const row *r = find_row(s, name);
-    return !r ? NAN : field == 0 ? r->mrays_1t : field == 1 ? r->mrays_mt : r->mrays_cl;
+    return !r ? NAN : field == 0 ? r->mrays_1t : field == 1 ? r->mrays_mt : field == 2 ? r->mrays_cl
+                     : r->set[field - 3].mrays_1t; /* 3, 4: the diffuse and shadow rays */
 }
 
 /* One data column per row name that has a value somewhere (gnuplot cannot draw a histogram
@@ -1472,9 +1882,10 @@ static int write_plot_data(const char *dir, const options *o, const bench_scene 
     int nn = row_names(sc, n, names), i, k, rc = 0, blocks, points;
     FILE *f;
     if (mkdir_p(dir)) { say("cannot create %s: %s", dir, strerror(errno)); return 1; }
-    for (k = 0; k < 3; k++) { /* no stale panel from an earlier run */
+    for (k = 0; k < 5; k++) { /* no stale panel from an earlier run */
+        static const char *const which[5] = {"1t", "mt", "cl", "diffuse_1t", "shadow_1t"};
         char path[1200];
-        snprintf(path, sizeof path, "%s/mrays_%s.dat", dir, k == 0 ? "1t" : k == 1 ? "mt" : "cl");
+        snprintf(path, sizeof path, "%s/mrays_%s.dat", dir, which[k]);
         remove(path);
     }
     /* build time vs triangles: one block (gnuplot index) per builder */
@@ -1510,6 +1921,8 @@ static int write_plot_data(const char *dir, const options *o, const bench_scene 
         rc |= write_per_scene(dir, "mrays_mt.dat", what, sc, n, names, nn, 1);
     }
     if (o->trace_cl) rc |= write_per_scene(dir, "mrays_cl.dat", "OpenCL Mrays/s", sc, n, names, nn, 2);
+    rc |= write_per_scene(dir, "mrays_diffuse_1t.dat", "Diffuse rays: CPU Mrays/s on 1 thread", sc, n, names, nn, 3);
+    rc |= write_per_scene(dir, "mrays_shadow_1t.dat", "Shadow rays: CPU Mrays/s on 1 thread", sc, n, names, nn, 4);
     if (rc) say("writing the plot data in %s failed", dir);
     return rc;
 }
@@ -1558,8 +1971,9 @@ static void usage(FILE *f) {
             "                   cheaper (0 = the library's default, 8); 'off': PLOC alone, as the study\n"
             "  --paired N       after the table, N rounds each building once with every builder and\n"
             "                   once with Embree medium, interleaved, then N rounds tracing a frame\n"
-            "                   on 1 thread with each, and N rendering a frame with OpenCL and with\n"
-            "                   the CPU on all threads; medians of the rounds' ratios (robust to a\n"
+            "                   and the diffuse and shadow rays on 1 thread with each, and N\n"
+            "                   rendering a frame with OpenCL and with the CPU on all threads;\n"
+            "                   medians of the rounds' ratios and Mrays/s (robust to a\n"
             "                   shared machine's slow moments; default 0: none)\n"
             "  --max-bytes N    ploc builders: tree (nodes + indices) at most N bytes per triangle, by\n"
             "                   bigger leaves where needed (0 = the library's default, 40); 'off': the SAH alone\n"

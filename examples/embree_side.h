@@ -11,7 +11,9 @@
                         hits, t_sum, Mrays/s.
        emb_builder_*    one timed scene build at a time on a device kept open, so that a
                         benchmark can interleave Embree's builds with its own (paired rounds
-                        on a shared machine: both see the same moments of noise).
+                        on a shared machine: both see the same moments of noise); a scene kept
+                        open traces frames (emb_builder_trace) or any ray array
+                        (emb_builder_rays: rtcIntersect1, or rtcOccluded1 for shadow rays).
        emb_bvh_sah      Embree's BVH builder API (rtcBuildBVH) making a binary tree of our own
                         nodes over the triangle boxes, with maxBranchingFactor 2, maxDepth 64,
                         sahBlockSize 1, minLeafSize 1, maxLeafSize 8 (a parameter), traversal
@@ -161,6 +163,13 @@ EMB_API int emb_builder_time(emb_builder *b, const float *v, uint32_t n, double 
 EMB_API int emb_builder_keep(emb_builder *b, const float *v, uint32_t n);
 EMB_API int emb_builder_trace(emb_builder *b, const bvh_ray *rays, uint32_t w, uint32_t h, uint32_t threads,
                               double *ms);
+/* Traces n rays of any kind (examples/rays.h's diffuse or shadow sets) on the kept scene, in
+   chunks of 64 rays interleaved over `threads` threads: rtcIntersect1 into t (+inf: a miss) and
+   prim (BVH_INVALID: a miss), or, when occluded is not NULL, rtcOccluded1 into occluded[i]
+   (1: blocked; t and prim may be NULL). The rays go to Embree as they are: tnear = tmin, tfar =
+   tmax. *ms: the wall time. */
+EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint32_t threads, float *t,
+                             uint32_t *prim, uint8_t *occluded, double *ms);
 EMB_API void emb_builder_close(emb_builder *b);
 
 #ifdef __cplusplus
@@ -244,6 +253,12 @@ EMB_API int emb_builder_trace(emb_builder *b, const bvh_ray *rays, uint32_t w, u
     if (ms) *ms = 0.0;
     return EMB_ERR_UNAVAILABLE;
 }
+EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint32_t threads, float *t,
+                             uint32_t *prim, uint8_t *occluded, double *ms) {
+    (void)b; (void)rays; (void)n; (void)threads; (void)t; (void)prim; (void)occluded;
+    if (ms) *ms = 0.0;
+    return EMB_ERR_UNAVAILABLE;
+}
 EMB_API void emb_builder_close(emb_builder *b) { (void)b; }
 #else
 /* ---- Embree ------------------------------------------------------------------------------- */
@@ -255,6 +270,7 @@ EMB_API void emb_builder_close(emb_builder *b) { (void)b; }
 #endif
 
 #define EMB__MAX_TRIANGLES (UINT32_MAX / 3u) /* the index buffer is 3n unsigned ints */
+#define EMB__RAYS_CHUNK 64 /* emb_builder_rays: rays per chunk, chunks interleaved over the threads */
 
 EMB_API int emb_available(void) { return 1; }
 EMB_API const char *emb_version(void) { return RTC_VERSION_STRING; }
@@ -391,19 +407,43 @@ static RTCScene emb__build_scene(RTCDevice dev, const float *v, uint32_t n, enum
 typedef struct emb__trace_job {
     RTCScene scene;
     const bvh_ray *rays;
-    uint32_t width, height, first_row, row_step;
+    size_t count, chunk;     /* rays, and rays per chunk (a frame: its width, a chunk a row) */
+    size_t first, step;      /* this thread's chunks: first, first + step, ... */
     float *t;
     uint32_t *prim;
+    uint8_t *occluded;       /* not NULL: rtcOccluded1 into it (1 blocked), t and prim unused */
 } emb__trace_job;
+
+static void emb__occluded_chunk(const emb__trace_job *j, struct RTCIntersectContext *ctx, size_t lo, size_t hi) {
+    size_t i;
+    for (i = lo; i < hi; i++) {
+        const bvh_ray *r = &j->rays[i];
+        struct RTCRay ray;
+        ray.org_x = r->origin.x; ray.org_y = r->origin.y; ray.org_z = r->origin.z;
+        ray.tnear = r->tmin;
+        ray.dir_x = r->dir.x; ray.dir_y = r->dir.y; ray.dir_z = r->dir.z;
+        ray.time = 0.0f;
+        ray.tfar = r->tmax;
+        ray.mask = 0xFFFFFFFFu;
+        ray.id = 0;
+        ray.flags = 0;
+        rtcOccluded1(j->scene, ctx, &ray);
+        j->occluded[i] = ray.tfar < 0.0f; /* Embree sets tfar to -inf for a blocked ray */
+    }
+}
 
 static void *emb__trace_rows(void *arg) {
     const emb__trace_job *j = (const emb__trace_job *)arg;
     struct RTCIntersectContext ctx;
-    uint32_t x, y;
+    size_t c;
     rtcInitIntersectContext(&ctx);
-    for (y = j->first_row; y < j->height; y += j->row_step) {
-        for (x = 0; x < j->width; x++) {
-            size_t i = (size_t)y * j->width + x;
+    for (c = j->first; c * j->chunk < j->count; c += j->step) {
+        size_t i, lo = c * j->chunk, hi = lo + j->chunk < j->count ? lo + j->chunk : j->count;
+        if (j->occluded) {
+            emb__occluded_chunk(j, &ctx, lo, hi);
+            continue;
+        }
+        for (i = lo; i < hi; i++) {
             const bvh_ray *r = &j->rays[i];
             struct RTCRayHit rh;
             rh.ray.org_x = r->origin.x; rh.ray.org_y = r->origin.y; rh.ray.org_z = r->origin.z;
@@ -430,11 +470,12 @@ static void *emb__trace_rows(void *arg) {
     return NULL;
 }
 
-/* Traces the frame on `threads` threads (1: on the calling thread). Returns EMB_OK or
-   EMB_ERR_THREAD / EMB_ERR_MEMORY; *ms is the wall time from the first thread start to the
-   last join. */
-static int emb__trace(RTCScene scene, const bvh_ray *rays, uint32_t w, uint32_t h, uint32_t threads,
-                      float *t, uint32_t *prim, double *ms);
+/* Traces `count` rays in chunks of `chunk` (a frame: its rows), the chunks interleaved over
+   `threads` threads (1: on the calling thread); rtcOccluded1 into occluded when it is not NULL,
+   else rtcIntersect1 into t and prim. Returns EMB_OK or EMB_ERR_THREAD / EMB_ERR_MEMORY; *ms is
+   the wall time from the first thread start to the last join. */
+static int emb__trace(RTCScene scene, const bvh_ray *rays, size_t count, size_t chunk, uint32_t threads,
+                      float *t, uint32_t *prim, uint8_t *occluded, double *ms);
 /* d->trace_repeat frames (at most 15); *ms = the median time */
 static int emb__trace_median(RTCScene scene, const bvh_ray *rays, const emb_scene_desc *d, uint32_t threads,
                              float *t, uint32_t *prim, double *ms) {
@@ -442,20 +483,20 @@ static int emb__trace_median(RTCScene scene, const bvh_ray *rays, const emb_scen
     uint32_t n = d->trace_repeat ? d->trace_repeat : 1, i, j;
     if (n > 15) n = 15;
     for (i = 0; i < n; i++) {
-        int st = emb__trace(scene, rays, d->width, d->height, threads, t, prim, &v[i]);
+        int st = emb__trace(scene, rays, (size_t)d->width * d->height, d->width, threads, t, prim, NULL, &v[i]);
         if (st != EMB_OK) return st;
         for (j = i; j > 0 && v[j - 1] > v[j]; j--) { double x = v[j]; v[j] = v[j - 1]; v[j - 1] = x; }
     }
     *ms = n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
     return EMB_OK;
 }
-static int emb__trace(RTCScene scene, const bvh_ray *rays, uint32_t w, uint32_t h, uint32_t threads,
-                      float *t, uint32_t *prim, double *ms) {
+static int emb__trace(RTCScene scene, const bvh_ray *rays, size_t count, size_t chunk, uint32_t threads,
+                      float *t, uint32_t *prim, uint8_t *occluded, double *ms) {
     double t0;
     if (threads <= 1) {
         emb__trace_job j;
-        j.scene = scene; j.rays = rays; j.width = w; j.height = h;
-        j.first_row = 0; j.row_step = 1; j.t = t; j.prim = prim;
+        j.scene = scene; j.rays = rays; j.count = count; j.chunk = chunk;
+        j.first = 0; j.step = 1; j.t = t; j.prim = prim; j.occluded = occluded;
         t0 = emb__now_ms();
         emb__trace_rows(&j);
         *ms = emb__now_ms() - t0;
@@ -467,8 +508,9 @@ static int emb__trace(RTCScene scene, const bvh_ray *rays, uint32_t w, uint32_t 
         int st = EMB_OK;
         if (!jobs || !tid) { free(jobs); free(tid); return EMB_ERR_MEMORY; }
         for (k = 0; k < threads; k++) {
-            jobs[k].scene = scene; jobs[k].rays = rays; jobs[k].width = w; jobs[k].height = h;
-            jobs[k].first_row = k; jobs[k].row_step = threads; jobs[k].t = t; jobs[k].prim = prim;
+            jobs[k].scene = scene; jobs[k].rays = rays; jobs[k].count = count; jobs[k].chunk = chunk;
+            jobs[k].first = k; jobs[k].step = threads; jobs[k].t = t; jobs[k].prim = prim;
+            jobs[k].occluded = occluded;
         }
         t0 = emb__now_ms();
         for (k = 1; k < threads; k++) {
@@ -557,7 +599,17 @@ EMB_API int emb_builder_trace(emb_builder *b, const bvh_ray *rays, uint32_t w, u
         b->npix = b->t && b->prim ? npix : 0;
         if (!b->npix) return EMB_ERR_MEMORY;
     }
-    return emb__trace(b->kept, rays, w, h, threads, b->t, b->prim, ms);
+    return emb__trace(b->kept, rays, npix, w, threads, b->t, b->prim, NULL, ms);
+}
+EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint32_t threads, float *t,
+                             uint32_t *prim, uint8_t *occluded, double *ms) {
+    int st;
+    if (ms) *ms = 0.0;
+    if (!b || !b->kept || (!rays && n) || !ms || (!occluded && (!t || !prim))) return EMB_ERR_ARGUMENT;
+    b->err.failed = 0;
+    st = emb__trace(b->kept, rays, n, EMB__RAYS_CHUNK, threads, t, prim, occluded, ms);
+    if (st == EMB_OK && emb__check(b->dev, &b->err, occluded ? "rtcOccluded1" : "rtcIntersect1")) st = EMB_ERR_EMBREE;
+    return st;
 }
 EMB_API void emb_builder_close(emb_builder *b) {
     if (!b) return;

@@ -18,6 +18,9 @@
              (hits and nodes visited), then F timed frames (hits; wall clock, copy back included).
              Its hits must equal the CPU's (to the bit on an exact device): else render says so
              and exits with status 1.
+   Then, from the CPU frame's hits, the rays a renderer traces next (examples/rays.h, the same
+   sets as build/bvhbench's): F passes over the diffuse rays (bvh_intersect_batch) and over the
+   shadow rays (bvh_occluded_batch) on the CPU threads, the median reported (diffuse_*, shadow_*).
    frame_ms is the median of the F frames of the backend used. Then headlight shading of the
    backend's hits (--out) and the heat map of the nodes visited (--heatmap, heatmap.h).
    Default: ploc-parallel, all cores, 800x600, OpenCL when a device is found (else the CPU, said
@@ -32,6 +35,8 @@
 #include "scene.h"
 #define HEATMAP_IMPLEMENTATION
 #include "heatmap.h"
+#define RAYS_IMPLEMENTATION
+#include "rays.h"
 
 #include <math.h>
 #include <pthread.h>
@@ -80,6 +85,9 @@ typedef struct report {
     double frame_ms;        /* median frame of the backend */
     double cl_kernel_ms, cl_t_sum;
     uint64_t cl_hits;
+    uint64_t diffuse_rays, diffuse_hits; /* examples/rays.h's sets from the CPU frame's hits */
+    uint64_t shadow_rays, shadow_occluded;
+    double diffuse_ms, shadow_ms;        /* median of F passes on the CPU threads */
     double heat_mean;
     uint32_t heat_max, heat_scale;
 } report;
@@ -358,6 +366,50 @@ static int trace_cpu(const bvh_tree *tree, frame *f, uint32_t threads, uint32_t 
     return 0;
 }
 
+/* The rays a renderer traces next (examples/rays.h, the same sets as build/bvhbench), made from
+   the CPU frame's hits: `runs` passes over the diffuse rays (bvh_intersect_batch) and over the
+   shadow rays (bvh_occluded_batch) on `threads` threads; the median times and the counts. */
+static int trace_sets(const scene *s, const bvh_tree *tree, const frame *f, uint32_t threads, uint32_t runs,
+                      report *r) {
+    rays_set set;
+    bvh_hit *dh;
+    uint8_t *occ;
+    double td[RENDER_MAX_FRAMES], ts[RENDER_MAX_FRAMES];
+    bvh_result res = BVH_SUCCESS;
+    size_t i;
+    uint32_t k;
+    if (rays_make(&f->cam, f->hits, s->v, bvh_tree_bounds(tree), &set)) {
+        fprintf(stderr, "render: out of memory for the diffuse and shadow rays\n");
+        return 1;
+    }
+    dh = (bvh_hit *)malloc((set.ndiffuse ? set.ndiffuse : 1) * sizeof *dh);
+    occ = (uint8_t *)malloc(set.nshadow ? set.nshadow : 1);
+    if (!dh || !occ) res = BVH_ERROR_OUT_OF_MEMORY;
+    for (k = 0; k < runs && res == BVH_SUCCESS; k++) {
+        double t0 = scene_now_ms();
+        res = bvh_intersect_batch(tree, set.diffuse, dh, set.ndiffuse, threads);
+        td[k] = scene_now_ms() - t0;
+        t0 = scene_now_ms();
+        if (res == BVH_SUCCESS) res = bvh_occluded_batch(tree, set.shadow, occ, set.nshadow, threads);
+        ts[k] = scene_now_ms() - t0;
+    }
+    if (res == BVH_SUCCESS) {
+        r->diffuse_rays = set.ndiffuse;
+        r->shadow_rays = set.nshadow;
+        r->diffuse_hits = r->shadow_occluded = 0;
+        for (i = 0; i < set.ndiffuse; i++) r->diffuse_hits += dh[i].prim != BVH_INVALID;
+        for (i = 0; i < set.nshadow; i++) r->shadow_occluded += occ[i];
+        r->diffuse_ms = scene_median(td, runs);
+        r->shadow_ms = scene_median(ts, runs);
+    } else {
+        fprintf(stderr, "render: tracing the diffuse and shadow rays failed: %s\n", bvh_result_string(res));
+    }
+    free(dh);
+    free(occ);
+    rays_free(&set);
+    return res != BVH_SUCCESS;
+}
+
 /* ============================================================================================ */
 /* == OpenCL backend ========================================================================== */
 /* ============================================================================================ */
@@ -611,6 +663,7 @@ static void json_path(const char *path) {
 static double mrays(const options *o, double ms) {
     return ms > 0.0 ? (double)o->width * o->height / (ms * 1e-3) / 1e6 : 0.0;
 }
+static double set_mrays(uint64_t rays, double ms) { return ms > 0.0 ? (double)rays / (ms * 1e3) : 0.0; }
 
 static void print_json(const options *o, const scene *s, const bvh_tree *tree, const report *r) {
     double bpt = s->triangles ? (double)r->stats.bytes / s->triangles : 0.0;
@@ -632,6 +685,15 @@ static void print_json(const options *o, const scene *s, const bvh_tree *tree, c
         printf("\"cl_mrays\":%.3f,\"cl_kernel_ms\":%.3f,\"cl_hits\":%llu,\"cl_t_sum\":%.6f,", mrays(o, r->frame_ms),
                r->cl_kernel_ms, (unsigned long long)r->cl_hits, r->cl_t_sum);
     else printf("\"cl_mrays\":null,\"cl_kernel_ms\":null,\"cl_hits\":null,\"cl_t_sum\":null,");
+    if (r->diffuse_ms > 0.0)
+        printf("\"diffuse_rays\":%llu,\"diffuse_hits\":%llu,\"diffuse_ms\":%.3f,\"diffuse_mrays\":%.3f,"
+               "\"shadow_rays\":%llu,\"shadow_occluded\":%llu,\"shadow_ms\":%.3f,\"shadow_mrays\":%.3f,",
+               (unsigned long long)r->diffuse_rays, (unsigned long long)r->diffuse_hits, r->diffuse_ms,
+               set_mrays(r->diffuse_rays, r->diffuse_ms), (unsigned long long)r->shadow_rays,
+               (unsigned long long)r->shadow_occluded, r->shadow_ms, set_mrays(r->shadow_rays, r->shadow_ms));
+    else
+        printf("\"diffuse_rays\":null,\"diffuse_hits\":null,\"diffuse_ms\":null,\"diffuse_mrays\":null,"
+               "\"shadow_rays\":null,\"shadow_occluded\":null,\"shadow_ms\":null,\"shadow_mrays\":null,");
     printf("\"heat_mean\":%.3f,\"heat_max\":%u,\"heat_scale\":%u,\"image\":", r->heat_mean, r->heat_max,
            r->heat_scale);
     json_path(o->out);
@@ -662,6 +724,15 @@ static void print_report(const options *o, const scene *s, const bvh_tree *tree,
         printf("opencl   %llu hits, t_sum %.6f (%s), %.2f ms (kernel %.2f ms), %.2f Mrays/s\n",
                (unsigned long long)r->cl_hits, r->cl_t_sum, r->disagree ? "NOT the CPU's" : "the CPU's",
                r->frame_ms, r->cl_kernel_ms, mrays(o, r->frame_ms));
+    if (r->diffuse_ms > 0.0) {
+        bvh_vec3 L = rays_light();
+        printf("diffuse  %llu rays (one per hit, cosine-weighted), %llu hits, %.2f ms (median, CPU), %.2f Mrays/s\n",
+               (unsigned long long)r->diffuse_rays, (unsigned long long)r->diffuse_hits, r->diffuse_ms,
+               set_mrays(r->diffuse_rays, r->diffuse_ms));
+        printf("shadow   %llu rays to (%.2f, %.2f, %.2f), %llu occluded, %.2f ms (median, CPU), %.2f Mrays/s\n",
+               (unsigned long long)r->shadow_rays, (double)L.x, (double)L.y, (double)L.z,
+               (unsigned long long)r->shadow_occluded, r->shadow_ms, set_mrays(r->shadow_rays, r->shadow_ms));
+    }
     printf("heat     nodes visited per pixel: mean %.2f, max %u", r->heat_mean, r->heat_max);
     if (o->heatmap) printf("; map over 0..%u in %s", r->heat_scale, o->heatmap);
     printf("\n");
@@ -699,6 +770,7 @@ int main(int argc, char **argv) {
     rc = build_tree(&s, &o, &tree, &r.build_ms) || check_tree(&tree, &r) ||
          frame_init(&f, &tree, o.width, o.height);
     if (!rc) rc = trace(&o, &tree, &f, &r);
+    if (!rc) rc = trace_sets(&s, &tree, &f, r.threads, o.frames, &r);
     if (!rc && o.out) rc = write_frame(&f, &s, o.out);
     if (!rc && o.heatmap) rc = write_heatmap(&f, &r, bvh_builder_name(o.builder), o.heatmap);
     if (!rc || rc == RENDER_MISMATCH) print_report(&o, &s, &tree, &r);

@@ -2,12 +2,14 @@
 #   (examples/bvhbench.c). Installs what it needs first (scripts/deps.sh bench: Embree, PoCL,
 #   assimp, stb, glmark2-data's bunny, gnuplot), builds build/bvhbench and runs it on the default
 #   scenes (gen:random:500, the bunny, gen:field:15 ~1M, gen:field:44 ~3M triangles), writing
-#   $(BENCH_OUT)/bench.md, bench.json, the plot data (*.dat) and the PNG plots.
+#   $(BENCH_OUT)/bench.md, bench.json, the plot data (*.dat) and the PNG plots. Every tracer runs
+#   the camera rays and the diffuse and shadow rays made from their hits (examples/rays.h).
 #   The full run takes several minutes. Variables:
 #     BENCH_OUT=DIR         output directory (default out/bench)
 #     BENCH_SCENES="..."    scenes instead of the defaults (as build/render takes them)
 #     BENCH_ARGS="..."      more options, e.g. BENCH_ARGS="--repeat 2 --size 512x512 --threads 2"
-#     BENCH_PAIRED=N        rounds of interleaved builds against Embree medium (default 5; 0: none)
+#     BENCH_PAIRED=N        rounds of interleaved builds, and of 1-thread tracing of each ray set,
+#                           against Embree medium (default 5; 0: none)
 BENCH_OUT    ?= out/bench
 BENCH_PAIRED ?= 5
 BENCH_SCENES ?=

@@ -31,9 +31,13 @@ def main(paths):
     cols = [("build ms", "build_ms", -1), ("SAH", "sah", 2), ("B/tri", "bytes_per_tri", 1),
             ("4-wide B/tri", "wide_bytes_per_tri", 1), ("peak B/tri", "peak_build_bytes_per_tri", 0), ("Mrays/s 1t", "mrays_1t", 1),
             ("Mrays/s 2t", "mrays_mt", 1), ("Mrays/s OpenCL", "mrays_opencl", 1),
+            ("diffuse Mrays/s 1t", "diffuse_mrays_1t", 2), ("diffuse Mrays/s 2t", "diffuse_mrays_mt", 2),
+            ("shadow Mrays/s 1t", "shadow_mrays_1t", 2), ("shadow Mrays/s 2t", "shadow_mrays_mt", 2),
             ("frame ms", "frame_ms", 1), ("hits", "hits", 0), ("build / Embree med.", "ratio_build", 2),
             ("paired build / Embree med.", "ratio_build_paired", 2), ("SAH / Embree med.", "ratio_sah", 3), ("Mrays 1t / Embree med.", None, 2),
             ("paired Mrays 1t / Embree med.", "ratio_mrays_1t_paired", 2),
+            ("paired diffuse 1t / Embree med.", "ratio_diffuse_1t_paired", 2),
+            ("paired shadow 1t / Embree med.", "ratio_shadow_1t_paired", 2),
             ("paired OpenCL / CPU 2t", "ratio_opencl_mt_paired", 2)]
     for s in scenes:
         sr = [r for r in rows if r["scene"] == s and r.get("status") == "ok" and r["builder"] != "none"]

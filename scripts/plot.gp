@@ -62,12 +62,13 @@ do for [i=0:n-1] {
 unset multiplot
 set offsets 0, 0, 0, 0
 
-# ---- 3. Mrays/s per builder: CPU 1 thread, CPU N threads, OpenCL ----------------------------
-panels = have("mrays_1t.dat") + have("mrays_mt.dat") + have("mrays_cl.dat")
+# ---- 3. Mrays/s per builder: CPU 1 thread, CPU N threads, OpenCL; diffuse and shadow rays ------
+panels = have("mrays_1t.dat") + have("mrays_mt.dat") + have("mrays_cl.dat") + have("mrays_diffuse_1t.dat") \
+         + have("mrays_shadow_1t.dat")
 if (panels > 0) {
     set terminal pngcairo size 1200,360*panels font "sans,10" noenhanced
     set output f("mrays.png")
-    set multiplot layout panels,1 title "Primary rays per second, per builder and scene (log scale)"
+    set multiplot layout panels,1 title "Rays per second, per builder and scene (log scale)"
     unset logscale
     set logscale y
     set style data histograms
@@ -80,7 +81,7 @@ if (panels > 0) {
     set key outside right top vertical autotitle columnheader
     set bmargin 3.5
     set lmargin 10
-    do for [file in "mrays_1t.dat mrays_mt.dat mrays_cl.dat"] {
+    do for [file in "mrays_1t.dat mrays_mt.dat mrays_cl.dat mrays_diffuse_1t.dat mrays_shadow_1t.dat"] {
         if (have(file)) {
             cols = system("sed -n 2p '" . f(file) . "' | tr -d '\"'")
             nscenes = int(system("grep -vc '^#' '" . f(file) . "'")) - 1

@@ -2,8 +2,9 @@
 # The benchmark's PNG plots, from the .dat files `build/bvhbench --plots DIR` writes in DIR:
 #   build_time.png    build time vs triangles, log-log, one line per builder (build_time.dat)
 #   sah_vs_build.png  SAH (costs 1,0,1) vs build time, one panel per scene     (sah_build.dat)
-#   mrays.png         Mrays/s per builder and scene: CPU 1 thread, CPU N threads, OpenCL
-#                     (mrays_1t.dat, mrays_mt.dat, mrays_cl.dat; a panel per file present)
+#   mrays.png         Mrays/s per builder and scene: CPU 1 thread, CPU N threads, OpenCL, and
+#                     the diffuse and shadow rays on 1 thread (mrays_1t.dat, mrays_mt.dat,
+#                     mrays_cl.dat, mrays_diffuse_1t.dat, mrays_shadow_1t.dat; a panel per file)
 # Usage: scripts/plot.sh [DIR]     (default out/bench; bvhbench --plots DIR runs it)
 #   or directly: gnuplot -c scripts/plot.gp DIR
 # Exit status: 0 plots written; 1 gnuplot failed; 3 gnuplot is not installed (nothing written).

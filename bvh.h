@@ -277,6 +277,16 @@ typedef struct bvh_camera {
 BVH_API const char *bvh_result_string(bvh_result r);
 BVH_API const char *bvh_builder_name(bvh_builder b); /* "top-down", "ploc"... */
 BVH_API bvh_result bvh_builder_from_name(const char *name, bvh_builder *out);
+/* What a builder does with a zero description: its row of the builder table. */
+typedef struct bvh_builder_info {
+    const char *name;
+    uint32_t max_leaf_size; /* the default of bvh_build_desc.max_leaf_size */
+    float interior_cost;    /* the default interior cost of its SAH decisions (costs all zero) */
+    int uses_threads;       /* builds on desc.threads (the same tree for any count) */
+    int splits_references;  /* may reference a primitive from several leaves (ref_count > prims) */
+} bvh_builder_info;
+/* BVH_BUILDER_DEFAULT describes the builder it stands for. */
+BVH_API bvh_result bvh_builder_get_info(bvh_builder b, bvh_builder_info *out);
 
 /* Builds a tree. On failure *tree is zeroed and nothing is leaked. */
 BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc);
@@ -494,18 +504,6 @@ BVH_API const char *bvh_result_string(bvh_result r) {
     case BVH_ERROR_NO_TRIANGLES: return "the tree was built from boxes and has no triangles to trace";
     default: return "unknown result code";
     }
-}
-static const char *const bvh__builder_names[BVH_BUILDER_COUNT] = {
-    "default", "top-down", "bottom-up", "sah-midpoint", "ploc", "ploc-parallel"};
-BVH_API const char *bvh_builder_name(bvh_builder b) {
-    return (unsigned)b < BVH_BUILDER_COUNT ? bvh__builder_names[b] : "unknown";
-}
-BVH_API bvh_result bvh_builder_from_name(const char *name, bvh_builder *out) {
-    int i;
-    if (!name || !out) return BVH_ERROR_INVALID_ARGUMENT;
-    for (i = 0; i < BVH_BUILDER_COUNT; i++)
-        if (strcmp(name, bvh__builder_names[i]) == 0) { *out = BVH__CAST(bvh_builder, i); return BVH_SUCCESS; }
-    return BVH_ERROR_INVALID_ARGUMENT;
 }
 
 /* ============================================================================================ */
@@ -2895,6 +2893,52 @@ static bvh_result bvh__build_sah_midpoint(const bvh__ctx *c, bvh__out *o) {
 }
 
 /* ============================================================================================ */
+/* == the builder table ========================================================================== */
+/* One row per builder: everything bvh_build, the validator and bvh_builder_get_info need to know
+   of it. A new builder is its section above plus one row here. */
+/* ============================================================================================ */
+typedef bvh_result (*bvh__build_fn)(bvh__ctx *c, bvh__out *o);
+static bvh_result bvh__build_ploc_one(bvh__ctx *c, bvh__out *o) { return bvh__build_ploc(c, o, 1); }
+static bvh_result bvh__build_ploc_team(bvh__ctx *c, bvh__out *o) { return bvh__build_ploc(c, o, c->threads); }
+static bvh_result bvh__build_top_down_row(bvh__ctx *c, bvh__out *o) { return bvh__build_top_down(c, o); }
+static bvh_result bvh__build_bottom_up_row(bvh__ctx *c, bvh__out *o) { return bvh__build_bottom_up(c, o); }
+static bvh_result bvh__build_sah_midpoint_row(bvh__ctx *c, bvh__out *o) { return bvh__build_sah_midpoint(c, o); }
+typedef struct bvh__builder_row {
+    bvh_builder_info info;
+    bvh__build_fn build;
+} bvh__builder_row;
+/* Row 0 (BVH_BUILDER_DEFAULT) stands for ploc-parallel: bvh__builder() resolves it. PLOC's
+   collapse prices an interior node a little dearer (BVH__PLOC_INTERIOR): smaller trees at the
+   same SAH. */
+static const bvh__builder_row bvh__builders[BVH_BUILDER_COUNT] = {
+    {{"default", 8, BVH__PLOC_INTERIOR, 1, 0}, bvh__build_ploc_team},
+    {{"top-down", 4, 1.0f, 0, 0}, bvh__build_top_down_row},
+    {{"bottom-up", 4, 1.0f, 0, 0}, bvh__build_bottom_up_row},
+    {{"sah-midpoint", 8, 1.0f, 0, 1}, bvh__build_sah_midpoint_row},
+    {{"ploc", 8, BVH__PLOC_INTERIOR, 0, 0}, bvh__build_ploc_one},
+    {{"ploc-parallel", 8, BVH__PLOC_INTERIOR, 1, 0}, bvh__build_ploc_team},
+};
+static bvh_builder bvh__builder(bvh_builder b) { return b == BVH_BUILDER_DEFAULT ? BVH_BUILDER_PLOC_PARALLEL : b; }
+BVH_API const char *bvh_builder_name(bvh_builder b) {
+    return (unsigned)b < BVH_BUILDER_COUNT ? bvh__builders[b].info.name : "unknown";
+}
+BVH_API bvh_result bvh_builder_from_name(const char *name, bvh_builder *out) {
+    int i;
+    if (!name || !out) return BVH_ERROR_INVALID_ARGUMENT;
+    for (i = 0; i < BVH_BUILDER_COUNT; i++)
+        if (strcmp(name, bvh__builders[i].info.name) == 0) {
+            *out = BVH__CAST(bvh_builder, i);
+            return BVH_SUCCESS;
+        }
+    return BVH_ERROR_INVALID_ARGUMENT;
+}
+BVH_API bvh_result bvh_builder_get_info(bvh_builder b, bvh_builder_info *out) {
+    if ((unsigned)b >= BVH_BUILDER_COUNT || !out) return BVH_ERROR_INVALID_ARGUMENT;
+    *out = bvh__builders[bvh__builder(b)].info;
+    return BVH_SUCCESS;
+}
+
+/* ============================================================================================ */
 /* == build front-end ============================================================================ */
 /* Checks the description, turns triangles (or caller boxes) into boxes and centroids, leaves out
    or refuses invalid primitives, runs the builder and maps its references back. */
@@ -3044,6 +3088,35 @@ static void bvh__back_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) 
     }
 }
 
+/* The one place where the zero-means-default description becomes the builder's options (the
+   description is checked first, by bvh__check_desc): 0 takes the default, the BVH_*_OFF values
+   turn an option off. */
+static void bvh__resolve(const bvh_build_desc *d, bvh_builder builder, uint32_t count, bvh__ctx *c) {
+    const bvh_builder_info *row = &bvh__builders[builder].info;
+    memset(c, 0, sizeof *c);
+    c->al = d->allocator;
+    c->max_leaf = d->max_leaf_size ? d->max_leaf_size : row->max_leaf_size;
+    c->threads = row->uses_threads ? bvh__resolve_threads(d->threads) : 1;
+    /* a thread per BVH__MIN_PRIMS_PER_THREAD primitives at most: on small inputs, creating threads
+       and meeting at barriers costs more than the work (the tree does not depend on the count) */
+    if (c->threads > 1 && count / BVH__MIN_PRIMS_PER_THREAD < c->threads)
+        c->threads = count / BVH__MIN_PRIMS_PER_THREAD > 1 ? count / BVH__MIN_PRIMS_PER_THREAD : 1;
+    c->radius = d->ploc_radius ? d->ploc_radius : 16;
+    c->ploc_top = d->ploc_top == BVH_PLOC_TOP_OFF ? 0 : d->ploc_top == 0 ? 8 : d->ploc_top < 2 ? 2 : d->ploc_top;
+    c->sah_bins = d->sah_bins == BVH_SAH_MIDPOINT_ONLY ? 0 : d->sah_bins ? d->sah_bins : 32;
+    if (d->costs.interior == 0.0f && d->costs.leaf == 0.0f && d->costs.triangle == 0.0f) {
+        c->ci = row->interior_cost;
+        c->cl = 0.0f;
+        c->ct = 1.0f;
+    } else {
+        c->ci = d->costs.interior;
+        c->cl = d->costs.leaf;
+        c->ct = d->costs.triangle;
+    }
+    c->budget = d->max_bytes_per_prim == BVH_NO_MEMORY_LIMIT ? 0 : d->max_bytes_per_prim ? d->max_bytes_per_prim : 40;
+    c->split_budget = d->split_budget == 0.0f ? 0.3f : d->split_budget < 0.0f ? 0.0f : d->split_budget;
+}
+
 static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32_t threads);
 BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     bvh__ctx c;
@@ -3058,34 +3131,12 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     r = bvh__check_desc(desc, &count);
     if (r == BVH_SUCCESS) r = bvh__allocator_ok(&desc->allocator);
     if (r != BVH_SUCCESS) return r;
-    builder = desc->builder == BVH_BUILDER_DEFAULT ? BVH_BUILDER_PLOC_PARALLEL : desc->builder;
+    builder = bvh__builder(desc->builder);
     tree->builder = builder;
     tree->prim_count = count;
-    memset(&c, 0, sizeof c);
     memset(&o, 0, sizeof o);
-    c.al = desc->allocator;
-    {
-        int sah_based = builder == BVH_BUILDER_SAH_MIDPOINT || builder == BVH_BUILDER_PLOC || builder == BVH_BUILDER_PLOC_PARALLEL;
-        c.max_leaf = desc->max_leaf_size ? desc->max_leaf_size : sah_based ? 8 : 4;
-    }
-    c.threads = builder == BVH_BUILDER_PLOC_PARALLEL ? bvh__resolve_threads(desc->threads) : 1;
-    c.radius = desc->ploc_radius ? desc->ploc_radius : 16;
-    c.ploc_top = desc->ploc_top == BVH_PLOC_TOP_OFF ? 0 : desc->ploc_top == 0 ? 8 : desc->ploc_top < 2 ? 2 : desc->ploc_top;
-    c.sah_bins = desc->sah_bins == BVH_SAH_MIDPOINT_ONLY ? 0 : desc->sah_bins ? desc->sah_bins : 32;
-    if (desc->costs.interior == 0.0f && desc->costs.leaf == 0.0f && desc->costs.triangle == 0.0f) {
-        /* PLOC collapses with a slightly dearer interior node (see BVH__PLOC_INTERIOR) */
-        int ploc = builder == BVH_BUILDER_PLOC || builder == BVH_BUILDER_PLOC_PARALLEL;
-        c.ci = ploc ? BVH__PLOC_INTERIOR : 1.0f; c.cl = 0.0f; c.ct = 1.0f;
-    } else {
-        c.ci = desc->costs.interior; c.cl = desc->costs.leaf; c.ct = desc->costs.triangle;
-    }
-    c.budget = desc->max_bytes_per_prim == BVH_NO_MEMORY_LIMIT ? 0 : desc->max_bytes_per_prim ? desc->max_bytes_per_prim : 40;
-    c.split_budget = desc->split_budget == 0.0f ? 0.3f : desc->split_budget < 0.0f ? 0.0f : desc->split_budget;
+    bvh__resolve(desc, builder, count, &c);
     if (count == 0) return BVH_SUCCESS; /* an empty tree: node_count 0, every ray misses */
-    /* a thread per BVH__MIN_PRIMS_PER_THREAD primitives at most: on small inputs, creating threads
-       and meeting at barriers costs more than the work (the tree does not depend on the count) */
-    if (c.threads > 1 && count / BVH__MIN_PRIMS_PER_THREAD < c.threads)
-        c.threads = count / BVH__MIN_PRIMS_PER_THREAD > 1 ? count / BVH__MIN_PRIMS_PER_THREAD : 1;
 
     c.boxes = BVH__ALLOC(&c.al, bvh_aabb, count);
     if (!c.boxes) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
@@ -3129,14 +3180,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     c.orig = orig;
     if (n == 0) goto empty;
 
-    switch (builder) {
-    case BVH_BUILDER_TOP_DOWN: r = bvh__build_top_down(&c, &o); break;
-    case BVH_BUILDER_BOTTOM_UP: r = bvh__build_bottom_up(&c, &o); break;
-    case BVH_BUILDER_SAH_MIDPOINT: r = bvh__build_sah_midpoint(&c, &o); break;
-    case BVH_BUILDER_PLOC: r = bvh__build_ploc(&c, &o, 1); break;
-    default: r = bvh__build_ploc(&c, &o, c.threads); break;
-    }
-    if (r != BVH_SUCCESS) goto fail;
+    if ((r = bvh__builders[builder].build(&c, &o)) != BVH_SUCCESS) goto fail;
     bvh__free(&c.al, c.boxes); c.boxes = NULL;
 
     /* exact-size outputs: nodes, references mapped to caller indices, triangles in reference order */
@@ -3365,7 +3409,9 @@ BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
         return BVH_ERROR_INVALID_ARGUMENT;
     }
     splits = tree->ref_count != tree->prim_count - tree->excluded;
-    if (splits && tree->builder != BVH_BUILDER_SAH_MIDPOINT)
+    if ((unsigned)tree->builder >= BVH_BUILDER_COUNT)
+        return bvh__invalid(rep, BVH_INVALID, "builder out of range");
+    if (splits && !bvh__builders[tree->builder].info.splits_references)
         return bvh__invalid(rep, BVH_INVALID, "reference count differs from primitive count for a builder that does not split");
     seen = BVH__ALLOC(&al, uint8_t, tree->node_count);
     used = BVH__ALLOC(&al, uint8_t, tree->prim_count);

@@ -132,8 +132,8 @@ static void fz_parse_options(fz_in *in, fz_case *c, uint8_t *flags, uint8_t *ext
     *nidx = fz_u8(in);
     c->nrays = fz_u8(in) % 16;
     *extra = fz_u8(in);
-    d->builder = (bvh_builder)(BVH_BUILDER_TOP_DOWN + b0 % 5);
-    c->other = (bvh_builder)(BVH_BUILDER_TOP_DOWN + b1 % 5);
+    d->builder = (bvh_builder)(1 + b0 % (BVH_BUILDER_COUNT - 1)); /* the table's rows after the default */
+    c->other = (bvh_builder)(1 + b1 % (BVH_BUILDER_COUNT - 1));
     if (c->other == d->builder) c->other = d->builder == BVH_BUILDER_PLOC ? BVH_BUILDER_PLOC_PARALLEL : BVH_BUILDER_PLOC;
     d->skip_invalid = *flags & 1;
     d->max_leaf_size = (*extra & 4) ? fz_u16(in) : lf;
@@ -338,6 +338,7 @@ static void fz_check_rays(const fz_case *c, const bvh_tree *t) {
 static void fz_check_tree(const fz_case *c, const bvh_tree *t) {
     bvh_validation rep;
     bvh_stats st;
+    bvh_builder_info info;
     bvh_result r = bvh_validate(t, NULL, &rep);
     FZ_CHECK(r == BVH_SUCCESS, "%s: bvh_validate: %s (node %u)", bvh_builder_name(t->builder), rep.message, rep.node);
     r = bvh_validate(t, c->boxes, &rep);
@@ -345,11 +346,11 @@ static void fz_check_tree(const fz_case *c, const bvh_tree *t) {
     FZ_CHECK(bvh_get_stats(t, &st) == BVH_SUCCESS && st.max_depth <= BVH_MAX_DEPTH, "depth %u", st.max_depth);
     FZ_CHECK(t->prim_count == c->nt && t->excluded == c->bad, "prims %u excluded %u, want %u %u", t->prim_count,
              t->excluded, c->nt, c->bad);
-    FZ_CHECK(t->builder == BVH_BUILDER_SAH_MIDPOINT ? t->ref_count >= c->nt - c->bad : t->ref_count == c->nt - c->bad,
+    FZ_CHECK(bvh_builder_get_info(t->builder, &info) == BVH_SUCCESS, "builder %d", (int)t->builder);
+    FZ_CHECK(info.splits_references ? t->ref_count >= c->nt - c->bad : t->ref_count == c->nt - c->bad,
              "ref_count %u", t->ref_count);
     {
-        uint32_t lim = c->desc.max_leaf_size ? c->desc.max_leaf_size
-                       : t->builder == BVH_BUILDER_TOP_DOWN || t->builder == BVH_BUILDER_BOTTOM_UP ? 4 : 8;
+        uint32_t lim = c->desc.max_leaf_size ? c->desc.max_leaf_size : info.max_leaf_size;
         FZ_CHECK(st.max_leaf_size <= lim, "%s: leaf of %u > %u", bvh_builder_name(t->builder), st.max_leaf_size, lim);
     }
 }

@@ -52,6 +52,21 @@ static void builder_names(void **state) {
     assert_int_equal(bvh_builder_from_name("ploc ", &out), BVH_ERROR_INVALID_ARGUMENT);
     assert_int_equal(bvh_builder_from_name(NULL, &out), BVH_ERROR_INVALID_ARGUMENT);
     assert_int_equal(bvh_builder_from_name("ploc", NULL), BVH_ERROR_INVALID_ARGUMENT);
+    { /* the table: the default is ploc-parallel's row; only sah-midpoint splits references */
+        bvh_builder_info info, par;
+        assert_int_equal(bvh_builder_get_info(BVH_BUILDER_PLOC_PARALLEL, &par), BVH_SUCCESS);
+        assert_int_equal(bvh_builder_get_info(BVH_BUILDER_DEFAULT, &info), BVH_SUCCESS);
+        assert_string_equal(info.name, "ploc-parallel");
+        assert_true(par.uses_threads && !par.splits_references && par.max_leaf_size == 8);
+        for (b = 1; b < BVH_BUILDER_COUNT; b++) {
+            assert_int_equal(bvh_builder_get_info((bvh_builder)b, &info), BVH_SUCCESS);
+            assert_string_equal(info.name, names[b]);
+            assert_int_equal(info.splits_references, b == BVH_BUILDER_SAH_MIDPOINT);
+            assert_true(info.max_leaf_size >= 1 && info.max_leaf_size <= 255 && info.interior_cost > 0.0f);
+        }
+        assert_int_equal(bvh_builder_get_info(BVH_BUILDER_COUNT, &info), BVH_ERROR_INVALID_ARGUMENT);
+        assert_int_equal(bvh_builder_get_info(BVH_BUILDER_PLOC, NULL), BVH_ERROR_INVALID_ARGUMENT);
+    }
 }
 
 /* == argument errors ============================================================================ */

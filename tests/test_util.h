@@ -29,17 +29,15 @@
 #define TU_BUNNY_PATH "/usr/share/glmark2/models/bunny.obj"
 #define TU_RAYS 10000 /* rays per scene in the exactness tests */
 
-/* Every real builder, i = 0 .. TU_BUILDER_COUNT - 1 (BVH_BUILDER_DEFAULT is ploc-parallel). */
-#define TU_BUILDER_COUNT 5
-TU_FN bvh_builder tu_builder(int i) {
-    static const bvh_builder b[TU_BUILDER_COUNT] = {BVH_BUILDER_TOP_DOWN, BVH_BUILDER_BOTTOM_UP,
-                                                    BVH_BUILDER_SAH_MIDPOINT, BVH_BUILDER_PLOC,
-                                                    BVH_BUILDER_PLOC_PARALLEL};
-    return b[i];
-}
-/* Largest leaf a builder makes by default (bvh_build_desc.max_leaf_size = 0). */
+/* Every real builder, i = 0 .. TU_BUILDER_COUNT - 1: the builder table's rows after
+   BVH_BUILDER_DEFAULT (which stands for ploc-parallel). */
+#define TU_BUILDER_COUNT (BVH_BUILDER_COUNT - 1)
+TU_FN bvh_builder tu_builder(int i) { return (bvh_builder)(i + 1); }
+/* Largest leaf a builder makes by default (bvh_build_desc.max_leaf_size = 0): its table row. */
 TU_FN uint32_t tu_default_leaf(bvh_builder b) {
-    return b == BVH_BUILDER_TOP_DOWN || b == BVH_BUILDER_BOTTOM_UP ? 4 : 8;
+    bvh_builder_info info;
+    if (bvh_builder_get_info(b, &info) != BVH_SUCCESS) return 0;
+    return info.max_leaf_size;
 }
 
 /* cmocka_unit_test_prestate passes an integer (a scene id) as the state; + 1 keeps it non-NULL. */

@@ -1,5 +1,5 @@
 # bvh.h - build the examples, run the tests, the demo and the benchmark.
-#   make            examples (build/render, build/bvhbench ...)
+#   make            examples and tools (build/render, build/minimal ..., build/bvhbench ...)
 #   make demo       the main job: render the bunny with every builder and print a table
 #   make test       every test (installs missing Debian packages first when run as root)
 #   make bench      the study's Table I, side by side with Embree
@@ -23,16 +23,27 @@ EX_DEFS = $(if $(HAVE_OPENCL),-DBVH_HAVE_OPENCL -DCL_TARGET_OPENCL_VERSION=120 -
           $(if $(HAVE_STB),-DBVH_HAVE_STB)
 EX_LIBS = $(if $(HAVE_OPENCL),-lOpenCL) $(if $(HAVE_EMBREE),-lembree3) $(if $(HAVE_ASSIMP),-lassimp)
 
+# examples/: programs a user copies; bench/: the benchmark and the Embree comparison (tools). Both
+# build into $(BUILD)/NAME.
 EXAMPLES = $(patsubst examples/%.c,$(BUILD)/%,$(wildcard examples/*.c))
+BENCH    = $(patsubst bench/%.c,$(BUILD)/%,$(wildcard bench/*.c))
 TESTS    = $(patsubst tests/%.c,$(BUILD)/tests/%,$(wildcard tests/test_*.c))
-HEADERS  = bvh.h $(wildcard examples/*.h) $(wildcard cl/*.h) $(wildcard cl/*.cl) $(wildcard tests/*.h)
+HEADERS  = bvh.h $(wildcard examples/*.h) $(wildcard bench/*.h) $(wildcard cl/*.h) $(wildcard cl/*.cl) $(wildcard tests/*.h)
 
 .PHONY: all demo test bench clean deps-test deps-demo deps-bench
-all: $(EXAMPLES)
+all: $(EXAMPLES) $(BENCH)
 
 $(BUILD)/%: examples/%.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) $< -o $@ $(EX_LIBS) $(LDLIBS)
+$(BUILD)/%: bench/%.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) $< -o $@ $(EX_LIBS) $(LDLIBS)
+# The programs a user copies build as a user would: strict C11, bvh.h only, no feature macros.
+COPYABLE = $(BUILD)/minimal $(BUILD)/boxes
+$(COPYABLE): $(BUILD)/%: examples/%.c bvh.h
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -I. $< -o $@ $(LDLIBS)
 
 # Tests: warnings are errors; test_opencl also links OpenCL.
 $(BUILD)/tests/%: tests/%.c $(HEADERS)
@@ -108,10 +119,12 @@ deps-demo:
 deps-bench:
 	@scripts/deps.sh bench
 
-# tests/exit_codes.sh runs $(BUILD)/render and $(BUILD)/cl_info.
+# tests/exit_codes.sh runs $(BUILD)/render and $(BUILD)/cl_info; tests/examples.sh runs
+# $(BUILD)/minimal and $(BUILD)/boxes. scripts/run-tests.sh prints a line per program and keeps
+# every output in $(BUILD)/test-logs/.
 test: deps-test
-	@$(MAKE) --no-print-directory $(TESTS) $(CHECKS) $(BUILD)/render $(BUILD)/cl_info
-	@BUILD=$(BUILD) scripts/run-tests.sh $(TESTS) $(CHECKS) tests/exit_codes.sh
+	@$(MAKE) --no-print-directory $(TESTS) $(CHECKS) $(BUILD)/render $(BUILD)/cl_info $(COPYABLE)
+	@BUILD=$(BUILD) scripts/run-tests.sh $(TESTS) $(CHECKS) tests/exit_codes.sh tests/examples.sh
 
 demo: deps-demo
 	@$(MAKE) --no-print-directory $(BUILD)/render

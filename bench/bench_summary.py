@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Condensed Markdown table from bvhbench --json output (the README's Figures section).
 
-usage: scripts/bench_summary.py out/bench/bench.json [more.json ...]
+usage: bench/bench_summary.py out/bench/bench.json [more.json ...]
 One table per scene with the columns a reader compares first; the full tables are in the
 --md output of bvhbench. Standard library only.
 """

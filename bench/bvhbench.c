@@ -55,11 +55,11 @@
 #define BVH_IMPLEMENTATION
 #include "bvh.h"
 #define SCENE_IMPLEMENTATION
-#include "scene.h"
+#include "examples/scene.h"
 #define EMB_IMPLEMENTATION
 #include "embree_side.h"
 #define RAYS_IMPLEMENTATION
-#include "rays.h"
+#include "examples/rays.h"
 #define BVH_CL_IMPLEMENTATION
 #include "cl/bvh_cl.h"
 
@@ -189,9 +189,11 @@ static void say(const char *fmt, ...) {
     va_end(ap);
 }
 
-static uint32_t online_cpus(void) {
-    long n = sysconf(_SC_NPROCESSORS_ONLN);
-    return n > 0 ? (uint32_t)(n > 256 ? 256 : n) : 1;
+/* The median, smallest and largest of x[0..n), n > 0 (sorts x). */
+static void median_range(double *x, uint32_t n, double *med, double *lo, double *hi) {
+    *med = scene_median(x, n);
+    *lo = x[0];
+    *hi = x[n - 1];
 }
 
 static void row_init(row *r, row_kind kind, const char *name) {
@@ -662,7 +664,7 @@ static int build_repeated(run_ctx *c, row *r, bvh_tree *tree) {
     const options *o = c->o;
     bvh_build_desc desc;
     double ms[BENCH_MAX_REPEAT], peak = 0.0;
-    uint32_t rep, i;
+    uint32_t rep;
     bench_desc(c, r->builder, &desc);
     for (rep = 0; rep <= o->repeat; rep++) {
         double t0;
@@ -689,12 +691,7 @@ static int build_repeated(run_ctx *c, row *r, bvh_tree *tree) {
         }
         if (rep == 0) peak = (double)(atomic_load(&c->mem.peak) - live);
     }
-    r->build_min = r->build_max = ms[0];
-    for (i = 1; i < o->repeat; i++) {
-        if (ms[i] < r->build_min) r->build_min = ms[i];
-        if (ms[i] > r->build_max) r->build_max = ms[i];
-    }
-    r->build_ms = scene_median(ms, o->repeat);
+    median_range(ms, o->repeat, &r->build_ms, &r->build_min, &r->build_max);
     r->peak_bytes = peak;
     return 0;
 }
@@ -1034,16 +1031,6 @@ static void run_embree(run_ctx *c, row *r) {
     }
     r->sah = sah.sah; r->nodes = sah.nodes; r->leaves = sah.leaves; r->refs = sah.refs;
     r->max_depth = sah.max_depth; r->max_leaf = sah.max_leaf_size; r->emb_bvh_ms = sah.build.ms;
-}
-
-static void median_range(double *x, uint32_t n, double *med, double *lo, double *hi) {
-    uint32_t k;
-    *lo = *hi = x[0];
-    for (k = 1; k < n; k++) {
-        if (x[k] < *lo) *lo = x[k];
-        if (x[k] > *hi) *hi = x[k];
-    }
-    *med = scene_median(x, n);
 }
 
 /* OpenCL against the CPU on N threads, paired: each round renders one frame of every tree with
@@ -1629,7 +1616,7 @@ static void header_lines(FILE *f, const options *o, const header_info *h, const 
     fprintf(f, "%sbvhbench: bvh.h %d.%d.%d, %s\n", prefix, BVH_VERSION_MAJOR, BVH_VERSION_MINOR, BVH_VERSION_PATCH,
             h->date);
     fprintf(f, "%sCPU: %s, %u cores online; threads %u (ploc-parallel, multi-thread tracing, Embree)\n", prefix,
-            h->cpu, online_cpus(), o->nthreads);
+            h->cpu, scene_cpu_count(), o->nthreads);
     fprintf(f, "%sEmbree: %s\n", prefix, h->embree);
     if (o->ploc_top == BVH_PLOC_TOP_OFF) fprintf(f, "%sPLOC: the paper's, without the SAH top (--ploc-top off)\n", prefix);
     else fprintf(f, "%sPLOC: with the SAH top over the last n/%u clusters (--ploc-top)\n", prefix, o->ploc_top ? o->ploc_top : 8);
@@ -1675,16 +1662,6 @@ static int write_md(const char *path, const options *o, const header_info *h, co
 }
 
 /* ---- JSON lines ------------------------------------------------------------------------------------ */
-static void json_str(FILE *f, const char *s) {
-    fputc('"', f);
-    for (; s && *s; s++) {
-        unsigned char ch = (unsigned char)*s;
-        if (ch == '"' || ch == '\\') fprintf(f, "\\%c", ch);
-        else if (ch < 0x20) fprintf(f, "\\u%04x", ch);
-        else fputc(ch, f);
-    }
-    fputc('"', f);
-}
 static void json_num(FILE *f, const char *key, double v, int prec) {
     fprintf(f, ",\"%s\":", key);
     if (isnan(v) || isinf(v)) fputs("null", f);
@@ -1705,9 +1682,9 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         const row *r = &s->rows[i];
         double tris = (double)s->triangles;
         fputs("{\"scene\":", f);
-        json_str(f, s->name);
+        scene_json_string(f, s->name);
         fprintf(f, ",\"triangles\":%u,\"builder\":", s->triangles);
-        json_str(f, r->name);
+        scene_json_string(f, r->name);
         fprintf(f, ",\"kind\":\"%s\",\"status\":\"%s\",\"threads\":%u,\"repeat\":%u",
                 r->kind == ROW_BRUTE ? "brute-force" : r->kind == ROW_BVH ? "bvh.h" : "embree",
                 r->state == ROW_OK ? "ok" : r->state == ROW_SKIPPED ? "skipped" : "failed", o->nthreads, o->repeat);
@@ -1741,7 +1718,7 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "frame_ms", r->frame_ms, 4);
         json_num(f, "fps", r->fps, 3);
         fputs(",\"frame_tracer\":", f);
-        if (r->frame_tracer) json_str(f, r->frame_tracer);
+        if (r->frame_tracer) scene_json_string(f, r->frame_tracer);
         else fputs("null", f);
         json_num(f, "ratio_build", r->x_build, 4);
         json_num(f, "ratio_build_paired", r->x_pair, 4);
@@ -1781,9 +1758,9 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         }
         fprintf(f, ",\"hits_agree\":%s,\"hits_refereed\":%s,\"note\":", r->disagree || r->refereed ? "false" : "true",
                 r->refereed && !r->disagree ? "true" : "false");
-        json_str(f, r->disagree ? r->disagree_msg : r->refereed ? r->referee_msg : r->note);
+        scene_json_string(f, r->disagree ? r->disagree_msg : r->refereed ? r->referee_msg : r->note);
         fputs(",\"sets_note\":", f);
-        json_str(f, r->set_note);
+        scene_json_string(f, r->set_note);
         fputs("}\n", f);
     }
     fflush(f);
@@ -1927,16 +1904,16 @@ static int write_plot_data(const char *dir, const options *o, const bench_scene 
     return rc;
 }
 
-/* Runs scripts/plot.sh DIR (found from the working directory or next to the program). */
+/* Runs bench/plot.sh DIR (found from the working directory or next to the program). */
 static int run_plot_script(const char *argv0, const char *dir) {
     char script[1024];
     const char *slash = strrchr(argv0, '/');
     pid_t pid;
     int status;
-    snprintf(script, sizeof script, "scripts/plot.sh");
+    snprintf(script, sizeof script, "bench/plot.sh");
     if (access(script, R_OK) != 0 && slash)
-        snprintf(script, sizeof script, "%.*s/../scripts/plot.sh", (int)(slash - argv0), argv0);
-    if (access(script, R_OK) != 0) { say("scripts/plot.sh not found: plot data left in %s", dir); return 1; }
+        snprintf(script, sizeof script, "%.*s/../bench/plot.sh", (int)(slash - argv0), argv0);
+    if (access(script, R_OK) != 0) { say("bench/plot.sh not found: plot data left in %s", dir); return 1; }
     fflush(NULL);
     pid = fork();
     if (pid < 0) { say("cannot run %s: %s", script, strerror(errno)); return 1; }
@@ -1981,7 +1958,7 @@ static void usage(FILE *f) {
             "  --brute-max N    brute force only up to N triangles (default 20000) and %.0e tests\n"
             "  --md FILE        Markdown tables, best value per column and scene in bold\n"
             "  --json FILE      one JSON object per line and row ('-': stdout; the table goes to stderr)\n"
-            "  --plots DIR      plot data (*.dat) and, with gnuplot, PNG plots (scripts/plot.sh)\n"
+            "  --plots DIR      plot data (*.dat) and, with gnuplot, PNG plots (bench/plot.sh)\n"
             "  --strict         Embree's differences from bvh.h count as disagreements even where an\n"
             "                   exact test decides for bvh.h (they are marked (e) and noted otherwise)\n"
             "  --quiet          no progress line on stderr\n"
@@ -1991,22 +1968,10 @@ static void usage(FILE *f) {
             BENCH_BRUTE_TESTS, BENCH_BUNNY, scene_spec_help());
 }
 
-static int parse_u32(const char *s, uint32_t lo, uint32_t hi, uint32_t *out, const char **end) {
-    char *e;
-    unsigned long long v;
-    if (!s || *s < '0' || *s > '9') return 1;
-    errno = 0;
-    v = strtoull(s, &e, 10);
-    if (errno || v < lo || v > hi || (!end && *e)) return 1;
-    if (end) *end = e;
-    *out = (uint32_t)v;
-    return 0;
-}
-
 /* "off" (gives `off`) or a count up to 2^30: the --ploc-top and --max-bytes values */
 static int parse_count_or_off(const char *s, uint32_t off, uint32_t *out) {
     if (s && !strcmp(s, "off")) { *out = off; return 0; }
-    return parse_u32(s, 0, 1u << 30, out, NULL);
+    return scene_parse_u32(s, 0, 1u << 30, out, NULL);
 }
 
 static int parse_builders(const char *list, options *o) {
@@ -2062,7 +2027,7 @@ static int parse_args(int argc, char **argv, options *o) {
     o->brute_max = 20000;
     o->trace_auto = 1;
     for (i = 1; i < argc; i++) {
-        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL, *e;
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         int takes = a[0] == '-' && a[1] == '-' && strcmp(a, "--quiet") && strcmp(a, "--strict") && strcmp(a, "--help");
         if (!strcmp(a, "--help") || !strcmp(a, "-h")) { usage(stdout); return 1; }
         if (takes && !v) { fprintf(stderr, "bvhbench: %s needs a value (see --help)\n", a); return 2; }
@@ -2080,7 +2045,7 @@ static int parse_args(int argc, char **argv, options *o) {
                 return 2;
             }
         } else if (!strcmp(a, "--threads")) {
-            if (parse_u32(v, 0, 256, &o->threads, NULL)) {
+            if (scene_parse_u32(v, 0, 256, &o->threads, NULL)) {
                 fprintf(stderr, "bvhbench: --threads wants 0 (all cores) to 256, not '%s'\n", v);
                 return 2;
             }
@@ -2090,7 +2055,7 @@ static int parse_args(int argc, char **argv, options *o) {
                 return 2;
             }
         } else if (!strcmp(a, "--paired")) {
-            if (parse_u32(v, 0, 1000, &o->paired, NULL)) {
+            if (scene_parse_u32(v, 0, 1000, &o->paired, NULL)) {
                 fprintf(stderr, "bvhbench: --paired wants 0 to 1000 rounds, not '%s'\n", v ? v : "");
                 return 2;
             }
@@ -2100,23 +2065,22 @@ static int parse_args(int argc, char **argv, options *o) {
                 return 2;
             }
         } else if (!strcmp(a, "--trace-width")) {
-            if (parse_u32(v, 2, 4, &o->trace_width, NULL) || o->trace_width == 3) {
+            if (scene_parse_u32(v, 2, 4, &o->trace_width, NULL) || o->trace_width == 3) {
                 fprintf(stderr, "bvhbench: --trace-width wants 2 or 4, not '%s'\n", v);
                 return 2;
             }
         } else if (!strcmp(a, "--repeat")) {
-            if (parse_u32(v, 1, BENCH_MAX_REPEAT, &o->repeat, NULL)) {
+            if (scene_parse_u32(v, 1, BENCH_MAX_REPEAT, &o->repeat, NULL)) {
                 fprintf(stderr, "bvhbench: --repeat wants 1 to %d, not '%s'\n", BENCH_MAX_REPEAT, v);
                 return 2;
             }
         } else if (!strcmp(a, "--brute-max")) {
-            if (parse_u32(v, 0, 0xFFFFFFFFu, &o->brute_max, NULL)) {
+            if (scene_parse_u32(v, 0, 0xFFFFFFFFu, &o->brute_max, NULL)) {
                 fprintf(stderr, "bvhbench: --brute-max wants a triangle count, not '%s'\n", v);
                 return 2;
             }
         } else if (!strcmp(a, "--size")) {
-            if (parse_u32(v, 1, 16384, &o->width, &e) || (*e != 'x' && *e != 'X') ||
-                parse_u32(e + 1, 1, 16384, &o->height, NULL) || (uint64_t)o->width * o->height > BENCH_MAX_PIXELS) {
+            if (scene_parse_size(v, BENCH_MAX_PIXELS, &o->width, &o->height)) {
                 fprintf(stderr, "bvhbench: --size wants WxH (e.g. 1024x1024, at most 16384 a side and %u pixels), "
                                 "not '%s'\n", BENCH_MAX_PIXELS, v);
                 return 2;
@@ -2145,7 +2109,7 @@ static int parse_args(int argc, char **argv, options *o) {
         fprintf(stderr, "bvhbench: nothing to run (no builder and --embree none)\n");
         return 2;
     }
-    o->nthreads = o->threads ? o->threads : online_cpus();
+    o->nthreads = o->threads ? o->threads : scene_cpu_count();
     return 0;
 }
 

@@ -1,4 +1,5 @@
-/* embree_side.h - Embree 3 figures beside bvh.h's, for the examples and the benchmark (C11)
+/* embree_side.h - Embree 3 figures beside bvh.h's, for the benchmark (bench/bvhbench.c) and
+   bench/embree_compare.c (C11)
 
    WHAT
      Measures Embree 3 on a triangle soup, with the same rays and the same SAH costs as bvh.h:
@@ -23,16 +24,18 @@
                         through the API: this is the closest like-for-like tree Embree builds.
 
    HOW TO INCLUDE
-     In exactly ONE .c file (which also has, or links, bvh.h's implementation for the camera):
+     In exactly ONE .c file (which also has, or links, bvh.h's implementation for the camera, and
+     examples/scene.h's for the clock, the median and the CPU count):
          #define BVH_IMPLEMENTATION
          #include "bvh.h"
+         #define SCENE_IMPLEMENTATION
+         #include "examples/scene.h"
          #define EMB_IMPLEMENTATION
          #include "embree_side.h"
-     Compile with -DBVH_HAVE_EMBREE and link -lembree3 -lpthread for real figures (the Makefile
-     does both when <embree3/rtcore.h> exists). Without BVH_HAVE_EMBREE the header still compiles
-     and every call returns EMB_ERR_UNAVAILABLE with the message "Embree not installed".
-     The implementation uses clock_gettime(CLOCK_MONOTONIC) when <time.h> declares it (the
-     Makefile's -D_GNU_SOURCE), else C11 timespec_get.
+     Compile with -I. (the repository root) and with -DBVH_HAVE_EMBREE, and link -lembree3
+     -lpthread for real figures (the Makefile does all three when <embree3/rtcore.h> exists).
+     Without BVH_HAVE_EMBREE the header still compiles and every call returns EMB_ERR_UNAVAILABLE
+     with the message "Embree not installed".
 
    ERRORS
      Every call returns an emb_status (EMB_OK = 0) and writes a one-line reason into the result's
@@ -264,10 +267,8 @@ EMB_API void emb_builder_close(emb_builder *b) { (void)b; }
 /* ---- Embree ------------------------------------------------------------------------------- */
 #include <embree3/rtcore.h>
 #include <pthread.h>
-#include <time.h>
-#if defined(__unix__) || defined(__APPLE__)
-#include <unistd.h>
-#endif
+
+#include "examples/scene.h"
 
 #define EMB__MAX_TRIANGLES (UINT32_MAX / 3u) /* the index buffer is 3n unsigned ints */
 #define EMB__RAYS_CHUNK 64 /* emb_builder_rays: rays per chunk, chunks interleaved over the threads */
@@ -275,35 +276,13 @@ EMB_API void emb_builder_close(emb_builder *b) { (void)b; }
 EMB_API int emb_available(void) { return 1; }
 EMB_API const char *emb_version(void) { return RTC_VERSION_STRING; }
 
-static double emb__now_ms(void) {
-    struct timespec t;
-#if defined(CLOCK_MONOTONIC)
-    clock_gettime(CLOCK_MONOTONIC, &t);
-#else
-    timespec_get(&t, TIME_UTC);
-#endif
-    return (double)t.tv_sec * 1e3 + (double)t.tv_nsec * 1e-6;
-}
-static int emb__cmpd(const void *a, const void *b) {
-    double x = *(const double *)a, y = *(const double *)b;
-    return x < y ? -1 : x > y;
-}
 /* sorts ms[0..n) and fills median (mean of the two middle ones for even n), min, max */
 static emb_timing emb__timing(double *ms, uint32_t n) {
     emb_timing t;
-    qsort(ms, n, sizeof *ms, emb__cmpd);
-    t.ms = n % 2 ? ms[n / 2] : 0.5 * (ms[n / 2 - 1] + ms[n / 2]);
+    t.ms = scene_median(ms, n);
     t.min_ms = ms[0];
     t.max_ms = ms[n - 1];
     return t;
-}
-static uint32_t emb__online_cpus(void) {
-#if defined(_SC_NPROCESSORS_ONLN)
-    long c = sysconf(_SC_NPROCESSORS_ONLN);
-    return c > 0 ? (uint32_t)c : 1u;
-#else
-    return 1u;
-#endif
 }
 static enum RTCBuildQuality emb__rtc_quality(emb_quality q) {
     return q == EMB_QUALITY_LOW ? RTC_BUILD_QUALITY_LOW
@@ -373,7 +352,7 @@ static bvh_aabb emb__bounds(const float *v, uint32_t n) {
 /* One build as embree_ref.c times it: scene, geometry, buffers, copy, commit. */
 static RTCScene emb__build_scene(RTCDevice dev, const float *v, uint32_t n, enum RTCBuildQuality bq,
                                  int robust, double *total_ms, double *commit_ms) {
-    double t0 = emb__now_ms(), t1;
+    double t0 = scene_now_ms(), t1;
     RTCScene scene = rtcNewScene(dev);
     if (!scene) return NULL;
     rtcSetSceneBuildQuality(scene, bq);
@@ -396,10 +375,10 @@ static RTCScene emb__build_scene(RTCDevice dev, const float *v, uint32_t n, enum
         rtcAttachGeometry(scene, g);
         rtcReleaseGeometry(g);
     }
-    t1 = emb__now_ms();
+    t1 = scene_now_ms();
     rtcCommitScene(scene);
-    *commit_ms = emb__now_ms() - t1;
-    *total_ms = emb__now_ms() - t0;
+    *commit_ms = scene_now_ms() - t1;
+    *total_ms = scene_now_ms() - t0;
     return scene;
 }
 
@@ -497,9 +476,9 @@ static int emb__trace(RTCScene scene, const bvh_ray *rays, size_t count, size_t 
         emb__trace_job j;
         j.scene = scene; j.rays = rays; j.count = count; j.chunk = chunk;
         j.first = 0; j.step = 1; j.t = t; j.prim = prim; j.occluded = occluded;
-        t0 = emb__now_ms();
+        t0 = scene_now_ms();
         emb__trace_rows(&j);
-        *ms = emb__now_ms() - t0;
+        *ms = scene_now_ms() - t0;
         return EMB_OK;
     } else {
         emb__trace_job *jobs = (emb__trace_job *)malloc(threads * sizeof *jobs);
@@ -512,14 +491,14 @@ static int emb__trace(RTCScene scene, const bvh_ray *rays, size_t count, size_t 
             jobs[k].first = k; jobs[k].step = threads; jobs[k].t = t; jobs[k].prim = prim;
             jobs[k].occluded = occluded;
         }
-        t0 = emb__now_ms();
+        t0 = scene_now_ms();
         for (k = 1; k < threads; k++) {
             if (pthread_create(&tid[k], NULL, emb__trace_rows, &jobs[k]) != 0) { st = EMB_ERR_THREAD; break; }
             started = k;
         }
         if (st == EMB_OK) emb__trace_rows(&jobs[0]); /* the calling thread takes rows 0, T, 2T... */
         for (k = 1; k <= started; k++) pthread_join(tid[k], NULL);
-        *ms = emb__now_ms() - t0;
+        *ms = scene_now_ms() - t0;
         free(jobs);
         free(tid);
         return st;
@@ -646,7 +625,7 @@ EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *de
     if (!d.repeat) d.repeat = 5;
     if (d.repeat > 100000) d.repeat = 100000;
     if (!d.width || !d.height) d.width = d.height = 0;
-    if (!d.trace_threads) d.trace_threads = emb__online_cpus();
+    if (!d.trace_threads) d.trace_threads = scene_cpu_count();
     if (d.trace_threads > 1024) d.trace_threads = 1024;
     bq = emb__rtc_quality(d.quality);
     out->threads = d.threads;
@@ -985,9 +964,9 @@ EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *desc, em
     for (rep = 0; rep <= d.repeat; rep++) {
         double t0;
         memcpy(prims, src, (size_t)n * sizeof *src);
-        t0 = emb__now_ms();
+        t0 = scene_now_ms();
         root = rtcBuildBVH(&args);
-        if (rep) ms[rep - 1] = emb__now_ms() - t0;
+        if (rep) ms[rep - 1] = scene_now_ms() - t0;
         if (!root || emb__check(dev, &err, "rtcBuildBVH")) {
             if (!err.failed) emb__msg(out->message, "rtcBuildBVH returned no tree");
             st = EMB_ERR_EMBREE;

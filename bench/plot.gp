@@ -1,5 +1,5 @@
-# scripts/plot.gp - the benchmark's plots from the .dat files of `build/bvhbench --plots DIR`
-# usage: gnuplot -c scripts/plot.gp DIR      (scripts/plot.sh DIR checks for gnuplot first)
+# bench/plot.gp - the benchmark's plots from the .dat files of `build/bvhbench --plots DIR`
+# usage: gnuplot -c bench/plot.gp DIR      (bench/plot.sh DIR checks for gnuplot first)
 # Every .dat file starts with a comment saying what it holds; '-' marks a value not measured.
 # A builder has the same colour in every plot.
 dir = ARGC >= 1 ? ARG1 : "out/bench"

@@ -5,8 +5,8 @@
 #   mrays.png         Mrays/s per builder and scene: CPU 1 thread, CPU N threads, OpenCL, and
 #                     the diffuse and shadow rays on 1 thread (mrays_1t.dat, mrays_mt.dat,
 #                     mrays_cl.dat, mrays_diffuse_1t.dat, mrays_shadow_1t.dat; a panel per file)
-# Usage: scripts/plot.sh [DIR]     (default out/bench; bvhbench --plots DIR runs it)
-#   or directly: gnuplot -c scripts/plot.gp DIR
+# Usage: bench/plot.sh [DIR]     (default out/bench; bvhbench --plots DIR runs it)
+#   or directly: gnuplot -c bench/plot.gp DIR
 # Exit status: 0 plots written; 1 gnuplot failed; 3 gnuplot is not installed (nothing written).
 set -u
 dir=${1:-out/bench}

@@ -43,7 +43,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
 
 #define RENDER_MAX_PIXELS (64u * 1024u * 1024u)
 #define RENDER_MAX_FRAMES 100u
@@ -128,24 +127,6 @@ static void usage(FILE *f) {
             scene_can_write_png() ? "yes" : "no (use .ppm)", RENDER_OPENCL);
 }
 
-static int parse_u32(const char *s, uint32_t lo, uint32_t hi, uint32_t *out, const char **end) {
-    char *e;
-    unsigned long long v;
-    if (!s || *s < '0' || *s > '9') return 1;
-    v = strtoull(s, &e, 10);
-    if (v < lo || v > hi || (!end && *e)) return 1;
-    if (end) *end = e;
-    *out = (uint32_t)v;
-    return 0;
-}
-
-static int parse_size(const char *s, uint32_t *w, uint32_t *h) {
-    const char *e;
-    if (parse_u32(s, 1, 16384, w, &e) || (*e != 'x' && *e != 'X')) return 1;
-    if (parse_u32(e + 1, 1, 16384, h, NULL)) return 1;
-    return (uint64_t)*w * *h > RENDER_MAX_PIXELS;
-}
-
 static int parse_image_path(const char *opt, const char *val, const char **out) {
     char err[512];
     if (scene_check_image_path(val, err, sizeof err)) { fprintf(stderr, "render: %s: %s\n", opt, err); return 2; }
@@ -162,12 +143,12 @@ static int parse_option(const char *a, const char *val, options *o) {
             return 2;
         }
     } else if (strcmp(a, "--threads") == 0) {
-        if (parse_u32(val, 0, 256, &o->threads, NULL)) {
+        if (scene_parse_u32(val, 0, 256, &o->threads, NULL)) {
             fprintf(stderr, "render: --threads wants a number from 0 (all cores) to 256, not '%s'\n", val);
             return 2;
         }
     } else if (strcmp(a, "--size") == 0) {
-        if (parse_size(val, &o->width, &o->height)) {
+        if (scene_parse_size(val, RENDER_MAX_PIXELS, &o->width, &o->height)) {
             fprintf(stderr, "render: --size wants WxH (e.g. 800x600, at most 16384 a side and %u "
                             "pixels), not '%s'\n", RENDER_MAX_PIXELS, val);
             return 2;
@@ -177,18 +158,18 @@ static int parse_option(const char *a, const char *val, options *o) {
         else if (strcmp(val, "opencl") == 0) o->trace = TRACE_OPENCL;
         else { fprintf(stderr, "render: --trace wants cpu or opencl, not '%s'\n", val); return 2; }
     } else if (strcmp(a, "--frames") == 0) {
-        if (parse_u32(val, 1, RENDER_MAX_FRAMES, &o->frames, NULL)) {
+        if (scene_parse_u32(val, 1, RENDER_MAX_FRAMES, &o->frames, NULL)) {
             fprintf(stderr, "render: --frames wants a number from 1 to %u, not '%s'\n", RENDER_MAX_FRAMES, val);
             return 2;
         }
     } else if (strcmp(a, "--heat-max") == 0) {
-        if (parse_u32(val, 0, 1000000, &o->heat_max, NULL)) {
+        if (scene_parse_u32(val, 0, 1000000, &o->heat_max, NULL)) {
             fprintf(stderr, "render: --heat-max wants a node count from 0 (the 99th percentile) to 1000000, "
                             "not '%s'\n", val);
             return 2;
         }
     } else if (strcmp(a, "--repeat") == 0) {
-        if (parse_u32(val, 1, 1000, &o->repeat, NULL)) {
+        if (scene_parse_u32(val, 1, 1000, &o->repeat, NULL)) {
             fprintf(stderr, "render: --repeat wants a number from 1 to 1000, not '%s'\n", val);
             return 2;
         }
@@ -230,13 +211,6 @@ static int parse_args(int argc, char **argv, options *o) {
     }
     if (!o->scene_spec) { fprintf(stderr, "render: no SCENE given (see --help)\n"); return 2; }
     return 0;
-}
-
-static uint32_t resolve_threads(uint32_t t) {
-    long n;
-    if (t) return t;
-    n = sysconf(_SC_NPROCESSORS_ONLN);
-    return n > 0 ? (uint32_t)(n > 256 ? 256 : n) : 1;
 }
 
 /* ============================================================================================ */
@@ -644,19 +618,8 @@ static int write_heatmap(const frame *f, const report *r, const char *builder, c
 /* ============================================================================================ */
 /* == report ================================================================================== */
 /* ============================================================================================ */
-static void json_string(const char *s) {
-    putchar('"');
-    for (; *s; s++) {
-        unsigned char c = (unsigned char)*s;
-        if (c == '"' || c == '\\') printf("\\%c", c);
-        else if (c < 0x20) printf("\\u%04x", c);
-        else putchar(c);
-    }
-    putchar('"');
-}
-
 static void json_path(const char *path) {
-    if (path) json_string(path);
+    if (path) scene_json_string(stdout, path);
     else printf("null");
 }
 
@@ -668,7 +631,7 @@ static double set_mrays(uint64_t rays, double ms) { return ms > 0.0 ? (double)ra
 static void print_json(const options *o, const scene *s, const bvh_tree *tree, const report *r) {
     double bpt = s->triangles ? (double)r->stats.bytes / s->triangles : 0.0;
     printf("{\"scene\":");
-    json_string(s->name);
+    scene_json_string(stdout, s->name);
     printf(",\"triangles\":%u,\"skipped\":%u,\"excluded\":%u,\"builder\":\"%s\",\"threads\":%u,\"repeat\":%u,"
            "\"load_ms\":%.3f,\"build_ms\":%.3f,\"valid\":true,\"sah\":%.6f,\"nodes\":%u,\"leaves\":%u,"
            "\"refs\":%u,\"max_depth\":%u,\"max_leaf_size\":%u,\"bvh_bytes\":%zu,\"triangle_bytes\":%zu,"
@@ -676,7 +639,7 @@ static void print_json(const options *o, const scene *s, const bvh_tree *tree, c
            s->triangles, s->skipped, tree->excluded, bvh_builder_name(o->builder), r->threads, o->repeat, r->load_ms,
            r->build_ms, r->sah, r->stats.nodes, r->stats.leaves, r->stats.refs, r->stats.max_depth,
            r->stats.max_leaf_size, r->stats.bytes, r->stats.triangle_bytes, bpt, r->opencl ? "opencl" : "cpu");
-    json_string(r->device);
+    scene_json_string(stdout, r->device);
     printf(",\"width\":%u,\"height\":%u,\"frames\":%u,\"frame_ms\":%.3f,\"trace_ms\":%.3f,\"hits\":%llu,"
            "\"t_sum\":%.6f,\"mrays\":%.3f,",
            o->width, o->height, o->frames, r->frame_ms, r->trace_ms, (unsigned long long)r->hits, r->t_sum,
@@ -755,7 +718,7 @@ int main(int argc, char **argv) {
     memset(&tree, 0, sizeof tree);
     memset(&f, 0, sizeof f);
     memset(&r, 0, sizeof r);
-    r.threads = resolve_threads(o.threads);
+    r.threads = o.threads ? o.threads : scene_cpu_count();
     t0 = scene_now_ms();
     if (scene_load(o.scene_spec, &s, err, sizeof err) != 0) {
         fprintf(stderr, "render: %s\n", err);

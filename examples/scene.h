@@ -2,8 +2,9 @@
 
    WHAT
      Loads a mesh file or generates a test scene as a flat, world-space triangle soup (9 floats
-     per triangle), writes PNG/PPM images, and gives a monotonic clock and a median: the pieces
-     build/render, the benchmark and the OpenCL renderer share.
+     per triangle), writes PNG/PPM images, and gives a monotonic clock, a median, the CPU count,
+     JSON string output and command-line number parsing: the pieces build/render, the benchmark
+     (bench/) and the OpenCL renderer share.
 
    HOW TO INCLUDE
      In exactly ONE .c file:
@@ -25,6 +26,8 @@
    SCENE SPECS (scene_load)
      PATH                  any file assimp reads (OBJ, PLY, glTF/GLB, 3DS, ...), all meshes
                            flattened to world space; polygons are triangulated, points and lines dropped
+     PATH.tri              a raw triangle soup: "TRI1", uint32 count, count x 9 float32, host
+                           byte order (the format of ../shared/tools/embree_ref.c)
      gen:random:N          N small random triangles in the unit cube (fixed seed)
      gen:field:K           K Stanford bunnies on a ground plane: K*69666+2 triangles
                            (gen:field:15 = 1,044,992; gen:field:44 = 3,065,306); needs the Debian
@@ -59,6 +62,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
 #include "bvh.h"
 
@@ -103,8 +107,19 @@ int scene_can_use_assimp(void);
 
 /* Milliseconds on a monotonic clock (CLOCK_MONOTONIC when available). */
 double scene_now_ms(void);
-/* Median of n values (0 when n == 0); sorts values in place. */
+/* Median of n values (0 when n == 0); sorts values in place, so that values[0] and values[n-1]
+   are then the smallest and the largest. */
 double scene_median(double *values, size_t n);
+/* Online CPUs (1 when unknown), at most 256: the programs' default thread count. */
+uint32_t scene_cpu_count(void);
+/* A command-line count: decimal digits only (no sign, no space), in [lo, hi]. With end, *end is
+   set to the first character after the digits; without, nothing may follow them. 0 on success. */
+int scene_parse_u32(const char *s, uint32_t lo, uint32_t hi, uint32_t *out, const char **end);
+/* A frame size "WxH" (or "WXH"): each side 1 to 16384, W * H at most max_pixels. 0 on success. */
+int scene_parse_size(const char *s, uint64_t max_pixels, uint32_t *w, uint32_t *h);
+/* Writes s to f as a JSON string: in quotes, with '"', '\\' and control characters escaped
+   (NULL: ""). */
+void scene_json_string(FILE *f, const char *s);
 
 #ifdef __cplusplus
 }
@@ -126,6 +141,9 @@ double scene_median(double *values, size_t n);
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#if defined(__unix__) || defined(__APPLE__)
+#include <unistd.h>
+#endif
 
 #ifdef BVH_HAVE_ASSIMP
 #include <assimp/cimport.h>
@@ -551,6 +569,25 @@ static int scene__load_assimp(const char *path, scene__buf *b, uint32_t *skipped
 }
 #endif
 
+/* A raw .tri soup (see SCENE SPECS), read as is: no check of the values. */
+static int scene__load_tri(const char *path, scene__buf *b, char *err, size_t errlen) {
+    size_t size = 0;
+    char *data = scene__read_file(path, &size, err, errlen);
+    uint32_t count = 0;
+    int rc = 0;
+    if (!data) return 1;
+    if (size < 8 || memcmp(data, "TRI1", 4)) rc = scene__fail(err, errlen, "'%s' is not a TRI1 file", path);
+    if (!rc) memcpy(&count, data + 4, sizeof count);
+    if (!rc && (size - 8) / (9 * sizeof(float)) < count)
+        rc = scene__fail(err, errlen, "'%s' is truncated (%u triangles announced)", path, count);
+    if (!rc && scene__reserve(b, count)) rc = scene__fail(err, errlen, "'%s': out of memory", path);
+    if (!rc && count) memcpy(b->v, data + 8, (size_t)count * 9 * sizeof(float));
+    if (!rc) b->count = count;
+    free(data);
+    if (!rc && b->count == 0) rc = scene__fail(err, errlen, "'%s' contains no triangles", path);
+    return rc;
+}
+
 static int scene__load_file(const char *path, scene__buf *b, uint32_t *skipped, char *err, size_t errlen) {
     size_t size = 0;
     char *data = scene__read_file(path, &size, err, errlen);
@@ -773,6 +810,7 @@ int scene_load(const char *spec, scene *out, char *err, size_t errlen) {
     memset(out, 0, sizeof *out);
     if (!spec || !*spec) return scene__fail(err, errlen, "no scene given");
     if (strncmp(spec, "gen:", 4) == 0) rc = scene__generate(spec, &b, err, errlen);
+    else if (scene__has_ext(spec, ".tri")) rc = scene__load_tri(spec, &b, err, errlen);
     else rc = scene__load_file(spec, &b, &skipped, err, errlen);
     if (!rc && b.count > 0xFFFFFFFFu) rc = scene__fail(err, errlen, "'%s': more than 2^32 triangles", spec);
     if (rc) { free(b.v); return 1; }
@@ -804,7 +842,8 @@ bvh_aabb scene_bounds(const scene *s) {
 }
 
 const char *scene_spec_help(void) {
-    return "SCENE is a mesh file (OBJ, PLY, glTF/GLB, 3DS... through assimp) or a generator:\n"
+    return "SCENE is a mesh file (OBJ, PLY, glTF/GLB, 3DS... through assimp; a raw .tri soup)\n"
+           "or a generator:\n"
            "  gen:random:N       N small random triangles in the unit cube\n"
            "  gen:field:K        K Stanford bunnies on a ground plane (K*69666+2 triangles;\n"
            "                     needs Debian glmark2-data)\n"
@@ -886,15 +925,54 @@ double scene_now_ms(void) {
     return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
 }
 
+static int scene__cmp_double(const void *a, const void *b) {
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : x > y;
+}
+
 double scene_median(double *v, size_t n) {
-    size_t i, j;
     if (!v || n == 0) return 0.0;
-    for (i = 1; i < n; i++) { /* insertion sort: medians are taken over a handful of runs */
-        double x = v[i];
-        for (j = i; j > 0 && v[j - 1] > x; j--) v[j] = v[j - 1];
-        v[j] = x;
-    }
+    qsort(v, n, sizeof *v, scene__cmp_double); /* up to 100,000 builds in bench/embree_side.h */
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+uint32_t scene_cpu_count(void) {
+#ifdef _SC_NPROCESSORS_ONLN
+    long n = sysconf(_SC_NPROCESSORS_ONLN);
+    return n > 0 ? (uint32_t)(n > 256 ? 256 : n) : 1u;
+#else
+    return 1u;
+#endif
+}
+
+int scene_parse_u32(const char *s, uint32_t lo, uint32_t hi, uint32_t *out, const char **end) {
+    char *e;
+    unsigned long long v;
+    if (!s || *s < '0' || *s > '9') return 1;
+    errno = 0;
+    v = strtoull(s, &e, 10);
+    if (errno || v < lo || v > hi || (!end && *e)) return 1;
+    if (end) *end = e;
+    *out = (uint32_t)v;
+    return 0;
+}
+
+int scene_parse_size(const char *s, uint64_t max_pixels, uint32_t *w, uint32_t *h) {
+    const char *e;
+    if (scene_parse_u32(s, 1, 16384, w, &e) || (*e != 'x' && *e != 'X')) return 1;
+    if (scene_parse_u32(e + 1, 1, 16384, h, NULL)) return 1;
+    return (uint64_t)*w * *h > max_pixels;
+}
+
+void scene_json_string(FILE *f, const char *s) {
+    fputc('"', f);
+    for (; s && *s; s++) {
+        unsigned char c = (unsigned char)*s;
+        if (c == '"' || c == '\\') fprintf(f, "\\%c", c);
+        else if (c < 0x20) fprintf(f, "\\u%04x", c);
+        else fputc(c, f);
+    }
+    fputc('"', f);
 }
 
 #endif /* SCENE_IMPLEMENTATION_DONE */

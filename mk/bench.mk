@@ -1,5 +1,5 @@
 # make bench - the study's Table I, reproduced and extended, side by side with Embree
-#   (examples/bvhbench.c). Installs what it needs first (scripts/deps.sh bench: Embree, PoCL,
+#   (bench/bvhbench.c). Installs what it needs first (scripts/deps.sh bench: Embree, PoCL,
 #   assimp, stb, glmark2-data's bunny, gnuplot), builds build/bvhbench and runs it on the default
 #   scenes (gen:random:500, the bunny, gen:field:15 ~1M, gen:field:44 ~3M triangles), writing
 #   $(BENCH_OUT)/bench.md, bench.json, the plot data (*.dat) and the PNG plots. Every tracer runs

@@ -6,7 +6,9 @@
    vertices (out of range, negative, huge), a triangle likewise, a truncated face list. Each is
    loaded in a forked child with an alarm, so that a crash or a hang in assimp fails that test
    alone and says how. Good files (a quad, a triangle and a line, the binary twin) still load, with
-   the expected triangles. Without assimp (BVH_HAVE_ASSIMP) only .obj files load: the tests skip. */
+   the expected triangles. Without assimp (BVH_HAVE_ASSIMP) only .obj files load: the tests skip.
+   A raw .tri soup (read without assimp) loads as written, and a wrong magic or a short body is
+   refused with one line naming the file. */
 #define SCENE_IMPLEMENTATION
 #include "examples/scene.h"
 
@@ -150,6 +152,42 @@ static void test_good_triangle_and_line(void **state) {
     expect_loaded(path, 1, 1, 1.0f); /* the line is dropped and counted */
 }
 
+/* A .tri file: magic, the announced count, then `written` triangles of the unit square. */
+static void write_tri(const char *name, const char *magic, uint32_t count, uint32_t written, char *path,
+                      size_t pathlen) {
+    static const float v[18] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 0, 0, 1, 1, 0, 0, 1, 0};
+    FILE *f;
+    snprintf(path, pathlen, "%s/%s", g_dir, name);
+    f = fopen(path, "wb");
+    assert_non_null(f);
+    assert_int_equal(fwrite(magic, 1, 4, f), 4);
+    assert_int_equal(fwrite(&count, sizeof count, 1, f), 1);
+    assert_int_equal(fwrite(v, sizeof(float), 9 * (size_t)written, f), 9 * (size_t)written);
+    assert_int_equal(fclose(f), 0);
+}
+
+static void test_tri_soup(void **state) {
+    static const char *const bad[] = {"bad-magic.tri", "short.tri"};
+    char path[128], err[512];
+    scene s;
+    bvh_aabb box;
+    size_t i;
+    (void)state;
+    write_tri("good.tri", "TRI1", 2, 2, path, sizeof path);
+    if (scene_load(path, &s, err, sizeof err) != 0) fail_msg("%s: %s", path, err);
+    assert_int_equal(s.triangles, 2);
+    box = scene_bounds(&s);
+    assert_true(box.min.x == 0.0f && box.min.y == 0.0f && box.max.x == 1.0f && box.max.y == 1.0f);
+    scene_free(&s);
+    write_tri(bad[0], "TRI2", 2, 2, path, sizeof path);
+    write_tri(bad[1], "TRI1", 3, 2, path, sizeof path);
+    for (i = 0; i < 2; i++) {
+        snprintf(path, sizeof path, "%s/%s", g_dir, bad[i]);
+        if (scene_load(path, &s, err, sizeof err) == 0) fail_msg("%s: accepted", path);
+        if (!strstr(err, bad[i]) || strchr(err, '\n')) fail_msg("%s: refused with '%s'", path, err);
+    }
+}
+
 static int ld_setup(void **state) {
     (void)state;
     snprintf(g_dir, sizeof g_dir, "/tmp/bvh_test_loader.XXXXXX");
@@ -160,9 +198,14 @@ static int ld_teardown(void **state) {
         "test_face_without_indices", "test_negative_index_count", "test_quad_index_out_of_range",
         "test_quad_index_negative", "test_quad_index_huge", "test_pentagon_index_out_of_range",
         "test_triangle_index_out_of_range", "truncated", "quad", "line"};
+    static const char *const tri[] = {"good.tri", "bad-magic.tri", "short.tri"};
     char path[128];
     size_t i;
     (void)state;
+    for (i = 0; i < sizeof tri / sizeof tri[0]; i++) {
+        snprintf(path, sizeof path, "%s/%s", g_dir, tri[i]);
+        remove(path);
+    }
     for (i = 0; i < sizeof names / sizeof names[0]; i++) {
         snprintf(path, sizeof path, "%s/%s.ply", g_dir, names[i]);
         remove(path);
@@ -182,6 +225,7 @@ int main(void) {
         LD_BOTH(test_quad_index_huge),            LD_BOTH(test_pentagon_index_out_of_range),
         LD_BOTH(test_triangle_index_out_of_range), LD_BOTH(test_truncated_faces),
         LD_BOTH(test_good_quad),                  LD_BOTH(test_good_triangle_and_line),
+        cmocka_unit_test(test_tri_soup),
     };
     return cmocka_run_group_tests(tests, ld_setup, ld_teardown);
 }

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# tests/examples.sh - the programs a user copies work: build/minimal prints the hit of the manual's
+#   example, and its main is that example line for line (bvh.h's EXAMPLE section); build/boxes
+#   finds, by walking the tree of a box build, the same sphere as brute force for every ray.
+# Usage: tests/examples.sh  (`make test` runs it after building both; BUILD=dir picks another
+#   build directory). Prints one line per failed check and a closing result line; exits 1 on failure.
+set -u
+cd "$(dirname "$0")/.." || exit 1
+build=${BUILD:-build}
+checks=0
+failed=0
+fail() { failed=$((failed + 1)); echo "FAIL $*"; }
+
+# minimal: runs, exits 0 and prints the hit (triangle 0 at t = 1)
+checks=$((checks + 1))
+out=$("$build/minimal" 2>&1)
+rc=$?
+if [ "$rc" != 0 ] || ! grep -q '^hit triangle 0 at t=1 ' <<<"$out"; then
+  fail "$build/minimal: exit status $rc, printed: $out"
+fi
+
+# minimal: its main is the manual's example (bvh.h: from the line after EXAMPLE to the first blank line)
+checks=$((checks + 1))
+manual=$(sed -n '/^   EXAMPLE$/,/^$/p' bvh.h | sed '1d;$d;s/^         //')
+program=$(sed -n '/^int main(void) {$/,/^    return 0;$/p' examples/minimal.c | sed '1d;$d;s/^    //')
+if [ -z "$manual" ] || [ "$manual" != "$program" ]; then
+  fail "examples/minimal.c's main differs from bvh.h's EXAMPLE:"
+  diff <(echo "$manual") <(echo "$program")
+fi
+
+# boxes: every ray agrees with brute force
+checks=$((checks + 1))
+out=$("$build/boxes" 2>&1)
+rc=$?
+[ "$rc" = 0 ] || fail "$build/boxes: exit status $rc, printed: $out"
+
+echo "examples: $((checks - failed)) of $checks checks passed"
+[ "$failed" = 0 ]

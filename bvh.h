@@ -156,17 +156,24 @@ typedef struct bvh_node {
     uint32_t count;
 } bvh_node;
 
-/* A 4-wide node (128 bytes) of the copy of the tree that CPU traversal uses (bvh_tree.nodes4):
-   the boxes of up to four children by axis, so that one SIMD slab test covers them all. Made
-   from the binary tree by bvh_build (see bvh_build_desc.trace_width): each wide node takes the
-   place of a binary interior node and of its interior children. An empty slot has
-   min = +inf and max = -inf, which no ray enters. */
+/* A 4-wide node (128 bytes) of the layout CPU traversal uses (bvh_tree.nodes4): the boxes of
+   up to four children by axis, so that one SIMD slab test covers them all. Made from the binary
+   tree by bvh_build (see bvh_build_desc.trace_width). An empty slot has min = +inf and
+   max = -inf, which no ray enters. */
 typedef struct bvh_node4 {
     float min[3][4], max[3][4]; /* min[axis][slot], max[axis][slot] */
     uint32_t child[4];          /* count 0: index of a bvh_node4 (empty slot: 0) */
-    uint8_t count[4];           /* > 0: leaf of count references from tree.prims[child] on */
+    uint8_t count[4];           /* > 0: leaf of count packets from tree.tri4[child] on */
     uint32_t pad[3];
 } bvh_node4;
+
+/* Up to four triangles of a 4-wide leaf (160 bytes), by coordinate, so that one SIMD test covers
+   them: v[vertex][axis][lane]. Lanes past a leaf's triangles repeat the packet's lane 0 (the same
+   primitive: a repeated hit changes nothing). */
+typedef struct bvh_tri4 {
+    float v[3][3][4];
+    uint32_t prim[4]; /* original primitive index of each lane */
+} bvh_tri4;
 
 typedef struct bvh_ray {
     bvh_vec3 origin;
@@ -246,8 +253,10 @@ typedef struct bvh_tree {
     uint32_t ref_count;     /* == prim_count - excluded unless the builder splits references */
     float *tris;            /* triangle builds: 9 floats (v0, v1, v2) per reference, in reference
                                order, for traversal; NULL for box builds */
-    bvh_node4 *nodes4;      /* 4-wide copy for CPU traversal, root at 0; NULL: binary traversal */
+    bvh_node4 *nodes4;      /* 4-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
     uint32_t node4_count;
+    bvh_tri4 *tri4;         /* the 4-wide leaves' triangle packets */
+    uint32_t tri4_count;
     uint32_t prim_count;    /* primitives given */
     uint32_t excluded;      /* primitives left out by skip_invalid */
     bvh_builder builder;
@@ -258,7 +267,7 @@ typedef struct bvh_stats {
     uint32_t nodes, leaves, refs, max_depth, max_leaf_size;
     size_t bytes;          /* nodes + reference indices */
     size_t triangle_bytes; /* reference-ordered triangle copy used by traversal */
-    size_t wide_bytes;     /* 4-wide nodes of CPU traversal (tree.nodes4) */
+    size_t wide_bytes;     /* the CPU traversal layout: 4-wide nodes and triangle packets */
 } bvh_stats;
 
 typedef struct bvh_validation {
@@ -2900,6 +2909,7 @@ BVH_API void bvh_free(bvh_tree *tree) {
     bvh__free(&al, tree->prims);
     bvh__free(&al, tree->tris);
     bvh__free(&al, tree->nodes4);
+    bvh__free(&al, tree->tri4);
     memset(tree, 0, sizeof *tree);
     tree->allocator = al;
 }
@@ -3162,7 +3172,7 @@ BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *s) {
     s->refs = tree->ref_count;
     s->bytes = (size_t)tree->node_count * sizeof(bvh_node) + (size_t)tree->ref_count * sizeof(uint32_t);
     s->triangle_bytes = tree->tris ? (size_t)tree->ref_count * 9 * sizeof(float) : 0;
-    s->wide_bytes = (size_t)tree->node4_count * sizeof(bvh_node4);
+    s->wide_bytes = (size_t)tree->node4_count * sizeof(bvh_node4) + (size_t)tree->tri4_count * sizeof(bvh_tri4);
     if (!tree->node_count) return BVH_SUCCESS;
     stack[sp++] = 0; stack[sp++] = 1;
     while (sp) {
@@ -3193,18 +3203,59 @@ static bvh_result bvh__invalid(bvh_validation *rep, uint32_t node, const char *m
     return BVH_ERROR_INVALID_TREE;
 }
 
-/* The 4-wide copy: every slot empty (+inf/-inf box, no child) or a valid box inside its parent's
-   slot; interior slots point forward in the array (no cycles), leaves cover every reference
-   exactly once and contain (or, with split references, touch) their primitives' boxes. */
+/* Lane i of packet p as nine floats. */
+static void bvh__lane(const bvh_tri4 *p, int i, float tri[9]) {
+    int v, a;
+    for (v = 0; v < 3; v++)
+        for (a = 0; a < 3; a++)
+            tri[3 * v + a] = p->v[v][a][i];
+}
+/* A 4-wide leaf slot: its packets inside the packet array, each reached once (*cover), every lane
+   a primitive of the tree inside (with split references: touching) the slot's box; seen[prim]
+   counts the packets that hold prim. */
+static const char *bvh__validate_packets(const bvh_tree *tree, const bvh_aabb *prim_boxes, int splits, bvh_aabb box,
+                                         uint32_t first, uint32_t count, uint8_t *cover, uint32_t *seen) {
+    uint32_t k;
+    int i, j;
+    if (first > tree->tri4_count || count > tree->tri4_count - first) return "4-wide leaf outside the packet array";
+    for (k = first; k < first + count; k++) {
+        const bvh_tri4 *p = &tree->tri4[k];
+        if (cover[k]++) return "packet in two 4-wide leaves";
+        for (i = 0; i < 4; i++) {
+            float tri[9];
+            bvh_aabb pb;
+            if (p->prim[i] >= tree->prim_count) return "packet lane with a primitive out of range";
+            for (j = 0; j < i && p->prim[j] != p->prim[i]; j++) {}
+            if (j < i) continue; /* a repeated lane */
+            bvh__lane(p, i, tri);
+            pb = prim_boxes ? prim_boxes[p->prim[i]] : bvh__tri_box(tri);
+            if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
+                           pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
+                       : !bvh_aabb_contains(box, bvh__tri_box(tri)))
+                return "4-wide leaf box does not hold its primitive";
+            seen[p->prim[i]]++;
+        }
+    }
+    return NULL;
+}
+/* The 4-wide layout: every slot empty (+inf/-inf box, no child) or a valid box inside its parent's
+   slot; interior slots point forward in the array (no cycles); every packet is in one leaf, and
+   every referenced primitive in a packet (exactly one unless the builder splits references). */
 static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_boxes, int splits, bvh_validation *rep) {
     bvh_allocator al = tree->allocator;
-    uint32_t stack[4 * (BVH_MAX_DEPTH + 2)][2], sp = 0, reached = 0, refs = 0, i, k;
+    uint32_t stack[4 * (BVH_MAX_DEPTH + 2)][2], sp = 0, reached = 0, i, k, *seen;
     uint8_t *cover;
     bvh_aabb root = bvh__node_box(&tree->nodes[0]); /* deeper slots are checked against their parent's */
     bvh_result r = BVH_SUCCESS;
-    if (!tree->node4_count) return bvh__invalid(rep, BVH_INVALID, "4-wide node array without nodes");
-    if (!(cover = BVH__ALLOC(&al, uint8_t, tree->ref_count ? tree->ref_count : 1))) return BVH_ERROR_OUT_OF_MEMORY;
-    memset(cover, 0, tree->ref_count ? tree->ref_count : 1);
+    if (!tree->node4_count || !tree->tri4) return bvh__invalid(rep, BVH_INVALID, "4-wide node array without nodes or packets");
+    cover = BVH__ALLOC(&al, uint8_t, tree->tri4_count ? tree->tri4_count : 1);
+    seen = BVH__ALLOC(&al, uint32_t, tree->prim_count ? tree->prim_count : 1);
+    if (!cover || !seen) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    memset(cover, 0, tree->tri4_count ? tree->tri4_count : 1);
+    memset(seen, 0, (tree->prim_count ? tree->prim_count : 1) * sizeof(uint32_t));
     stack[sp][0] = 0; stack[sp][1] = 0; sp++;
     while (sp) {
         uint32_t w = stack[--sp][0], depth = stack[sp][1];
@@ -3224,17 +3275,8 @@ static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_
                 { r = bvh__invalid(rep, w, "4-wide slot box empty or NaN"); goto done; }
             if (!bvh_aabb_contains(root, box)) { r = bvh__invalid(rep, w, "4-wide slot box not inside the root"); goto done; }
             if (n->count[i]) {
-                if (n->child[i] > tree->ref_count || n->count[i] > tree->ref_count - n->child[i])
-                    { r = bvh__invalid(rep, w, "4-wide leaf outside the reference array"); goto done; }
-                for (k = n->child[i]; k < n->child[i] + n->count[i]; k++) {
-                    bvh_aabb pb = prim_boxes ? prim_boxes[tree->prims[k]] : bvh__tri_box(tree->tris + 9 * (size_t)k);
-                    if (cover[k]++) { r = bvh__invalid(rep, w, "reference in two 4-wide leaves"); goto done; }
-                    refs++;
-                    if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
-                                   pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
-                               : !bvh_aabb_contains(box, pb))
-                        { r = bvh__invalid(rep, w, "4-wide leaf box does not hold its primitive"); goto done; }
-                }
+                const char *msg = bvh__validate_packets(tree, prim_boxes, splits, box, n->child[i], n->count[i], cover, seen);
+                if (msg) { r = bvh__invalid(rep, w, msg); goto done; }
             } else {
                 const bvh_node4 *c;
                 uint32_t j;
@@ -3251,10 +3293,17 @@ static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_
             }
         }
     }
-    if (reached != tree->node4_count) r = bvh__invalid(rep, BVH_INVALID, "4-wide nodes not reached exactly once from the root");
-    else if (refs != tree->ref_count) r = bvh__invalid(rep, BVH_INVALID, "references not covered by the 4-wide leaves");
+    if (reached != tree->node4_count) { r = bvh__invalid(rep, BVH_INVALID, "4-wide nodes not reached exactly once from the root"); goto done; }
+    for (k = 0; k < tree->tri4_count; k++)
+        if (!cover[k]) { r = bvh__invalid(rep, BVH_INVALID, "packet in no 4-wide leaf"); goto done; }
+    for (k = 0; k < tree->ref_count; k++) {
+        uint32_t p = tree->prims[k];
+        if (!seen[p] || (!splits && seen[p] != 1))
+            { r = bvh__invalid(rep, BVH_INVALID, "primitive not in exactly one 4-wide leaf packet"); goto done; }
+    }
 done:
     bvh__free(&al, cover);
+    bvh__free(&al, seen);
     return r;
 }
 
@@ -3392,6 +3441,23 @@ BVH__INLINE void bvh__ray_shear(bvh__rayx *rx) {
    same edge functions and the test stays watertight), sheared and tested in double, where
    subnormal products cannot underflow and fused multiply-adds cannot change a sign. */
 BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar);
+/* A zero-area triangle (exactly collinear or coincident vertices) is never hit. */
+static int bvh__tri_zero_area(const float *tri) {
+    double e1x = (double)tri[3] - tri[0], e1y = (double)tri[4] - tri[1], e1z = (double)tri[5] - tri[2];
+    double e2x = (double)tri[6] - tri[0], e2y = (double)tri[7] - tri[1], e2z = (double)tri[8] - tri[2];
+    return e1y * e2z - e1z * e2y == 0.0 && e1z * e2x - e1x * e2z == 0.0 && e1x * e2y - e1y * e2x == 0.0;
+}
+/* The ray must reach the triangle's own box by t, as the traversal's slab test sees it. Every
+   node box that holds the triangle holds its box, and the slab test is monotone in the planes, so
+   such a node is never culled before this hit. Only hits that precision made up fail: with an
+   origin far from a large triangle, the float translation leaves the edge functions meaningless,
+   and the test can report a hit far outside the triangle. */
+static int bvh__tri_reach(const bvh__rayx *r, const float *tri, float t) {
+    bvh_node box;
+    bvh__set_box(&box, bvh__tri_box(tri));
+    box.index = box.count = 0;
+    return bvh__slab(r, &box, t) != BVH_INF;
+}
 BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, float *t, float *u, float *v) {
     const int kx = r->kx, ky = r->ky, kz = r->kz;
     const double sx = r->sx, sy = r->sy, sz = r->sz;
@@ -3411,22 +3477,7 @@ BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, 
     T = U * (sz * A[kz]) + V * (sz * B[kz]) + W * (sz * C[kz]);
     ft = (float)(T / det);
     if (!(ft >= r->tmin && ft <= tmax && ft < BVH_INF)) return 0;
-    { /* a zero-area triangle (exactly collinear or coincident vertices) is never hit */
-        double e1x = (double)tri[3] - tri[0], e1y = (double)tri[4] - tri[1], e1z = (double)tri[5] - tri[2];
-        double e2x = (double)tri[6] - tri[0], e2y = (double)tri[7] - tri[1], e2z = (double)tri[8] - tri[2];
-        if (e1y * e2z - e1z * e2y == 0.0 && e1z * e2x - e1x * e2z == 0.0 && e1x * e2y - e1y * e2x == 0.0) return 0;
-    }
-    { /* The ray must reach the triangle's own box by t, as the traversal's slab test sees it.
-         Every node box that holds the triangle holds its box, and the slab test is monotone in
-         the planes, so such a node is never culled before this hit. Only hits that precision
-         made up fail: with an origin ~1e33 away from a triangle ~1e17 wide, the float translation
-         leaves the edge functions meaningless, and the test can report a hit far outside the
-         triangle (found by the fuzzer). */
-        bvh_node box;
-        bvh__set_box(&box, bvh__tri_box(tri));
-        box.index = box.count = 0;
-        if (bvh__slab(r, &box, ft) == BVH_INF) return 0;
-    }
+    if (bvh__tri_zero_area(tri) || !bvh__tri_reach(r, tri, ft)) return 0;
     *t = ft;
     *u = (float)(V / det);
     *v = (float)(W / det);
@@ -3480,69 +3531,129 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
 }
 
 
-/* == 4-wide traversal ========================================================================= */
-/* bvh_build turns the binary tree into 4-wide nodes for the CPU (tree.nodes4): a wide node holds
-   a binary interior node's grandchildren, or the child itself where that is a leaf, so 2 to 4
-   children. (Opening the interior child of largest area until there are four, as Embree does,
-   gave within 1% of the node count and the same tracing speed here, at twice the build time.)
-   The child boxes are the binary nodes' boxes, bit for bit, and the slab test below is the binary
-   one lane by lane, so the argument that no box culls a hit the brute-force loop finds holds as
-   it is; half the steps and one SIMD test per four boxes make it faster. */
-static uint32_t bvh__wide_gather(const bvh_node *nodes, uint32_t b, uint32_t out[4]) {
-    uint32_t k = 0, c = nodes[b].index, i;
-    for (i = 0; i < 2; i++) { /* a leaf child takes one slot, an interior child's children two */
-        const bvh_node *n = &nodes[c + i];
-        if (n->count) out[k++] = c + i;
-        else { out[k++] = n->index; out[k++] = n->index + 1; }
-    }
-    return k;
+/* == 4-wide traversal layout =================================================================== */
+/* bvh_build turns the binary tree into 4-wide nodes (tree.nodes4) whose leaves are packets of four
+   triangles (tree.tri4). A wide node holds a binary interior node's grandchildren, or the child
+   itself where that is a leaf slot, so 2 to 4 children. A leaf slot is a binary leaf, or a binary
+   subtree of at most BVH__PACKET references: testing one packet costs about what one box test
+   does, so such a subtree is cheaper tested whole. The child boxes are the binary nodes' boxes,
+   bit for bit, and the slab test below is the binary one lane by lane, so the argument that no box
+   culls a hit the brute-force loop finds holds as it is; the packet test is bvh__tri_test lane by
+   lane. The numbering depends on the tree alone, never on the thread count. */
+#define BVH__PACKET 4u
+typedef struct bvh__wide_src {
+    const bvh_node *nodes;
+    const uint32_t *sub;   /* references below each binary node */
+    const uint32_t *prims; /* the tree's references (caller ids) and their triangles */
+    const float *tris;
+    bvh_tri4 *packets;     /* NULL: count only */
+} bvh__wide_src;
+BVH__INLINE int bvh__wide_leaf(const bvh__wide_src *s, uint32_t b) {
+    return s->nodes[b].count || s->sub[b] <= BVH__PACKET;
 }
-/* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
-   gets the binary children in ascending order, so that nodes are read in memory order. */
-static uint32_t bvh__wide_node(const bvh_node *nodes, uint32_t b, bvh_node4 *out, uint32_t kids[4]) {
-    uint32_t k, i, a;
-    if (nodes[b].count) { /* a root that is a leaf: one leaf slot */
-        kids[0] = b;
-        k = 1;
-    } else {
-        k = bvh__wide_gather(nodes, b, kids);
-        for (i = 1; i < k; i++)
-            for (a = i; a > 0 && kids[a - 1] > kids[a]; a--) { uint32_t x = kids[a]; kids[a] = kids[a - 1]; kids[a - 1] = x; }
+BVH__INLINE uint32_t bvh__wide_packets(const bvh__wide_src *s, uint32_t b) {
+    return (s->sub[b] + BVH__PACKET - 1) / BVH__PACKET;
+}
+/* The packets of leaf slot b: its references in depth-first order, four to a packet. */
+static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4 *out) {
+    uint32_t refs[BVH__MAX_LEAF], n = 0, stack[8], sp = 0, i, j, v, a;
+    stack[sp++] = b;
+    while (sp) { /* a subtree of at most BVH__PACKET references has at most three interior nodes */
+        const bvh_node *nd = &s->nodes[stack[--sp]];
+        if (nd->count) {
+            for (i = 0; i < nd->count; i++)
+                refs[n++] = nd->index + i;
+        } else {
+            stack[sp++] = nd->index + 1;
+            stack[sp++] = nd->index;
+        }
     }
-    if (out) {
-        memset(out, 0, sizeof *out);
-        for (i = 0; i < 4; i++) {
-            const bvh_node *c;
-            for (a = 0; a < 3; a++) { out->min[a][i] = BVH_INF; out->max[a][i] = -BVH_INF; }
-            if (i >= k) continue;
-            c = &nodes[kids[i]];
-            out->min[0][i] = c->min.x; out->min[1][i] = c->min.y; out->min[2][i] = c->min.z;
-            out->max[0][i] = c->max.x; out->max[1][i] = c->max.y; out->max[2][i] = c->max.z;
-            out->child[i] = c->count ? c->index : 0; /* interior children: the caller sets the index */
-            out->count[i] = (uint8_t)c->count;
+    for (i = 0; 4 * i < n; i++) {
+        bvh_tri4 *p = &out[i];
+        for (j = 0; j < 4; j++) {
+            uint32_t k = refs[4 * i + (4 * i + j < n ? j : 0)];
+            const float *t = s->tris + 9 * (size_t)k;
+            for (v = 0; v < 3; v++)
+                for (a = 0; a < 3; a++)
+                    p->v[v][a][j] = t[3 * v + a];
+            p->prim[j] = s->prims[k];
+        }
+    }
+}
+static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t out[4]) {
+    uint32_t k = 0, c = s->nodes[b].index, i;
+    for (i = 0; i < 2; i++) { /* a leaf slot takes one slot, an interior child's children two */
+        if (bvh__wide_leaf(s, c + i)) {
+            out[k++] = c + i;
+        } else {
+            out[k++] = s->nodes[c + i].index;
+            out[k++] = s->nodes[c + i].index + 1;
         }
     }
     return k;
 }
+/* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
+   gets the binary children in ascending order, so that nodes are read in memory order. Leaf slots
+   take their packets from *packet on (written when s->packets is set). */
+static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node4 *out, uint32_t kids[4], uint32_t *packet) {
+    uint32_t k, i, a;
+    if (bvh__wide_leaf(s, b)) { /* a root that is a leaf slot */
+        kids[0] = b;
+        k = 1;
+    } else {
+        k = bvh__wide_gather(s, b, kids);
+        for (i = 1; i < k; i++)
+            for (a = i; a > 0 && kids[a - 1] > kids[a]; a--) {
+                uint32_t x = kids[a];
+                kids[a] = kids[a - 1];
+                kids[a - 1] = x;
+            }
+    }
+    if (out) {
+        memset(out, 0, sizeof *out);
+        for (i = 0; i < 4; i++)
+            for (a = 0; a < 3; a++) {
+                out->min[a][i] = BVH_INF;
+                out->max[a][i] = -BVH_INF;
+            }
+    }
+    for (i = 0; i < k; i++) {
+        const bvh_node *c = &s->nodes[kids[i]];
+        if (out) {
+            out->min[0][i] = c->min.x; out->min[1][i] = c->min.y; out->min[2][i] = c->min.z;
+            out->max[0][i] = c->max.x; out->max[1][i] = c->max.y; out->max[2][i] = c->max.z;
+        }
+        if (!bvh__wide_leaf(s, kids[i])) continue; /* interior children: the caller sets the index */
+        if (out) {
+            out->child[i] = *packet;
+            out->count[i] = (uint8_t)bvh__wide_packets(s, kids[i]);
+        }
+        if (s->packets) bvh__wide_write_packets(s, kids[i], s->packets + *packet);
+        *packet += bvh__wide_packets(s, kids[i]);
+    }
+    return k;
+}
 /* The wide subtree of binary head b, numbered from w on in depth-first order with the children of
-   a node side by side; counts only when out is NULL. Returns the node count, 0 if the tree is
-   deeper than a valid one can be. */
-static uint32_t bvh__wide_subtree(const bvh_node *nodes, uint32_t b, bvh_node4 *out, uint32_t w) {
+   a node side by side, its packets from *packet on; counts only when out is NULL. Returns the node
+   count, 0 if the tree is deeper than a valid one can be. */
+static uint32_t bvh__wide_subtree(const bvh__wide_src *s, uint32_t b, bvh_node4 *out, uint32_t w, uint32_t *packet) {
     uint32_t stack[4 * (BVH_MAX_DEPTH + 2)][2], sp = 0, next = w + 1;
-    stack[sp][0] = b; stack[sp][1] = w; sp++;
+    stack[sp][0] = b;
+    stack[sp][1] = w;
+    sp++;
     while (sp) {
         uint32_t kids[4], k, i, top;
         bvh_node4 *n;
         --sp;
         n = out ? &out[stack[sp][1]] : NULL;
-        k = bvh__wide_node(nodes, stack[sp][0], n, kids);
+        k = bvh__wide_node(s, stack[sp][0], n, kids, packet);
         for (i = k; i-- > 0;) /* interior children pushed last to first: the first is read next */
-            if (!nodes[kids[i]].count) {
+            if (!bvh__wide_leaf(s, kids[i])) {
                 if (sp == 4 * (BVH_MAX_DEPTH + 2)) return 0;
                 stack[sp++][0] = kids[i];
             }
         for (i = 0, top = sp; i < k; i++)
-            if (!nodes[kids[i]].count) {
+            if (!bvh__wide_leaf(s, kids[i])) {
                 stack[--top][1] = next;
                 if (n) n->child[i] = next;
                 next++;
@@ -3550,60 +3661,108 @@ static uint32_t bvh__wide_subtree(const bvh_node *nodes, uint32_t b, bvh_node4 *
     }
     return next - w;
 }
-/* Wide nodes on the build's team: the first levels breadth-first on one thread until there are
-   8 subtrees per thread, then the subtrees counted, and written, in parallel, each numbered after
-   the ones before it. On one thread: one subtree, the whole tree. */
+/* Wide nodes on the build's team: the first levels breadth-first until there are
+   BVH__WIDE_SUBTREES subtrees, then the subtrees counted, and written, in parallel, each numbered
+   after the ones before it. */
 #define BVH__WIDE_TOP 1024u
+#define BVH__WIDE_SUBTREES 64u
 typedef struct bvh__wide_job {
-    const bvh_node *nodes;
+    bvh__wide_src src;
     bvh_node4 *out;
     const uint32_t *heads; /* binary heads of the subtrees */
     uint32_t *size;        /* wide nodes per subtree; for the write pass, their first index */
+    uint32_t *psize;       /* packets per subtree; for the write pass, their first index */
     uint32_t count;
 } bvh__wide_job;
 static void bvh__wide_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
-    const bvh__wide_job *j = BVH__CAST(const bvh__wide_job *, arg);
+    bvh__wide_job *j = BVH__CAST(bvh__wide_job *, arg);
     uint32_t i;
     (void)team;
     for (i = tid; i < j->count; i += nt) {
-        if (j->out) bvh__wide_subtree(j->nodes, j->heads[i], j->out, j->size[i]);
-        else j->size[i] = bvh__wide_subtree(j->nodes, j->heads[i], NULL, 0);
+        uint32_t p = j->out ? j->psize[i] : 0;
+        if (j->out) {
+            bvh__wide_subtree(&j->src, j->heads[i], j->out, j->size[i], &p);
+        } else {
+            j->size[i] = bvh__wide_subtree(&j->src, j->heads[i], NULL, 0, &p);
+            j->psize[i] = p;
+        }
     }
 }
+/* references below each binary node; children follow their parents in every builder's output */
+static bvh_result bvh__wide_sub(const bvh_node *nodes, uint32_t count, uint32_t *sub) {
+    uint32_t i = count;
+    while (i-- > 0) {
+        const bvh_node *n = &nodes[i];
+        if (n->count) {
+            sub[i] = n->count;
+            continue;
+        }
+        if (n->index <= i || n->index + 1 >= count) return BVH_ERROR_INVALID_TREE;
+        sub[i] = sub[n->index] + sub[n->index + 1];
+        if (sub[i] < sub[n->index]) return BVH_ERROR_INVALID_TREE;
+    }
+    return BVH_SUCCESS;
+}
 static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32_t threads) {
-    uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], qlen = 1, top = 0, want = threads > 1 ? 8 * threads : 1;
-    uint32_t i, k, pos, total, nt, kids[4];
-    const bvh_node *nodes = tree->nodes;
+    uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], psize[BVH__WIDE_TOP], qlen = 1, top = 0;
+    uint32_t i, k, pos, total, ptotal = 0, nt, kids[4], *sub;
     bvh__wide_job job;
     bvh_result r;
     if (!tree->node_count) return BVH_SUCCESS;
-    if (want > BVH__WIDE_TOP / 8) want = BVH__WIDE_TOP / 8;
+    if (!(sub = BVH__ALLOC(al, uint32_t, tree->node_count))) return BVH_ERROR_OUT_OF_MEMORY;
+    if ((r = bvh__wide_sub(tree->nodes, tree->node_count, sub)) != BVH_SUCCESS) goto done;
+    memset(&job, 0, sizeof job);
+    job.src.nodes = tree->nodes;
+    job.src.sub = sub;
+    job.src.prims = tree->prims;
+    job.src.tris = tree->tris;
     queue[0] = 0;
-    while (top < qlen && qlen - top < want && qlen + 4 <= BVH__WIDE_TOP) { /* breadth-first top */
-        k = bvh__wide_node(nodes, queue[top++], NULL, kids);
+    while (top < qlen && qlen - top < BVH__WIDE_SUBTREES && qlen + 4 <= BVH__WIDE_TOP) { /* breadth-first top */
+        k = bvh__wide_node(&job.src, queue[top++], NULL, kids, &ptotal);
         for (i = 0; i < k; i++)
-            if (!nodes[kids[i]].count) queue[qlen++] = kids[i];
+            if (!bvh__wide_leaf(&job.src, kids[i])) queue[qlen++] = kids[i];
     }
-    job.nodes = nodes; job.out = NULL; job.heads = queue + top; job.size = size; job.count = qlen - top;
+    job.heads = queue + top;
+    job.size = size;
+    job.psize = psize;
+    job.count = qlen - top;
     nt = threads < job.count ? threads : job.count;
-    if (job.count && (r = bvh__team_run(al, nt, bvh__wide_fn, &job)) != BVH_SUCCESS) return r;
+    if (job.count && (r = bvh__team_run(al, nt, bvh__wide_fn, &job)) != BVH_SUCCESS) goto done;
     for (i = 0, total = top; i < job.count; i++) {
-        uint32_t s = size[i];
-        if (!s || s > 0xffffffffu - total) return BVH_ERROR_INVALID_TREE;
+        uint32_t s = size[i], p = psize[i];
+        if (!s || s > 0xffffffffu - total || p > 0xffffffffu - ptotal) {
+            r = BVH_ERROR_INVALID_TREE;
+            goto done;
+        }
         size[i] = total;
         total += s;
+        psize[i] = ptotal;
+        ptotal += p;
     }
-    if (!(tree->nodes4 = BVH__ALLOC(al, bvh_node4, total))) return BVH_ERROR_OUT_OF_MEMORY;
+    tree->nodes4 = BVH__ALLOC(al, bvh_node4, total);
+    tree->tri4 = BVH__ALLOC(al, bvh_tri4, ptotal ? ptotal : 1);
+    if (!tree->nodes4 || !tree->tri4) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
     tree->node4_count = total;
-    for (i = 0, pos = 1; i < top; i++) { /* the top, numbered in the order of the queue */
+    tree->tri4_count = ptotal;
+    job.src.packets = tree->tri4;
+    for (i = 0, pos = 1, ptotal = 0; i < top; i++) { /* the top, numbered in the order of the queue */
         bvh_node4 *n = &tree->nodes4[i];
         uint32_t j;
-        k = bvh__wide_node(nodes, queue[i], n, kids);
+        k = bvh__wide_node(&job.src, queue[i], n, kids, &ptotal);
         for (j = 0; j < k; j++)
-            if (!nodes[kids[j]].count) { n->child[j] = pos < top ? pos : size[pos - top]; pos++; }
+            if (!bvh__wide_leaf(&job.src, kids[j])) {
+                n->child[j] = pos < top ? pos : size[pos - top];
+                pos++;
+            }
     }
     job.out = tree->nodes4;
-    return job.count ? bvh__team_run(al, nt, bvh__wide_fn, &job) : BVH_SUCCESS;
+    r = job.count ? bvh__team_run(al, nt, bvh__wide_fn, &job) : BVH_SUCCESS;
+done:
+    bvh__free(al, sub);
+    return r;
 }
 
 /* Entry distances of the ray into the four child boxes of n (mask bit i: slot i entered before
@@ -3651,58 +3810,273 @@ BVH__INLINE unsigned bvh__slab4(const bvh__rayx *r, const bvh_node4 *n, float tf
 }
 #endif
 
+/* The closest (or, with any, the first) hit so far. */
+typedef struct bvh__best {
+    float t, u, v;
+    uint32_t prim;
+} bvh__best;
+/* Takes a hit of lane i at t (ties in t: the lowest primitive index). */
+BVH__INLINE void bvh__take(bvh__best *b, const bvh_tri4 *p, int i, float t, float u, float v) {
+    if (t == b->t && p->prim[i] > b->prim) return;
+    b->t = t;
+    b->u = u;
+    b->v = v;
+    b->prim = p->prim[i];
+}
+
+/* The packet test: bvh__tri_test on the four lanes at once, the same operations in the same order
+   on each lane, so the same bits; the checks that bvh__tri_test makes after the distance (zero
+   area, the triangle's box) only on the lanes that pass, which few do. GCC and clang vector types
+   (no intrinsics), so that one source compiles to SSE2 and, by target attribute, to AVX2. */
+#if defined(BVH__SSE) && (defined(__GNUC__) || defined(__clang__))
+#define BVH__PACKET_SIMD 1
+typedef float bvh__f4 __attribute__((vector_size(16)));
+typedef double bvh__d4 __attribute__((vector_size(32)));
+typedef int32_t bvh__i4 __attribute__((vector_size(16)));
+typedef int64_t bvh__l4 __attribute__((vector_size(32)));
+BVH__INLINE int bvh__packets_body(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
+    const int kx = r->kx, ky = r->ky, kz = r->kz;
+    const bvh__d4 sx = { r->sx, r->sx, r->sx, r->sx }, sy = { r->sy, r->sy, r->sy, r->sy };
+    const bvh__d4 sz = { r->sz, r->sz, r->sz, r->sz }, zero = { 0.0, 0.0, 0.0, 0.0 };
+    const bvh__f4 ox = { r->o[kx], r->o[kx], r->o[kx], r->o[kx] }, oy = { r->o[ky], r->o[ky], r->o[ky], r->o[ky] };
+    const bvh__f4 oz = { r->o[kz], r->o[kz], r->o[kz], r->o[kz] };
+    const bvh__f4 tmin = { r->tmin, r->tmin, r->tmin, r->tmin }, inf = { BVH_INF, BVH_INF, BVH_INF, BVH_INF };
+    uint32_t q;
+    int found = 0;
+    for (q = 0; q < np; q++, p++) {
+        bvh__f4 f[3][3], ft, bt = { b->t, b->t, b->t, b->t };
+        bvh__d4 X[3], Y[3], Z[3], U, V, W, det, T, Q;
+        bvh__i4 ok;
+        unsigned mask;
+        int i, k;
+        memcpy(f, p->v, sizeof f); /* memcpy: the packets need no more than float alignment */
+        for (k = 0; k < 3; k++) { /* translated in float, sheared in double, as bvh__tri_test */
+            Z[k] = __builtin_convertvector(f[k][kz] - oz, bvh__d4);
+            X[k] = __builtin_convertvector(f[k][kx] - ox, bvh__d4) - sx * Z[k];
+            Y[k] = __builtin_convertvector(f[k][ky] - oy, bvh__d4) - sy * Z[k];
+        }
+        U = X[2] * Y[1] - Y[2] * X[1];
+        V = X[0] * Y[2] - Y[0] * X[2];
+        W = X[1] * Y[0] - Y[1] * X[0];
+        det = U + V + W;
+        T = U * (sz * Z[0]) + V * (sz * Z[1]) + W * (sz * Z[2]);
+        Q = T / det;
+        ft = __builtin_convertvector(Q, bvh__f4);
+        {
+            bvh__l4 out = ((U < zero) | (V < zero) | (W < zero)) & ((U > zero) | (V > zero) | (W > zero));
+            bvh__l4 flat = det == zero;
+            bvh__i4 cut = __builtin_convertvector(out | flat, bvh__i4);
+            ok = (ft >= tmin) & (ft <= bt) & (ft < inf) & ~cut;
+        }
+        mask = (ok[0] ? 1u : 0u) | (ok[1] ? 2u : 0u) | (ok[2] ? 4u : 0u) | (ok[3] ? 8u : 0u);
+        for (i = 0; mask; i++, mask >>= 1) {
+            float tri[9];
+            if (!(mask & 1u) || ft[i] > b->t) continue;
+            bvh__lane(p, i, tri);
+            if (bvh__tri_zero_area(tri) || !bvh__tri_reach(r, tri, ft[i])) continue;
+            bvh__take(b, p, i, ft[i], (float)(V[i] / det[i]), (float)(W[i] / det[i]));
+            found = 1;
+            if (any) return 1;
+        }
+    }
+    return found;
+}
+static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
+    return bvh__packets_body(r, p, np, b, any);
+}
+#ifdef BVH__AVX2
+__attribute__((target("avx2"))) static int bvh__packets_avx2(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np,
+                                                               bvh__best *b, int any) {
+    return bvh__packets_body(r, p, np, b, any);
+}
+#endif
+#else
+static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
+    uint32_t q;
+    int i, found = 0;
+    for (q = 0; q < np; q++, p++)
+        for (i = 0; i < 4; i++) {
+            float tri[9], t, u, v;
+            bvh__lane(p, i, tri);
+            if (!bvh__tri_test(r, tri, b->t, &t, &u, &v)) continue;
+            bvh__take(b, p, i, t, u, v);
+            found = 1;
+            if (any) return 1;
+        }
+    return found;
+}
+#endif
+
 typedef struct bvh__entry4 { uint32_t child, count; float t; } bvh__entry4;
+#if defined(__GNUC__) || defined(__clang__)
+#define BVH__CTZ(m) ((unsigned)__builtin_ctz(m))
+#else
+static unsigned bvh__ctz(unsigned m) {
+    unsigned i = 0;
+    while (!(m & 1u)) {
+        m >>= 1;
+        i++;
+    }
+    return i;
+}
+#define BVH__CTZ(m) bvh__ctz(m)
+#endif
+#ifdef BVH__SSE
+/* The ray as bvh__slab4 wants it in registers, its axes ordered so that the dominant one (whose
+   distances set the slack) comes last: max and min do not depend on the order, so the same bits. */
+typedef struct bvh__ray4 {
+    __m128 o[3], inv[3], tmin;
+    int near4[3], far4[3];
+} bvh__ray4;
+static void bvh__ray4_setup(const bvh__rayx *r, bvh__ray4 *q) {
+    int order[3], a;
+    order[0] = r->kz == 0 ? 1 : 0;
+    order[1] = r->kz == 2 ? 1 : 2;
+    order[2] = r->kz;
+    for (a = 0; a < 3; a++) {
+        q->o[a] = _mm_set1_ps(r->o[order[a]]);
+        q->inv[a] = _mm_set1_ps(r->inv[order[a]]);
+        q->near4[a] = r->near4[order[a]];
+        q->far4[a] = r->far4[order[a]];
+    }
+    q->tmin = _mm_set1_ps(r->tmin);
+}
+BVH__INLINE unsigned bvh__slab4q(const bvh__ray4 *q, const bvh_node4 *n, float tfar, float tn_out[4]) {
+    const float *f = &n->min[0][0];
+    const __m128 t0a = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near4[0]), q->o[0]), q->inv[0]);
+    const __m128 t1a = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far4[0]), q->o[0]), q->inv[0]);
+    const __m128 t0b = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near4[1]), q->o[1]), q->inv[1]);
+    const __m128 t1b = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far4[1]), q->o[1]), q->inv[1]);
+    const __m128 t0c = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near4[2]), q->o[2]), q->inv[2]);
+    const __m128 t1c = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far4[2]), q->o[2]), q->inv[2]);
+    const __m128 inf = _mm_set1_ps(BVH_INF);
+    __m128 tn = _mm_max_ps(t0a, q->tmin), tf = _mm_min_ps(t1a, inf), slack;
+    tn = _mm_max_ps(t0b, tn);
+    tn = _mm_max_ps(t0c, tn);
+    tf = _mm_min_ps(t1b, tf);
+    tf = _mm_min_ps(t1c, tf);
+    tf = _mm_mul_ps(tf, _mm_set1_ps(1.0000004f));
+    slack = _mm_max_ps(t1c, _mm_sub_ps(_mm_setzero_ps(), t0c));
+    tn = _mm_sub_ps(tn, _mm_mul_ps(slack, _mm_set1_ps(3.814697265625e-6f)));
+    tf = _mm_min_ps(tf, _mm_set1_ps(tfar));
+    _mm_storeu_ps(tn_out, tn);
+    return (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmple_ps(tn, tf), _mm_cmplt_ps(tn, inf)));
+}
+#define BVH__SLAB4(n, tfar, tn) bvh__slab4q(&q, n, tfar, tn)
+#else
+#define BVH__SLAB4(n, tfar, tn) bvh__slab4(rx, n, tfar, tn)
+#endif
+/* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
+   order, unsorted), the farther ones on the stack; a leaf's packets tested at once. */
 static int bvh__traverse4(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_hit *hit, int any) {
     bvh__entry4 stack[3 * BVH_MAX_DEPTH + 8];
-    uint32_t sp = 0, best_prim = BVH_INVALID, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first reference */
+    uint32_t sp = 0, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first packet */
     int sheared = 0;
-    float best_t = tmax, best_u = 0.0f, best_v = 0.0f;
+#ifdef BVH__AVX2
+    const int avx2 = bvh__have_avx2();
+#endif
+#ifdef BVH__SSE
+    bvh__ray4 q;
+#endif
+    bvh__best best;
     const bvh_node4 *nodes = tree->nodes4;
+    best.t = tmax;
+    best.u = best.v = 0.0f;
+    best.prim = BVH_INVALID;
+#ifdef BVH__SSE
+    bvh__ray4_setup(rx, &q);
+#endif
     for (;;) {
         if (!lc) { /* an interior node: test its four children */
             const bvh_node4 *n = &nodes[cur];
             float tn[4];
-            unsigned m = bvh__slab4(rx, n, best_t, tn), i;
+            unsigned m = BVH__SLAB4(n, best.t, tn), i0, i1;
             if (m) {
-                uint32_t idx[4], k = 0, j;
-                for (i = 0; i < 4; i++)
-                    if (m & (1u << i)) {
-                        /* insertion by entry distance, nearest first */
+                i0 = BVH__CTZ(m);
+                m &= m - 1;
+                if (!m) { /* one child: no stack */
+                    cur = n->child[i0];
+                    lc = n->count[i0];
+                    continue;
+                }
+                if (sp + 3 > sizeof stack / sizeof stack[0]) goto out; /* deeper than builders make */
+                i1 = BVH__CTZ(m);
+                m &= m - 1;
+                if (!any && !m) { /* two: the farther one waits */
+                    if (tn[i1] < tn[i0]) {
+                        unsigned x = i0;
+                        i0 = i1;
+                        i1 = x;
+                    }
+                    stack[sp].child = n->child[i1];
+                    stack[sp].count = n->count[i1];
+                    stack[sp].t = tn[i1];
+                    sp++;
+                } else if (any) { /* any hit: in slot order */
+                    m |= 1u << i1;
+                    while (m) {
+                        i1 = BVH__CTZ(m);
+                        m &= m - 1;
+                        stack[sp].child = n->child[i1];
+                        stack[sp].count = n->count[i1];
+                        stack[sp].t = tn[i1];
+                        sp++;
+                    }
+                } else { /* three or four: insertion by entry distance, nearest first */
+                    uint32_t idx[4], k = 2, j;
+                    idx[0] = tn[i1] < tn[i0] ? i1 : i0;
+                    idx[1] = tn[i1] < tn[i0] ? i0 : i1;
+                    while (m) {
+                        unsigned i = BVH__CTZ(m);
+                        m &= m - 1;
                         for (j = k; j > 0 && tn[idx[j - 1]] > tn[i]; j--) idx[j] = idx[j - 1];
                         idx[j] = i;
                         k++;
                     }
-                if (sp + k > sizeof stack / sizeof stack[0]) goto out; /* deeper than builders make */
-                for (j = k - 1; j > 0; j--) { /* the farther ones wait, farthest at the bottom */
-                    stack[sp].child = n->child[idx[j]];
-                    stack[sp].count = n->count[idx[j]];
-                    stack[sp].t = tn[idx[j]];
-                    sp++;
+                    for (j = k - 1; j > 0; j--) { /* farthest at the bottom */
+                        stack[sp].child = n->child[idx[j]];
+                        stack[sp].count = n->count[idx[j]];
+                        stack[sp].t = tn[idx[j]];
+                        sp++;
+                    }
+                    i0 = idx[0];
                 }
-                cur = n->child[idx[0]];
-                lc = n->count[idx[0]];
+                cur = n->child[i0];
+                lc = n->count[i0];
                 continue;
             }
-        } else { /* a leaf */
-            uint32_t k, end = cur + lc;
-            if (!sheared) { bvh__ray_shear(rx); sheared = 1; }
-            for (k = cur; k < end; k++) {
-                float t, u, v;
-                if (!bvh__tri_test(rx, tree->tris + 9 * (size_t)k, best_t, &t, &u, &v)) continue;
-                if (t == best_t && tree->prims[k] > best_prim) continue; /* ties: lowest index */
-                best_t = t; best_u = u; best_v = v; best_prim = tree->prims[k];
-                if (any) goto out;
+        } else { /* a leaf: its packets */
+            int h;
+            if (!sheared) {
+                bvh__ray_shear(rx);
+                sheared = 1;
             }
+#ifdef BVH__AVX2
+            if (avx2) h = bvh__packets_avx2(rx, tree->tri4 + cur, lc, &best, any);
+            else h = bvh__packets(rx, tree->tri4 + cur, lc, &best, any);
+#else
+            h = bvh__packets(rx, tree->tri4 + cur, lc, &best, any);
+#endif
+            if (h && any) goto out;
         }
         for (;;) { /* pop the next node still in reach of the current best */
             if (!sp) goto out;
             --sp;
-            if (stack[sp].t <= best_t) { cur = stack[sp].child; lc = stack[sp].count; break; }
+            if (stack[sp].t <= best.t) {
+                cur = stack[sp].child;
+                lc = stack[sp].count;
+                break;
+            }
         }
     }
 out:
-    if (best_prim == BVH_INVALID) return 0;
-    if (hit) { hit->t = best_t; hit->u = best_u; hit->v = best_v; hit->prim = best_prim; }
+    if (best.prim == BVH_INVALID) return 0;
+    if (hit) {
+        hit->t = best.t;
+        hit->u = best.u;
+        hit->v = best.v;
+        hit->prim = best.prim;
+    }
     return 1;
 }
 

@@ -3210,6 +3210,12 @@ static void bvh__lane(const bvh_tri4 *p, int i, float tri[9]) {
         for (a = 0; a < 3; a++)
             tri[3 * v + a] = p->v[v][a][i];
 }
+/* A lane whose three vertices coincide: how packets hold a zero-area triangle (no ray hits it,
+   so where it lies cannot matter; a split reference's clipped box need not hold the point). */
+static int bvh__lane_is_point(const float *tri) {
+    return tri[0] == tri[3] && tri[0] == tri[6] && tri[1] == tri[4] && tri[1] == tri[7] && tri[2] == tri[5] &&
+           tri[2] == tri[8];
+}
 /* A 4-wide leaf slot: its packets inside the packet array, each reached once (*cover), every lane
    a primitive of the tree inside (with split references: touching) the slot's box; seen[prim]
    counts the packets that hold prim. */
@@ -3229,6 +3235,10 @@ static const char *bvh__validate_packets(const bvh_tree *tree, const bvh_aabb *p
             if (j < i) continue; /* a repeated lane */
             bvh__lane(p, i, tri);
             pb = prim_boxes ? prim_boxes[p->prim[i]] : bvh__tri_box(tri);
+            if (bvh__lane_is_point(tri)) { /* a zero-area triangle's stand-in, never hit */
+                seen[p->prim[i]]++;
+                continue;
+            }
             if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
                            pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
                        : !bvh_aabb_contains(box, bvh__tri_box(tri)))
@@ -3385,8 +3395,8 @@ done:
 
 /* ============================================================================================ */
 /* == traversal ================================================================================= */
-/* Watertight ray/triangle intersection (Woop, Benthin & Wald, JCGT 2013) with the shear and
-   determinants in double, and robust slab tests (Ize 2013: the far distance is widened by
+/* Watertight ray/triangle intersection (Woop, Benthin & Wald, JCGT 2013) in float, with their
+   fallback to double where an edge function is zero, and robust slab tests (Ize 2013: the far distance is widened by
    1 + 2 gamma(3)) so that no box rounding ever culls a triangle that the brute-force loop hits.
    A zero direction component (+0 or -0) gets an inverse of +inf; the NaN that appears when the
    origin lies on the slab plane is ignored by the min/max order, which is the right answer
@@ -3437,9 +3447,13 @@ BVH__INLINE void bvh__ray_shear(bvh__rayx *rx) {
 }
 
 /* Returns 1 and sets *t, *u, *v if the triangle is hit with tmin <= t <= tmax, t finite.
-   Vertices are translated in float (as Woop et al.: each vertex once, so shared edges give the
-   same edge functions and the test stays watertight), sheared and tested in double, where
-   subnormal products cannot underflow and fused multiply-adds cannot change a sign. */
+   Float throughout, as Woop et al.: each vertex is translated and sheared once, so that the two
+   triangles sharing an edge compute its edge function from the same floats, in mirrored order,
+   and get exactly opposite values; rounding is monotone, so a float edge function never has the
+   wrong sign, only a zero where the exact one is not. Where any of the three is zero, all three
+   are redone in double from the sheared floats (products of two floats are exact in double), as
+   Woop et al. do, so that the test stays watertight. The packet test makes the same operations
+   in the same order on each lane, so both give the same bits. */
 BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar);
 /* A zero-area triangle (exactly collinear or coincident vertices) is never hit. */
 static int bvh__tri_zero_area(const float *tri) {
@@ -3458,29 +3472,36 @@ static int bvh__tri_reach(const bvh__rayx *r, const float *tri, float t) {
     box.index = box.count = 0;
     return bvh__slab(r, &box, t) != BVH_INF;
 }
+/* The three edge functions of sheared vertices (x[i], y[i]) redone in double (bvh__tri_test). */
+static void bvh__edges_exact(const float *x, const float *y, float *U, float *V, float *W) {
+    *U = (float)((double)x[2] * y[1] - (double)y[2] * x[1]);
+    *V = (float)((double)x[0] * y[2] - (double)y[0] * x[2]);
+    *W = (float)((double)x[1] * y[0] - (double)y[1] * x[0]);
+}
 BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, float *t, float *u, float *v) {
     const int kx = r->kx, ky = r->ky, kz = r->kz;
-    const double sx = r->sx, sy = r->sy, sz = r->sz;
-    float A[3], B[3], C[3], ft;
-    double Ax, Ay, Bx, By, Cx, Cy, U, V, W, det, T;
+    const float sx = r->sx, sy = r->sy, sz = r->sz;
+    float x[3], y[3], z[3], U, V, W, det, T, ft;
     int k;
-    for (k = 0; k < 3; k++) { A[k] = tri[k] - r->o[k]; B[k] = tri[3 + k] - r->o[k]; C[k] = tri[6 + k] - r->o[k]; }
-    Ax = A[kx] - sx * A[kz]; Ay = A[ky] - sy * A[kz];
-    Bx = B[kx] - sx * B[kz]; By = B[ky] - sy * B[kz];
-    Cx = C[kx] - sx * C[kz]; Cy = C[ky] - sy * C[kz];
-    U = Cx * By - Cy * Bx;
-    V = Ax * Cy - Ay * Cx;
-    W = Bx * Ay - By * Ax;
-    if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return 0;
+    for (k = 0; k < 3; k++) {
+        z[k] = tri[3 * k + kz] - r->o[kz];
+        x[k] = (tri[3 * k + kx] - r->o[kx]) - sx * z[k];
+        y[k] = (tri[3 * k + ky] - r->o[ky]) - sy * z[k];
+    }
+    U = x[2] * y[1] - y[2] * x[1];
+    V = x[0] * y[2] - y[0] * x[2];
+    W = x[1] * y[0] - y[1] * x[0];
+    if (U == 0.0f || V == 0.0f || W == 0.0f) bvh__edges_exact(x, y, &U, &V, &W);
+    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
     det = U + V + W;
-    if (det == 0.0) return 0;
-    T = U * (sz * A[kz]) + V * (sz * B[kz]) + W * (sz * C[kz]);
-    ft = (float)(T / det);
+    if (det == 0.0f) return 0;
+    T = U * (sz * z[0]) + V * (sz * z[1]) + W * (sz * z[2]);
+    ft = T / det;
     if (!(ft >= r->tmin && ft <= tmax && ft < BVH_INF)) return 0;
     if (bvh__tri_zero_area(tri) || !bvh__tri_reach(r, tri, ft)) return 0;
     *t = ft;
-    *u = (float)(V / det);
-    *v = (float)(W / det);
+    *u = V / det;
+    *v = W / det;
     return 1;
 }
 
@@ -3573,9 +3594,10 @@ static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4
         for (j = 0; j < 4; j++) {
             uint32_t k = refs[4 * i + (4 * i + j < n ? j : 0)];
             const float *t = s->tris + 9 * (size_t)k;
+            const int flat = bvh__tri_zero_area(t); /* held as its first vertex three times */
             for (v = 0; v < 3; v++)
                 for (a = 0; a < 3; a++)
-                    p->v[v][a][j] = t[3 * v + a];
+                    p->v[v][a][j] = t[3 * (flat ? 0 : v) + a];
             p->prim[j] = s->prims[k];
         }
     }
@@ -3815,98 +3837,6 @@ typedef struct bvh__best {
     float t, u, v;
     uint32_t prim;
 } bvh__best;
-/* Takes a hit of lane i at t (ties in t: the lowest primitive index). */
-BVH__INLINE void bvh__take(bvh__best *b, const bvh_tri4 *p, int i, float t, float u, float v) {
-    if (t == b->t && p->prim[i] > b->prim) return;
-    b->t = t;
-    b->u = u;
-    b->v = v;
-    b->prim = p->prim[i];
-}
-
-/* The packet test: bvh__tri_test on the four lanes at once, the same operations in the same order
-   on each lane, so the same bits; the checks that bvh__tri_test makes after the distance (zero
-   area, the triangle's box) only on the lanes that pass, which few do. GCC and clang vector types
-   (no intrinsics), so that one source compiles to SSE2 and, by target attribute, to AVX2. */
-#if defined(BVH__SSE) && (defined(__GNUC__) || defined(__clang__))
-#define BVH__PACKET_SIMD 1
-typedef float bvh__f4 __attribute__((vector_size(16)));
-typedef double bvh__d4 __attribute__((vector_size(32)));
-typedef int32_t bvh__i4 __attribute__((vector_size(16)));
-typedef int64_t bvh__l4 __attribute__((vector_size(32)));
-BVH__INLINE int bvh__packets_body(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
-    const int kx = r->kx, ky = r->ky, kz = r->kz;
-    const bvh__d4 sx = { r->sx, r->sx, r->sx, r->sx }, sy = { r->sy, r->sy, r->sy, r->sy };
-    const bvh__d4 sz = { r->sz, r->sz, r->sz, r->sz }, zero = { 0.0, 0.0, 0.0, 0.0 };
-    const bvh__f4 ox = { r->o[kx], r->o[kx], r->o[kx], r->o[kx] }, oy = { r->o[ky], r->o[ky], r->o[ky], r->o[ky] };
-    const bvh__f4 oz = { r->o[kz], r->o[kz], r->o[kz], r->o[kz] };
-    const bvh__f4 tmin = { r->tmin, r->tmin, r->tmin, r->tmin }, inf = { BVH_INF, BVH_INF, BVH_INF, BVH_INF };
-    uint32_t q;
-    int found = 0;
-    for (q = 0; q < np; q++, p++) {
-        bvh__f4 f[3][3], ft, bt = { b->t, b->t, b->t, b->t };
-        bvh__d4 X[3], Y[3], Z[3], U, V, W, det, T, Q;
-        bvh__i4 ok;
-        unsigned mask;
-        int i, k;
-        memcpy(f, p->v, sizeof f); /* memcpy: the packets need no more than float alignment */
-        for (k = 0; k < 3; k++) { /* translated in float, sheared in double, as bvh__tri_test */
-            Z[k] = __builtin_convertvector(f[k][kz] - oz, bvh__d4);
-            X[k] = __builtin_convertvector(f[k][kx] - ox, bvh__d4) - sx * Z[k];
-            Y[k] = __builtin_convertvector(f[k][ky] - oy, bvh__d4) - sy * Z[k];
-        }
-        U = X[2] * Y[1] - Y[2] * X[1];
-        V = X[0] * Y[2] - Y[0] * X[2];
-        W = X[1] * Y[0] - Y[1] * X[0];
-        det = U + V + W;
-        T = U * (sz * Z[0]) + V * (sz * Z[1]) + W * (sz * Z[2]);
-        Q = T / det;
-        ft = __builtin_convertvector(Q, bvh__f4);
-        {
-            bvh__l4 out = ((U < zero) | (V < zero) | (W < zero)) & ((U > zero) | (V > zero) | (W > zero));
-            bvh__l4 flat = det == zero;
-            bvh__i4 cut = __builtin_convertvector(out | flat, bvh__i4);
-            ok = (ft >= tmin) & (ft <= bt) & (ft < inf) & ~cut;
-        }
-        mask = (ok[0] ? 1u : 0u) | (ok[1] ? 2u : 0u) | (ok[2] ? 4u : 0u) | (ok[3] ? 8u : 0u);
-        for (i = 0; mask; i++, mask >>= 1) {
-            float tri[9];
-            if (!(mask & 1u) || ft[i] > b->t) continue;
-            bvh__lane(p, i, tri);
-            if (bvh__tri_zero_area(tri) || !bvh__tri_reach(r, tri, ft[i])) continue;
-            bvh__take(b, p, i, ft[i], (float)(V[i] / det[i]), (float)(W[i] / det[i]));
-            found = 1;
-            if (any) return 1;
-        }
-    }
-    return found;
-}
-static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
-    return bvh__packets_body(r, p, np, b, any);
-}
-#ifdef BVH__AVX2
-__attribute__((target("avx2"))) static int bvh__packets_avx2(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np,
-                                                               bvh__best *b, int any) {
-    return bvh__packets_body(r, p, np, b, any);
-}
-#endif
-#else
-static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
-    uint32_t q;
-    int i, found = 0;
-    for (q = 0; q < np; q++, p++)
-        for (i = 0; i < 4; i++) {
-            float tri[9], t, u, v;
-            bvh__lane(p, i, tri);
-            if (!bvh__tri_test(r, tri, b->t, &t, &u, &v)) continue;
-            bvh__take(b, p, i, t, u, v);
-            found = 1;
-            if (any) return 1;
-        }
-    return found;
-}
-#endif
-
 typedef struct bvh__entry4 { uint32_t child, count; float t; } bvh__entry4;
 #if defined(__GNUC__) || defined(__clang__)
 #define BVH__CTZ(m) ((unsigned)__builtin_ctz(m))
@@ -3921,6 +3851,145 @@ static unsigned bvh__ctz(unsigned m) {
 }
 #define BVH__CTZ(m) bvh__ctz(m)
 #endif
+/* The packet test: bvh__tri_test on the four lanes at once, the same operations in the same order
+   on each lane, so the same bits. Most packets end at the sign test; the distance, the division
+   and the triangle-box check (bvh__tri_reach, here on all lanes at once) follow only where a lane
+   passes it. No zero-area check: the packets hold such a triangle as one point repeated, whose
+   edge functions are all exactly zero, so det = 0 and no ray hits it, as bvh__tri_test says. */
+#ifdef BVH__SSE
+/* bvh__slab_t on four boxes (lo, hi by axis) with a distance limit per lane: 1 where entered. */
+BVH__INLINE unsigned bvh__reach4(const bvh__rayx *r, const __m128 lo[3], const __m128 hi[3], __m128 t) {
+    __m128 tn = _mm_set1_ps(r->tmin), tf = _mm_set1_ps(BVH_INF), t0[3], t1[3], slack;
+    int a;
+    for (a = 0; a < 3; a++) {
+        const __m128 o = _mm_set1_ps(r->o[a]), inv = _mm_set1_ps(r->inv[a]);
+        const int neg = r->inv[a] < 0.0f;
+        t0[a] = _mm_mul_ps(_mm_sub_ps(neg ? hi[a] : lo[a], o), inv);
+        t1[a] = _mm_mul_ps(_mm_sub_ps(neg ? lo[a] : hi[a], o), inv);
+        tn = _mm_max_ps(t0[a], tn);
+        tf = _mm_min_ps(t1[a], tf);
+    }
+    tf = _mm_mul_ps(tf, _mm_set1_ps(1.0000004f));
+    slack = _mm_max_ps(t1[r->kz], _mm_sub_ps(_mm_setzero_ps(), t0[r->kz]));
+    tn = _mm_sub_ps(tn, _mm_mul_ps(slack, _mm_set1_ps(3.814697265625e-6f)));
+    tf = _mm_min_ps(tf, t);
+    return (unsigned)_mm_movemask_ps(_mm_cmple_ps(tn, tf));
+}
+/* The lanes of mask m that hit (bvh__tri_test's checks after the sign test); *ft their t. */
+BVH__INLINE unsigned bvh__packet_hits(const bvh__rayx *r, __m128 v[3][3], __m128 U, __m128 V, __m128 W,
+                                      const __m128 z[3], float tmax, unsigned m, __m128 *ft, __m128 *det) {
+    const __m128 sz = _mm_set1_ps(r->sz);
+    __m128 T, lo[3], hi[3], ok;
+    int a;
+    *det = _mm_add_ps(_mm_add_ps(U, V), W);
+    T = _mm_add_ps(_mm_add_ps(_mm_mul_ps(U, _mm_mul_ps(sz, z[0])), _mm_mul_ps(V, _mm_mul_ps(sz, z[1]))),
+                   _mm_mul_ps(W, _mm_mul_ps(sz, z[2])));
+    *ft = _mm_div_ps(T, *det);
+    ok = _mm_and_ps(_mm_cmpge_ps(*ft, _mm_set1_ps(r->tmin)), _mm_cmple_ps(*ft, _mm_set1_ps(tmax)));
+    ok = _mm_and_ps(ok, _mm_cmplt_ps(*ft, _mm_set1_ps(BVH_INF)));
+    ok = _mm_and_ps(ok, _mm_cmpneq_ps(*det, _mm_setzero_ps()));
+    m &= (unsigned)_mm_movemask_ps(ok);
+    if (!m) return 0;
+    for (a = 0; a < 3; a++) { /* the triangles' boxes (bvh__tri_box) */
+        lo[a] = _mm_min_ps(_mm_min_ps(v[0][a], v[1][a]), v[2][a]);
+        hi[a] = _mm_max_ps(_mm_max_ps(v[0][a], v[1][a]), v[2][a]);
+    }
+    return m & bvh__reach4(r, lo, hi, *ft);
+}
+BVH__INLINE float bvh__lane_f(__m128 x, unsigned i) {
+    float f[4];
+    _mm_storeu_ps(f, x);
+    return f[i];
+}
+static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
+    const int kx = r->kx, ky = r->ky, kz = r->kz;
+    const __m128 ox = _mm_set1_ps(r->o[kx]), oy = _mm_set1_ps(r->o[ky]), oz = _mm_set1_ps(r->o[kz]);
+    const __m128 sx = _mm_set1_ps(r->sx), sy = _mm_set1_ps(r->sy), zero = _mm_setzero_ps();
+    uint32_t q;
+    int found = 0;
+    for (q = 0; q < np; q++, p++) {
+        __m128 v[3][3], x[3], y[3], z[3], U, V, W, ft, det, neg, pos;
+        unsigned m, zm;
+        int k, a;
+        for (k = 0; k < 3; k++) {
+            for (a = 0; a < 3; a++) v[k][a] = _mm_loadu_ps(p->v[k][a]);
+            z[k] = _mm_sub_ps(v[k][kz], oz);
+            x[k] = _mm_sub_ps(_mm_sub_ps(v[k][kx], ox), _mm_mul_ps(sx, z[k]));
+            y[k] = _mm_sub_ps(_mm_sub_ps(v[k][ky], oy), _mm_mul_ps(sy, z[k]));
+        }
+        U = _mm_sub_ps(_mm_mul_ps(x[2], y[1]), _mm_mul_ps(y[2], x[1]));
+        V = _mm_sub_ps(_mm_mul_ps(x[0], y[2]), _mm_mul_ps(y[0], x[2]));
+        W = _mm_sub_ps(_mm_mul_ps(x[1], y[0]), _mm_mul_ps(y[1], x[0]));
+        zm = (unsigned)_mm_movemask_ps(
+            _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(U, zero), _mm_cmpeq_ps(V, zero)), _mm_cmpeq_ps(W, zero)));
+        if (zm) { /* the lanes with a zero edge function, redone in double */
+            float fx[3][4], fy[3][4], fu[4], fv[4], fw[4], lx[3], ly[3];
+            unsigned i;
+            for (k = 0; k < 3; k++) {
+                _mm_storeu_ps(fx[k], x[k]);
+                _mm_storeu_ps(fy[k], y[k]);
+            }
+            _mm_storeu_ps(fu, U);
+            _mm_storeu_ps(fv, V);
+            _mm_storeu_ps(fw, W);
+            for (i = 0; i < 4; i++) {
+                if (!(zm >> i & 1u)) continue;
+                for (k = 0; k < 3; k++) {
+                    lx[k] = fx[k][i];
+                    ly[k] = fy[k][i];
+                }
+                bvh__edges_exact(lx, ly, &fu[i], &fv[i], &fw[i]);
+            }
+            U = _mm_loadu_ps(fu);
+            V = _mm_loadu_ps(fv);
+            W = _mm_loadu_ps(fw);
+        }
+        neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(U, zero), _mm_cmplt_ps(V, zero)), _mm_cmplt_ps(W, zero));
+        pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_cmpgt_ps(V, zero)), _mm_cmpgt_ps(W, zero));
+        m = 15u & ~(unsigned)_mm_movemask_ps(_mm_and_ps(neg, pos));
+        if (!m) continue;
+        m = bvh__packet_hits(r, v, U, V, W, z, b->t, m, &ft, &det);
+        if (!m) continue;
+        if (any) {
+            b->t = bvh__lane_f(ft, BVH__CTZ(m));
+            b->prim = p->prim[BVH__CTZ(m)];
+            return 1;
+        }
+        while (m) { /* the nearest lane; ties in t: the lowest primitive index */
+            unsigned i = BVH__CTZ(m);
+            float t = bvh__lane_f(ft, i), d = bvh__lane_f(det, i);
+            m &= m - 1;
+            if (t > b->t || (t == b->t && p->prim[i] > b->prim)) continue;
+            b->t = t;
+            b->u = bvh__lane_f(V, i) / d;
+            b->v = bvh__lane_f(W, i) / d;
+            b->prim = p->prim[i];
+            found = 1;
+        }
+    }
+    return found;
+}
+#else
+static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
+    uint32_t q;
+    int i, found = 0;
+    for (q = 0; q < np; q++, p++)
+        for (i = 0; i < 4; i++) {
+            float tri[9], t, u, v;
+            bvh__lane(p, i, tri);
+            if (!bvh__tri_test(r, tri, b->t, &t, &u, &v)) continue;
+            if (t == b->t && p->prim[i] > b->prim) continue;
+            b->t = t;
+            b->u = u;
+            b->v = v;
+            b->prim = p->prim[i];
+            found = 1;
+            if (any) return 1;
+        }
+    return found;
+}
+#endif
+
 #ifdef BVH__SSE
 /* The ray as bvh__slab4 wants it in registers, its axes ordered so that the dominant one (whose
    distances set the slack) comes last: max and min do not depend on the order, so the same bits. */
@@ -3972,9 +4041,6 @@ static int bvh__traverse4(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_h
     bvh__entry4 stack[3 * BVH_MAX_DEPTH + 8];
     uint32_t sp = 0, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first packet */
     int sheared = 0;
-#ifdef BVH__AVX2
-    const int avx2 = bvh__have_avx2();
-#endif
 #ifdef BVH__SSE
     bvh__ray4 q;
 #endif
@@ -4051,12 +4117,7 @@ static int bvh__traverse4(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_h
                 bvh__ray_shear(rx);
                 sheared = 1;
             }
-#ifdef BVH__AVX2
-            if (avx2) h = bvh__packets_avx2(rx, tree->tri4 + cur, lc, &best, any);
-            else h = bvh__packets(rx, tree->tri4 + cur, lc, &best, any);
-#else
             h = bvh__packets(rx, tree->tri4 + cur, lc, &best, any);
-#endif
             if (h && any) goto out;
         }
         for (;;) { /* pop the next node still in reach of the current best */

@@ -255,7 +255,7 @@ typedef struct bvh_tree {
                                order, for traversal; NULL for box builds */
     bvh_node4 *nodes4;      /* 4-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
     uint32_t node4_count;
-    bvh_tri4 *tri4;         /* the 4-wide leaves' triangle packets */
+    bvh_tri4 *tri4;         /* the 4-wide leaves' triangle packets (in nodes4's allocation) */
     uint32_t tri4_count;
     uint32_t prim_count;    /* primitives given */
     uint32_t excluded;      /* primitives left out by skip_invalid */
@@ -515,6 +515,20 @@ static void bvh__free(const bvh_allocator *al, void *p) {
     else BVH_FREE(p, al->user);
 }
 #define BVH__ALLOC(al, T, n) BVH__CAST(T *, bvh__alloc((al), (size_t)(n), sizeof(T)))
+/* A block aligned to 64 bytes (the 4-wide layout: a 128-byte node then spans two cache lines,
+   not three). The byte before the returned pointer holds its distance from the allocation. */
+static void *bvh__alloc_lines(const bvh_allocator *al, size_t size) {
+    unsigned char *raw, *p;
+    if (size > (size_t)-1 - 64) return NULL;
+    if (!(raw = BVH__ALLOC(al, unsigned char, size + 64))) return NULL;
+    p = raw + (64 - ((uintptr_t)raw & 63u));
+    p[-1] = (unsigned char)(p - raw);
+    return p;
+}
+static void bvh__free_lines(const bvh_allocator *al, void *p) {
+    unsigned char *q = BVH__CAST(unsigned char *, p);
+    if (q) bvh__free(al, q - q[-1]);
+}
 #ifndef BVH__MIN_PRIMS_PER_THREAD /* private; the tests set it to 1 to run small inputs threaded */
 #define BVH__MIN_PRIMS_PER_THREAD 8192u
 #endif
@@ -2908,8 +2922,7 @@ BVH_API void bvh_free(bvh_tree *tree) {
     bvh__free(&al, tree->nodes);
     bvh__free(&al, tree->prims);
     bvh__free(&al, tree->tris);
-    bvh__free(&al, tree->nodes4);
-    bvh__free(&al, tree->tri4);
+    bvh__free_lines(&al, tree->nodes4); /* tri4 lives in the same block */
     memset(tree, 0, sizeof *tree);
     tree->allocator = al;
 }
@@ -3761,9 +3774,15 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32
         psize[i] = ptotal;
         ptotal += p;
     }
-    tree->nodes4 = BVH__ALLOC(al, bvh_node4, total);
-    tree->tri4 = BVH__ALLOC(al, bvh_tri4, ptotal ? ptotal : 1);
-    if (!tree->nodes4 || !tree->tri4) {
+    /* one block: the packets follow the nodes, on a cache line as well (128-byte nodes) */
+    if ((size_t)ptotal + 1 > ((size_t)-1 - (size_t)total * sizeof(bvh_node4)) / sizeof(bvh_tri4)) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    tree->nodes4 = BVH__CAST(bvh_node4 *, bvh__alloc_lines(al, (size_t)total * sizeof(bvh_node4) +
+                                                                   (size_t)(ptotal ? ptotal : 1) * sizeof(bvh_tri4)));
+    tree->tri4 = tree->nodes4 ? BVH__CAST(bvh_tri4 *, BVH__CAST(void *, tree->nodes4 + total)) : NULL;
+    if (!tree->nodes4) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
@@ -4086,7 +4105,7 @@ static int bvh__traverse4(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_h
                         stack[sp].child = n->child[i1];
                         stack[sp].count = n->count[i1];
                         stack[sp].t = tn[i1];
-                        sp++;
+                            sp++;
                     }
                 } else { /* three or four: insertion by entry distance, nearest first */
                     uint32_t idx[4], k = 2, j;
@@ -4103,7 +4122,7 @@ static int bvh__traverse4(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_h
                         stack[sp].child = n->child[idx[j]];
                         stack[sp].count = n->count[idx[j]];
                         stack[sp].t = tn[idx[j]];
-                        sp++;
+                            sp++;
                     }
                     i0 = idx[0];
                 }

@@ -6,8 +6,8 @@
      construction methods" (Kedadry): baseline top-down (object median), baseline bottom-up
      (Morton-order pairwise aggregation), SAH-guided top-down with mid-point split partitioning,
      PLOC (Meister & Bittner 2018) and PLOC on pthreads. The node layout is a flat array of
-     32-byte nodes that cl/trace.cl reads as-is on any OpenCL device; CPU tracing walks a 4-wide
-     copy of it (bvh_node4, made by bvh_build unless desc.trace_width = 2).
+     32-byte nodes that cl/trace.cl reads as-is on any OpenCL device; CPU tracing walks an 8-wide
+     copy of it (bvh_node8, made by bvh_build unless desc.trace_width = 2).
 
    HOW TO INCLUDE
      In exactly ONE .c or .cpp file:
@@ -75,7 +75,7 @@
             a binned-SAH top over PLOC's last n / 8 clusters, kept where it is cheaper.
      0.2.1  faster PLOC builds, same trees: AVX2 neighbour search, root-down emission, MSD Morton
             sort, fewer stalls in the front end (BVH_NO_AVX2 to keep SSE).
-     0.2.0  4-wide copy of the tree for CPU traversal (bvh_node4, tree.nodes4, trace_width),
+     0.2.0  4-wide copy of the tree for CPU traversal (bvh_node8, tree.nodes8, trace_width),
             checked by bvh_validate.
      0.1.0  first release: types, SAH evaluator, validator, CPU traversal, baseline builders.
 */
@@ -156,18 +156,18 @@ typedef struct bvh_node {
     uint32_t count;
 } bvh_node;
 
-/* A 4-wide node (128 bytes) of the layout CPU traversal uses (bvh_tree.nodes4): the boxes of
-   up to four children by axis, so that one SIMD slab test covers them all. Made from the binary
-   tree by bvh_build (see bvh_build_desc.trace_width). An empty slot has min = +inf and
-   max = -inf, which no ray enters. */
-typedef struct bvh_node4 {
-    float min[3][4], max[3][4]; /* min[axis][slot], max[axis][slot] */
-    uint32_t child[4];          /* count 0: index of a bvh_node4 (empty slot: 0) */
-    uint8_t count[4];           /* > 0: leaf of count packets from tree.tri4[child] on */
-    uint32_t pad[3];
-} bvh_node4;
+/* An 8-wide node (256 bytes, four cache lines) of the layout CPU traversal uses
+   (bvh_tree.nodes8): the boxes of up to eight children by axis, so that one SIMD slab test (two
+   with SSE) covers them all. Made from the binary tree by bvh_build (see
+   bvh_build_desc.trace_width). An empty slot has min = +inf and max = -inf, which no ray enters. */
+typedef struct bvh_node8 {
+    float min[3][8], max[3][8]; /* min[axis][slot], max[axis][slot] */
+    uint32_t child[8];          /* count 0: index of a bvh_node8 (empty slot: 0) */
+    uint8_t count[8];           /* > 0: leaf of count packets from tree.tri4[child] on */
+    uint32_t pad[6];
+} bvh_node8;
 
-/* Up to four triangles of a 4-wide leaf (160 bytes), by coordinate, so that one SIMD test covers
+/* Up to four triangles of a wide leaf (160 bytes), by coordinate, so that one SIMD test covers
    them: v[vertex][axis][lane]. Lanes past a leaf's triangles repeat the packet's lane 0 (the same
    primitive: a repeated hit changes nothing). */
 typedef struct bvh_tri4 {
@@ -238,7 +238,7 @@ typedef struct bvh_build_desc {
                                  1: such primitives are left out and counted in tree.excluded */
     int keep_triangles;       /* reserved, 0 */
     uint32_t trace_width;     /* CPU traversal: 0 or 4 = triangle builds add a 4-wide copy of
-                                 the tree (tree.nodes4) that bvh_intersect, bvh_occluded and the
+                                 the tree (tree.nodes8) that bvh_intersect, bvh_occluded and the
                                  batch calls use: faster tracing for about as many bytes again
                                  as the binary nodes and a few percent of build time; 2 = binary
                                  nodes only; anything else is refused */
@@ -253,9 +253,9 @@ typedef struct bvh_tree {
     uint32_t ref_count;     /* == prim_count - excluded unless the builder splits references */
     float *tris;            /* triangle builds: 9 floats (v0, v1, v2) per reference, in reference
                                order, for traversal; NULL for box builds */
-    bvh_node4 *nodes4;      /* 4-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
-    uint32_t node4_count;
-    bvh_tri4 *tri4;         /* the 4-wide leaves' triangle packets (in nodes4's allocation) */
+    bvh_node8 *nodes8;      /* 4-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
+    uint32_t node8_count;
+    bvh_tri4 *tri4;         /* the 4-wide leaves' triangle packets (in nodes8's allocation) */
     uint32_t tri4_count;
     uint32_t prim_count;    /* primitives given */
     uint32_t excluded;      /* primitives left out by skip_invalid */
@@ -398,6 +398,7 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #define BVH__MAX_PRIMS (1u << 30) /* keeps 2n nodes and split references inside uint32 */
 #define BVH__MAX_LEAF 255u
 #define BVH__MAX_THREADS 256u
+#define BVH__W 8u /* slots of a wide node (bvh_node8) */
 
 /* ============================================================================================ */
 /* == math and AABB ============================================================================ */
@@ -2922,7 +2923,7 @@ BVH_API void bvh_free(bvh_tree *tree) {
     bvh__free(&al, tree->nodes);
     bvh__free(&al, tree->prims);
     bvh__free(&al, tree->tris);
-    bvh__free_lines(&al, tree->nodes4); /* tri4 lives in the same block */
+    bvh__free_lines(&al, tree->nodes8); /* tri4 lives in the same block */
     memset(tree, 0, sizeof *tree);
     tree->allocator = al;
 }
@@ -3185,7 +3186,7 @@ BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *s) {
     s->refs = tree->ref_count;
     s->bytes = (size_t)tree->node_count * sizeof(bvh_node) + (size_t)tree->ref_count * sizeof(uint32_t);
     s->triangle_bytes = tree->tris ? (size_t)tree->ref_count * 9 * sizeof(float) : 0;
-    s->wide_bytes = (size_t)tree->node4_count * sizeof(bvh_node4) + (size_t)tree->tri4_count * sizeof(bvh_tri4);
+    s->wide_bytes = (size_t)tree->node8_count * sizeof(bvh_node8) + (size_t)tree->tri4_count * sizeof(bvh_tri4);
     if (!tree->node_count) return BVH_SUCCESS;
     stack[sp++] = 0; stack[sp++] = 1;
     while (sp) {
@@ -3236,11 +3237,11 @@ static const char *bvh__validate_packets(const bvh_tree *tree, const bvh_aabb *p
                                          uint32_t first, uint32_t count, uint8_t *cover, uint32_t *seen) {
     uint32_t k;
     int i, j;
-    if (first > tree->tri4_count || count > tree->tri4_count - first) return "4-wide leaf outside the packet array";
+    if (first > tree->tri4_count || count > tree->tri4_count - first) return "8-wide leaf outside the packet array";
     for (k = first; k < first + count; k++) {
         const bvh_tri4 *p = &tree->tri4[k];
-        if (cover[k]++) return "packet in two 4-wide leaves";
-        for (i = 0; i < 4; i++) {
+        if (cover[k]++) return "packet in two 8-wide leaves";
+        for (i = 0; i < 4; i++) { /* the packet's lanes */
             float tri[9];
             bvh_aabb pb;
             if (p->prim[i] >= tree->prim_count) return "packet lane with a primitive out of range";
@@ -3255,7 +3256,7 @@ static const char *bvh__validate_packets(const bvh_tree *tree, const bvh_aabb *p
             if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
                            pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
                        : !bvh_aabb_contains(box, bvh__tri_box(tri)))
-                return "4-wide leaf box does not hold its primitive";
+                return "8-wide leaf box does not hold its primitive";
             seen[p->prim[i]]++;
         }
     }
@@ -3266,11 +3267,11 @@ static const char *bvh__validate_packets(const bvh_tree *tree, const bvh_aabb *p
    every referenced primitive in a packet (exactly one unless the builder splits references). */
 static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_boxes, int splits, bvh_validation *rep) {
     bvh_allocator al = tree->allocator;
-    uint32_t stack[4 * (BVH_MAX_DEPTH + 2)][2], sp = 0, reached = 0, i, k, *seen;
+    uint32_t stack[BVH__W * (BVH_MAX_DEPTH + 2)][2], sp = 0, reached = 0, i, k, *seen;
     uint8_t *cover;
     bvh_aabb root = bvh__node_box(&tree->nodes[0]); /* deeper slots are checked against their parent's */
     bvh_result r = BVH_SUCCESS;
-    if (!tree->node4_count || !tree->tri4) return bvh__invalid(rep, BVH_INVALID, "4-wide node array without nodes or packets");
+    if (!tree->node8_count || !tree->tri4) return bvh__invalid(rep, BVH_INVALID, "8-wide node array without nodes or packets");
     cover = BVH__ALLOC(&al, uint8_t, tree->tri4_count ? tree->tri4_count : 1);
     seen = BVH__ALLOC(&al, uint32_t, tree->prim_count ? tree->prim_count : 1);
     if (!cover || !seen) {
@@ -3282,10 +3283,10 @@ static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_
     stack[sp][0] = 0; stack[sp][1] = 0; sp++;
     while (sp) {
         uint32_t w = stack[--sp][0], depth = stack[sp][1];
-        const bvh_node4 *n = &tree->nodes4[w];
+        const bvh_node8 *n = &tree->nodes8[w];
         reached++;
-        if (depth > BVH_MAX_DEPTH) { r = bvh__invalid(rep, w, "4-wide tree deeper than BVH_MAX_DEPTH"); goto done; }
-        for (i = 0; i < 4; i++) {
+        if (depth > BVH_MAX_DEPTH) { r = bvh__invalid(rep, w, "8-wide tree deeper than BVH_MAX_DEPTH"); goto done; }
+        for (i = 0; i < BVH__W; i++) {
             bvh_aabb box;
             box.min.x = n->min[0][i]; box.min.y = n->min[1][i]; box.min.z = n->min[2][i];
             box.max.x = n->max[0][i]; box.max.y = n->max[1][i]; box.max.z = n->max[2][i];
@@ -3295,34 +3296,34 @@ static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_
                 continue;
             }
             if (!(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z))
-                { r = bvh__invalid(rep, w, "4-wide slot box empty or NaN"); goto done; }
-            if (!bvh_aabb_contains(root, box)) { r = bvh__invalid(rep, w, "4-wide slot box not inside the root"); goto done; }
+                { r = bvh__invalid(rep, w, "8-wide slot box empty or NaN"); goto done; }
+            if (!bvh_aabb_contains(root, box)) { r = bvh__invalid(rep, w, "8-wide slot box not inside the root"); goto done; }
             if (n->count[i]) {
                 const char *msg = bvh__validate_packets(tree, prim_boxes, splits, box, n->child[i], n->count[i], cover, seen);
                 if (msg) { r = bvh__invalid(rep, w, msg); goto done; }
             } else {
-                const bvh_node4 *c;
+                const bvh_node8 *c;
                 uint32_t j;
-                if (n->child[i] <= w || n->child[i] >= tree->node4_count)
-                    { r = bvh__invalid(rep, w, "4-wide child index out of range"); goto done; }
-                c = &tree->nodes4[n->child[i]];
-                for (j = 0; j < 4; j++) /* the child's slots inside this slot (empty ones trivially) */
+                if (n->child[i] <= w || n->child[i] >= tree->node8_count)
+                    { r = bvh__invalid(rep, w, "8-wide child index out of range"); goto done; }
+                c = &tree->nodes8[n->child[i]];
+                for (j = 0; j < BVH__W; j++) /* the child's slots inside this slot (empty ones trivially) */
                     if (!(c->min[0][j] >= box.min.x && c->min[1][j] >= box.min.y && c->min[2][j] >= box.min.z &&
                           c->max[0][j] <= box.max.x && c->max[1][j] <= box.max.y && c->max[2][j] <= box.max.z) &&
                         !(c->min[0][j] == BVH_INF && c->max[0][j] == -BVH_INF))
-                        { r = bvh__invalid(rep, n->child[i], "4-wide slot box not inside its parent"); goto done; }
-                if (sp == 4 * (BVH_MAX_DEPTH + 2)) { r = bvh__invalid(rep, w, "4-wide tree deeper than BVH_MAX_DEPTH"); goto done; }
+                        { r = bvh__invalid(rep, n->child[i], "8-wide slot box not inside its parent"); goto done; }
+                if (sp == BVH__W * (BVH_MAX_DEPTH + 2)) { r = bvh__invalid(rep, w, "8-wide tree deeper than BVH_MAX_DEPTH"); goto done; }
                 stack[sp][0] = n->child[i]; stack[sp][1] = depth + 1; sp++;
             }
         }
     }
-    if (reached != tree->node4_count) { r = bvh__invalid(rep, BVH_INVALID, "4-wide nodes not reached exactly once from the root"); goto done; }
+    if (reached != tree->node8_count) { r = bvh__invalid(rep, BVH_INVALID, "8-wide nodes not reached exactly once from the root"); goto done; }
     for (k = 0; k < tree->tri4_count; k++)
-        if (!cover[k]) { r = bvh__invalid(rep, BVH_INVALID, "packet in no 4-wide leaf"); goto done; }
+        if (!cover[k]) { r = bvh__invalid(rep, BVH_INVALID, "packet in no 8-wide leaf"); goto done; }
     for (k = 0; k < tree->ref_count; k++) {
         uint32_t p = tree->prims[k];
         if (!seen[p] || (!splits && seen[p] != 1))
-            { r = bvh__invalid(rep, BVH_INVALID, "primitive not in exactly one 4-wide leaf packet"); goto done; }
+            { r = bvh__invalid(rep, BVH_INVALID, "primitive not in exactly one 8-wide leaf packet"); goto done; }
     }
 done:
     bvh__free(&al, cover);
@@ -3399,7 +3400,7 @@ BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
         if (used_count != tree->prim_count - tree->excluded)
             { r = bvh__invalid(rep, BVH_INVALID, "a primitive is not referenced by any leaf"); goto done; }
     }
-    if (tree->nodes4) r = bvh__validate_wide(tree, prim_boxes, splits, rep);
+    if (tree->nodes8) r = bvh__validate_wide(tree, prim_boxes, splits, rep);
 done:
     bvh__free(&al, seen);
     bvh__free(&al, used);
@@ -3418,7 +3419,7 @@ done:
 typedef struct bvh__rayx {
     float o[3], d[3], inv[3], tmin;
     int near[3];     /* float offset in a node of the near plane on each axis: 0..2 min, 4..6 max */
-    int near4[3], far4[3]; /* the same in a bvh_node4 (slot 0): 0, 4, 8 min, 12, 16, 20 max */
+    int near8[3], far8[3]; /* the same in a bvh_node8 (slot 0): 0, 8, 16 min, 24, 32, 40 max */
     int kx, ky, kz;  /* watertight: kz = dominant axis (bvh__ray_setup); kx, ky and the shear */
     float sx, sy, sz; /* sx, sy, sz are made by bvh__ray_shear before the first triangle test */
 } bvh__rayx;
@@ -3436,8 +3437,8 @@ BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
         rx->d[a] = fabsf(d[a]) < FLT_MIN ? 0.0f : d[a];
         rx->inv[a] = rx->d[a] == 0.0f ? BVH_INF : 1.0f / rx->d[a];
         rx->near[a] = rx->inv[a] < 0.0f ? a + 4 : a;
-        rx->near4[a] = rx->inv[a] < 0.0f ? 12 + 4 * a : 4 * a;
-        rx->far4[a] = rx->inv[a] < 0.0f ? 4 * a : 12 + 4 * a;
+        rx->near8[a] = rx->inv[a] < 0.0f ? 24 + 8 * a : 8 * a;
+        rx->far8[a] = rx->inv[a] < 0.0f ? 8 * a : 24 + 8 * a;
     }
     if (rx->d[0] == 0.0f && rx->d[1] == 0.0f && rx->d[2] == 0.0f) return 0;
     d = rx->d;
@@ -3566,9 +3567,11 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
 
 
 /* == 4-wide traversal layout =================================================================== */
-/* bvh_build turns the binary tree into 4-wide nodes (tree.nodes4) whose leaves are packets of four
-   triangles (tree.tri4). A wide node holds a binary interior node's grandchildren, or the child
-   itself where that is a leaf slot, so 2 to 4 children. A leaf slot is a binary leaf, or a binary
+/* bvh_build turns the binary tree into 8-wide nodes (tree.nodes8) whose leaves are packets of four
+   triangles (tree.tri4). A wide node holds up to eight slots taken from the binary subtree below
+   it: starting from the binary node's two children, the interior one of largest surface area is
+   replaced by its two children until there are eight or only leaf slots are left (fewer levels:
+   each level a ray descends is one dependent load). A leaf slot is a binary leaf, or a binary
    subtree of at most BVH__PACKET references: testing one packet costs about what one box test
    does, so such a subtree is cheaper tested whole. The child boxes are the binary nodes' boxes,
    bit for bit, and the slab test below is the binary one lane by lane, so the argument that no box
@@ -3615,22 +3618,32 @@ static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4
         }
     }
 }
-static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t out[4]) {
-    uint32_t k = 0, c = s->nodes[b].index, i;
-    for (i = 0; i < 2; i++) { /* a leaf slot takes one slot, an interior child's children two */
-        if (bvh__wide_leaf(s, c + i)) {
-            out[k++] = c + i;
-        } else {
-            out[k++] = s->nodes[c + i].index;
-            out[k++] = s->nodes[c + i].index + 1;
+/* The slots of interior binary node b (see above; area ties: the first in the list). */
+static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t out[BVH__W]) {
+    uint32_t k = 2, i, best;
+    out[0] = s->nodes[b].index;
+    out[1] = out[0] + 1;
+    while (k < BVH__W) {
+        float area = -1.0f;
+        for (i = 0, best = BVH__W; i < k; i++) {
+            float a;
+            if (bvh__wide_leaf(s, out[i])) continue;
+            a = bvh_aabb_area(bvh__node_box(&s->nodes[out[i]]));
+            if (a > area) {
+                area = a;
+                best = i;
+            }
         }
+        if (best == BVH__W) break;
+        out[k++] = s->nodes[out[best]].index + 1;
+        out[best] = s->nodes[out[best]].index;
     }
     return k;
 }
 /* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
    gets the binary children in ascending order, so that nodes are read in memory order. Leaf slots
    take their packets from *packet on (written when s->packets is set). */
-static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node4 *out, uint32_t kids[4], uint32_t *packet) {
+static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *out, uint32_t kids[BVH__W], uint32_t *packet) {
     uint32_t k, i, a;
     if (bvh__wide_leaf(s, b)) { /* a root that is a leaf slot */
         kids[0] = b;
@@ -3646,7 +3659,7 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node4 *ou
     }
     if (out) {
         memset(out, 0, sizeof *out);
-        for (i = 0; i < 4; i++)
+        for (i = 0; i < BVH__W; i++)
             for (a = 0; a < 3; a++) {
                 out->min[a][i] = BVH_INF;
                 out->max[a][i] = -BVH_INF;
@@ -3671,20 +3684,20 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node4 *ou
 /* The wide subtree of binary head b, numbered from w on in depth-first order with the children of
    a node side by side, its packets from *packet on; counts only when out is NULL. Returns the node
    count, 0 if the tree is deeper than a valid one can be. */
-static uint32_t bvh__wide_subtree(const bvh__wide_src *s, uint32_t b, bvh_node4 *out, uint32_t w, uint32_t *packet) {
-    uint32_t stack[4 * (BVH_MAX_DEPTH + 2)][2], sp = 0, next = w + 1;
+static uint32_t bvh__wide_subtree(const bvh__wide_src *s, uint32_t b, bvh_node8 *out, uint32_t w, uint32_t *packet) {
+    uint32_t stack[BVH__W * (BVH_MAX_DEPTH + 2)][2], sp = 0, next = w + 1;
     stack[sp][0] = b;
     stack[sp][1] = w;
     sp++;
     while (sp) {
-        uint32_t kids[4], k, i, top;
-        bvh_node4 *n;
+        uint32_t kids[BVH__W], k, i, top;
+        bvh_node8 *n;
         --sp;
         n = out ? &out[stack[sp][1]] : NULL;
         k = bvh__wide_node(s, stack[sp][0], n, kids, packet);
         for (i = k; i-- > 0;) /* interior children pushed last to first: the first is read next */
             if (!bvh__wide_leaf(s, kids[i])) {
-                if (sp == 4 * (BVH_MAX_DEPTH + 2)) return 0;
+                if (sp == BVH__W * (BVH_MAX_DEPTH + 2)) return 0;
                 stack[sp++][0] = kids[i];
             }
         for (i = 0, top = sp; i < k; i++)
@@ -3703,7 +3716,7 @@ static uint32_t bvh__wide_subtree(const bvh__wide_src *s, uint32_t b, bvh_node4 
 #define BVH__WIDE_SUBTREES 64u
 typedef struct bvh__wide_job {
     bvh__wide_src src;
-    bvh_node4 *out;
+    bvh_node8 *out;
     const uint32_t *heads; /* binary heads of the subtrees */
     uint32_t *size;        /* wide nodes per subtree; for the write pass, their first index */
     uint32_t *psize;       /* packets per subtree; for the write pass, their first index */
@@ -3740,7 +3753,7 @@ static bvh_result bvh__wide_sub(const bvh_node *nodes, uint32_t count, uint32_t 
 }
 static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32_t threads) {
     uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], psize[BVH__WIDE_TOP], qlen = 1, top = 0;
-    uint32_t i, k, pos, total, ptotal = 0, nt, kids[4], *sub;
+    uint32_t i, k, pos, total, ptotal = 0, nt, kids[BVH__W], *sub;
     bvh__wide_job job;
     bvh_result r;
     if (!tree->node_count) return BVH_SUCCESS;
@@ -3752,7 +3765,7 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32
     job.src.prims = tree->prims;
     job.src.tris = tree->tris;
     queue[0] = 0;
-    while (top < qlen && qlen - top < BVH__WIDE_SUBTREES && qlen + 4 <= BVH__WIDE_TOP) { /* breadth-first top */
+    while (top < qlen && qlen - top < BVH__WIDE_SUBTREES && qlen + BVH__W <= BVH__WIDE_TOP) { /* breadth-first top */
         k = bvh__wide_node(&job.src, queue[top++], NULL, kids, &ptotal);
         for (i = 0; i < k; i++)
             if (!bvh__wide_leaf(&job.src, kids[i])) queue[qlen++] = kids[i];
@@ -3774,23 +3787,23 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32
         psize[i] = ptotal;
         ptotal += p;
     }
-    /* one block: the packets follow the nodes, on a cache line as well (128-byte nodes) */
-    if ((size_t)ptotal + 1 > ((size_t)-1 - (size_t)total * sizeof(bvh_node4)) / sizeof(bvh_tri4)) {
+    /* one block: the packets follow the nodes, on a cache line as well (256-byte nodes) */
+    if ((size_t)ptotal + 1 > ((size_t)-1 - (size_t)total * sizeof(bvh_node8)) / sizeof(bvh_tri4)) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
-    tree->nodes4 = BVH__CAST(bvh_node4 *, bvh__alloc_lines(al, (size_t)total * sizeof(bvh_node4) +
+    tree->nodes8 = BVH__CAST(bvh_node8 *, bvh__alloc_lines(al, (size_t)total * sizeof(bvh_node8) +
                                                                    (size_t)(ptotal ? ptotal : 1) * sizeof(bvh_tri4)));
-    tree->tri4 = tree->nodes4 ? BVH__CAST(bvh_tri4 *, BVH__CAST(void *, tree->nodes4 + total)) : NULL;
-    if (!tree->nodes4) {
+    tree->tri4 = tree->nodes8 ? BVH__CAST(bvh_tri4 *, BVH__CAST(void *, tree->nodes8 + total)) : NULL;
+    if (!tree->nodes8) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
-    tree->node4_count = total;
+    tree->node8_count = total;
     tree->tri4_count = ptotal;
     job.src.packets = tree->tri4;
     for (i = 0, pos = 1, ptotal = 0; i < top; i++) { /* the top, numbered in the order of the queue */
-        bvh_node4 *n = &tree->nodes4[i];
+        bvh_node8 *n = &tree->nodes8[i];
         uint32_t j;
         k = bvh__wide_node(&job.src, queue[i], n, kids, &ptotal);
         for (j = 0; j < k; j++)
@@ -3799,52 +3812,24 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32
                 pos++;
             }
     }
-    job.out = tree->nodes4;
+    job.out = tree->nodes8;
     r = job.count ? bvh__team_run(al, nt, bvh__wide_fn, &job) : BVH_SUCCESS;
 done:
     bvh__free(al, sub);
     return r;
 }
 
-/* Entry distances of the ray into the four child boxes of n (mask bit i: slot i entered before
+#ifndef BVH__SSE
+/* Entry distances of the ray into the eight child boxes of n (mask bit i: slot i entered before
    tfar); the binary bvh__slab, lane by lane. */
-#ifdef BVH__SSE
-BVH__INLINE unsigned bvh__slab4(const bvh__rayx *r, const bvh_node4 *n, float tfar, float tn_out[4]) {
+BVH__INLINE unsigned bvh__slab8(const bvh__rayx *r, const bvh_node8 *n, float tfar, float tn_out[BVH__W]) {
     const float *f = &n->min[0][0];
-    const __m128 ox = _mm_set1_ps(r->o[0]), oy = _mm_set1_ps(r->o[1]), oz = _mm_set1_ps(r->o[2]);
-    const __m128 ix = _mm_set1_ps(r->inv[0]), iy = _mm_set1_ps(r->inv[1]), iz = _mm_set1_ps(r->inv[2]);
-    const __m128 t0x = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->near4[0]), ox), ix);
-    const __m128 t1x = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->far4[0]), ox), ix);
-    const __m128 t0y = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->near4[1]), oy), iy);
-    const __m128 t1y = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->far4[1]), oy), iy);
-    const __m128 t0z = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->near4[2]), oz), iz);
-    const __m128 t1z = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->far4[2]), oz), iz);
-    __m128 tn = _mm_set1_ps(r->tmin), tf = _mm_set1_ps(BVH_INF), k0, k1, slack;
-    /* _mm_max_ps(a, b) is a > b ? a : b and _mm_min_ps(a, b) is a < b ? a : b: the scalar
-       selects, NaN included */
-    tn = _mm_max_ps(t0x, tn); tn = _mm_max_ps(t0y, tn); tn = _mm_max_ps(t0z, tn);
-    tf = _mm_min_ps(t1x, tf); tf = _mm_min_ps(t1y, tf); tf = _mm_min_ps(t1z, tf);
-    tf = _mm_mul_ps(tf, _mm_set1_ps(1.0000004f));
-    k0 = r->kz == 0 ? t0x : r->kz == 1 ? t0y : t0z;
-    k1 = r->kz == 0 ? t1x : r->kz == 1 ? t1y : t1z;
-    slack = _mm_max_ps(k1, _mm_sub_ps(_mm_setzero_ps(), k0));
-    tn = _mm_sub_ps(tn, _mm_mul_ps(slack, _mm_set1_ps(3.814697265625e-6f)));
-    tf = _mm_min_ps(tf, _mm_set1_ps(tfar));
-    _mm_storeu_ps(tn_out, tn);
-    /* entered: tn <= tf and tn finite, as bvh__slab_t (a ray parallel to an axis outside the
-       slab gets tn = tf = +inf) */
-    return (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmple_ps(tn, tf), _mm_cmplt_ps(tn, _mm_set1_ps(BVH_INF))));
-}
-#else
-BVH__INLINE unsigned bvh__slab4(const bvh__rayx *r, const bvh_node4 *n, float tfar, float tn_out[4]) {
-    const float *f = &n->min[0][0];
-    unsigned mask = 0;
-    int i;
-    for (i = 0; i < 4; i++) { /* the node's lanes: an empty slot gives +inf */
-        tn_out[i] = bvh__slab_t(r->tmin, r->kz, tfar, (f[r->near4[0] + i] - r->o[0]) * r->inv[0],
-                                (f[r->far4[0] + i] - r->o[0]) * r->inv[0], (f[r->near4[1] + i] - r->o[1]) * r->inv[1],
-                                (f[r->far4[1] + i] - r->o[1]) * r->inv[1], (f[r->near4[2] + i] - r->o[2]) * r->inv[2],
-                                (f[r->far4[2] + i] - r->o[2]) * r->inv[2]);
+    unsigned mask = 0, i;
+    for (i = 0; i < BVH__W; i++) { /* the node's lanes: an empty slot gives +inf */
+        tn_out[i] = bvh__slab_t(r->tmin, r->kz, tfar, (f[r->near8[0] + i] - r->o[0]) * r->inv[0],
+                                (f[r->far8[0] + i] - r->o[0]) * r->inv[0], (f[r->near8[1] + i] - r->o[1]) * r->inv[1],
+                                (f[r->far8[1] + i] - r->o[1]) * r->inv[1], (f[r->near8[2] + i] - r->o[2]) * r->inv[2],
+                                (f[r->far8[2] + i] - r->o[2]) * r->inv[2]);
         if (tn_out[i] != BVH_INF) mask |= 1u << i;
     }
     return mask;
@@ -3856,7 +3841,7 @@ typedef struct bvh__best {
     float t, u, v;
     uint32_t prim;
 } bvh__best;
-typedef struct bvh__entry4 { uint32_t child, count; float t; } bvh__entry4;
+typedef struct bvh__entry8 { uint32_t child, count; float t; } bvh__entry8;
 #if defined(__GNUC__) || defined(__clang__)
 #define BVH__CTZ(m) ((unsigned)__builtin_ctz(m))
 #else
@@ -4010,13 +3995,14 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
 #endif
 
 #ifdef BVH__SSE
-/* The ray as bvh__slab4 wants it in registers, its axes ordered so that the dominant one (whose
-   distances set the slack) comes last: max and min do not depend on the order, so the same bits. */
-typedef struct bvh__ray4 {
+/* The ray as the SIMD slab test wants it in registers, its axes ordered so that the dominant one
+   (whose distances set the slack) comes last: max and min do not depend on the order, so the
+   same bits as bvh__slab_t. */
+typedef struct bvh__ray8 {
     __m128 o[3], inv[3], tmin;
-    int near4[3], far4[3];
-} bvh__ray4;
-static void bvh__ray4_setup(const bvh__rayx *r, bvh__ray4 *q) {
+    int near8[3], far8[3];
+} bvh__ray8;
+static void bvh__ray8_setup(const bvh__rayx *r, bvh__ray8 *q) {
     int order[3], a;
     order[0] = r->kz == 0 ? 1 : 0;
     order[1] = r->kz == 2 ? 1 : 2;
@@ -4024,20 +4010,23 @@ static void bvh__ray4_setup(const bvh__rayx *r, bvh__ray4 *q) {
     for (a = 0; a < 3; a++) {
         q->o[a] = _mm_set1_ps(r->o[order[a]]);
         q->inv[a] = _mm_set1_ps(r->inv[order[a]]);
-        q->near4[a] = r->near4[order[a]];
-        q->far4[a] = r->far4[order[a]];
+        q->near8[a] = r->near8[order[a]];
+        q->far8[a] = r->far8[order[a]];
     }
     q->tmin = _mm_set1_ps(r->tmin);
 }
-BVH__INLINE unsigned bvh__slab4q(const bvh__ray4 *q, const bvh_node4 *n, float tfar, float tn_out[4]) {
-    const float *f = &n->min[0][0];
-    const __m128 t0a = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near4[0]), q->o[0]), q->inv[0]);
-    const __m128 t1a = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far4[0]), q->o[0]), q->inv[0]);
-    const __m128 t0b = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near4[1]), q->o[1]), q->inv[1]);
-    const __m128 t1b = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far4[1]), q->o[1]), q->inv[1]);
-    const __m128 t0c = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near4[2]), q->o[2]), q->inv[2]);
-    const __m128 t1c = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far4[2]), q->o[2]), q->inv[2]);
+/* bvh__slab_t on the four slots of a node whose box arrays start at f (slot 0 or 4); bit i of the
+   result: slot i entered before tfar, *tn their entry distances. */
+BVH__INLINE unsigned bvh__slab4q(const bvh__ray8 *q, const float *f, __m128 tfar, __m128 *tn_out) {
+    const __m128 t0a = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near8[0]), q->o[0]), q->inv[0]);
+    const __m128 t1a = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far8[0]), q->o[0]), q->inv[0]);
+    const __m128 t0b = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near8[1]), q->o[1]), q->inv[1]);
+    const __m128 t1b = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far8[1]), q->o[1]), q->inv[1]);
+    const __m128 t0c = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near8[2]), q->o[2]), q->inv[2]);
+    const __m128 t1c = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far8[2]), q->o[2]), q->inv[2]);
     const __m128 inf = _mm_set1_ps(BVH_INF);
+    /* _mm_max_ps(a, b) is a > b ? a : b and _mm_min_ps(a, b) is a < b ? a : b: the scalar
+       selects, NaN included */
     __m128 tn = _mm_max_ps(t0a, q->tmin), tf = _mm_min_ps(t1a, inf), slack;
     tn = _mm_max_ps(t0b, tn);
     tn = _mm_max_ps(t0c, tn);
@@ -4046,36 +4035,46 @@ BVH__INLINE unsigned bvh__slab4q(const bvh__ray4 *q, const bvh_node4 *n, float t
     tf = _mm_mul_ps(tf, _mm_set1_ps(1.0000004f));
     slack = _mm_max_ps(t1c, _mm_sub_ps(_mm_setzero_ps(), t0c));
     tn = _mm_sub_ps(tn, _mm_mul_ps(slack, _mm_set1_ps(3.814697265625e-6f)));
-    tf = _mm_min_ps(tf, _mm_set1_ps(tfar));
-    _mm_storeu_ps(tn_out, tn);
+    tf = _mm_min_ps(tf, tfar);
+    *tn_out = tn;
+    /* entered: tn <= tf and tn finite, as bvh__slab_t (a ray parallel to an axis outside the
+       slab gets tn = tf = +inf) */
     return (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmple_ps(tn, tf), _mm_cmplt_ps(tn, inf)));
 }
-#define BVH__SLAB4(n, tfar, tn) bvh__slab4q(&q, n, tfar, tn)
+BVH__INLINE unsigned bvh__slab8q(const bvh__ray8 *q, const bvh_node8 *n, float tfar, float tn_out[BVH__W]) {
+    const __m128 tf = _mm_set1_ps(tfar);
+    __m128 lo, hi;
+    unsigned m = bvh__slab4q(q, &n->min[0][0], tf, &lo) | bvh__slab4q(q, &n->min[0][4], tf, &hi) << 4;
+    _mm_storeu_ps(tn_out, lo);
+    _mm_storeu_ps(tn_out + 4, hi);
+    return m;
+}
+#define BVH__SLAB8(n, tfar, tn) bvh__slab8q(&q, n, tfar, tn)
 #else
-#define BVH__SLAB4(n, tfar, tn) bvh__slab4(rx, n, tfar, tn)
+#define BVH__SLAB8(n, tfar, tn) bvh__slab8(rx, n, tfar, tn)
 #endif
 /* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
    order, unsorted), the farther ones on the stack; a leaf's packets tested at once. */
-static int bvh__traverse4(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_hit *hit, int any) {
-    bvh__entry4 stack[3 * BVH_MAX_DEPTH + 8];
+static int bvh__traverse8(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_hit *hit, int any) {
+    bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
     uint32_t sp = 0, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first packet */
     int sheared = 0;
 #ifdef BVH__SSE
-    bvh__ray4 q;
+    bvh__ray8 q;
 #endif
     bvh__best best;
-    const bvh_node4 *nodes = tree->nodes4;
+    const bvh_node8 *nodes = tree->nodes8;
     best.t = tmax;
     best.u = best.v = 0.0f;
     best.prim = BVH_INVALID;
 #ifdef BVH__SSE
-    bvh__ray4_setup(rx, &q);
+    bvh__ray8_setup(rx, &q);
 #endif
     for (;;) {
-        if (!lc) { /* an interior node: test its four children */
-            const bvh_node4 *n = &nodes[cur];
-            float tn[4];
-            unsigned m = BVH__SLAB4(n, best.t, tn), i0, i1;
+        if (!lc) { /* an interior node: test its children */
+            const bvh_node8 *n = &nodes[cur];
+            float tn[BVH__W];
+            unsigned m = BVH__SLAB8(n, best.t, tn), i0, i1;
             if (m) {
                 i0 = BVH__CTZ(m);
                 m &= m - 1;
@@ -4084,7 +4083,7 @@ static int bvh__traverse4(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_h
                     lc = n->count[i0];
                     continue;
                 }
-                if (sp + 3 > sizeof stack / sizeof stack[0]) goto out; /* deeper than builders make */
+                if (sp + BVH__W > sizeof stack / sizeof stack[0]) goto out; /* deeper than builders make */
                 i1 = BVH__CTZ(m);
                 m &= m - 1;
                 if (!any && !m) { /* two: the farther one waits */
@@ -4105,10 +4104,10 @@ static int bvh__traverse4(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_h
                         stack[sp].child = n->child[i1];
                         stack[sp].count = n->count[i1];
                         stack[sp].t = tn[i1];
-                            sp++;
+                        sp++;
                     }
-                } else { /* three or four: insertion by entry distance, nearest first */
-                    uint32_t idx[4], k = 2, j;
+                } else { /* three or more: insertion by entry distance, nearest first */
+                    uint32_t idx[BVH__W], k = 2, j;
                     idx[0] = tn[i1] < tn[i0] ? i1 : i0;
                     idx[1] = tn[i1] < tn[i0] ? i0 : i1;
                     while (m) {
@@ -4122,7 +4121,7 @@ static int bvh__traverse4(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_h
                         stack[sp].child = n->child[idx[j]];
                         stack[sp].count = n->count[idx[j]];
                         stack[sp].t = tn[idx[j]];
-                            sp++;
+                        sp++;
                     }
                     i0 = idx[0];
                 }
@@ -4131,13 +4130,11 @@ static int bvh__traverse4(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_h
                 continue;
             }
         } else { /* a leaf: its packets */
-            int h;
             if (!sheared) {
                 bvh__ray_shear(rx);
                 sheared = 1;
             }
-            h = bvh__packets(rx, tree->tri4 + cur, lc, &best, any);
-            if (h && any) goto out;
+            if (bvh__packets(rx, tree->tri4 + cur, lc, &best, any) && any) goto out;
         }
         for (;;) { /* pop the next node still in reach of the current best */
             if (!sp) goto out;
@@ -4169,7 +4166,7 @@ static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
     if (hit) { hit->t = ray ? ray->tmax : BVH_INF; hit->u = hit->v = 0.0f; hit->prim = BVH_INVALID; }
     if (visited) *visited = 0;
     if (!tree || !ray || !tree->node_count || !tree->tris || !bvh__ray_setup(ray, &rx)) return 0;
-    if (tree->nodes4 && !visited) return bvh__traverse4(tree, &rx, ray->tmax, hit, any);
+    if (tree->nodes8 && !visited) return bvh__traverse8(tree, &rx, ray->tmax, hit, any);
     best_t = ray->tmax;
     nodes = tree->nodes;
     node = nodes;

@@ -1142,7 +1142,7 @@ static void rb_fail_every_allocation(const rb_scene *s, bvh_builder b, int skip_
             assert_null(t.nodes);
             assert_null(t.prims);
             assert_null(t.tris);
-            assert_null(t.nodes4);
+            assert_null(t.nodes8);
             if (atomic_load(&a.live) != 0)
                 fail_msg("%s (%s): allocation %ld of %ld failed: %ld blocks leaked", what, bvh_builder_name(b), k, total,
                          (long)atomic_load(&a.live));

@@ -80,14 +80,14 @@ static void exact_hits(void **state) {
         bvh_tree bin;
         bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
         tu_build(&s, tu_builder(b), &trees[b]);
-        assert_non_null(trees[b].nodes4); /* the default: 4-wide traversal (counted: binary) */
+        assert_non_null(trees[b].nodes8); /* the default: 8-wide traversal (counted: binary) */
         bad_b = compare(&s, &trees[b], rays, want, TU_RAYS) + compare(&s, &trees[b], rays2, want2, n2);
         if (bad_b) print_error("%s/%s: %zu of %zu rays differ from the brute force\n", s.name,
                                bvh_builder_name(tu_builder(b)), bad_b, TU_RAYS + n2);
         bad += bad_b;
         d.trace_width = 2; /* binary traversal only */
         tu_build_valid(&s, &d, &bin);
-        assert_null(bin.nodes4);
+        assert_null(bin.nodes8);
         bad_b = compare(&s, &bin, rays, want, TU_RAYS) + compare(&s, &bin, rays2, want2, n2);
         if (bad_b) print_error("%s/%s, trace_width 2: %zu of %zu rays differ from the brute force\n", s.name,
                                bvh_builder_name(tu_builder(b)), bad_b, TU_RAYS + n2);

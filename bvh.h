@@ -3567,18 +3567,20 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
 }
 
 
-/* == 4-wide traversal layout =================================================================== */
+/* == 8-wide traversal layout =================================================================== */
 /* bvh_build turns the binary tree into 8-wide nodes (tree.nodes8) whose leaves are packets of four
    triangles (tree.tri4). A wide node holds up to eight slots taken from the binary subtree below
    it: starting from the binary node's two children, the interior one of largest surface area is
    replaced by its two children until there are eight or only leaf slots are left (fewer levels:
    each level a ray descends is one dependent load). A leaf slot is a binary leaf, or a binary
-   subtree of at most BVH__PACKET references: testing one packet costs about what one box test
-   does, so such a subtree is cheaper tested whole. The child boxes are the binary nodes' boxes,
+   subtree of at most BVH__SLOT_REFS references: testing a packet costs about what testing a
+   wide node does, and a node whose slots would all be such small leaves (most often two) is a
+   dependent load and 256 bytes for little culling. The child boxes are the binary nodes' boxes,
    bit for bit, and the slab test below is the binary one lane by lane, so the argument that no box
    culls a hit the brute-force loop finds holds as it is; the packet test is bvh__tri_test lane by
    lane. The numbering depends on the tree alone, never on the thread count. */
-#define BVH__PACKET 4u
+#define BVH__PACKET 4u     /* triangles per packet */
+#define BVH__SLOT_REFS 6u  /* a binary subtree of at most this many references is one leaf slot */
 typedef struct bvh__wide_src {
     const bvh_node *nodes;
     const uint32_t *sub;   /* references below each binary node */
@@ -3587,16 +3589,16 @@ typedef struct bvh__wide_src {
     bvh_tri4 *packets;     /* NULL: count only */
 } bvh__wide_src;
 BVH__INLINE int bvh__wide_leaf(const bvh__wide_src *s, uint32_t b) {
-    return s->nodes[b].count || s->sub[b] <= BVH__PACKET;
+    return s->nodes[b].count || s->sub[b] <= BVH__SLOT_REFS;
 }
 BVH__INLINE uint32_t bvh__wide_packets(const bvh__wide_src *s, uint32_t b) {
     return (s->sub[b] + BVH__PACKET - 1) / BVH__PACKET;
 }
 /* The packets of leaf slot b: its references in depth-first order, four to a packet. */
 static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4 *out) {
-    uint32_t refs[BVH__MAX_LEAF], n = 0, stack[8], sp = 0, i, j, v, a;
+    uint32_t refs[BVH__MAX_LEAF], n = 0, stack[2 * BVH__SLOT_REFS], sp = 0, i, j, v, a;
     stack[sp++] = b;
-    while (sp) { /* a subtree of at most BVH__PACKET references has at most three interior nodes */
+    while (sp) { /* a subtree of at most BVH__SLOT_REFS references: fewer levels than that */
         const bvh_node *nd = &s->nodes[stack[--sp]];
         if (nd->count) {
             for (i = 0; i < nd->count; i++)

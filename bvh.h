@@ -1,4 +1,4 @@
-/* bvh.h - v0.4.1 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.5.0 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -42,12 +42,13 @@
                            advised as transparent huge pages (madvise; needs _DEFAULT_SOURCE or
                            _GNU_SOURCE, as gcc's default gnu dialects have); this turns that off
      BVH_MAX_DEPTH         traversal stack depth; builders never produce a deeper tree (64)
-     BVH_NO_SIMD           no SSE intrinsics in 4-wide traversal and PLOC's neighbour search
+     BVH_NO_SIMD           no SSE intrinsics in 8-wide traversal and PLOC's neighbour search
                            (plain C, the same results); SSE is used where the compiler targets
                            it (x86-64 always)
-     BVH_NO_AVX2           PLOC's neighbour search takes 8 pairs at a time with AVX2 when the
-                           CPU has it (gcc/clang on x86; compiled with a target attribute, no
-                           flag needed, the same tree); this keeps it to SSE
+     BVH_NO_AVX2           PLOC's neighbour search takes 8 pairs at a time, and traversal tests
+                           8 boxes at a time, with AVX2 when the CPU has it (gcc/clang on x86;
+                           compiled with a target attribute, no flag needed, the same tree and
+                           hits); this keeps both to SSE
 
    ERRORS
      Every call that can fail returns a bvh_result; bvh_result_string() names it. The library
@@ -57,7 +58,7 @@
    THREADS
      No global mutable state: any function may be called from several threads on different trees.
      Parallel builders create their worker threads once per build phase (six per build, eight
-     with the 4-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
+     with the 8-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
      memory budget applies), never per iteration; at barriers they spin for up to about half a millisecond before sleeping,
      unless the build has more threads than the machine has CPUs.
 
@@ -65,6 +66,10 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.5.0  CPU tracing walks an 8-wide copy (bvh_node8, tree.nodes8; AVX2 slab test when the
+            CPU has it) whose leaves are SIMD packets of four triangles (bvh_tri4, tree.tri4);
+            the watertight triangle test is done in float with a double fallback where an
+            edge function is zero (hits, t, u and v change in the last bits); trace_width 8.
      0.4.1  PLOC builds ask ahead for the boxes gathered into Morton order and for the nodes
             that root-down emission writes (same trees, a few % faster).
      0.4.0  PLOC's memory budget (desc.max_bytes_per_prim, 40 by default; BVH_NO_MEMORY_LIMIT):
@@ -75,7 +80,7 @@
             a binned-SAH top over PLOC's last n / 8 clusters, kept where it is cheaper.
      0.2.1  faster PLOC builds, same trees: AVX2 neighbour search, root-down emission, MSD Morton
             sort, fewer stalls in the front end (BVH_NO_AVX2 to keep SSE).
-     0.2.0  4-wide copy of the tree for CPU traversal (bvh_node8, tree.nodes8, trace_width),
+     0.2.0  4-wide copy of the tree for CPU traversal (bvh_node4, tree.nodes4, trace_width),
             checked by bvh_validate.
      0.1.0  first release: types, SAH evaluator, validator, CPU traversal, baseline builders.
 */
@@ -83,8 +88,8 @@
 #define BVH_H_INCLUDED
 
 #define BVH_VERSION_MAJOR 0
-#define BVH_VERSION_MINOR 4
-#define BVH_VERSION_PATCH 1
+#define BVH_VERSION_MINOR 5
+#define BVH_VERSION_PATCH 0
 
 #include <math.h>
 #include <stddef.h>
@@ -237,11 +242,11 @@ typedef struct bvh_build_desc {
     int skip_invalid;         /* 0: NaN/Inf geometry is refused with BVH_ERROR_INVALID_GEOMETRY;
                                  1: such primitives are left out and counted in tree.excluded */
     int keep_triangles;       /* reserved, 0 */
-    uint32_t trace_width;     /* CPU traversal: 0 or 4 = triangle builds add a 4-wide copy of
-                                 the tree (tree.nodes8) that bvh_intersect, bvh_occluded and the
-                                 batch calls use: faster tracing for about as many bytes again
-                                 as the binary nodes and a few percent of build time; 2 = binary
-                                 nodes only; anything else is refused */
+    uint32_t trace_width;     /* CPU traversal: 0 or 8 = triangle builds add an 8-wide copy of
+                                 the tree with triangle packets (tree.nodes8, tree.tri4) that
+                                 bvh_intersect, bvh_occluded and the batch calls use: faster
+                                 tracing for a few percent of build time; 2 = binary nodes only;
+                                 anything else is refused */
     bvh_allocator allocator;
 } bvh_build_desc;
 
@@ -253,9 +258,9 @@ typedef struct bvh_tree {
     uint32_t ref_count;     /* == prim_count - excluded unless the builder splits references */
     float *tris;            /* triangle builds: 9 floats (v0, v1, v2) per reference, in reference
                                order, for traversal; NULL for box builds */
-    bvh_node8 *nodes8;      /* 4-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
+    bvh_node8 *nodes8;      /* 8-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
     uint32_t node8_count;
-    bvh_tri4 *tri4;         /* the 4-wide leaves' triangle packets (in nodes8's allocation) */
+    bvh_tri4 *tri4;         /* the 8-wide leaves' triangle packets (in nodes8's allocation) */
     uint32_t tri4_count;
     uint32_t prim_count;    /* primitives given */
     uint32_t excluded;      /* primitives left out by skip_invalid */
@@ -267,7 +272,7 @@ typedef struct bvh_stats {
     uint32_t nodes, leaves, refs, max_depth, max_leaf_size;
     size_t bytes;          /* nodes + reference indices */
     size_t triangle_bytes; /* reference-ordered triangle copy used by traversal */
-    size_t wide_bytes;     /* the CPU traversal layout: 4-wide nodes and triangle packets */
+    size_t wide_bytes;     /* the CPU traversal layout: 8-wide nodes and triangle packets */
 } bvh_stats;
 
 typedef struct bvh_validation {
@@ -2892,7 +2897,7 @@ static bvh_result bvh__check_desc(const bvh_build_desc *d, uint32_t *count) {
     uint32_t i;
     if ((unsigned)d->builder >= BVH_BUILDER_COUNT) return BVH_ERROR_INVALID_ARGUMENT;
     if (d->max_leaf_size > BVH__MAX_LEAF || d->ploc_radius > 256) return BVH_ERROR_INVALID_ARGUMENT;
-    if (d->trace_width != 0 && d->trace_width != 2 && d->trace_width != 4) return BVH_ERROR_INVALID_ARGUMENT;
+    if (d->trace_width != 0 && d->trace_width != 2 && d->trace_width != 8) return BVH_ERROR_INVALID_ARGUMENT;
     if (d->sah_bins > 64 && d->sah_bins != BVH_SAH_MIDPOINT_ONLY) return BVH_ERROR_INVALID_ARGUMENT;
     if (!bvh__costs_valid(&d->costs) || d->split_budget != d->split_budget || d->split_budget > 1.0f)
         return BVH_ERROR_INVALID_ARGUMENT;
@@ -3126,7 +3131,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
         r = bvh__team_run(&c.al, c.threads, bvh__back_fn, &bk);
         if (r != BVH_SUCCESS) goto fail;
     }
-    bvh__out_free(&c, &o); /* first, so that the 4-wide copy does not add to the peak */
+    bvh__out_free(&c, &o); /* first, so that the 8-wide copy does not add to the peak */
     bvh__free(&c.al, orig);
     orig = NULL;
     if (c.tris && desc->trace_width != 2 && (r = bvh__make_wide(tree, &c.al, c.threads)) != BVH_SUCCESS) goto fail;
@@ -3231,7 +3236,7 @@ static int bvh__lane_is_point(const float *tri) {
     return tri[0] == tri[3] && tri[0] == tri[6] && tri[1] == tri[4] && tri[1] == tri[7] && tri[2] == tri[5] &&
            tri[2] == tri[8];
 }
-/* A 4-wide leaf slot: its packets inside the packet array, each reached once (*cover), every lane
+/* An 8-wide leaf slot: its packets inside the packet array, each reached once (*cover), every lane
    a primitive of the tree inside (with split references: touching) the slot's box; seen[prim]
    counts the packets that hold prim. */
 static const char *bvh__validate_packets(const bvh_tree *tree, const bvh_aabb *prim_boxes, int splits, bvh_aabb box,
@@ -3263,7 +3268,7 @@ static const char *bvh__validate_packets(const bvh_tree *tree, const bvh_aabb *p
     }
     return NULL;
 }
-/* The 4-wide layout: every slot empty (+inf/-inf box, no child) or a valid box inside its parent's
+/* The 8-wide layout: every slot empty (+inf/-inf box, no child) or a valid box inside its parent's
    slot; interior slots point forward in the array (no cycles); every packet is in one leaf, and
    every referenced primitive in a packet (exactly one unless the builder splits references). */
 static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_boxes, int splits, bvh_validation *rep) {
@@ -3293,7 +3298,7 @@ static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_
             box.max.x = n->max[0][i]; box.max.y = n->max[1][i]; box.max.z = n->max[2][i];
             if (!n->count[i] && box.min.x == BVH_INF && box.min.y == BVH_INF && box.min.z == BVH_INF &&
                 box.max.x == -BVH_INF && box.max.y == -BVH_INF && box.max.z == -BVH_INF) {
-                if (n->child[i]) { r = bvh__invalid(rep, w, "empty 4-wide slot with a child"); goto done; }
+                if (n->child[i]) { r = bvh__invalid(rep, w, "empty 8-wide slot with a child"); goto done; }
                 continue;
             }
             if (!(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z))
@@ -3411,8 +3416,8 @@ done:
 /* ============================================================================================ */
 /* == traversal ================================================================================= */
 /* Watertight ray/triangle intersection (Woop, Benthin & Wald, JCGT 2013) in float, with their
-   fallback to double where an edge function is zero, and robust slab tests (Ize 2013: the far distance is widened by
-   1 + 2 gamma(3)) so that no box rounding ever culls a triangle that the brute-force loop hits.
+   fallback to double where an edge function is zero, and robust slab tests (Ize 2013: the far
+   distance is widened by 1 + 2 gamma(3)) so that no box rounding ever culls a triangle that the brute-force loop hits.
    A zero direction component (+0 or -0) gets an inverse of +inf; the NaN that appears when the
    origin lies on the slab plane is ignored by the min/max order, which is the right answer
    (the whole line is inside the slab). Near child first; any-hit stops at the first hit. */

@@ -106,9 +106,9 @@ static void build_argument_errors(void **state) {
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
         d = ok; d.trace_width = 3;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.trace_width = 8;
-        build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
         d = ok; d.trace_width = 4;
+        build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
+        d = ok; d.trace_width = 8;
         build_expect(&d, BVH_SUCCESS);
         d = ok; d.trace_width = 2;
         build_expect(&d, BVH_SUCCESS);
@@ -736,32 +736,32 @@ static void corrupted_trees(void **state) {
         c.nodes = NULL;
         expect_invalid(&c, "node array missing");
 
-        /* the 4-wide copy: the root's first slot and, if it is interior, the node it points to */
+        /* the 8-wide copy: the root's first slot and, if it is interior, the node it points to */
         assert_non_null(t.nodes8);
         c = copy_tree(&t, 0); /* a slot box grown beyond the root */
         c.nodes8[0].max[1][0] = c.nodes[0].max.y + 1.0f;
-        expect_invalid(&c, "4-wide slot outside the root");
+        expect_invalid(&c, "8-wide slot outside the root");
         c = copy_tree(&t, 0); /* a slot box shrunk to a point */
         c.nodes8[0].max[0][0] = c.nodes8[0].min[0][0];
         c.nodes8[0].max[1][0] = c.nodes8[0].min[1][0];
         c.nodes8[0].max[2][0] = c.nodes8[0].min[2][0];
-        expect_invalid(&c, "4-wide slot shrunk");
+        expect_invalid(&c, "8-wide slot shrunk");
         c = copy_tree(&t, 0); /* NaN in a slot box */
         c.nodes8[0].min[2][1] = NAN;
-        expect_invalid(&c, "4-wide NaN");
+        expect_invalid(&c, "8-wide NaN");
         c = copy_tree(&t, 0); /* a slot pointing back at the root (a cycle), or a leaf past the end */
         if (c.nodes8[0].count[0]) c.nodes8[0].child[0] = c.tri4_count;
         else c.nodes8[0].child[0] = 0;
-        expect_invalid(&c, c.nodes8[0].count[0] ? "4-wide leaf past the end" : "4-wide cycle to the root");
+        expect_invalid(&c, c.nodes8[0].count[0] ? "8-wide leaf past the end" : "8-wide cycle to the root");
         for (i = 0; i < t.node8_count * 8; i++) /* a leaf slot */
             if (t.nodes8[i / 8].count[i % 8]) break;
         assert_true(i < t.node8_count * 8);
         c = copy_tree(&t, 0); /* a leaf slot one packet short, or long */
         c.nodes8[i / 8].count[i % 8]--;
-        expect_invalid(&c, "4-wide leaf one packet short");
+        expect_invalid(&c, "8-wide leaf one packet short");
         c = copy_tree(&t, 0);
         c.nodes8[i / 8].count[i % 8]++;
-        expect_invalid(&c, "4-wide leaf one packet long");
+        expect_invalid(&c, "8-wide leaf one packet long");
         c = copy_tree(&t, 0); /* a packet lane holding another primitive */
         c.tri4[c.nodes8[i / 8].child[i % 8]].prim[0] ^= 1u;
         expect_invalid(&c, "packet lane with another primitive");
@@ -776,7 +776,7 @@ static void corrupted_trees(void **state) {
         expect_invalid(&c, "packet in no leaf");
         c = copy_tree(&t, 0); /* a wide node no one reaches */
         c.node8_count--;
-        expect_invalid(&c, "4-wide node array one short");
+        expect_invalid(&c, "8-wide node array one short");
         bvh_free(&t);
     }
     tu_scene_free(&s);

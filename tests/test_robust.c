@@ -1185,7 +1185,7 @@ static void test_allocation_failure(void **state) {
             a.fail_at = base + k;
             assert_int_equal(bvh_validate(&t, NULL, NULL), BVH_ERROR_OUT_OF_MEMORY);
             base = atomic_load(&a.calls);
-            assert_int_equal(atomic_load(&a.live), 4); /* nodes, references, triangles, 4-wide nodes with packets */
+            assert_int_equal(atomic_load(&a.live), 4); /* nodes, references, triangles, 8-wide nodes with packets */
         }
         for (k = 0; k < 2; k++) {
             a.fail_at = atomic_load(&a.calls) + k;

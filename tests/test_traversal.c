@@ -4,7 +4,7 @@
    hit (same primitive, bitwise-same t, u, v) on TU_RAYS rays of every kind, also with tmax set to
    the hit distance and just below it; bvh_occluded equals "a closest hit exists";
    bvh_intersect_counted equals bvh_intersect; the batch calls on 1, 2, 3, 8 and all threads equal
-   the single-ray calls. bvh_intersect and bvh_occluded are checked on the default 4-wide copy and
+   the single-ray calls. bvh_intersect and bvh_occluded are checked on the default 8-wide copy and
    on a binary-only tree (trace_width 2); bvh_intersect_counted always walks the binary nodes. The same on the rays a renderer
    traces from surfaces (bounce rays on and just off a triangle, shadow rays, grazing rays). Also: invalid rays miss, and a tree exactly BVH_MAX_DEPTH deep traces. */
 #define BVH_IMPLEMENTATION
@@ -152,7 +152,7 @@ static void renderer_rays(const float *tris, uint32_t n, uint64_t seed, bvh_ray 
     }
 }
 
-/* exact_hits on renderer_rays, for every builder, on the 4-wide layout and the binary nodes. */
+/* exact_hits on renderer_rays, for every builder, on the 8-wide layout and the binary nodes. */
 static void exact_renderer_hits(void **state) {
     int id = tu_state_id(state), b;
     tu_scene s;

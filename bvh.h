@@ -3888,7 +3888,7 @@ BVH__INLINE unsigned bvh__reach4(const bvh__rayx *r, const __m128 lo[3], const _
     return (unsigned)_mm_movemask_ps(_mm_cmple_ps(tn, tf));
 }
 /* The lanes of mask m that hit (bvh__tri_test's checks after the sign test); *ft their t. */
-BVH__INLINE unsigned bvh__packet_hits(const bvh__rayx *r, __m128 v[3][3], __m128 U, __m128 V, __m128 W,
+BVH__INLINE unsigned bvh__packet_hits(const bvh__rayx *r, const bvh_tri4 *p, __m128 U, __m128 V, __m128 W,
                                       const __m128 z[3], float tmax, unsigned m, __m128 *ft, __m128 *det) {
     const __m128 sz = _mm_set1_ps(r->sz);
     __m128 T, lo[3], hi[3], ok;
@@ -3903,8 +3903,9 @@ BVH__INLINE unsigned bvh__packet_hits(const bvh__rayx *r, __m128 v[3][3], __m128
     m &= (unsigned)_mm_movemask_ps(ok);
     if (!m) return 0;
     for (a = 0; a < 3; a++) { /* the triangles' boxes (bvh__tri_box) */
-        lo[a] = _mm_min_ps(_mm_min_ps(v[0][a], v[1][a]), v[2][a]);
-        hi[a] = _mm_max_ps(_mm_max_ps(v[0][a], v[1][a]), v[2][a]);
+        const __m128 v0 = _mm_loadu_ps(p->v[0][a]), v1 = _mm_loadu_ps(p->v[1][a]), v2 = _mm_loadu_ps(p->v[2][a]);
+        lo[a] = _mm_min_ps(_mm_min_ps(v0, v1), v2);
+        hi[a] = _mm_max_ps(_mm_max_ps(v0, v1), v2);
     }
     return m & bvh__reach4(r, lo, hi, *ft);
 }
@@ -3920,14 +3921,13 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
     uint32_t q;
     int found = 0;
     for (q = 0; q < np; q++, p++) {
-        __m128 v[3][3], x[3], y[3], z[3], U, V, W, ft, det, neg, pos;
+        __m128 x[3], y[3], z[3], U, V, W, ft, det, neg, pos;
         unsigned m, zm;
-        int k, a;
+        int k;
         for (k = 0; k < 3; k++) {
-            for (a = 0; a < 3; a++) v[k][a] = _mm_loadu_ps(p->v[k][a]);
-            z[k] = _mm_sub_ps(v[k][kz], oz);
-            x[k] = _mm_sub_ps(_mm_sub_ps(v[k][kx], ox), _mm_mul_ps(sx, z[k]));
-            y[k] = _mm_sub_ps(_mm_sub_ps(v[k][ky], oy), _mm_mul_ps(sy, z[k]));
+            z[k] = _mm_sub_ps(_mm_loadu_ps(p->v[k][kz]), oz);
+            x[k] = _mm_sub_ps(_mm_sub_ps(_mm_loadu_ps(p->v[k][kx]), ox), _mm_mul_ps(sx, z[k]));
+            y[k] = _mm_sub_ps(_mm_sub_ps(_mm_loadu_ps(p->v[k][ky]), oy), _mm_mul_ps(sy, z[k]));
         }
         U = _mm_sub_ps(_mm_mul_ps(x[2], y[1]), _mm_mul_ps(y[2], x[1]));
         V = _mm_sub_ps(_mm_mul_ps(x[0], y[2]), _mm_mul_ps(y[0], x[2]));
@@ -3960,7 +3960,7 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
         pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_cmpgt_ps(V, zero)), _mm_cmpgt_ps(W, zero));
         m = 15u & ~(unsigned)_mm_movemask_ps(_mm_and_ps(neg, pos));
         if (!m) continue;
-        m = bvh__packet_hits(r, v, U, V, W, z, b->t, m, &ft, &det);
+        m = bvh__packet_hits(r, p, U, V, W, z, b->t, m, &ft, &det);
         if (!m) continue;
         if (any) {
             b->t = bvh__lane_f(ft, BVH__CTZ(m));
@@ -4132,6 +4132,19 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, float t
                     continue;
                 }
                 if (sp + BVH__W > sizeof stack / sizeof stack[0]) goto out; /* deeper than builders make */
+                { /* two or more children entered: all are asked for now, so that their lines
+                     arrive while the nearest is being tested, or before they are popped */
+                    unsigned pm = m | 1u << i0;
+                    while (pm) {
+                        unsigned i = BVH__CTZ(pm);
+                        const char *a = n->count[i] ? (const char *)(tree->tri4 + n->child[i])
+                                                    : (const char *)(nodes + n->child[i]);
+                        pm &= pm - 1;
+                        BVH__PREFETCH(a);
+                        BVH__PREFETCH(a + 64);
+                        BVH__PREFETCH(a + 128);
+                    }
+                }
                 i1 = BVH__CTZ(m);
                 m &= m - 1;
                 if (!any && !m) { /* two: the farther one waits */

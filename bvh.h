@@ -4011,21 +4011,52 @@ typedef struct bvh__ray8 {
     int near8[3], far8[3];
     float so[3], sinv[3], stmin; /* the same as scalars, for the AVX2 test to broadcast */
 } bvh__ray8;
-static void bvh__ray8_setup(const bvh__rayx *r, bvh__ray8 *q) {
+/* bvh__ray_setup for the wide traversal, and the ray in registers as the slab tests want it: the
+   same fields and bits (SSE rounds 1 / d as scalar code does), the three axes at once. */
+static int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q) {
+    const __m128 o = _mm_loadu_ps(&ray->origin.x), d0 = _mm_loadu_ps(&ray->dir.x); /* xyz, tmin / tmax */
+    const __m128 absm = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)), inf = _mm_set1_ps(BVH_INF);
+    const __m128 ad = _mm_and_ps(d0, absm);
+    /* a subnormal component counts as +0, as in bvh__ray_setup */
+    const __m128 d = _mm_andnot_ps(_mm_cmplt_ps(ad, _mm_set1_ps(FLT_MIN)), d0);
+    const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), d); /* 1 / +0 = +inf */
+    const unsigned finite = (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmplt_ps(_mm_and_ps(o, absm), inf), _mm_cmplt_ps(ad, inf)));
+    const unsigned neg = (unsigned)_mm_movemask_ps(_mm_cmplt_ps(inv, _mm_setzero_ps()));
+    float fo[4], fd[4], fi[4];
     int order[3], a;
-    order[0] = r->kz == 0 ? 1 : 0;
-    order[1] = r->kz == 2 ? 1 : 2;
-    order[2] = r->kz;
+    if ((finite & 7u) != 7u || ray->tmin != ray->tmin || ray->tmax != ray->tmax || ray->tmin > ray->tmax) return 0;
+    if ((_mm_movemask_ps(_mm_cmpeq_ps(d, _mm_setzero_ps())) & 7) == 7) return 0;
+    _mm_storeu_ps(fo, o);
+    _mm_storeu_ps(fd, d);
+    _mm_storeu_ps(fi, inv);
     for (a = 0; a < 3; a++) {
-        q->o[a] = _mm_set1_ps(r->o[order[a]]);
-        q->inv[a] = _mm_set1_ps(r->inv[order[a]]);
-        q->near8[a] = r->near8[order[a]];
-        q->far8[a] = r->far8[order[a]];
-        q->so[a] = r->o[order[a]];
-        q->sinv[a] = r->inv[order[a]];
+        const int n = (int)(neg >> a & 1u);
+        rx->o[a] = fo[a];
+        rx->d[a] = fd[a];
+        rx->inv[a] = fi[a];
+        rx->near[a] = n ? a + 4 : a;
+        rx->near8[a] = n ? 24 + 8 * a : 8 * a;
+        rx->far8[a] = n ? 8 * a : 24 + 8 * a;
     }
-    q->tmin = _mm_set1_ps(r->tmin);
-    q->stmin = r->tmin;
+    rx->tmin = ray->tmin;
+    {
+        const float ax = fabsf(fd[0]), ay = fabsf(fd[1]), az = fabsf(fd[2]);
+        rx->kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
+    }
+    order[0] = rx->kz == 0 ? 1 : 0;
+    order[1] = rx->kz == 2 ? 1 : 2;
+    order[2] = rx->kz;
+    for (a = 0; a < 3; a++) {
+        q->so[a] = fo[order[a]];
+        q->sinv[a] = fi[order[a]];
+        q->o[a] = _mm_set1_ps(q->so[a]);
+        q->inv[a] = _mm_set1_ps(q->sinv[a]);
+        q->near8[a] = rx->near8[order[a]];
+        q->far8[a] = rx->far8[order[a]];
+    }
+    q->tmin = _mm_set1_ps(rx->tmin);
+    q->stmin = rx->tmin;
+    return 1;
 }
 /* bvh__slab_t on the four slots of a node whose box arrays start at f (slot 0 or 4); bit i of the
    result: slot i entered before tfar, *tn their entry distances. */
@@ -4090,31 +4121,28 @@ __attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh
     return (unsigned)_mm256_movemask_ps(
         _mm256_and_ps(_mm256_cmp_ps(tn, tf, _CMP_LE_OQ), _mm256_cmp_ps(tn, inf, _CMP_LT_OQ)));
 }
-#define BVH__SLAB8(n, tfar, tn) (avx2 ? bvh__slab8_avx2(&q, n, tfar, tn) : bvh__slab8q(&q, n, tfar, tn))
+#define BVH__SLAB8(n, tfar, tn) (avx2 ? bvh__slab8_avx2(q, n, tfar, tn) : bvh__slab8q(q, n, tfar, tn))
 #else
-#define BVH__SLAB8(n, tfar, tn) bvh__slab8q(&q, n, tfar, tn)
+#define BVH__SLAB8(n, tfar, tn) bvh__slab8q(q, n, tfar, tn)
 #endif
 #else
 #define BVH__SLAB8(n, tfar, tn) bvh__slab8(rx, n, tfar, tn)
+typedef struct bvh__ray8 { int unused; } bvh__ray8; /* plain C: the slab test reads bvh__rayx */
 #endif
 /* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
    order, unsorted), the farther ones on the stack; a leaf's packets tested at once. avx2: the
    slab test in one AVX2 pass (a constant: the loop is compiled once for each). */
-BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_hit *hit, int any, int avx2) {
+BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
+                                    int any, int avx2) {
     bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
     uint32_t sp = 0, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first packet */
     int sheared = 0;
-#ifdef BVH__SSE
-    bvh__ray8 q;
-#endif
     bvh__best best;
     const bvh_node8 *nodes = tree->nodes8;
     best.t = tmax;
     best.u = best.v = 0.0f;
     best.prim = BVH_INVALID;
-#ifdef BVH__SSE
-    bvh__ray8_setup(rx, &q);
-#endif
+    (void)q;
     for (;;) {
         if (!lc) { /* an interior node: test its children */
             const bvh_node8 *n = &nodes[cur];
@@ -4219,16 +4247,23 @@ out:
     return 1;
 }
 #ifdef BVH__AVX2
-__attribute__((target("avx2"))) static int bvh__traverse8_avx2(const bvh_tree *tree, bvh__rayx *rx, float tmax,
-                                                                 bvh_hit *hit, int any) {
-    return bvh__traverse8_body(tree, rx, tmax, hit, any, 1);
+__attribute__((target("avx2"))) static int bvh__traverse8_avx2(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q,
+                                                                 float tmax, bvh_hit *hit, int any) {
+    return bvh__traverse8_body(tree, rx, q, tmax, hit, any, 1);
 }
 #endif
-static int bvh__traverse8(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_hit *hit, int any) {
-#ifdef BVH__AVX2
-    if (bvh__have_avx2()) return bvh__traverse8_avx2(tree, rx, tmax, hit, any);
+static int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+    bvh__rayx rx;
+    bvh__ray8 q;
+#ifdef BVH__SSE
+    if (!bvh__ray8_start(ray, &rx, &q)) return 0;
+#else
+    if (!bvh__ray_setup(ray, &rx)) return 0;
 #endif
-    return bvh__traverse8_body(tree, rx, tmax, hit, any, 0);
+#ifdef BVH__AVX2
+    if (bvh__have_avx2()) return bvh__traverse8_avx2(tree, &rx, &q, ray->tmax, hit, any);
+#endif
+    return bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, 0);
 }
 
 static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, uint32_t *visited) {
@@ -4239,8 +4274,9 @@ static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
     const bvh_node *nodes, *node;
     if (hit) { hit->t = ray ? ray->tmax : BVH_INF; hit->u = hit->v = 0.0f; hit->prim = BVH_INVALID; }
     if (visited) *visited = 0;
-    if (!tree || !ray || !tree->node_count || !tree->tris || !bvh__ray_setup(ray, &rx)) return 0;
-    if (tree->nodes8 && !visited) return bvh__traverse8(tree, &rx, ray->tmax, hit, any);
+    if (!tree || !ray || !tree->node_count || !tree->tris) return 0;
+    if (tree->nodes8 && !visited) return bvh__traverse8(tree, ray, hit, any);
+    if (!bvh__ray_setup(ray, &rx)) return 0;
     best_t = ray->tmax;
     nodes = tree->nodes;
     node = nodes;

@@ -3627,24 +3627,26 @@ static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4
     }
 }
 /* The slots of interior binary node b (see above; area ties: the first in the list). */
+/* The area by which a slot is opened: -1 for a leaf slot, which stays whole. */
+static float bvh__wide_area(const bvh__wide_src *s, uint32_t b) {
+    return bvh__wide_leaf(s, b) ? -1.0f : bvh_aabb_area(bvh__node_box(&s->nodes[b]));
+}
 static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t out[BVH__W]) {
     uint32_t k = 2, i, best;
+    float area[BVH__W];
     out[0] = s->nodes[b].index;
     out[1] = out[0] + 1;
+    area[0] = bvh__wide_area(s, out[0]);
+    area[1] = bvh__wide_area(s, out[1]);
     while (k < BVH__W) {
-        float area = -1.0f;
-        for (i = 0, best = BVH__W; i < k; i++) {
-            float a;
-            if (bvh__wide_leaf(s, out[i])) continue;
-            a = bvh_aabb_area(bvh__node_box(&s->nodes[out[i]]));
-            if (a > area) {
-                area = a;
-                best = i;
-            }
-        }
-        if (best == BVH__W) break;
-        out[k++] = s->nodes[out[best]].index + 1;
+        for (i = 1, best = 0; i < k; i++)
+            if (area[i] > area[best]) best = i;
+        if (area[best] < 0.0f) break;
+        out[k] = s->nodes[out[best]].index + 1;
         out[best] = s->nodes[out[best]].index;
+        area[k] = bvh__wide_area(s, out[k]);
+        area[best] = bvh__wide_area(s, out[best]);
+        k++;
     }
     return k;
 }

@@ -4013,9 +4013,11 @@ typedef struct bvh__ray8 {
     int near8[3], far8[3];
     float so[3], sinv[3], stmin; /* the same as scalars, for the AVX2 test to broadcast */
 } bvh__ray8;
-/* bvh__ray_setup for the wide traversal, and the ray in registers as the slab tests want it: the
-   same fields and bits (SSE rounds 1 / d as scalar code does), the three axes at once. */
-static int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q) {
+/* bvh__ray_setup for the wide traversal, and the ray as the slab tests want it: the same bits (SSE
+   rounds 1 / d as scalar code does), the three axes at once. Only what the SIMD wide traversal
+   reads: not the plain-C slab test's plane offsets (near, near8, far8), and the SSE registers
+   only when the slab test is the SSE one (sse). */
+BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int sse) {
     const __m128 o = _mm_loadu_ps(&ray->origin.x), d0 = _mm_loadu_ps(&ray->dir.x); /* xyz, tmin / tmax */
     const __m128 absm = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)), inf = _mm_set1_ps(BVH_INF);
     const __m128 ad = _mm_and_ps(d0, absm);
@@ -4032,13 +4034,9 @@ static int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q) {
     _mm_storeu_ps(fd, d);
     _mm_storeu_ps(fi, inv);
     for (a = 0; a < 3; a++) {
-        const int n = (int)(neg >> a & 1u);
         rx->o[a] = fo[a];
         rx->d[a] = fd[a];
         rx->inv[a] = fi[a];
-        rx->near[a] = n ? a + 4 : a;
-        rx->near8[a] = n ? 24 + 8 * a : 8 * a;
-        rx->far8[a] = n ? 8 * a : 24 + 8 * a;
     }
     rx->tmin = ray->tmin;
     {
@@ -4049,15 +4047,20 @@ static int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q) {
     order[1] = rx->kz == 2 ? 1 : 2;
     order[2] = rx->kz;
     for (a = 0; a < 3; a++) {
+        const int n = (int)(neg >> order[a] & 1u);
         q->so[a] = fo[order[a]];
         q->sinv[a] = fi[order[a]];
-        q->o[a] = _mm_set1_ps(q->so[a]);
-        q->inv[a] = _mm_set1_ps(q->sinv[a]);
-        q->near8[a] = rx->near8[order[a]];
-        q->far8[a] = rx->far8[order[a]];
+        q->near8[a] = n ? 24 + 8 * order[a] : 8 * order[a];
+        q->far8[a] = n ? 8 * order[a] : 24 + 8 * order[a];
     }
-    q->tmin = _mm_set1_ps(rx->tmin);
     q->stmin = rx->tmin;
+    if (sse) {
+        for (a = 0; a < 3; a++) {
+            q->o[a] = _mm_set1_ps(q->so[a]);
+            q->inv[a] = _mm_set1_ps(q->sinv[a]);
+        }
+        q->tmin = _mm_set1_ps(rx->tmin);
+    }
     return 1;
 }
 /* bvh__slab_t on the four slots of a node whose box arrays start at f (slot 0 or 4); bit i of the
@@ -4257,13 +4260,19 @@ __attribute__((target("avx2"))) static int bvh__traverse8_avx2(const bvh_tree *t
 static int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
     bvh__rayx rx;
     bvh__ray8 q;
-#ifdef BVH__SSE
-    if (!bvh__ray8_start(ray, &rx, &q)) return 0;
+#ifdef BVH__AVX2
+    const int avx2 = bvh__have_avx2();
 #else
+    const int avx2 = 0;
+#endif
+#ifdef BVH__SSE
+    if (!bvh__ray8_start(ray, &rx, &q, !avx2)) return 0;
+#else
+    (void)avx2;
     if (!bvh__ray_setup(ray, &rx)) return 0;
 #endif
 #ifdef BVH__AVX2
-    if (bvh__have_avx2()) return bvh__traverse8_avx2(tree, &rx, &q, ray->tmax, hit, any);
+    if (avx2) return bvh__traverse8_avx2(tree, &rx, &q, ray->tmax, hit, any);
 #endif
     return bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, 0);
 }

@@ -75,7 +75,7 @@ $(BUILD)/check/%/static: tests/compile_static.c bvh.h
 $(BUILD)/check/%/static-no-threads: tests/compile_static.c bvh.h
 	@mkdir -p $(dir $@)
 	$(CHECK_CC_$*) $(STD) $(WARN) $(CFLAGS) -DBVH_STATIC -DBVH_NO_THREADS -I. $< -o $@ -lm
-# The exact-hits traversal test again with the plain-C 4-wide slab test (BVH_NO_SIMD).
+# The exact-hits traversal test again with the plain-C 8-wide slab test (BVH_NO_SIMD).
 $(BUILD)/check/traversal-no-simd: tests/test_traversal.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_SIMD -I. $< -o $@ -lcmocka $(LDLIBS)

@@ -1,4 +1,4 @@
-/* bvh.h - v0.4.1 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.5.0 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -6,8 +6,8 @@
      construction methods" (Kedadry): baseline top-down (object median), baseline bottom-up
      (Morton-order pairwise aggregation), SAH-guided top-down with mid-point split partitioning,
      PLOC (Meister & Bittner 2018) and PLOC on pthreads. The node layout is a flat array of
-     32-byte nodes that cl/trace.cl reads as-is on any OpenCL device; CPU tracing walks a 4-wide
-     copy of it (bvh_node4, made by bvh_build unless desc.trace_width = 2).
+     32-byte nodes that cl/trace.cl reads as-is on any OpenCL device; CPU tracing walks an 8-wide
+     copy of it (bvh_node8, made by bvh_build unless desc.trace_width = 2).
 
    HOW TO INCLUDE
      In exactly ONE .c or .cpp file:
@@ -42,12 +42,13 @@
                            advised as transparent huge pages (madvise; needs _DEFAULT_SOURCE or
                            _GNU_SOURCE, as gcc's default gnu dialects have); this turns that off
      BVH_MAX_DEPTH         traversal stack depth; builders never produce a deeper tree (64)
-     BVH_NO_SIMD           no SSE intrinsics in 4-wide traversal and PLOC's neighbour search
+     BVH_NO_SIMD           no SSE intrinsics in 8-wide traversal and PLOC's neighbour search
                            (plain C, the same results); SSE is used where the compiler targets
                            it (x86-64 always)
-     BVH_NO_AVX2           PLOC's neighbour search takes 8 pairs at a time with AVX2 when the
-                           CPU has it (gcc/clang on x86; compiled with a target attribute, no
-                           flag needed, the same tree); this keeps it to SSE
+     BVH_NO_AVX2           PLOC's neighbour search takes 8 pairs at a time, and traversal tests
+                           8 boxes at a time, with AVX2 when the CPU has it (gcc/clang on x86;
+                           compiled with a target attribute, no flag needed, the same tree and
+                           hits); this keeps both to SSE
 
    ERRORS
      Every call that can fail returns a bvh_result; bvh_result_string() names it. The library
@@ -57,7 +58,7 @@
    THREADS
      No global mutable state: any function may be called from several threads on different trees.
      Parallel builders create their worker threads once per build phase (six per build, eight
-     with the 4-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
+     with the 8-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
      memory budget applies), never per iteration; at barriers they spin for up to about half a millisecond before sleeping,
      unless the build has more threads than the machine has CPUs.
 
@@ -65,6 +66,10 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.5.0  CPU tracing walks an 8-wide copy (bvh_node8, tree.nodes8; AVX2 slab test when the
+            CPU has it) whose leaves are SIMD packets of four triangles (bvh_tri4, tree.tri4);
+            the watertight triangle test is done in float with a double fallback where an
+            edge function is zero (hits, t, u and v change in the last bits); trace_width 8.
      0.4.1  PLOC builds ask ahead for the boxes gathered into Morton order and for the nodes
             that root-down emission writes (same trees, a few % faster).
      0.4.0  PLOC's memory budget (desc.max_bytes_per_prim, 40 by default; BVH_NO_MEMORY_LIMIT):
@@ -83,8 +88,8 @@
 #define BVH_H_INCLUDED
 
 #define BVH_VERSION_MAJOR 0
-#define BVH_VERSION_MINOR 4
-#define BVH_VERSION_PATCH 1
+#define BVH_VERSION_MINOR 5
+#define BVH_VERSION_PATCH 0
 
 #include <math.h>
 #include <stddef.h>
@@ -156,17 +161,24 @@ typedef struct bvh_node {
     uint32_t count;
 } bvh_node;
 
-/* A 4-wide node (128 bytes) of the copy of the tree that CPU traversal uses (bvh_tree.nodes4):
-   the boxes of up to four children by axis, so that one SIMD slab test covers them all. Made
-   from the binary tree by bvh_build (see bvh_build_desc.trace_width): each wide node takes the
-   place of a binary interior node and of its interior children. An empty slot has
-   min = +inf and max = -inf, which no ray enters. */
-typedef struct bvh_node4 {
-    float min[3][4], max[3][4]; /* min[axis][slot], max[axis][slot] */
-    uint32_t child[4];          /* count 0: index of a bvh_node4 (empty slot: 0) */
-    uint8_t count[4];           /* > 0: leaf of count references from tree.prims[child] on */
-    uint32_t pad[3];
-} bvh_node4;
+/* An 8-wide node (256 bytes, four cache lines) of the layout CPU traversal uses
+   (bvh_tree.nodes8): the boxes of up to eight children by axis, so that one SIMD slab test (two
+   with SSE) covers them all. Made from the binary tree by bvh_build (see
+   bvh_build_desc.trace_width). An empty slot has min = +inf and max = -inf, which no ray enters. */
+typedef struct bvh_node8 {
+    float min[3][8], max[3][8]; /* min[axis][slot], max[axis][slot] */
+    uint32_t child[8];          /* count 0: index of a bvh_node8 (empty slot: 0) */
+    uint8_t count[8];           /* > 0: leaf of count packets from tree.tri4[child] on */
+    uint32_t pad[6];
+} bvh_node8;
+
+/* Up to four triangles of a wide leaf (160 bytes), by coordinate, so that one SIMD test covers
+   them: v[vertex][axis][lane]. Lanes past a leaf's triangles repeat the packet's lane 0 (the same
+   primitive: a repeated hit changes nothing). */
+typedef struct bvh_tri4 {
+    float v[3][3][4];
+    uint32_t prim[4]; /* original primitive index of each lane */
+} bvh_tri4;
 
 typedef struct bvh_ray {
     bvh_vec3 origin;
@@ -230,11 +242,11 @@ typedef struct bvh_build_desc {
     int skip_invalid;         /* 0: NaN/Inf geometry is refused with BVH_ERROR_INVALID_GEOMETRY;
                                  1: such primitives are left out and counted in tree.excluded */
     int keep_triangles;       /* reserved, 0 */
-    uint32_t trace_width;     /* CPU traversal: 0 or 4 = triangle builds add a 4-wide copy of
-                                 the tree (tree.nodes4) that bvh_intersect, bvh_occluded and the
-                                 batch calls use: faster tracing for about as many bytes again
-                                 as the binary nodes and a few percent of build time; 2 = binary
-                                 nodes only; anything else is refused */
+    uint32_t trace_width;     /* CPU traversal: 0 or 8 = triangle builds add an 8-wide copy of
+                                 the tree with triangle packets (tree.nodes8, tree.tri4) that
+                                 bvh_intersect, bvh_occluded and the batch calls use: faster
+                                 tracing for a few percent of build time; 2 = binary nodes only;
+                                 anything else is refused */
     bvh_allocator allocator;
 } bvh_build_desc;
 
@@ -246,8 +258,10 @@ typedef struct bvh_tree {
     uint32_t ref_count;     /* == prim_count - excluded unless the builder splits references */
     float *tris;            /* triangle builds: 9 floats (v0, v1, v2) per reference, in reference
                                order, for traversal; NULL for box builds */
-    bvh_node4 *nodes4;      /* 4-wide copy for CPU traversal, root at 0; NULL: binary traversal */
-    uint32_t node4_count;
+    bvh_node8 *nodes8;      /* 8-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
+    uint32_t node8_count;
+    bvh_tri4 *tri4;         /* the 8-wide leaves' triangle packets (in nodes8's allocation) */
+    uint32_t tri4_count;
     uint32_t prim_count;    /* primitives given */
     uint32_t excluded;      /* primitives left out by skip_invalid */
     bvh_builder builder;
@@ -258,7 +272,7 @@ typedef struct bvh_stats {
     uint32_t nodes, leaves, refs, max_depth, max_leaf_size;
     size_t bytes;          /* nodes + reference indices */
     size_t triangle_bytes; /* reference-ordered triangle copy used by traversal */
-    size_t wide_bytes;     /* 4-wide nodes of CPU traversal (tree.nodes4) */
+    size_t wide_bytes;     /* the CPU traversal layout: 8-wide nodes and triangle packets */
 } bvh_stats;
 
 typedef struct bvh_validation {
@@ -405,6 +419,7 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #define BVH__MAX_PRIMS (1u << 30) /* keeps 2n nodes and split references inside uint32 */
 #define BVH__MAX_LEAF 255u
 #define BVH__MAX_THREADS 256u
+#define BVH__W 8u /* slots of a wide node (bvh_node8) */
 
 /* The implementation keeps IEEE semantics whatever the floating-point flags of the file that
    includes it (-ffast-math, -Ofast, -ffp-contract=fast): its input checks must see NaN and Inf,
@@ -556,6 +571,21 @@ static bvh_result bvh__allocator_ok(const bvh_allocator *al) {
     if (!(p = al->alloc(64, al->user))) return BVH_ERROR_OUT_OF_MEMORY;
     al->free(p, al->user);
     return (uintptr_t)p % BVH__ALIGN ? BVH_ERROR_INVALID_ARGUMENT : BVH_SUCCESS;
+}
+/* A block aligned to 128 bytes (the wide layout: a 256-byte node then spans four cache lines, not
+   five, in two of the pairs that the CPU's adjacent-line prefetch fetches together). The byte
+   before the returned pointer holds its distance from the allocation. */
+static void *bvh__alloc_lines(const bvh_allocator *al, size_t size) {
+    unsigned char *raw, *p;
+    if (size > (size_t)-1 - 128) return NULL;
+    if (!(raw = BVH__ALLOC(al, unsigned char, size + 128))) return NULL;
+    p = raw + (128 - ((uintptr_t)raw & 127u));
+    p[-1] = (unsigned char)(p - raw);
+    return p;
+}
+static void bvh__free_lines(const bvh_allocator *al, void *p) {
+    unsigned char *q = BVH__CAST(unsigned char *, p);
+    if (q) bvh__free(al, q - q[-1]);
 }
 #ifndef BVH__MIN_PRIMS_PER_THREAD /* private; the tests set it to 1 to run small inputs threaded */
 #define BVH__MIN_PRIMS_PER_THREAD 8192u
@@ -2964,7 +2994,7 @@ static bvh_result bvh__check_desc(const bvh_build_desc *d, uint32_t *count) {
     uint32_t i;
     if ((unsigned)d->builder >= BVH_BUILDER_COUNT) return BVH_ERROR_INVALID_ARGUMENT;
     if (d->max_leaf_size > BVH__MAX_LEAF || d->ploc_radius > 256) return BVH_ERROR_INVALID_ARGUMENT;
-    if (d->trace_width != 0 && d->trace_width != 2 && d->trace_width != 4) return BVH_ERROR_INVALID_ARGUMENT;
+    if (d->trace_width != 0 && d->trace_width != 2 && d->trace_width != 8) return BVH_ERROR_INVALID_ARGUMENT;
     if (d->sah_bins > 64 && d->sah_bins != BVH_SAH_MIDPOINT_ONLY) return BVH_ERROR_INVALID_ARGUMENT;
     if (!bvh__costs_valid(&d->costs) || bvh__nan(d->split_budget) || d->split_budget > 1.0f)
         return BVH_ERROR_INVALID_ARGUMENT;
@@ -2998,7 +3028,7 @@ BVH_API void bvh_free(bvh_tree *tree) {
     bvh__free(&al, tree->nodes);
     bvh__free(&al, tree->prims);
     bvh__free(&al, tree->tris);
-    bvh__free(&al, tree->nodes4);
+    bvh__free_lines(&al, tree->nodes8); /* tri4 lives in the same block */
     memset(tree, 0, sizeof *tree);
     tree->allocator = al;
 }
@@ -3201,7 +3231,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
         r = bvh__team_run(&c.al, c.threads, bvh__back_fn, &bk);
         if (r != BVH_SUCCESS) goto fail;
     }
-    bvh__out_free(&c, &o); /* first, so that the 4-wide copy does not add to the peak */
+    bvh__out_free(&c, &o); /* first, so that the 8-wide copy does not add to the peak */
     bvh__free(&c.al, orig);
     orig = NULL;
     if (c.tris && desc->trace_width != 2 && (r = bvh__make_wide(tree, &c.al, c.threads)) != BVH_SUCCESS) goto fail;
@@ -3309,7 +3339,7 @@ BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *s) {
     s->refs = tree->ref_count;
     s->bytes = (size_t)tree->node_count * sizeof(bvh_node) + (size_t)tree->ref_count * sizeof(uint32_t);
     s->triangle_bytes = tree->tris ? (size_t)tree->ref_count * 9 * sizeof(float) : 0;
-    s->wide_bytes = (size_t)tree->node4_count * sizeof(bvh_node4);
+    s->wide_bytes = (size_t)tree->node8_count * sizeof(bvh_node8) + (size_t)tree->tri4_count * sizeof(bvh_tri4);
     return bvh__walk(tree, bvh__stats_visit, s);
 }
 
@@ -3324,68 +3354,117 @@ static bvh_result bvh__invalid(bvh_validation *rep, uint32_t node, const char *m
     return BVH_ERROR_INVALID_TREE;
 }
 
-/* The 4-wide copy: every slot empty (+inf/-inf box, no child) or a valid box inside its parent's
-   slot; interior slots point forward in the array (no cycles), leaves cover every reference
-   exactly once and contain (or, with split references, touch) their primitives' boxes. */
+/* Lane i of packet p as nine floats. */
+static void bvh__lane(const bvh_tri4 *p, int i, float tri[9]) {
+    int v, a;
+    for (v = 0; v < 3; v++)
+        for (a = 0; a < 3; a++)
+            tri[3 * v + a] = p->v[v][a][i];
+}
+/* A lane whose three vertices coincide: how packets hold a zero-area triangle (no ray hits it,
+   so where it lies cannot matter; a split reference's clipped box need not hold the point). */
+static int bvh__lane_is_point(const float *tri) {
+    return tri[0] == tri[3] && tri[0] == tri[6] && tri[1] == tri[4] && tri[1] == tri[7] && tri[2] == tri[5] &&
+           tri[2] == tri[8];
+}
+/* An 8-wide leaf slot: its packets inside the packet array, each reached once (*cover), every lane
+   a primitive of the tree inside (with split references: touching) the slot's box; seen[prim]
+   counts the packets that hold prim. */
+static const char *bvh__validate_packets(const bvh_tree *tree, const bvh_aabb *prim_boxes, int splits, bvh_aabb box,
+                                         uint32_t first, uint32_t count, uint8_t *cover, uint32_t *seen) {
+    uint32_t k;
+    int i, j;
+    if (first > tree->tri4_count || count > tree->tri4_count - first) return "8-wide leaf outside the packet array";
+    for (k = first; k < first + count; k++) {
+        const bvh_tri4 *p = &tree->tri4[k];
+        if (cover[k]++) return "packet in two 8-wide leaves";
+        for (i = 0; i < 4; i++) { /* the packet's lanes */
+            float tri[9];
+            bvh_aabb pb;
+            if (p->prim[i] >= tree->prim_count) return "packet lane with a primitive out of range";
+            for (j = 0; j < i && p->prim[j] != p->prim[i]; j++) {}
+            if (j < i) continue; /* a repeated lane */
+            bvh__lane(p, i, tri);
+            pb = prim_boxes ? prim_boxes[p->prim[i]] : bvh__tri_box(tri);
+            if (bvh__lane_is_point(tri)) { /* a zero-area triangle's stand-in, never hit */
+                seen[p->prim[i]]++;
+                continue;
+            }
+            if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
+                           pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
+                       : !bvh_aabb_contains(box, bvh__tri_box(tri)))
+                return "8-wide leaf box does not hold its primitive";
+            seen[p->prim[i]]++;
+        }
+    }
+    return NULL;
+}
+/* The 8-wide layout: every slot empty (+inf/-inf box, no child) or a valid box inside its parent's
+   slot; interior slots point forward in the array (no cycles); every packet is in one leaf, and
+   every referenced primitive in a packet (exactly one unless the builder splits references). */
 static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_boxes, int splits, bvh_validation *rep) {
     bvh_allocator al = tree->allocator;
-    uint32_t stack[4 * (BVH_MAX_DEPTH + 2)][2], sp = 0, reached = 0, refs = 0, i, k;
+    uint32_t stack[BVH__W * (BVH_MAX_DEPTH + 2)][2], sp = 0, reached = 0, i, k, *seen;
     uint8_t *cover;
     bvh_aabb root = bvh__node_box(&tree->nodes[0]); /* deeper slots are checked against their parent's */
     bvh_result r = BVH_SUCCESS;
-    if (!tree->node4_count) return bvh__invalid(rep, BVH_INVALID, "4-wide node array without nodes");
-    if (!(cover = BVH__ALLOC(&al, uint8_t, tree->ref_count ? tree->ref_count : 1))) return BVH_ERROR_OUT_OF_MEMORY;
-    memset(cover, 0, tree->ref_count ? tree->ref_count : 1);
+    if (!tree->node8_count || !tree->tri4) return bvh__invalid(rep, BVH_INVALID, "8-wide node array without nodes or packets");
+    cover = BVH__ALLOC(&al, uint8_t, tree->tri4_count ? tree->tri4_count : 1);
+    seen = BVH__ALLOC(&al, uint32_t, tree->prim_count ? tree->prim_count : 1);
+    if (!cover || !seen) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    memset(cover, 0, tree->tri4_count ? tree->tri4_count : 1);
+    memset(seen, 0, (tree->prim_count ? tree->prim_count : 1) * sizeof(uint32_t));
     stack[sp][0] = 0; stack[sp][1] = 0; sp++;
     while (sp) {
         uint32_t w = stack[--sp][0], depth = stack[sp][1];
-        const bvh_node4 *n = &tree->nodes4[w];
+        const bvh_node8 *n = &tree->nodes8[w];
         reached++;
-        if (depth > BVH_MAX_DEPTH) { r = bvh__invalid(rep, w, "4-wide tree deeper than BVH_MAX_DEPTH"); goto done; }
-        for (i = 0; i < 4; i++) {
+        if (depth > BVH_MAX_DEPTH) { r = bvh__invalid(rep, w, "8-wide tree deeper than BVH_MAX_DEPTH"); goto done; }
+        for (i = 0; i < BVH__W; i++) {
             bvh_aabb box;
             box.min.x = n->min[0][i]; box.min.y = n->min[1][i]; box.min.z = n->min[2][i];
             box.max.x = n->max[0][i]; box.max.y = n->max[1][i]; box.max.z = n->max[2][i];
             if (!n->count[i] && box.min.x == BVH_INF && box.min.y == BVH_INF && box.min.z == BVH_INF &&
                 box.max.x == -BVH_INF && box.max.y == -BVH_INF && box.max.z == -BVH_INF) {
-                if (n->child[i]) { r = bvh__invalid(rep, w, "empty 4-wide slot with a child"); goto done; }
+                if (n->child[i]) { r = bvh__invalid(rep, w, "empty 8-wide slot with a child"); goto done; }
                 continue;
             }
             if (!(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z))
-                { r = bvh__invalid(rep, w, "4-wide slot box empty or NaN"); goto done; }
-            if (!bvh_aabb_contains(root, box)) { r = bvh__invalid(rep, w, "4-wide slot box not inside the root"); goto done; }
+                { r = bvh__invalid(rep, w, "8-wide slot box empty or NaN"); goto done; }
+            if (!bvh_aabb_contains(root, box)) { r = bvh__invalid(rep, w, "8-wide slot box not inside the root"); goto done; }
             if (n->count[i]) {
-                if (n->child[i] > tree->ref_count || n->count[i] > tree->ref_count - n->child[i])
-                    { r = bvh__invalid(rep, w, "4-wide leaf outside the reference array"); goto done; }
-                for (k = n->child[i]; k < n->child[i] + n->count[i]; k++) {
-                    bvh_aabb pb = prim_boxes ? prim_boxes[tree->prims[k]] : bvh__tri_box(tree->tris + 9 * (size_t)k);
-                    if (cover[k]++) { r = bvh__invalid(rep, w, "reference in two 4-wide leaves"); goto done; }
-                    refs++;
-                    if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
-                                   pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
-                               : !bvh_aabb_contains(box, pb))
-                        { r = bvh__invalid(rep, w, "4-wide leaf box does not hold its primitive"); goto done; }
-                }
+                const char *msg = bvh__validate_packets(tree, prim_boxes, splits, box, n->child[i], n->count[i], cover, seen);
+                if (msg) { r = bvh__invalid(rep, w, msg); goto done; }
             } else {
-                const bvh_node4 *c;
+                const bvh_node8 *c;
                 uint32_t j;
-                if (n->child[i] <= w || n->child[i] >= tree->node4_count)
-                    { r = bvh__invalid(rep, w, "4-wide child index out of range"); goto done; }
-                c = &tree->nodes4[n->child[i]];
-                for (j = 0; j < 4; j++) /* the child's slots inside this slot (empty ones trivially) */
+                if (n->child[i] <= w || n->child[i] >= tree->node8_count)
+                    { r = bvh__invalid(rep, w, "8-wide child index out of range"); goto done; }
+                c = &tree->nodes8[n->child[i]];
+                for (j = 0; j < BVH__W; j++) /* the child's slots inside this slot (empty ones trivially) */
                     if (!(c->min[0][j] >= box.min.x && c->min[1][j] >= box.min.y && c->min[2][j] >= box.min.z &&
                           c->max[0][j] <= box.max.x && c->max[1][j] <= box.max.y && c->max[2][j] <= box.max.z) &&
                         !(c->min[0][j] == BVH_INF && c->max[0][j] == -BVH_INF))
-                        { r = bvh__invalid(rep, n->child[i], "4-wide slot box not inside its parent"); goto done; }
-                if (sp == 4 * (BVH_MAX_DEPTH + 2)) { r = bvh__invalid(rep, w, "4-wide tree deeper than BVH_MAX_DEPTH"); goto done; }
+                        { r = bvh__invalid(rep, n->child[i], "8-wide slot box not inside its parent"); goto done; }
+                if (sp == BVH__W * (BVH_MAX_DEPTH + 2)) { r = bvh__invalid(rep, w, "8-wide tree deeper than BVH_MAX_DEPTH"); goto done; }
                 stack[sp][0] = n->child[i]; stack[sp][1] = depth + 1; sp++;
             }
         }
     }
-    if (reached != tree->node4_count) r = bvh__invalid(rep, BVH_INVALID, "4-wide nodes not reached exactly once from the root");
-    else if (refs != tree->ref_count) r = bvh__invalid(rep, BVH_INVALID, "references not covered by the 4-wide leaves");
+    if (reached != tree->node8_count) { r = bvh__invalid(rep, BVH_INVALID, "8-wide nodes not reached exactly once from the root"); goto done; }
+    for (k = 0; k < tree->tri4_count; k++)
+        if (!cover[k]) { r = bvh__invalid(rep, BVH_INVALID, "packet in no 8-wide leaf"); goto done; }
+    for (k = 0; k < tree->ref_count; k++) {
+        uint32_t p = tree->prims[k];
+        if (!seen[p] || (!splits && seen[p] != 1))
+            { r = bvh__invalid(rep, BVH_INVALID, "primitive not in exactly one 8-wide leaf packet"); goto done; }
+    }
 done:
     bvh__free(&al, cover);
+    bvh__free(&al, seen);
     return r;
 }
 
@@ -3463,7 +3542,7 @@ BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
         if (used_count != tree->prim_count - tree->excluded)
             { r = bvh__invalid(rep, BVH_INVALID, "a primitive is not referenced by any leaf"); goto done; }
     }
-    if (tree->nodes4) r = bvh__validate_wide(tree, prim_boxes, splits, rep);
+    if (tree->nodes8) r = bvh__validate_wide(tree, prim_boxes, splits, rep);
 done:
     bvh__free(&al, seen);
     bvh__free(&al, used);
@@ -3472,9 +3551,9 @@ done:
 
 /* ============================================================================================ */
 /* == traversal ================================================================================= */
-/* Watertight ray/triangle intersection (Woop, Benthin & Wald, JCGT 2013) with the shear and
-   determinants in double, and robust slab tests (Ize 2013: the far distance is widened by
-   1 + 2 gamma(3)) so that no box rounding ever culls a triangle that the brute-force loop hits.
+/* Watertight ray/triangle intersection (Woop, Benthin & Wald, JCGT 2013) in float, with their
+   fallback to double where an edge function is zero, and robust slab tests (Ize 2013: the far
+   distance is widened by 1 + 2 gamma(3)) so that no box rounding ever culls a triangle that the brute-force loop hits.
    A zero direction component (+0 or -0) gets an inverse of +inf; the NaN that appears when the
    origin lies on the slab plane is ignored by the min/max order, which is the right answer
    (the whole line is inside the slab). Near child first; any-hit stops at the first hit. */
@@ -3482,7 +3561,7 @@ done:
 typedef struct bvh__rayx {
     float o[3], d[3], inv[3], tmin;
     int near[3];     /* float offset in a node of the near plane on each axis: 0..2 min, 4..6 max */
-    int near4[3], far4[3]; /* the same in a bvh_node4 (slot 0): 0, 4, 8 min, 12, 16, 20 max */
+    int near8[3], far8[3]; /* the same in a bvh_node8 (slot 0): 0, 8, 16 min, 24, 32, 40 max */
     int kx, ky, kz;  /* watertight: kz = dominant axis (bvh__ray_setup); kx, ky and the shear */
     float sx, sy, sz; /* sx, sy, sz are made by bvh__ray_shear before the first triangle test */
 } bvh__rayx;
@@ -3500,8 +3579,8 @@ BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
         rx->d[a] = fabsf(d[a]) < FLT_MIN ? 0.0f : d[a];
         rx->inv[a] = rx->d[a] == 0.0f ? BVH_INF : 1.0f / rx->d[a];
         rx->near[a] = rx->inv[a] < 0.0f ? a + 4 : a;
-        rx->near4[a] = rx->inv[a] < 0.0f ? 12 + 4 * a : 4 * a;
-        rx->far4[a] = rx->inv[a] < 0.0f ? 4 * a : 12 + 4 * a;
+        rx->near8[a] = rx->inv[a] < 0.0f ? 24 + 8 * a : 8 * a;
+        rx->far8[a] = rx->inv[a] < 0.0f ? 8 * a : 24 + 8 * a;
     }
     if (rx->d[0] == 0.0f && rx->d[1] == 0.0f && rx->d[2] == 0.0f) return 0;
     d = rx->d;
@@ -3524,48 +3603,61 @@ BVH__INLINE void bvh__ray_shear(bvh__rayx *rx) {
 }
 
 /* Returns 1 and sets *t, *u, *v if the triangle is hit with tmin <= t <= tmax, t finite.
-   Vertices are translated in float (as Woop et al.: each vertex once, so shared edges give the
-   same edge functions and the test stays watertight), sheared and tested in double, where
-   subnormal products cannot underflow and fused multiply-adds cannot change a sign. */
+   Float throughout, as Woop et al.: each vertex is translated and sheared once, so that the two
+   triangles sharing an edge compute its edge function from the same floats, in mirrored order,
+   and get exactly opposite values; rounding is monotone, so a float edge function never has the
+   wrong sign, only a zero where the exact one is not. Where any of the three is zero, all three
+   are redone in double from the sheared floats (products of two floats are exact in double), as
+   Woop et al. do, so that the test stays watertight. The packet test makes the same operations
+   in the same order on each lane, so both give the same bits. */
 BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar);
+/* A zero-area triangle (exactly collinear or coincident vertices) is never hit. */
+static int bvh__tri_zero_area(const float *tri) {
+    double e1x = (double)tri[3] - tri[0], e1y = (double)tri[4] - tri[1], e1z = (double)tri[5] - tri[2];
+    double e2x = (double)tri[6] - tri[0], e2y = (double)tri[7] - tri[1], e2z = (double)tri[8] - tri[2];
+    return e1y * e2z - e1z * e2y == 0.0 && e1z * e2x - e1x * e2z == 0.0 && e1x * e2y - e1y * e2x == 0.0;
+}
+/* The ray must reach the triangle's own box by t, as the traversal's slab test sees it. Every
+   node box that holds the triangle holds its box, and the slab test is monotone in the planes, so
+   such a node is never culled before this hit. Only hits that precision made up fail: with an
+   origin far from a large triangle, the float translation leaves the edge functions meaningless,
+   and the test can report a hit far outside the triangle. */
+static int bvh__tri_reach(const bvh__rayx *r, const float *tri, float t) {
+    bvh_node box;
+    bvh__set_box(&box, bvh__tri_box(tri));
+    box.index = box.count = 0;
+    return bvh__slab(r, &box, t) != BVH_INF;
+}
+/* The three edge functions of sheared vertices (x[i], y[i]) redone in double (bvh__tri_test). */
+static void bvh__edges_exact(const float *x, const float *y, float *U, float *V, float *W) {
+    *U = (float)((double)x[2] * y[1] - (double)y[2] * x[1]);
+    *V = (float)((double)x[0] * y[2] - (double)y[0] * x[2]);
+    *W = (float)((double)x[1] * y[0] - (double)y[1] * x[0]);
+}
 BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, float *t, float *u, float *v) {
     const int kx = r->kx, ky = r->ky, kz = r->kz;
-    const double sx = r->sx, sy = r->sy, sz = r->sz;
-    float A[3], B[3], C[3], ft;
-    double Ax, Ay, Bx, By, Cx, Cy, U, V, W, det, T;
+    const float sx = r->sx, sy = r->sy, sz = r->sz;
+    float x[3], y[3], z[3], U, V, W, det, T, ft;
     int k;
-    for (k = 0; k < 3; k++) { A[k] = tri[k] - r->o[k]; B[k] = tri[3 + k] - r->o[k]; C[k] = tri[6 + k] - r->o[k]; }
-    Ax = A[kx] - sx * A[kz]; Ay = A[ky] - sy * A[kz];
-    Bx = B[kx] - sx * B[kz]; By = B[ky] - sy * B[kz];
-    Cx = C[kx] - sx * C[kz]; Cy = C[ky] - sy * C[kz];
-    U = Cx * By - Cy * Bx;
-    V = Ax * Cy - Ay * Cx;
-    W = Bx * Ay - By * Ax;
-    if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return 0;
+    for (k = 0; k < 3; k++) {
+        z[k] = tri[3 * k + kz] - r->o[kz];
+        x[k] = (tri[3 * k + kx] - r->o[kx]) - sx * z[k];
+        y[k] = (tri[3 * k + ky] - r->o[ky]) - sy * z[k];
+    }
+    U = x[2] * y[1] - y[2] * x[1];
+    V = x[0] * y[2] - y[0] * x[2];
+    W = x[1] * y[0] - y[1] * x[0];
+    if (U == 0.0f || V == 0.0f || W == 0.0f) bvh__edges_exact(x, y, &U, &V, &W);
+    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
     det = U + V + W;
-    if (det == 0.0) return 0;
-    T = U * (sz * A[kz]) + V * (sz * B[kz]) + W * (sz * C[kz]);
-    ft = (float)(T / det);
+    if (det == 0.0f) return 0;
+    T = U * (sz * z[0]) + V * (sz * z[1]) + W * (sz * z[2]);
+    ft = T / det;
     if (!(ft >= r->tmin && ft <= tmax && ft < BVH_INF)) return 0;
-    { /* a zero-area triangle (exactly collinear or coincident vertices) is never hit */
-        double e1x = (double)tri[3] - tri[0], e1y = (double)tri[4] - tri[1], e1z = (double)tri[5] - tri[2];
-        double e2x = (double)tri[6] - tri[0], e2y = (double)tri[7] - tri[1], e2z = (double)tri[8] - tri[2];
-        if (e1y * e2z - e1z * e2y == 0.0 && e1z * e2x - e1x * e2z == 0.0 && e1x * e2y - e1y * e2x == 0.0) return 0;
-    }
-    { /* The ray must reach the triangle's own box by t, as the traversal's slab test sees it.
-         Every node box that holds the triangle holds its box, and the slab test is monotone in
-         the planes, so such a node is never culled before this hit. Only hits that precision
-         made up fail: with an origin ~1e33 away from a triangle ~1e17 wide, the float translation
-         leaves the edge functions meaningless, and the test can report a hit far outside the
-         triangle (found by the fuzzer). */
-        bvh_node box;
-        bvh__set_box(&box, bvh__tri_box(tri));
-        box.index = box.count = 0;
-        if (bvh__slab(r, &box, ft) == BVH_INF) return 0;
-    }
+    if (bvh__tri_zero_area(tri) || !bvh__tri_reach(r, tri, ft)) return 0;
     *t = ft;
-    *u = (float)(V / det);
-    *v = (float)(W / det);
+    *u = V / det;
+    *v = W / det;
     return 1;
 }
 
@@ -3616,69 +3708,146 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
 }
 
 
-/* == 4-wide traversal ========================================================================= */
-/* bvh_build turns the binary tree into 4-wide nodes for the CPU (tree.nodes4): a wide node holds
-   a binary interior node's grandchildren, or the child itself where that is a leaf, so 2 to 4
-   children. (Opening the interior child of largest area until there are four, as Embree does,
-   gave within 1% of the node count and the same tracing speed here, at twice the build time.)
-   The child boxes are the binary nodes' boxes, bit for bit, and the slab test below is the binary
-   one lane by lane, so the argument that no box culls a hit the brute-force loop finds holds as
-   it is; half the steps and one SIMD test per four boxes make it faster. */
-static uint32_t bvh__wide_gather(const bvh_node *nodes, uint32_t b, uint32_t out[4]) {
-    uint32_t k = 0, c = nodes[b].index, i;
-    for (i = 0; i < 2; i++) { /* a leaf child takes one slot, an interior child's children two */
-        const bvh_node *n = &nodes[c + i];
-        if (n->count) out[k++] = c + i;
-        else { out[k++] = n->index; out[k++] = n->index + 1; }
+/* == 8-wide traversal layout =================================================================== */
+/* bvh_build turns the binary tree into 8-wide nodes (tree.nodes8) whose leaves are packets of four
+   triangles (tree.tri4). A wide node holds up to eight slots taken from the binary subtree below
+   it: starting from the binary node's two children, the interior one of largest surface area is
+   replaced by its two children until there are eight or only leaf slots are left (fewer levels:
+   each level a ray descends is one dependent load). A leaf slot is a binary leaf, or a binary
+   subtree of at most BVH__SLOT_REFS references: testing a packet costs about what testing a
+   wide node does, and a node whose slots would all be such small leaves (most often two) is a
+   dependent load and 256 bytes for little culling. The child boxes are the binary nodes' boxes,
+   bit for bit, and the slab test below is the binary one lane by lane, so the argument that no box
+   culls a hit the brute-force loop finds holds as it is; the packet test is bvh__tri_test lane by
+   lane. The numbering depends on the tree alone, never on the thread count. */
+#define BVH__PACKET 4u     /* triangles per packet */
+#define BVH__SLOT_REFS 6u  /* a binary subtree of at most this many references is one leaf slot */
+typedef struct bvh__wide_src {
+    const bvh_node *nodes;
+    const uint32_t *sub;   /* references below each binary node */
+    const uint32_t *prims; /* the tree's references (caller ids) and their triangles */
+    const float *tris;
+    bvh_tri4 *packets;     /* NULL: count only */
+} bvh__wide_src;
+BVH__INLINE int bvh__wide_leaf(const bvh__wide_src *s, uint32_t b) {
+    return s->nodes[b].count || s->sub[b] <= BVH__SLOT_REFS;
+}
+BVH__INLINE uint32_t bvh__wide_packets(const bvh__wide_src *s, uint32_t b) {
+    return (s->sub[b] + BVH__PACKET - 1) / BVH__PACKET;
+}
+/* The packets of leaf slot b: its references in depth-first order, four to a packet. */
+static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4 *out) {
+    uint32_t refs[BVH__MAX_LEAF], n = 0, stack[2 * BVH__SLOT_REFS], sp = 0, i, j, v, a;
+    stack[sp++] = b;
+    while (sp) { /* a subtree of at most BVH__SLOT_REFS references: fewer levels than that */
+        const bvh_node *nd = &s->nodes[stack[--sp]];
+        if (nd->count) {
+            for (i = 0; i < nd->count; i++)
+                refs[n++] = nd->index + i;
+        } else {
+            stack[sp++] = nd->index + 1;
+            stack[sp++] = nd->index;
+        }
+    }
+    for (i = 0; 4 * i < n; i++) {
+        bvh_tri4 *p = &out[i];
+        for (j = 0; j < 4; j++) {
+            uint32_t k = refs[4 * i + (4 * i + j < n ? j : 0)];
+            const float *t = s->tris + 9 * (size_t)k;
+            const int flat = bvh__tri_zero_area(t); /* held as its first vertex three times */
+            for (v = 0; v < 3; v++)
+                for (a = 0; a < 3; a++)
+                    p->v[v][a][j] = t[3 * (flat ? 0 : v) + a];
+            p->prim[j] = s->prims[k];
+        }
+    }
+}
+/* The slots of interior binary node b (see above; area ties: the first in the list). */
+/* The area by which a slot is opened: -1 for a leaf slot, which stays whole. */
+static float bvh__wide_area(const bvh__wide_src *s, uint32_t b) {
+    return bvh__wide_leaf(s, b) ? -1.0f : bvh_aabb_area(bvh__node_box(&s->nodes[b]));
+}
+static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t out[BVH__W]) {
+    uint32_t k = 2, i, best;
+    float area[BVH__W];
+    out[0] = s->nodes[b].index;
+    out[1] = out[0] + 1;
+    area[0] = bvh__wide_area(s, out[0]);
+    area[1] = bvh__wide_area(s, out[1]);
+    while (k < BVH__W) {
+        for (i = 1, best = 0; i < k; i++)
+            if (area[i] > area[best]) best = i;
+        if (area[best] < 0.0f) break;
+        out[k] = s->nodes[out[best]].index + 1;
+        out[best] = s->nodes[out[best]].index;
+        area[k] = bvh__wide_area(s, out[k]);
+        area[best] = bvh__wide_area(s, out[best]);
+        k++;
     }
     return k;
 }
 /* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
-   gets the binary children in ascending order, so that nodes are read in memory order. */
-static uint32_t bvh__wide_node(const bvh_node *nodes, uint32_t b, bvh_node4 *out, uint32_t kids[4]) {
+   gets the binary children in ascending order, so that nodes are read in memory order. Leaf slots
+   take their packets from *packet on (written when s->packets is set). */
+static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *out, uint32_t kids[BVH__W], uint32_t *packet) {
     uint32_t k, i, a;
-    if (nodes[b].count) { /* a root that is a leaf: one leaf slot */
+    if (bvh__wide_leaf(s, b)) { /* a root that is a leaf slot */
         kids[0] = b;
         k = 1;
     } else {
-        k = bvh__wide_gather(nodes, b, kids);
+        k = bvh__wide_gather(s, b, kids);
         for (i = 1; i < k; i++)
-            for (a = i; a > 0 && kids[a - 1] > kids[a]; a--) { uint32_t x = kids[a]; kids[a] = kids[a - 1]; kids[a - 1] = x; }
+            for (a = i; a > 0 && kids[a - 1] > kids[a]; a--) {
+                uint32_t x = kids[a];
+                kids[a] = kids[a - 1];
+                kids[a - 1] = x;
+            }
     }
     if (out) {
         memset(out, 0, sizeof *out);
-        for (i = 0; i < 4; i++) {
-            const bvh_node *c;
-            for (a = 0; a < 3; a++) { out->min[a][i] = BVH_INF; out->max[a][i] = -BVH_INF; }
-            if (i >= k) continue;
-            c = &nodes[kids[i]];
+        for (i = 0; i < BVH__W; i++)
+            for (a = 0; a < 3; a++) {
+                out->min[a][i] = BVH_INF;
+                out->max[a][i] = -BVH_INF;
+            }
+    }
+    for (i = 0; i < k; i++) {
+        const bvh_node *c = &s->nodes[kids[i]];
+        if (out) {
             out->min[0][i] = c->min.x; out->min[1][i] = c->min.y; out->min[2][i] = c->min.z;
             out->max[0][i] = c->max.x; out->max[1][i] = c->max.y; out->max[2][i] = c->max.z;
-            out->child[i] = c->count ? c->index : 0; /* interior children: the caller sets the index */
-            out->count[i] = (uint8_t)c->count;
         }
+        if (!bvh__wide_leaf(s, kids[i])) continue; /* interior children: the caller sets the index */
+        if (out) {
+            out->child[i] = *packet;
+            out->count[i] = (uint8_t)bvh__wide_packets(s, kids[i]);
+        }
+        if (s->packets) bvh__wide_write_packets(s, kids[i], s->packets + *packet);
+        *packet += bvh__wide_packets(s, kids[i]);
     }
     return k;
 }
 /* The wide subtree of binary head b, numbered from w on in depth-first order with the children of
-   a node side by side; counts only when out is NULL. Returns the node count, 0 if the tree is
-   deeper than a valid one can be. */
-static uint32_t bvh__wide_subtree(const bvh_node *nodes, uint32_t b, bvh_node4 *out, uint32_t w) {
-    uint32_t stack[4 * (BVH_MAX_DEPTH + 2)][2], sp = 0, next = w + 1;
-    stack[sp][0] = b; stack[sp][1] = w; sp++;
+   a node side by side, its packets from *packet on; counts only when out is NULL. Returns the node
+   count, 0 if the tree is deeper than a valid one can be. */
+static uint32_t bvh__wide_subtree(const bvh__wide_src *s, uint32_t b, bvh_node8 *out, uint32_t w, uint32_t *packet) {
+    uint32_t stack[BVH__W * (BVH_MAX_DEPTH + 2)][2], sp = 0, next = w + 1;
+    stack[sp][0] = b;
+    stack[sp][1] = w;
+    sp++;
     while (sp) {
-        uint32_t kids[4], k, i, top;
-        bvh_node4 *n;
+        uint32_t kids[BVH__W], k, i, top;
+        bvh_node8 *n;
         --sp;
         n = out ? &out[stack[sp][1]] : NULL;
-        k = bvh__wide_node(nodes, stack[sp][0], n, kids);
+        k = bvh__wide_node(s, stack[sp][0], n, kids, packet);
         for (i = k; i-- > 0;) /* interior children pushed last to first: the first is read next */
-            if (!nodes[kids[i]].count) {
-                if (sp == 4 * (BVH_MAX_DEPTH + 2)) return 0;
+            if (!bvh__wide_leaf(s, kids[i])) {
+                if (sp == BVH__W * (BVH_MAX_DEPTH + 2)) return 0;
                 stack[sp++][0] = kids[i];
             }
         for (i = 0, top = sp; i < k; i++)
-            if (!nodes[kids[i]].count) {
+            if (!bvh__wide_leaf(s, kids[i])) {
                 stack[--top][1] = next;
                 if (n) n->child[i] = next;
                 next++;
@@ -3693,154 +3862,556 @@ static uint32_t bvh__wide_subtree(const bvh_node *nodes, uint32_t b, bvh_node4 *
 #define BVH__WIDE_TOP 1024u
 #define BVH__WIDE_SUBTREES 64u
 typedef struct bvh__wide_job {
-    const bvh_node *nodes;
-    bvh_node4 *out;
+    bvh__wide_src src;
+    bvh_node8 *out;
     const uint32_t *heads; /* binary heads of the subtrees */
     uint32_t *size;        /* wide nodes per subtree; for the write pass, their first index */
+    uint32_t *psize;       /* packets per subtree; for the write pass, their first index */
     uint32_t count;
 } bvh__wide_job;
 static void bvh__wide_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
-    const bvh__wide_job *j = BVH__CAST(const bvh__wide_job *, arg);
+    bvh__wide_job *j = BVH__CAST(bvh__wide_job *, arg);
     uint32_t i;
     (void)team;
     for (i = tid; i < j->count; i += nt) {
-        if (j->out) bvh__wide_subtree(j->nodes, j->heads[i], j->out, j->size[i]);
-        else j->size[i] = bvh__wide_subtree(j->nodes, j->heads[i], NULL, 0);
+        uint32_t p = j->out ? j->psize[i] : 0;
+        if (j->out) {
+            bvh__wide_subtree(&j->src, j->heads[i], j->out, j->size[i], &p);
+        } else {
+            j->size[i] = bvh__wide_subtree(&j->src, j->heads[i], NULL, 0, &p);
+            j->psize[i] = p;
+        }
     }
 }
+/* references below each binary node; children follow their parents in every builder's output */
+static bvh_result bvh__wide_sub(const bvh_node *nodes, uint32_t count, uint32_t *sub) {
+    uint32_t i = count;
+    while (i-- > 0) {
+        const bvh_node *n = &nodes[i];
+        if (n->count) {
+            sub[i] = n->count;
+            continue;
+        }
+        if (n->index <= i || n->index + 1 >= count) return BVH_ERROR_INVALID_TREE;
+        sub[i] = sub[n->index] + sub[n->index + 1];
+        if (sub[i] < sub[n->index]) return BVH_ERROR_INVALID_TREE;
+    }
+    return BVH_SUCCESS;
+}
 static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32_t threads) {
-    uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], qlen = 1, top = 0;
-    uint32_t i, k, pos, total, nt, kids[4];
-    const bvh_node *nodes = tree->nodes;
+    uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], psize[BVH__WIDE_TOP], qlen = 1, top = 0;
+    uint32_t i, k, pos, total, ptotal = 0, nt, kids[BVH__W], *sub;
     bvh__wide_job job;
     bvh_result r;
     if (!tree->node_count) return BVH_SUCCESS;
+    if (!(sub = BVH__ALLOC(al, uint32_t, tree->node_count))) return BVH_ERROR_OUT_OF_MEMORY;
+    if ((r = bvh__wide_sub(tree->nodes, tree->node_count, sub)) != BVH_SUCCESS) goto done;
+    memset(&job, 0, sizeof job);
+    job.src.nodes = tree->nodes;
+    job.src.sub = sub;
+    job.src.prims = tree->prims;
+    job.src.tris = tree->tris;
     queue[0] = 0;
-    while (top < qlen && qlen - top < BVH__WIDE_SUBTREES && qlen + 4 <= BVH__WIDE_TOP) { /* breadth-first top */
-        k = bvh__wide_node(nodes, queue[top++], NULL, kids);
+    while (top < qlen && qlen - top < BVH__WIDE_SUBTREES && qlen + BVH__W <= BVH__WIDE_TOP) { /* breadth-first top */
+        k = bvh__wide_node(&job.src, queue[top++], NULL, kids, &ptotal);
         for (i = 0; i < k; i++)
-            if (!nodes[kids[i]].count) queue[qlen++] = kids[i];
+            if (!bvh__wide_leaf(&job.src, kids[i])) queue[qlen++] = kids[i];
     }
-    job.nodes = nodes; job.out = NULL; job.heads = queue + top; job.size = size; job.count = qlen - top;
+    job.heads = queue + top;
+    job.size = size;
+    job.psize = psize;
+    job.count = qlen - top;
     nt = threads < job.count ? threads : job.count;
-    if (job.count && (r = bvh__team_run(al, nt, bvh__wide_fn, &job)) != BVH_SUCCESS) return r;
+    if (job.count && (r = bvh__team_run(al, nt, bvh__wide_fn, &job)) != BVH_SUCCESS) goto done;
     for (i = 0, total = top; i < job.count; i++) {
-        uint32_t s = size[i];
-        if (!s || s > 0xffffffffu - total) return BVH_ERROR_INVALID_TREE;
+        uint32_t s = size[i], p = psize[i];
+        if (!s || s > 0xffffffffu - total || p > 0xffffffffu - ptotal) {
+            r = BVH_ERROR_INVALID_TREE;
+            goto done;
+        }
         size[i] = total;
         total += s;
+        psize[i] = ptotal;
+        ptotal += p;
     }
-    if (!(tree->nodes4 = BVH__ALLOC(al, bvh_node4, total))) return BVH_ERROR_OUT_OF_MEMORY;
-    tree->node4_count = total;
-    for (i = 0, pos = 1; i < top; i++) { /* the top, numbered in the order of the queue */
-        bvh_node4 *n = &tree->nodes4[i];
+    /* one block: the packets follow the nodes, on a cache line as well (256-byte nodes) */
+    if ((size_t)ptotal + 1 > ((size_t)-1 - (size_t)total * sizeof(bvh_node8)) / sizeof(bvh_tri4)) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    tree->nodes8 = BVH__CAST(bvh_node8 *, bvh__alloc_lines(al, (size_t)total * sizeof(bvh_node8) +
+                                                                   (size_t)(ptotal ? ptotal : 1) * sizeof(bvh_tri4)));
+    tree->tri4 = tree->nodes8 ? BVH__CAST(bvh_tri4 *, BVH__CAST(void *, tree->nodes8 + total)) : NULL;
+    if (!tree->nodes8) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    tree->node8_count = total;
+    tree->tri4_count = ptotal;
+    job.src.packets = tree->tri4;
+    for (i = 0, pos = 1, ptotal = 0; i < top; i++) { /* the top, numbered in the order of the queue */
+        bvh_node8 *n = &tree->nodes8[i];
         uint32_t j;
-        k = bvh__wide_node(nodes, queue[i], n, kids);
+        k = bvh__wide_node(&job.src, queue[i], n, kids, &ptotal);
         for (j = 0; j < k; j++)
-            if (!nodes[kids[j]].count) { n->child[j] = pos < top ? pos : size[pos - top]; pos++; }
+            if (!bvh__wide_leaf(&job.src, kids[j])) {
+                n->child[j] = pos < top ? pos : size[pos - top];
+                pos++;
+            }
     }
-    job.out = tree->nodes4;
-    return job.count ? bvh__team_run(al, nt, bvh__wide_fn, &job) : BVH_SUCCESS;
+    job.out = tree->nodes8;
+    r = job.count ? bvh__team_run(al, nt, bvh__wide_fn, &job) : BVH_SUCCESS;
+done:
+    bvh__free(al, sub);
+    return r;
 }
 
-/* Entry distances of the ray into the four child boxes of n (mask bit i: slot i entered before
+#ifndef BVH__SSE
+/* Entry distances of the ray into the eight child boxes of n (mask bit i: slot i entered before
    tfar); the binary bvh__slab, lane by lane. */
-#ifdef BVH__SSE
-BVH__INLINE unsigned bvh__slab4(const bvh__rayx *r, const bvh_node4 *n, float tfar, float tn_out[4]) {
+BVH__INLINE unsigned bvh__slab8(const bvh__rayx *r, const bvh_node8 *n, float tfar, float tn_out[BVH__W]) {
     const float *f = &n->min[0][0];
-    const __m128 ox = _mm_set1_ps(r->o[0]), oy = _mm_set1_ps(r->o[1]), oz = _mm_set1_ps(r->o[2]);
-    const __m128 ix = _mm_set1_ps(r->inv[0]), iy = _mm_set1_ps(r->inv[1]), iz = _mm_set1_ps(r->inv[2]);
-    const __m128 t0x = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->near4[0]), ox), ix);
-    const __m128 t1x = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->far4[0]), ox), ix);
-    const __m128 t0y = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->near4[1]), oy), iy);
-    const __m128 t1y = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->far4[1]), oy), iy);
-    const __m128 t0z = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->near4[2]), oz), iz);
-    const __m128 t1z = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + r->far4[2]), oz), iz);
-    __m128 tn = _mm_set1_ps(r->tmin), tf = _mm_set1_ps(BVH_INF), k0, k1, slack;
-    /* _mm_max_ps(a, b) is a > b ? a : b and _mm_min_ps(a, b) is a < b ? a : b: the scalar
-       selects, NaN included */
-    tn = _mm_max_ps(t0x, tn); tn = _mm_max_ps(t0y, tn); tn = _mm_max_ps(t0z, tn);
-    tf = _mm_min_ps(t1x, tf); tf = _mm_min_ps(t1y, tf); tf = _mm_min_ps(t1z, tf);
-    tf = _mm_mul_ps(tf, _mm_set1_ps(1.0000004f));
-    k0 = r->kz == 0 ? t0x : r->kz == 1 ? t0y : t0z;
-    k1 = r->kz == 0 ? t1x : r->kz == 1 ? t1y : t1z;
-    slack = _mm_max_ps(k1, _mm_sub_ps(_mm_setzero_ps(), k0));
-    tn = _mm_sub_ps(tn, _mm_mul_ps(slack, _mm_set1_ps(3.814697265625e-6f)));
-    tf = _mm_min_ps(tf, _mm_set1_ps(tfar));
-    _mm_storeu_ps(tn_out, tn);
-    /* entered: tn <= tf and tn finite, as bvh__slab_t (a ray parallel to an axis outside the
-       slab gets tn = tf = +inf) */
-    return (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmple_ps(tn, tf), _mm_cmplt_ps(tn, _mm_set1_ps(BVH_INF))));
-}
-#else
-BVH__INLINE unsigned bvh__slab4(const bvh__rayx *r, const bvh_node4 *n, float tfar, float tn_out[4]) {
-    const float *f = &n->min[0][0];
-    unsigned mask = 0;
-    int i;
-    for (i = 0; i < 4; i++) { /* the node's lanes: an empty slot gives +inf */
-        tn_out[i] = bvh__slab_t(r->tmin, r->kz, tfar, (f[r->near4[0] + i] - r->o[0]) * r->inv[0],
-                                (f[r->far4[0] + i] - r->o[0]) * r->inv[0], (f[r->near4[1] + i] - r->o[1]) * r->inv[1],
-                                (f[r->far4[1] + i] - r->o[1]) * r->inv[1], (f[r->near4[2] + i] - r->o[2]) * r->inv[2],
-                                (f[r->far4[2] + i] - r->o[2]) * r->inv[2]);
+    unsigned mask = 0, i;
+    for (i = 0; i < BVH__W; i++) { /* the node's lanes: an empty slot gives +inf */
+        tn_out[i] = bvh__slab_t(r->tmin, r->kz, tfar, (f[r->near8[0] + i] - r->o[0]) * r->inv[0],
+                                (f[r->far8[0] + i] - r->o[0]) * r->inv[0], (f[r->near8[1] + i] - r->o[1]) * r->inv[1],
+                                (f[r->far8[1] + i] - r->o[1]) * r->inv[1], (f[r->near8[2] + i] - r->o[2]) * r->inv[2],
+                                (f[r->far8[2] + i] - r->o[2]) * r->inv[2]);
         if (tn_out[i] != BVH_INF) mask |= 1u << i;
     }
     return mask;
 }
 #endif
 
-typedef struct bvh__entry4 { uint32_t child, count; float t; } bvh__entry4;
-static int bvh__traverse4(const bvh_tree *tree, bvh__rayx *rx, float tmax, bvh_hit *hit, int any) {
-    bvh__entry4 stack[3 * BVH_MAX_DEPTH + 8];
-    uint32_t sp = 0, best_prim = BVH_INVALID, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first reference */
+/* The closest (or, with any, the first) hit so far. */
+typedef struct bvh__best {
+    float t, u, v;
+    uint32_t prim;
+} bvh__best;
+typedef struct bvh__entry8 { uint32_t child, count; float t; } bvh__entry8;
+#if defined(__GNUC__) || defined(__clang__)
+#define BVH__CTZ(m) ((unsigned)__builtin_ctz(m))
+#else
+static unsigned bvh__ctz(unsigned m) {
+    unsigned i = 0;
+    while (!(m & 1u)) {
+        m >>= 1;
+        i++;
+    }
+    return i;
+}
+#define BVH__CTZ(m) bvh__ctz(m)
+#endif
+/* The packet test: bvh__tri_test on the four lanes at once, the same operations in the same order
+   on each lane, so the same bits. Most packets end at the sign test; the distance, the division
+   and the triangle-box check (bvh__tri_reach, here on all lanes at once) follow only where a lane
+   passes it. No zero-area check: the packets hold such a triangle as one point repeated, whose
+   edge functions are all exactly zero, so det = 0 and no ray hits it, as bvh__tri_test says. */
+#ifdef BVH__SSE
+/* bvh__slab_t on four boxes (lo, hi by axis) with a distance limit per lane: 1 where entered. */
+BVH__INLINE unsigned bvh__reach4(const bvh__rayx *r, const __m128 lo[3], const __m128 hi[3], __m128 t) {
+    __m128 tn = _mm_set1_ps(r->tmin), tf = _mm_set1_ps(BVH_INF), t0[3], t1[3], slack;
+    int a;
+    for (a = 0; a < 3; a++) {
+        const __m128 o = _mm_set1_ps(r->o[a]), inv = _mm_set1_ps(r->inv[a]);
+        const int neg = r->inv[a] < 0.0f;
+        t0[a] = _mm_mul_ps(_mm_sub_ps(neg ? hi[a] : lo[a], o), inv);
+        t1[a] = _mm_mul_ps(_mm_sub_ps(neg ? lo[a] : hi[a], o), inv);
+        tn = _mm_max_ps(t0[a], tn);
+        tf = _mm_min_ps(t1[a], tf);
+    }
+    tf = _mm_mul_ps(tf, _mm_set1_ps(1.0000004f));
+    slack = _mm_max_ps(t1[r->kz], _mm_sub_ps(_mm_setzero_ps(), t0[r->kz]));
+    tn = _mm_sub_ps(tn, _mm_mul_ps(slack, _mm_set1_ps(3.814697265625e-6f)));
+    tf = _mm_min_ps(tf, t);
+    return (unsigned)_mm_movemask_ps(_mm_cmple_ps(tn, tf));
+}
+/* The lanes of mask m that hit (bvh__tri_test's checks after the sign test); *ft their t. */
+BVH__INLINE unsigned bvh__packet_hits(const bvh__rayx *r, const bvh_tri4 *p, __m128 U, __m128 V, __m128 W,
+                                      const __m128 z[3], float tmax, unsigned m, __m128 *ft, __m128 *det) {
+    const __m128 sz = _mm_set1_ps(r->sz);
+    __m128 T, lo[3], hi[3], ok;
+    int a;
+    *det = _mm_add_ps(_mm_add_ps(U, V), W);
+    T = _mm_add_ps(_mm_add_ps(_mm_mul_ps(U, _mm_mul_ps(sz, z[0])), _mm_mul_ps(V, _mm_mul_ps(sz, z[1]))),
+                   _mm_mul_ps(W, _mm_mul_ps(sz, z[2])));
+    *ft = _mm_div_ps(T, *det);
+    ok = _mm_and_ps(_mm_cmpge_ps(*ft, _mm_set1_ps(r->tmin)), _mm_cmple_ps(*ft, _mm_set1_ps(tmax)));
+    ok = _mm_and_ps(ok, _mm_cmplt_ps(*ft, _mm_set1_ps(BVH_INF)));
+    ok = _mm_and_ps(ok, _mm_cmpneq_ps(*det, _mm_setzero_ps()));
+    m &= (unsigned)_mm_movemask_ps(ok);
+    if (!m) return 0;
+    for (a = 0; a < 3; a++) { /* the triangles' boxes (bvh__tri_box) */
+        const __m128 v0 = _mm_loadu_ps(p->v[0][a]), v1 = _mm_loadu_ps(p->v[1][a]), v2 = _mm_loadu_ps(p->v[2][a]);
+        lo[a] = _mm_min_ps(_mm_min_ps(v0, v1), v2);
+        hi[a] = _mm_max_ps(_mm_max_ps(v0, v1), v2);
+    }
+    return m & bvh__reach4(r, lo, hi, *ft);
+}
+BVH__INLINE float bvh__lane_f(__m128 x, unsigned i) {
+    float f[4];
+    _mm_storeu_ps(f, x);
+    return f[i];
+}
+static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
+    const int kx = r->kx, ky = r->ky, kz = r->kz;
+    const __m128 ox = _mm_set1_ps(r->o[kx]), oy = _mm_set1_ps(r->o[ky]), oz = _mm_set1_ps(r->o[kz]);
+    const __m128 sx = _mm_set1_ps(r->sx), sy = _mm_set1_ps(r->sy), zero = _mm_setzero_ps();
+    uint32_t q;
+    int found = 0;
+    for (q = 0; q < np; q++, p++) {
+        __m128 x[3], y[3], z[3], U, V, W, ft, det, neg, pos;
+        unsigned m, zm;
+        int k;
+        for (k = 0; k < 3; k++) {
+            z[k] = _mm_sub_ps(_mm_loadu_ps(p->v[k][kz]), oz);
+            x[k] = _mm_sub_ps(_mm_sub_ps(_mm_loadu_ps(p->v[k][kx]), ox), _mm_mul_ps(sx, z[k]));
+            y[k] = _mm_sub_ps(_mm_sub_ps(_mm_loadu_ps(p->v[k][ky]), oy), _mm_mul_ps(sy, z[k]));
+        }
+        U = _mm_sub_ps(_mm_mul_ps(x[2], y[1]), _mm_mul_ps(y[2], x[1]));
+        V = _mm_sub_ps(_mm_mul_ps(x[0], y[2]), _mm_mul_ps(y[0], x[2]));
+        W = _mm_sub_ps(_mm_mul_ps(x[1], y[0]), _mm_mul_ps(y[1], x[0]));
+        zm = (unsigned)_mm_movemask_ps(
+            _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(U, zero), _mm_cmpeq_ps(V, zero)), _mm_cmpeq_ps(W, zero)));
+        if (zm) { /* the lanes with a zero edge function, redone in double */
+            float fx[3][4], fy[3][4], fu[4], fv[4], fw[4], lx[3], ly[3];
+            unsigned i;
+            for (k = 0; k < 3; k++) {
+                _mm_storeu_ps(fx[k], x[k]);
+                _mm_storeu_ps(fy[k], y[k]);
+            }
+            _mm_storeu_ps(fu, U);
+            _mm_storeu_ps(fv, V);
+            _mm_storeu_ps(fw, W);
+            for (i = 0; i < 4; i++) {
+                if (!(zm >> i & 1u)) continue;
+                for (k = 0; k < 3; k++) {
+                    lx[k] = fx[k][i];
+                    ly[k] = fy[k][i];
+                }
+                bvh__edges_exact(lx, ly, &fu[i], &fv[i], &fw[i]);
+            }
+            U = _mm_loadu_ps(fu);
+            V = _mm_loadu_ps(fv);
+            W = _mm_loadu_ps(fw);
+        }
+        neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(U, zero), _mm_cmplt_ps(V, zero)), _mm_cmplt_ps(W, zero));
+        pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_cmpgt_ps(V, zero)), _mm_cmpgt_ps(W, zero));
+        m = 15u & ~(unsigned)_mm_movemask_ps(_mm_and_ps(neg, pos));
+        if (!m) continue;
+        m = bvh__packet_hits(r, p, U, V, W, z, b->t, m, &ft, &det);
+        if (!m) continue;
+        if (any) {
+            b->t = bvh__lane_f(ft, BVH__CTZ(m));
+            b->prim = p->prim[BVH__CTZ(m)];
+            return 1;
+        }
+        while (m) { /* the nearest lane; ties in t: the lowest primitive index */
+            unsigned i = BVH__CTZ(m);
+            float t = bvh__lane_f(ft, i), d = bvh__lane_f(det, i);
+            m &= m - 1;
+            if (t > b->t || (t == b->t && p->prim[i] > b->prim)) continue;
+            b->t = t;
+            b->u = bvh__lane_f(V, i) / d;
+            b->v = bvh__lane_f(W, i) / d;
+            b->prim = p->prim[i];
+            found = 1;
+        }
+    }
+    return found;
+}
+#else
+static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
+    uint32_t q;
+    int i, found = 0;
+    for (q = 0; q < np; q++, p++)
+        for (i = 0; i < 4; i++) {
+            float tri[9], t, u, v;
+            bvh__lane(p, i, tri);
+            if (!bvh__tri_test(r, tri, b->t, &t, &u, &v)) continue;
+            if (t == b->t && p->prim[i] > b->prim) continue;
+            b->t = t;
+            b->u = u;
+            b->v = v;
+            b->prim = p->prim[i];
+            found = 1;
+            if (any) return 1;
+        }
+    return found;
+}
+#endif
+
+#ifdef BVH__SSE
+/* The ray as the SIMD slab test wants it in registers, its axes ordered so that the dominant one
+   (whose distances set the slack) comes last: max and min do not depend on the order, so the
+   same bits as bvh__slab_t. */
+typedef struct bvh__ray8 {
+    __m128 o[3], inv[3], tmin;
+    int near8[3], far8[3];
+    float so[3], sinv[3], stmin; /* the same as scalars, for the AVX2 test to broadcast */
+} bvh__ray8;
+/* bvh__ray_setup for the wide traversal, and the ray as the slab tests want it: the same bits (SSE
+   rounds 1 / d as scalar code does), the three axes at once. Only what the SIMD wide traversal
+   reads: not the plain-C slab test's plane offsets (near, near8, far8), and the SSE registers
+   only when the slab test is the SSE one (sse). */
+BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int sse) {
+    const __m128 o = _mm_loadu_ps(&ray->origin.x), d0 = _mm_loadu_ps(&ray->dir.x); /* xyz, tmin / tmax */
+    const __m128 absm = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)), inf = _mm_set1_ps(BVH_INF);
+    const __m128 ad = _mm_and_ps(d0, absm);
+    /* a subnormal component counts as +0, as in bvh__ray_setup */
+    const __m128 d = _mm_andnot_ps(_mm_cmplt_ps(ad, _mm_set1_ps(FLT_MIN)), d0);
+    const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), d); /* 1 / +0 = +inf */
+    const unsigned finite = (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmplt_ps(_mm_and_ps(o, absm), inf), _mm_cmplt_ps(ad, inf)));
+    const unsigned neg = (unsigned)_mm_movemask_ps(_mm_cmplt_ps(inv, _mm_setzero_ps()));
+    float fo[4], fd[4], fi[4];
+    int order[3], a;
+    if ((finite & 7u) != 7u || ray->tmin != ray->tmin || ray->tmax != ray->tmax || ray->tmin > ray->tmax) return 0;
+    if ((_mm_movemask_ps(_mm_cmpeq_ps(d, _mm_setzero_ps())) & 7) == 7) return 0;
+    _mm_storeu_ps(fo, o);
+    _mm_storeu_ps(fd, d);
+    _mm_storeu_ps(fi, inv);
+    for (a = 0; a < 3; a++) {
+        rx->o[a] = fo[a];
+        rx->d[a] = fd[a];
+        rx->inv[a] = fi[a];
+    }
+    rx->tmin = ray->tmin;
+    {
+        const float ax = fabsf(fd[0]), ay = fabsf(fd[1]), az = fabsf(fd[2]);
+        rx->kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
+    }
+    order[0] = rx->kz == 0 ? 1 : 0;
+    order[1] = rx->kz == 2 ? 1 : 2;
+    order[2] = rx->kz;
+    for (a = 0; a < 3; a++) {
+        const int n = (int)(neg >> order[a] & 1u);
+        q->so[a] = fo[order[a]];
+        q->sinv[a] = fi[order[a]];
+        q->near8[a] = n ? 24 + 8 * order[a] : 8 * order[a];
+        q->far8[a] = n ? 8 * order[a] : 24 + 8 * order[a];
+    }
+    q->stmin = rx->tmin;
+    if (sse) {
+        for (a = 0; a < 3; a++) {
+            q->o[a] = _mm_set1_ps(q->so[a]);
+            q->inv[a] = _mm_set1_ps(q->sinv[a]);
+        }
+        q->tmin = _mm_set1_ps(rx->tmin);
+    }
+    return 1;
+}
+/* bvh__slab_t on the four slots of a node whose box arrays start at f (slot 0 or 4); bit i of the
+   result: slot i entered before tfar, *tn their entry distances. */
+BVH__INLINE unsigned bvh__slab4q(const bvh__ray8 *q, const float *f, __m128 tfar, __m128 *tn_out) {
+    const __m128 t0a = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near8[0]), q->o[0]), q->inv[0]);
+    const __m128 t1a = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far8[0]), q->o[0]), q->inv[0]);
+    const __m128 t0b = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near8[1]), q->o[1]), q->inv[1]);
+    const __m128 t1b = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far8[1]), q->o[1]), q->inv[1]);
+    const __m128 t0c = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near8[2]), q->o[2]), q->inv[2]);
+    const __m128 t1c = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far8[2]), q->o[2]), q->inv[2]);
+    const __m128 inf = _mm_set1_ps(BVH_INF);
+    /* _mm_max_ps(a, b) is a > b ? a : b and _mm_min_ps(a, b) is a < b ? a : b: the scalar
+       selects, NaN included */
+    __m128 tn = _mm_max_ps(t0a, q->tmin), tf = _mm_min_ps(t1a, inf), slack;
+    tn = _mm_max_ps(t0b, tn);
+    tn = _mm_max_ps(t0c, tn);
+    tf = _mm_min_ps(t1b, tf);
+    tf = _mm_min_ps(t1c, tf);
+    tf = _mm_mul_ps(tf, _mm_set1_ps(1.0000004f));
+    slack = _mm_max_ps(t1c, _mm_sub_ps(_mm_setzero_ps(), t0c));
+    tn = _mm_sub_ps(tn, _mm_mul_ps(slack, _mm_set1_ps(3.814697265625e-6f)));
+    tf = _mm_min_ps(tf, tfar);
+    *tn_out = tn;
+    /* entered: tn <= tf and tn finite, as bvh__slab_t (a ray parallel to an axis outside the
+       slab gets tn = tf = +inf) */
+    return (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmple_ps(tn, tf), _mm_cmplt_ps(tn, inf)));
+}
+BVH__INLINE unsigned bvh__slab8q(const bvh__ray8 *q, const bvh_node8 *n, float tfar, float tn_out[BVH__W]) {
+    const __m128 tf = _mm_set1_ps(tfar);
+    __m128 lo, hi;
+    unsigned m = bvh__slab4q(q, &n->min[0][0], tf, &lo) | bvh__slab4q(q, &n->min[0][4], tf, &hi) << 4;
+    _mm_storeu_ps(tn_out, lo);
+    _mm_storeu_ps(tn_out + 4, hi);
+    return m;
+}
+#ifdef BVH__AVX2
+/* bvh__slab8q in one pass of eight lanes (the same operations, so the same bits). Not forced
+   inline: only bvh__traverse8_avx2, compiled for AVX2 as well, takes it in. */
+__attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh__ray8 *q, const bvh_node8 *n, float tfar,
+                                                                       float tn_out[BVH__W]) {
+    const float *f = &n->min[0][0];
+    const __m256 oa = _mm256_broadcast_ss(&q->so[0]), ob = _mm256_broadcast_ss(&q->so[1]);
+    const __m256 oc = _mm256_broadcast_ss(&q->so[2]), ia = _mm256_broadcast_ss(&q->sinv[0]);
+    const __m256 ib = _mm256_broadcast_ss(&q->sinv[1]), ic = _mm256_broadcast_ss(&q->sinv[2]);
+    const __m256 t0a = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->near8[0]), oa), ia);
+    const __m256 t1a = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->far8[0]), oa), ia);
+    const __m256 t0b = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->near8[1]), ob), ib);
+    const __m256 t1b = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->far8[1]), ob), ib);
+    const __m256 t0c = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->near8[2]), oc), ic);
+    const __m256 t1c = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->far8[2]), oc), ic);
+    const __m256 inf = _mm256_set1_ps(BVH_INF);
+    __m256 tn = _mm256_max_ps(t0a, _mm256_broadcast_ss(&q->stmin)), tf = _mm256_min_ps(t1a, inf), slack;
+    tn = _mm256_max_ps(t0b, tn);
+    tn = _mm256_max_ps(t0c, tn);
+    tf = _mm256_min_ps(t1b, tf);
+    tf = _mm256_min_ps(t1c, tf);
+    tf = _mm256_mul_ps(tf, _mm256_set1_ps(1.0000004f));
+    slack = _mm256_max_ps(t1c, _mm256_sub_ps(_mm256_setzero_ps(), t0c));
+    tn = _mm256_sub_ps(tn, _mm256_mul_ps(slack, _mm256_set1_ps(3.814697265625e-6f)));
+    tf = _mm256_min_ps(tf, _mm256_set1_ps(tfar));
+    _mm256_storeu_ps(tn_out, tn);
+    return (unsigned)_mm256_movemask_ps(
+        _mm256_and_ps(_mm256_cmp_ps(tn, tf, _CMP_LE_OQ), _mm256_cmp_ps(tn, inf, _CMP_LT_OQ)));
+}
+#define BVH__SLAB8(n, tfar, tn) (avx2 ? bvh__slab8_avx2(q, n, tfar, tn) : bvh__slab8q(q, n, tfar, tn))
+#else
+#define BVH__SLAB8(n, tfar, tn) bvh__slab8q(q, n, tfar, tn)
+#endif
+#else
+#define BVH__SLAB8(n, tfar, tn) bvh__slab8(rx, n, tfar, tn)
+typedef struct bvh__ray8 { int unused; } bvh__ray8; /* plain C: the slab test reads bvh__rayx */
+#endif
+/* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
+   order, unsorted), the farther ones on the stack; a leaf's packets tested at once. avx2: the
+   slab test in one AVX2 pass (a constant: the loop is compiled once for each). */
+BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
+                                    int any, int avx2) {
+    bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
+    uint32_t sp = 0, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first packet */
     int sheared = 0;
-    float best_t = tmax, best_u = 0.0f, best_v = 0.0f;
-    const bvh_node4 *nodes = tree->nodes4;
+    bvh__best best;
+    const bvh_node8 *nodes = tree->nodes8;
+    best.t = tmax;
+    best.u = best.v = 0.0f;
+    best.prim = BVH_INVALID;
+    (void)q;
     for (;;) {
-        if (!lc) { /* an interior node: test its four children */
-            const bvh_node4 *n = &nodes[cur];
-            float tn[4];
-            unsigned m = bvh__slab4(rx, n, best_t, tn), i;
+        if (!lc) { /* an interior node: test its children */
+            const bvh_node8 *n = &nodes[cur];
+            float tn[BVH__W];
+            unsigned m, i0, i1;
+            /* the children's line, asked for now: it is read only once the boxes are tested */
+            BVH__PREFETCH(n->child);
+            m = BVH__SLAB8(n, best.t, tn);
             if (m) {
-                uint32_t idx[4], k = 0, j;
-                for (i = 0; i < 4; i++)
-                    if (m & (1u << i)) {
-                        /* insertion by entry distance, nearest first */
+                i0 = BVH__CTZ(m);
+                m &= m - 1;
+                if (!m) { /* one child: no stack */
+                    cur = n->child[i0];
+                    lc = n->count[i0];
+                    continue;
+                }
+                if (sp + BVH__W > sizeof stack / sizeof stack[0]) goto out; /* deeper than builders make */
+                { /* two or more children entered: all are asked for now, so that their lines
+                     arrive while the nearest is being tested, or before they are popped */
+                    unsigned pm = m | 1u << i0;
+                    while (pm) {
+                        unsigned i = BVH__CTZ(pm);
+                        const char *a = n->count[i] ? (const char *)(tree->tri4 + n->child[i])
+                                                    : (const char *)(nodes + n->child[i]);
+                        pm &= pm - 1;
+                        BVH__PREFETCH(a);
+                        BVH__PREFETCH(a + 64);
+                        BVH__PREFETCH(a + 128);
+                    }
+                }
+                i1 = BVH__CTZ(m);
+                m &= m - 1;
+                if (!any && !m) { /* two: the farther one waits */
+                    if (tn[i1] < tn[i0]) {
+                        unsigned x = i0;
+                        i0 = i1;
+                        i1 = x;
+                    }
+                    stack[sp].child = n->child[i1];
+                    stack[sp].count = n->count[i1];
+                    stack[sp].t = tn[i1];
+                    sp++;
+                } else if (any) { /* any hit: in slot order */
+                    m |= 1u << i1;
+                    while (m) {
+                        i1 = BVH__CTZ(m);
+                        m &= m - 1;
+                        stack[sp].child = n->child[i1];
+                        stack[sp].count = n->count[i1];
+                        stack[sp].t = tn[i1];
+                        sp++;
+                    }
+                } else { /* three or more: insertion by entry distance, nearest first */
+                    uint32_t idx[BVH__W], k = 2, j;
+                    idx[0] = tn[i1] < tn[i0] ? i1 : i0;
+                    idx[1] = tn[i1] < tn[i0] ? i0 : i1;
+                    while (m) {
+                        unsigned i = BVH__CTZ(m);
+                        m &= m - 1;
                         for (j = k; j > 0 && tn[idx[j - 1]] > tn[i]; j--) idx[j] = idx[j - 1];
                         idx[j] = i;
                         k++;
                     }
-                if (sp + k > sizeof stack / sizeof stack[0]) goto out; /* deeper than builders make */
-                for (j = k - 1; j > 0; j--) { /* the farther ones wait, farthest at the bottom */
-                    stack[sp].child = n->child[idx[j]];
-                    stack[sp].count = n->count[idx[j]];
-                    stack[sp].t = tn[idx[j]];
-                    sp++;
+                    for (j = k - 1; j > 0; j--) { /* farthest at the bottom */
+                        stack[sp].child = n->child[idx[j]];
+                        stack[sp].count = n->count[idx[j]];
+                        stack[sp].t = tn[idx[j]];
+                        sp++;
+                    }
+                    i0 = idx[0];
                 }
-                cur = n->child[idx[0]];
-                lc = n->count[idx[0]];
+                cur = n->child[i0];
+                lc = n->count[i0];
                 continue;
             }
-        } else { /* a leaf */
-            uint32_t k, end = cur + lc;
-            if (!sheared) { bvh__ray_shear(rx); sheared = 1; }
-            for (k = cur; k < end; k++) {
-                float t, u, v;
-                if (!bvh__tri_test(rx, tree->tris + 9 * (size_t)k, best_t, &t, &u, &v)) continue;
-                if (t == best_t && tree->prims[k] > best_prim) continue; /* ties: lowest index */
-                best_t = t; best_u = u; best_v = v; best_prim = tree->prims[k];
-                if (any) goto out;
+        } else { /* a leaf: its packets */
+            if (!sheared) {
+                bvh__ray_shear(rx);
+                sheared = 1;
             }
+            if (bvh__packets(rx, tree->tri4 + cur, lc, &best, any) && any) goto out;
         }
         for (;;) { /* pop the next node still in reach of the current best */
             if (!sp) goto out;
             --sp;
-            if (stack[sp].t <= best_t) { cur = stack[sp].child; lc = stack[sp].count; break; }
+            if (stack[sp].t <= best.t) {
+                cur = stack[sp].child;
+                lc = stack[sp].count;
+                break;
+            }
         }
     }
 out:
-    if (best_prim == BVH_INVALID) return 0;
-    if (hit) { hit->t = best_t; hit->u = best_u; hit->v = best_v; hit->prim = best_prim; }
+    (void)avx2;
+    if (best.prim == BVH_INVALID) return 0;
+    if (hit) {
+        hit->t = best.t;
+        hit->u = best.u;
+        hit->v = best.v;
+        hit->prim = best.prim;
+    }
     return 1;
+}
+#ifdef BVH__AVX2
+__attribute__((target("avx2"))) static int bvh__traverse8_avx2(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q,
+                                                                 float tmax, bvh_hit *hit, int any) {
+    return bvh__traverse8_body(tree, rx, q, tmax, hit, any, 1);
+}
+#endif
+static int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+    bvh__rayx rx;
+    bvh__ray8 q;
+#ifdef BVH__AVX2
+    const int avx2 = bvh__have_avx2();
+#else
+    const int avx2 = 0;
+#endif
+#ifdef BVH__SSE
+    if (!bvh__ray8_start(ray, &rx, &q, !avx2)) return 0;
+#else
+    (void)avx2;
+    if (!bvh__ray_setup(ray, &rx)) return 0;
+#endif
+#ifdef BVH__AVX2
+    if (avx2) return bvh__traverse8_avx2(tree, &rx, &q, ray->tmax, hit, any);
+#endif
+    return bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, 0);
 }
 
 static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, uint32_t *visited) {
@@ -3851,8 +4422,9 @@ static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
     const bvh_node *nodes, *node;
     if (hit) { hit->t = ray ? ray->tmax : BVH_INF; hit->u = hit->v = 0.0f; hit->prim = BVH_INVALID; }
     if (visited) *visited = 0;
-    if (!tree || !ray || !tree->node_count || !tree->tris || !bvh__ray_setup(ray, &rx)) return 0;
-    if (tree->nodes4 && !visited) return bvh__traverse4(tree, &rx, ray->tmax, hit, any);
+    if (!tree || !ray || !tree->node_count || !tree->tris) return 0;
+    if (tree->nodes8 && !visited) return bvh__traverse8(tree, ray, hit, any);
+    if (!bvh__ray_setup(ray, &rx)) return 0;
     best_t = ray->tmax;
     nodes = tree->nodes;
     node = nodes;

@@ -3,7 +3,7 @@
 
    build/bvhbench [--builder all|LIST] [--embree all|none|LIST] [--threads N] [--repeat R]
                   [--size WxH] [--trace cpu|opencl|both|none] [--brute-max N] [--strict]
-                  [--paired N] [--ploc-top N|off] [--max-bytes N|off] [--trace-width 2|4]
+                  [--paired N] [--ploc-top N|off] [--max-bytes N|off] [--trace-width 2|8]
                   [--md FILE] [--json FILE|-] [--plots DIR] [--quiet] [SCENE...]
    e.g. build/bvhbench --repeat 2 --size 256x256 gen:random:500 /usr/share/glmark2/models/bunny.obj
         make bench          (the default scenes below, writing out/bench/)
@@ -13,7 +13,7 @@
 
    Per scene and row: build time (median, min and max of R builds after one warm-up), SAH with
    costs (1, 0, 1), tree statistics, bytes per triangle of the binary tree (nodes + references)
-   and of the 4-wide copy CPU traversal uses (built by default, --trace-width), peak memory of
+   and of the 8-wide copy CPU traversal uses (built by default, --trace-width), peak memory of
    the build (a counting bvh_allocator), the standard camera's primary rays (bvh_camera_standard
    over the tree bounds, bvh_camera_ray per pixel) traced on 1 CPU thread and on N CPU threads
    (bvh_intersect_batch; median time of 3 frames each) and with OpenCL (cl/bvh_cl.h: packets
@@ -1347,7 +1347,7 @@ static const column g_cols[C_COUNT] = {
     {"refs", "Refs", 8, 0},
     {"depth", "Max depth", 5, -1},
     {"B/tri", "BVH B/tri", 6, -1},
-    {"4w B/tri", "4-wide B/tri", 8, 0},
+    {"8w B/tri", "8-wide B/tri", 8, 0},
     {"peak MB", "Peak build MB", 8, -1},
     {"pk B/tri", "Peak B/tri", 8, -1},
     {"Mr/s 1t", "CPU Mrays/s 1 thread", 8, +1},
@@ -1627,7 +1627,7 @@ static void header_lines(FILE *f, const options *o, const header_info *h, const 
                "traced %s (CPU, OpenCL and Embree: median of %d frames); frame ms = fastest tracer; CPU tracing walks the "
                "%s\n",
             prefix, o->repeat, o->width, o->height, h->trace, BENCH_TRACE_REPEAT,
-            o->trace_width == 2 ? "binary nodes (--trace-width 2)" : "4-wide copy (OpenCL: the binary nodes)");
+            o->trace_width == 2 ? "binary nodes (--trace-width 2)" : "8-wide copy (OpenCL: the binary nodes)");
 }
 
 static int mkdir_p(const char *dir);
@@ -1943,7 +1943,7 @@ static void usage(FILE *f) {
             "  --threads N      ploc-parallel, multi-thread tracing and Embree; 0 = all cores (default)\n"
             "  --repeat R       timed builds after one warm-up; the median is reported (default 5)\n"
             "  --size WxH       frame size (default 1024x1024)\n"
-            "  --trace-width W  4: builds add the 4-wide copy CPU tracing uses (default); 2: binary only\n"
+            "  --trace-width W  8: builds add the 8-wide copy CPU tracing uses (default); 2: binary only\n"
             "  --ploc-top N     ploc builders: binned-SAH top over the last n/N clusters, kept where\n"
             "                   cheaper (0 = the library's default, 8); 'off': PLOC alone, as the study\n"
             "  --paired N       after the table, N rounds each building once with every builder and\n"
@@ -2022,7 +2022,7 @@ static int parse_args(int argc, char **argv, options *o) {
     parse_builders("all", o);
     parse_embree("all", o);
     o->repeat = 5;
-    o->trace_width = 4;
+    o->trace_width = 8;
     o->width = o->height = 1024;
     o->brute_max = 20000;
     o->trace_auto = 1;
@@ -2065,8 +2065,8 @@ static int parse_args(int argc, char **argv, options *o) {
                 return 2;
             }
         } else if (!strcmp(a, "--trace-width")) {
-            if (scene_parse_u32(v, 2, 4, &o->trace_width, NULL) || o->trace_width == 3) {
-                fprintf(stderr, "bvhbench: --trace-width wants 2 or 4, not '%s'\n", v);
+            if (scene_parse_u32(v, 2, 8, &o->trace_width, NULL) || (o->trace_width != 2 && o->trace_width != 8)) {
+                fprintf(stderr, "bvhbench: --trace-width wants 2 or 8, not '%s'\n", v);
                 return 2;
             }
         } else if (!strcmp(a, "--repeat")) {

@@ -12,7 +12,7 @@
      hits    bvh_hit[]: t, u, v, prim (16 bytes), written as one uint4 (float bits, then the id)
 
    SEMANTICS: those of bvh.h (section "traversal"), statement for statement: watertight triangle
-   test (Woop, Benthin & Wald 2013) with the double-precision fallback on edges, ties in t to the
+   test (Woop, Benthin & Wald 2013) in float with the exact fallback on zero edge functions, ties in t to the
    lowest primitive id, robust slab test (far distance widened by 1.0000004f, zero direction
    components get an inverse of +inf, the near plane is chosen by the sign of the inverse, the NaN
    of an origin on a slab plane is dropped by the order of the comparisons), near child first,
@@ -122,66 +122,42 @@ BVH_CL_FN int bvh_cl_tri_box_reached(const bvh_cl_rayx *r, __global const float 
     return bvh_cl_slab(r, (float4)(lo, 0.0f), (float4)(hi, 0.0f), tt) != INFINITY;
 }
 
-#ifdef BVH_CL_FP64
-/* bvh__tri_test: vertices translated in float, shear and edge functions in double */
+/* bvh__tri_test: translated, sheared and tested in float; where an edge function is zero, all three
+   redone as exact products (Woop et al.'s fallback) */
 BVH_CL_FN int bvh_cl_tri_test(const bvh_cl_rayx *r, __global const float *tri, float tmax, float *t, float *u,
                               float *v) {
     const int kx = r->kx, ky = r->ky, kz = r->kz;
-    const double sx = r->sx, sy = r->sy, sz = r->sz;
-    float Akx = tri[kx] - r->okx, Aky = tri[ky] - r->oky, Akz = tri[kz] - r->okz;
-    float Bkx = tri[3 + kx] - r->okx, Bky = tri[3 + ky] - r->oky, Bkz = tri[3 + kz] - r->okz;
-    float Ckx = tri[6 + kx] - r->okx, Cky = tri[6 + ky] - r->oky, Ckz = tri[6 + kz] - r->okz;
-    double Ax = (double)Akx - sx * (double)Akz, Ay = (double)Aky - sy * (double)Akz;
-    double Bx = (double)Bkx - sx * (double)Bkz, By = (double)Bky - sy * (double)Bkz;
-    double Cx = (double)Ckx - sx * (double)Ckz, Cy = (double)Cky - sy * (double)Ckz;
-    double U = Cx * By - Cy * Bx, V = Ax * Cy - Ay * Cx, W = Bx * Ay - By * Ax, det, T;
-    float tt;
-    if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return 0;
+    float Az = tri[kz] - r->okz, Bz = tri[3 + kz] - r->okz, Cz = tri[6 + kz] - r->okz;
+    float Ax = (tri[kx] - r->okx) - r->sx * Az, Ay = (tri[ky] - r->oky) - r->sy * Az;
+    float Bx = (tri[3 + kx] - r->okx) - r->sx * Bz, By = (tri[3 + ky] - r->oky) - r->sy * Bz;
+    float Cx = (tri[6 + kx] - r->okx) - r->sx * Cz, Cy = (tri[6 + ky] - r->oky) - r->sy * Cz;
+    float U = Cx * By - Cy * Bx, V = Ax * Cy - Ay * Cx, W = Bx * Ay - By * Ax, det, T, tt;
+    if (U == 0.0f || V == 0.0f || W == 0.0f) {
+        U = bvh_cl_diff_of_products(Cx, By, Cy, Bx);
+        V = bvh_cl_diff_of_products(Ax, Cy, Ay, Cx);
+        W = bvh_cl_diff_of_products(Bx, Ay, By, Ax);
+    }
+    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
     det = U + V + W;
-    if (det == 0.0) return 0;
-    T = U * (sz * (double)Akz) + V * (sz * (double)Bkz) + W * (sz * (double)Ckz);
-    tt = (float)(T / det);
+    if (det == 0.0f) return 0;
+    T = U * (r->sz * Az) + V * (r->sz * Bz) + W * (r->sz * Cz);
+    tt = T / det;
     if (!(tt >= r->tmin && tt <= tmax && tt < INFINITY)) return 0;
+#ifdef BVH_CL_FP64
     {
         double e1x = (double)tri[3] - tri[0], e1y = (double)tri[4] - tri[1], e1z = (double)tri[5] - tri[2];
         double e2x = (double)tri[6] - tri[0], e2y = (double)tri[7] - tri[1], e2z = (double)tri[8] - tri[2];
         if (e1y * e2z - e1z * e2y == 0.0 && e1z * e2x - e1x * e2z == 0.0 && e1x * e2y - e1y * e2x == 0.0) return 0;
     }
-    if (!bvh_cl_tri_box_reached(r, tri, tt)) return 0;
-    *t = tt;
-    *u = (float)(V / det);
-    *v = (float)(W / det);
-    return 1;
-}
 #else
-BVH_CL_FN int bvh_cl_tri_test(const bvh_cl_rayx *r, __global const float *tri, float tmax, float *t, float *u,
-                              float *v) {
-    const int kx = r->kx, ky = r->ky, kz = r->kz;
-    float Akx = tri[kx] - r->okx, Aky = tri[ky] - r->oky, Akz = tri[kz] - r->okz;
-    float Bkx = tri[3 + kx] - r->okx, Bky = tri[3 + ky] - r->oky, Bkz = tri[3 + kz] - r->okz;
-    float Ckx = tri[6 + kx] - r->okx, Cky = tri[6 + ky] - r->oky, Ckz = tri[6 + kz] - r->okz;
-    float Ax = Akx - r->sx * Akz, Ay = Aky - r->sy * Akz;
-    float Bx = Bkx - r->sx * Bkz, By = Bky - r->sy * Bkz;
-    float Cx = Ckx - r->sx * Ckz, Cy = Cky - r->sy * Ckz;
-    float U = bvh_cl_diff_of_products(Cx, By, Cy, Bx); /* as the CPU: always exact products */
-    float V = bvh_cl_diff_of_products(Ax, Cy, Ay, Cx);
-    float W = bvh_cl_diff_of_products(Bx, Ay, By, Ax);
-    float det, T, rcp, tt;
-    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
-    det = U + V + W;
-    if (det == 0.0f) return 0;
-    T = U * (r->sz * Akz) + V * (r->sz * Bkz) + W * (r->sz * Ckz);
-    rcp = 1.0f / det;
-    tt = T * rcp;
-    if (!(tt >= r->tmin && tt <= tmax && tt < INFINITY)) return 0;
     if (all(cross(vload3(1, tri) - vload3(0, tri), vload3(2, tri) - vload3(0, tri)) == (float3)(0.0f))) return 0;
+#endif
     if (!bvh_cl_tri_box_reached(r, tri, tt)) return 0;
     *t = tt;
-    *u = V * rcp;
-    *v = W * rcp;
+    *u = V / det;
+    *v = W / det;
     return 1;
 }
-#endif
 
 /* ============================================================================================ */
 /* == slab test and traversal (bvh__slab, bvh__traverse) ========================================= */

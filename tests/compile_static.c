@@ -59,7 +59,7 @@ int main(void) {
     CHECK(par.node_count == ploc.node_count && par.ref_count == ploc.ref_count);
     CHECK(memcmp(par.nodes, ploc.nodes, ploc.node_count * sizeof(bvh_node)) == 0);
     CHECK(memcmp(par.prims, ploc.prims, ploc.ref_count * sizeof(uint32_t)) == 0);
-    CHECK(live_blocks == 8); /* nodes, references, triangles and 4-wide nodes of each tree: BVH_MALLOC is used */
+    CHECK(live_blocks == 8); /* nodes, references, triangles, the wide nodes with their packets of each tree: BVH_MALLOC */
 
     CHECK(bvh_intersect(&par, &ray, &hit) == 1 && hit.prim == 0 && hit.t == 1.0f);
     CHECK(bvh_intersect_counted(&par, &ray, &hit, &visited) == 1 && visited >= 1);

@@ -154,7 +154,7 @@ static void fz_parse_options(fz_in *in, fz_case *c, uint8_t *flags, uint8_t *ext
     if (*extra & 2) d->split_budget = fz_raw(in);
     c->batch = (*extra & 16) != 0;
     c->negative_tmin = (*extra & 64) != 0;
-    if (*extra & 128) d->trace_width = 2; /* binary traversal; else the 4-wide copy */
+    if (*extra & 128) d->trace_width = 2; /* binary traversal; else the 8-wide copy */
     c->arg_err = d->max_leaf_size > 255 || d->ploc_radius > 256 || !fz_costs_ok(&d->costs) ||
                  d->split_budget != d->split_budget || d->split_budget > 1.0f;
 }

@@ -122,9 +122,9 @@ static void build_argument_errors(void **state) {
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
         d = ok; d.trace_width = 3;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.trace_width = 8;
-        build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
         d = ok; d.trace_width = 4;
+        build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
+        d = ok; d.trace_width = 8;
         build_expect(&d, BVH_SUCCESS);
         d = ok; d.trace_width = 2;
         build_expect(&d, BVH_SUCCESS);
@@ -697,10 +697,18 @@ static bvh_tree copy_tree(const bvh_tree *t, uint32_t extra_nodes) {
     c.nodes = (bvh_node *)malloc((t->node_count + extra_nodes) * sizeof(bvh_node));
     c.prims = (uint32_t *)malloc(t->ref_count * sizeof(uint32_t));
     c.tris = (float *)malloc(t->ref_count * 9 * sizeof(float));
-    c.nodes4 = (bvh_node4 *)malloc((t->node4_count ? t->node4_count : 1) * sizeof(bvh_node4));
-    assert_true(c.nodes && c.prims && c.tris && c.nodes4);
-    if (t->nodes4) memcpy(c.nodes4, t->nodes4, t->node4_count * sizeof(bvh_node4));
-    else { free(c.nodes4); c.nodes4 = NULL; }
+    c.nodes8 = (bvh_node8 *)malloc((t->node8_count ? t->node8_count : 1) * sizeof(bvh_node8));
+    c.tri4 = (bvh_tri4 *)malloc((t->tri4_count ? t->tri4_count : 1) * sizeof(bvh_tri4));
+    assert_true(c.nodes && c.prims && c.tris && c.nodes8 && c.tri4);
+    if (t->nodes8) {
+        memcpy(c.nodes8, t->nodes8, t->node8_count * sizeof(bvh_node8));
+        memcpy(c.tri4, t->tri4, t->tri4_count * sizeof(bvh_tri4));
+    } else {
+        free(c.nodes8);
+        free(c.tri4);
+        c.nodes8 = NULL;
+        c.tri4 = NULL;
+    }
     memcpy(c.nodes, t->nodes, t->node_count * sizeof(bvh_node));
     memcpy(c.prims, t->prims, t->ref_count * sizeof(uint32_t));
     memcpy(c.tris, t->tris, t->ref_count * 9 * sizeof(float));
@@ -708,7 +716,7 @@ static bvh_tree copy_tree(const bvh_tree *t, uint32_t extra_nodes) {
     return c;
 }
 static void free_copy(bvh_tree *c) {
-    free(c->nodes); free(c->prims); free(c->tris); free(c->nodes4);
+    free(c->nodes); free(c->prims); free(c->tris); free(c->nodes8); free(c->tri4);
     memset(c, 0, sizeof *c);
 }
 /* bvh_validate reports the corruption with a message; the copy is freed. */
@@ -848,32 +856,47 @@ static void corrupted_trees(void **state) {
         c.nodes = NULL;
         expect_invalid(&c, "node array missing");
 
-        /* the 4-wide copy: the root's first slot and, if it is interior, the node it points to */
-        assert_non_null(t.nodes4);
+        /* the 8-wide copy: the root's first slot and, if it is interior, the node it points to */
+        assert_non_null(t.nodes8);
         c = copy_tree(&t, 0); /* a slot box grown beyond the root */
-        c.nodes4[0].max[1][0] = c.nodes[0].max.y + 1.0f;
-        expect_invalid(&c, "4-wide slot outside the root");
+        c.nodes8[0].max[1][0] = c.nodes[0].max.y + 1.0f;
+        expect_invalid(&c, "8-wide slot outside the root");
         c = copy_tree(&t, 0); /* a slot box shrunk to a point */
-        c.nodes4[0].max[0][0] = c.nodes4[0].min[0][0];
-        c.nodes4[0].max[1][0] = c.nodes4[0].min[1][0];
-        c.nodes4[0].max[2][0] = c.nodes4[0].min[2][0];
-        expect_invalid(&c, "4-wide slot shrunk");
+        c.nodes8[0].max[0][0] = c.nodes8[0].min[0][0];
+        c.nodes8[0].max[1][0] = c.nodes8[0].min[1][0];
+        c.nodes8[0].max[2][0] = c.nodes8[0].min[2][0];
+        expect_invalid(&c, "8-wide slot shrunk");
         c = copy_tree(&t, 0); /* NaN in a slot box */
-        c.nodes4[0].min[2][1] = NAN;
-        expect_invalid(&c, "4-wide NaN");
+        c.nodes8[0].min[2][1] = NAN;
+        expect_invalid(&c, "8-wide NaN");
         c = copy_tree(&t, 0); /* a slot pointing back at the root (a cycle), or a leaf past the end */
-        if (c.nodes4[0].count[0]) c.nodes4[0].child[0] = c.ref_count;
-        else c.nodes4[0].child[0] = 0;
-        expect_invalid(&c, c.nodes4[0].count[0] ? "4-wide leaf past the end" : "4-wide cycle to the root");
-        c = copy_tree(&t, 0); /* a leaf slot one reference short */
-        for (i = 0; i < c.node4_count * 4; i++)
-            if (c.nodes4[i / 4].count[i % 4] >= 2) break;
-        assert_true(i < c.node4_count * 4);
-        c.nodes4[i / 4].count[i % 4]--;
-        expect_invalid(&c, "4-wide leaf one short");
+        if (c.nodes8[0].count[0]) c.nodes8[0].child[0] = c.tri4_count;
+        else c.nodes8[0].child[0] = 0;
+        expect_invalid(&c, c.nodes8[0].count[0] ? "8-wide leaf past the end" : "8-wide cycle to the root");
+        for (i = 0; i < t.node8_count * 8; i++) /* a leaf slot */
+            if (t.nodes8[i / 8].count[i % 8]) break;
+        assert_true(i < t.node8_count * 8);
+        c = copy_tree(&t, 0); /* a leaf slot one packet short, or long */
+        c.nodes8[i / 8].count[i % 8]--;
+        expect_invalid(&c, "8-wide leaf one packet short");
+        c = copy_tree(&t, 0);
+        c.nodes8[i / 8].count[i % 8]++;
+        expect_invalid(&c, "8-wide leaf one packet long");
+        c = copy_tree(&t, 0); /* a packet lane holding another primitive */
+        c.tri4[c.nodes8[i / 8].child[i % 8]].prim[0] ^= 1u;
+        expect_invalid(&c, "packet lane with another primitive");
+        c = copy_tree(&t, 0); /* a packet lane outside its slot's box */
+        c.tri4[c.nodes8[i / 8].child[i % 8]].v[1][0][0] = c.nodes[0].max.x + 1.0f;
+        expect_invalid(&c, "packet lane outside its box");
+        c = copy_tree(&t, 0); /* a packet no leaf holds */
+        c.tri4_count++;
+        c.tri4 = (bvh_tri4 *)realloc(c.tri4, c.tri4_count * sizeof(bvh_tri4));
+        assert_non_null(c.tri4);
+        c.tri4[c.tri4_count - 1] = c.tri4[0];
+        expect_invalid(&c, "packet in no leaf");
         c = copy_tree(&t, 0); /* a wide node no one reaches */
-        c.node4_count--;
-        expect_invalid(&c, "4-wide node array one short");
+        c.node8_count--;
+        expect_invalid(&c, "8-wide node array one short");
         bvh_free(&t);
     }
     tu_scene_free(&s);

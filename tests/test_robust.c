@@ -1147,7 +1147,7 @@ static void rb_fail_every_allocation(const rb_scene *s, bvh_builder b, int skip_
             assert_null(t.nodes);
             assert_null(t.prims);
             assert_null(t.tris);
-            assert_null(t.nodes4);
+            assert_null(t.nodes8);
             if (atomic_load(&a.live) != 0)
                 fail_msg("%s (%s): allocation %ld of %ld failed: %ld blocks leaked", what, bvh_builder_name(b), k, total,
                          (long)atomic_load(&a.live));
@@ -1190,7 +1190,7 @@ static void test_allocation_failure(void **state) {
             a.fail_at = base + k;
             assert_int_equal(bvh_validate(&t, NULL, NULL), BVH_ERROR_OUT_OF_MEMORY);
             base = atomic_load(&a.calls);
-            assert_int_equal(atomic_load(&a.live), 4); /* nodes, references, triangles, 4-wide nodes */
+            assert_int_equal(atomic_load(&a.live), 4); /* nodes, references, triangles, 8-wide nodes with packets */
         }
         for (k = 0; k < 2; k++) {
             a.fail_at = atomic_load(&a.calls) + k;

@@ -4,8 +4,9 @@
    hit (same primitive, bitwise-same t, u, v) on TU_RAYS rays of every kind, also with tmax set to
    the hit distance and just below it; bvh_occluded equals "a closest hit exists";
    bvh_intersect_counted equals bvh_intersect; the batch calls on 1, 2, 3, 8 and all threads equal
-   the single-ray calls. bvh_intersect and bvh_occluded are checked on the default 4-wide copy and
-   on a binary-only tree (trace_width 2); bvh_intersect_counted always walks the binary nodes. Also: invalid rays miss, and a tree exactly BVH_MAX_DEPTH deep traces. */
+   the single-ray calls. bvh_intersect and bvh_occluded are checked on the default 8-wide copy and
+   on a binary-only tree (trace_width 2); bvh_intersect_counted always walks the binary nodes. The same on the rays a renderer
+   traces from surfaces (bounce rays on and just off a triangle, shadow rays, grazing rays). Also: invalid rays miss, and a tree exactly BVH_MAX_DEPTH deep traces. */
 #define BVH_IMPLEMENTATION
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
@@ -79,14 +80,14 @@ static void exact_hits(void **state) {
         bvh_tree bin;
         bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
         tu_build(&s, tu_builder(b), &trees[b]);
-        assert_non_null(trees[b].nodes4); /* the default: 4-wide traversal (counted: binary) */
+        assert_non_null(trees[b].nodes8); /* the default: 8-wide traversal (counted: binary) */
         bad_b = compare(&s, &trees[b], rays, want, TU_RAYS) + compare(&s, &trees[b], rays2, want2, n2);
         if (bad_b) print_error("%s/%s: %zu of %zu rays differ from the brute force\n", s.name,
                                bvh_builder_name(tu_builder(b)), bad_b, TU_RAYS + n2);
         bad += bad_b;
         d.trace_width = 2; /* binary traversal only */
         tu_build_valid(&s, &d, &bin);
-        assert_null(bin.nodes4);
+        assert_null(bin.nodes8);
         bad_b = compare(&s, &bin, rays, want, TU_RAYS) + compare(&s, &bin, rays2, want2, n2);
         if (bad_b) print_error("%s/%s, trace_width 2: %zu of %zu rays differ from the brute force\n", s.name,
                                bvh_builder_name(tu_builder(b)), bad_b, TU_RAYS + n2);
@@ -95,6 +96,95 @@ static void exact_hits(void **state) {
     }
     for (b = 0; b < TU_BUILDER_COUNT; b++) bvh_free(&trees[b]);
     free(rays); free(rays2); free(want); free(want2); free(tris);
+    tu_scene_free(&s);
+    assert_int_equal(bad, 0);
+}
+
+/* The rays a renderer traces after the camera's, from points on the surface (kind = i % 4):
+   0 a bounce ray from exactly on a triangle, into the hemisphere of its normal that faces the
+   direction drawn; 1 the same from just off the surface (1e-4 of the diagonal); 2 a shadow ray
+   toward a fixed light direction; 3 a grazing ray, in the triangle's plane. */
+static void renderer_rays(const float *tris, uint32_t n, uint64_t seed, bvh_ray *rays, size_t count) {
+    tu_rng r = tu_rng_make(seed);
+    bvh_aabb b = bvh_aabb_empty();
+    const bvh_vec3 light = tu_v3(0.3f, 1.0f, 0.2f);
+    float diag;
+    size_t i;
+    uint32_t k;
+    for (k = 0; k < n; k++)
+        if (tu_finite9(tris + 9 * (size_t)k)) b = bvh_aabb_merge(b, tu_tri_box(tris + 9 * (size_t)k));
+    diag = sqrtf((b.max.x - b.min.x) * (b.max.x - b.min.x) + (b.max.y - b.min.y) * (b.max.y - b.min.y) +
+                 (b.max.z - b.min.z) * (b.max.z - b.min.z));
+    for (i = 0; i < count; i++) {
+        const float *t;
+        bvh_vec3 e1, e2, nrm, d;
+        float len, side;
+        do {
+            t = tris + 9 * (size_t)tu_below(&r, n);
+        } while (!tu_finite9(t));
+        e1 = tu_v3(t[3] - t[0], t[4] - t[1], t[5] - t[2]);
+        e2 = tu_v3(t[6] - t[0], t[7] - t[1], t[8] - t[2]);
+        nrm = tu_v3(e1.y * e2.z - e1.z * e2.y, e1.z * e2.x - e1.x * e2.z, e1.x * e2.y - e1.y * e2.x);
+        len = sqrtf(nrm.x * nrm.x + nrm.y * nrm.y + nrm.z * nrm.z);
+        if (len > 0.0f) nrm = tu_v3(nrm.x / len, nrm.y / len, nrm.z / len);
+        {
+            float a = tu_unit(&r), c = tu_unit(&r);
+            if (a + c > 1.0f) {
+                a = 1.0f - a;
+                c = 1.0f - c;
+            }
+            rays[i].origin = tu_v3(t[0] + a * e1.x + c * e2.x, t[1] + a * e1.y + c * e2.y, t[2] + a * e1.z + c * e2.z);
+        }
+        d = tu_sphere_dir(&r);
+        side = d.x * nrm.x + d.y * nrm.y + d.z * nrm.z;
+        if (i % 4 == 1) {
+            float off = side < 0.0f ? -1e-4f * diag : 1e-4f * diag;
+            rays[i].origin = tu_v3(rays[i].origin.x + off * nrm.x, rays[i].origin.y + off * nrm.y,
+                                   rays[i].origin.z + off * nrm.z);
+        }
+        if (i % 4 == 2) d = light;
+        if (i % 4 == 3) /* the drawn direction less its normal part */
+            d = tu_v3(d.x - side * nrm.x, d.y - side * nrm.y, d.z - side * nrm.z);
+        if (d.x == 0.0f && d.y == 0.0f && d.z == 0.0f) d = light;
+        rays[i].dir = d;
+        rays[i].tmin = 0.0f;
+        rays[i].tmax = BVH_INF;
+    }
+}
+
+/* exact_hits on renderer_rays, for every builder, on the 8-wide layout and the binary nodes. */
+static void exact_renderer_hits(void **state) {
+    int id = tu_state_id(state), b;
+    tu_scene s;
+    float *tris;
+    bvh_ray *rays;
+    bvh_hit *want;
+    size_t bad = 0;
+    if (!tu_scene_make(id, &s)) { skip(); return; }
+    tris = tu_scene_tris(&s);
+    rays = (bvh_ray *)malloc(TU_RAYS * sizeof *rays);
+    want = (bvh_hit *)malloc(TU_RAYS * sizeof *want);
+    assert_true(rays && want);
+    renderer_rays(tris, s.tri_count, 0x626f756e6365ULL + (uint64_t)id, rays, TU_RAYS);
+    tu_oracle_run(tris, s.tri_count, rays, TU_RAYS, want);
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        int w;
+        for (w = 0; w < 2; w++) {
+            bvh_tree t;
+            bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
+            size_t bad_b;
+            d.trace_width = w ? 2 : 0;
+            tu_build_valid(&s, &d, &t);
+            bad_b = compare(&s, &t, rays, want, TU_RAYS);
+            if (bad_b) print_error("%s/%s, trace_width %d: %zu of %d renderer rays differ from the brute force\n",
+                                   s.name, bvh_builder_name(tu_builder(b)), w ? 2 : 4, bad_b, TU_RAYS);
+            bad += bad_b;
+            bvh_free(&t);
+        }
+    }
+    free(rays);
+    free(want);
+    free(tris);
     tu_scene_free(&s);
     assert_int_equal(bad, 0);
 }
@@ -257,6 +347,7 @@ static void max_depth_tree_traces(void **state) {
 int main(void) {
     const struct CMUnitTest tests[] = {
         TU_EVERY_SCENE(exact_hits),
+        TU_EVERY_SCENE(exact_renderer_hits),
         TU_SCENE_TEST(batch_equals_single, TU_SCENE_RANDOM, "random"),
         TU_SCENE_TEST(batch_equals_single, TU_SCENE_GRID, "grid"),
         TU_SCENE_TEST(batch_equals_single, TU_SCENE_BUNNY, "bunny"),

@@ -23,9 +23,11 @@ static inline const char *tree_diff_ex(const bvh_tree *a, const bvh_tree *b, int
     TREE_DIFF_ARRAY(nodes, a->node_count, sizeof(bvh_node));
     TREE_DIFF_ARRAY(prims, a->ref_count, sizeof(uint32_t));
     if (structure_only) return NULL;
-    if (a->node4_count != b->node4_count) return "node4_count";
+    if (a->node8_count != b->node8_count) return "node8_count";
+    if (a->tri4_count != b->tri4_count) return "tri4_count";
     TREE_DIFF_ARRAY(tris, a->ref_count, 9 * sizeof(float));
-    TREE_DIFF_ARRAY(nodes4, a->node4_count, sizeof(bvh_node4));
+    TREE_DIFF_ARRAY(nodes8, a->node8_count, sizeof(bvh_node8));
+    TREE_DIFF_ARRAY(tri4, a->tri4_count, sizeof(bvh_tri4));
 #undef TREE_DIFF_ARRAY
     return NULL;
 }

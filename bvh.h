@@ -995,32 +995,73 @@ static void bvh__morton_job_free(const bvh__ctx *c, bvh__morton_job *j) {
 }
 
 /* ============================================================================================ */
+/* == object median: selection and the longest axis (shared by the top-down builders) ============ */
+/* ============================================================================================ */
+/* Key of an element for the selection: the centroid coordinate on `axis` of element e (a local
+   primitive id, or a sah-midpoint reference), computed exactly as its builder computes centroids. */
+typedef float (*bvh__key_fn)(const void *ctx, const void *e, int axis);
+
+BVH__INLINE void bvh__swap_bytes(unsigned char *x, unsigned char *y, size_t size) {
+    unsigned char t[32]; /* the largest element selected (a sah-midpoint reference) fits */
+    BVH_ASSERT(size <= sizeof t);
+    memcpy(t, x, size);
+    memcpy(x, y, size);
+    memcpy(y, t, size);
+}
+/* Quickselect (Hoare 1961, "Algorithm 65: Find") with a median-of-three pivot and Hoare's
+   partition, which splits runs of equal keys evenly. Rearranges the n elements of `size` bytes
+   at v so that element k has the k-th smallest key, no larger key before it, no smaller after.
+   Inlined into each caller, so the key function is a direct call. */
+BVH__INLINE void bvh__select(void *v, size_t size, uint32_t n, uint32_t k, bvh__key_fn key, const void *ctx, int axis) {
+    unsigned char *e = BVH__CAST(unsigned char *, v);
+    uint32_t lo = 0, hi = n - 1;
+    while (hi > lo) {
+        uint32_t i = lo, j = hi, mid = lo + (hi - lo) / 2;
+        float a = key(ctx, e + (size_t)lo * size, axis);
+        float b = key(ctx, e + (size_t)mid * size, axis);
+        float d = key(ctx, e + (size_t)hi * size, axis);
+        float pivot = a < b ? (b < d ? b : (a < d ? d : a)) : (a < d ? a : (b < d ? d : b));
+        for (;;) {
+            while (key(ctx, e + (size_t)i * size, axis) < pivot) i++;
+            while (key(ctx, e + (size_t)j * size, axis) > pivot) j--;
+            if (i >= j) break;
+            bvh__swap_bytes(e + (size_t)i * size, e + (size_t)j * size, size);
+            i++;
+            j--;
+        }
+        /* now [lo, j] <= pivot <= [j+1, hi] (when i > j) or element i == pivot (i == j) */
+        if (i == j) {
+            if (k == i) return;
+            if (k < i) hi = i - 1;
+            else lo = i + 1;
+        } else if (k <= j) {
+            hi = j;
+        } else {
+            lo = j + 1;
+        }
+    }
+}
+/* The axis an object median splits: the longest of the centroid bounds cb (ties to the lower
+   axis), or -1 when all centroids are equal and any split in half is as good. */
+static int bvh__median_axis(bvh_aabb cb) {
+    float ex = cb.max.x - cb.min.x;
+    float ey = cb.max.y - cb.min.y;
+    float ez = cb.max.z - cb.min.z;
+    if (!(ex > 0.0f || ey > 0.0f || ez > 0.0f)) return -1;
+    return ex >= ey && ex >= ez ? 0 : ey >= ez ? 1 : 2;
+}
+
+/* ============================================================================================ */
 /* == object-median top-down (the study's baseline top-down builder) ============================= */
 /* Splits the longest axis of the node's centroid bounds at the object median (quickselect, O(n)
    per level, so O(n log n) in all), leaf at max_leaf primitives or fewer. Also used to rebuild
    any subtree of another builder that would exceed BVH_MAX_DEPTH: its depth is ceil(log2(n)). */
 /* ============================================================================================ */
-static float bvh__key(const bvh__ctx *c, uint32_t id, int axis) { return bvh__get(bvh__prim_centroid(c, id), axis); }
-
-/* Rearranges ids[0..n) so that ids[k] has the k-th smallest key, smaller keys before it. */
-static void bvh__select(const bvh__ctx *c, uint32_t *ids, uint32_t n, uint32_t k, int axis) {
-    uint32_t lo = 0, hi = n - 1;
-    while (hi > lo) {
-        uint32_t i = lo, j = hi, mid = lo + (hi - lo) / 2, t;
-        float a = bvh__key(c, ids[lo], axis), b = bvh__key(c, ids[mid], axis), d = bvh__key(c, ids[hi], axis);
-        float pivot = a < b ? (b < d ? b : (a < d ? d : a)) : (a < d ? a : (b < d ? d : b));
-        for (;;) { /* Hoare partition: equal keys split evenly */
-            while (bvh__key(c, ids[i], axis) < pivot) i++;
-            while (bvh__key(c, ids[j], axis) > pivot) j--;
-            if (i >= j) break;
-            t = ids[i]; ids[i] = ids[j]; ids[j] = t;
-            i++; j--;
-        }
-        /* now [lo, j] <= pivot <= [j+1, hi] (when i > j) or ids[i] == pivot (i == j) */
-        if (i == j) { if (k == i) return; if (k < i) hi = i - 1; else lo = i + 1; }
-        else if (k <= j) hi = j;
-        else lo = j + 1;
-    }
+static float bvh__id_key(const void *ctx, const void *e, int axis) {
+    const bvh__ctx *c = BVH__CAST(const bvh__ctx *, ctx);
+    uint32_t id;
+    memcpy(&id, e, sizeof id);
+    return bvh__get(bvh__prim_centroid(c, id), axis);
 }
 
 /* Builds a median tree over o->refs[first .. first+count) with its root in node `root`. */
@@ -1032,7 +1073,6 @@ static void bvh__median_build(const bvh__ctx *c, bvh__out *o, uint32_t root, uin
         uint32_t m = stack[--sp], b = stack[--sp], ni = stack[--sp], i, half;
         bvh_node *node = &o->nodes[ni];
         bvh_aabb box = bvh_aabb_empty(), cb = bvh_aabb_empty();
-        float ex, ey, ez;
         int axis;
         for (i = b; i < b + m; i++) {
             uint32_t id = o->refs[i];
@@ -1042,11 +1082,9 @@ static void bvh__median_build(const bvh__ctx *c, bvh__out *o, uint32_t root, uin
         }
         bvh__set_box(node, box);
         if (m <= c->max_leaf) { node->index = b; node->count = m; continue; }
-        ex = cb.max.x - cb.min.x; ey = cb.max.y - cb.min.y; ez = cb.max.z - cb.min.z;
-        axis = ex >= ey && ex >= ez ? 0 : ey >= ez ? 1 : 2;
+        axis = bvh__median_axis(cb);
         half = m / 2;
-        if (ex > 0.0f || ey > 0.0f || ez > 0.0f) bvh__select(c, o->refs + b, m, half, axis);
-        /* else: all centroids equal, any split in half is as good (and keeps the depth bounded) */
+        if (axis >= 0) bvh__select(o->refs + b, sizeof *o->refs, m, half, bvh__id_key, c, axis);
         node->index = o->node_count;
         node->count = 0;
         o->node_count += 2;
@@ -2727,30 +2765,14 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
     return top - i;
 }
 
-/* Quickselect on centroids (bvh__select on clipped references): v[k] gets the k-th smallest key. */
-static void bvh__sm_select(bvh__sm_ref *v, uint32_t n, uint32_t k, int axis) {
-    uint32_t lo = 0, hi = n - 1;
-    while (hi > lo) {
-        uint32_t i = lo, j = hi, mid = lo + (hi - lo) / 2;
-        float x = bvh__sm_centre(&v[lo], axis), y = bvh__sm_centre(&v[mid], axis), z = bvh__sm_centre(&v[hi], axis);
-        float pivot = x < y ? (y < z ? y : (x < z ? z : x)) : (x < z ? x : (y < z ? z : y));
-        for (;;) { /* Hoare partition: equal keys split evenly */
-            while (bvh__sm_centre(&v[i], axis) < pivot) i++;
-            while (bvh__sm_centre(&v[j], axis) > pivot) j--;
-            if (i >= j) break;
-            bvh__sm_swap(&v[i], &v[j]);
-            i++; j--;
-        }
-        if (i == j) { if (k == i) return; if (k < i) hi = i - 1; else lo = i + 1; }
-        else if (k <= j) hi = j;
-        else lo = j + 1;
-    }
+static float bvh__sm_key(const void *ctx, const void *e, int axis) {
+    (void)ctx;
+    return bvh__sm_centre(BVH__CAST(const bvh__sm_ref *, e), axis);
 }
 /* Object median on the longest centroid axis; returns the first child's count (the upper half). */
 static uint32_t bvh__sm_median(bvh__sm *s, uint32_t b, uint32_t m, const bvh__sm_box *cb) {
-    float ex = cb->hi[0] - cb->lo[0], ey = cb->hi[1] - cb->lo[1], ez = cb->hi[2] - cb->lo[2];
-    int axis = ex >= ey && ex >= ez ? 0 : ey >= ez ? 1 : 2;
-    if (ex > 0.0f || ey > 0.0f || ez > 0.0f) bvh__sm_select(s->work + b, m, m / 2, axis);
+    int axis = bvh__median_axis(bvh__sm_aabb(cb));
+    if (axis >= 0) bvh__select(s->work + b, sizeof *s->work, m, m / 2, bvh__sm_key, NULL, axis);
     return m - m / 2;
 }
 

@@ -430,7 +430,18 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 /* ============================================================================================ */
 BVH__INLINE float bvh__minf(float a, float b) { return a < b ? a : b; }
 BVH__INLINE float bvh__maxf(float a, float b) { return a > b ? a : b; }
-static float bvh__get(bvh_vec3 v, int axis) { return axis == 0 ? v.x : axis == 1 ? v.y : v.z; }
+BVH__INLINE float bvh__get(bvh_vec3 v, int axis) { return axis == 0 ? v.x : axis == 1 ? v.y : v.z; }
+/* Coordinate `axis` of a vector in memory, as one indexed load or store (bvh_vec3 is three
+   floats without padding: checked below). */
+BVH__INLINE float bvh__at(const bvh_vec3 *v, int axis) {
+    float x;
+    memcpy(&x, BVH__CAST(const char *, (const void *)v) + (size_t)axis * sizeof x, sizeof x);
+    return x;
+}
+BVH__INLINE void bvh__set(bvh_vec3 *v, int axis, float x) {
+    memcpy(BVH__CAST(char *, (void *)v) + (size_t)axis * sizeof x, &x, sizeof x);
+}
+typedef char bvh__vec3_is_packed[sizeof(bvh_vec3) == 3 * sizeof(float) ? 1 : -1];
 /* NaN and Inf by their bits: no floating-point flag can fold these tests away. */
 static uint32_t bvh__bits(float f) {
     uint32_t u;
@@ -447,24 +458,37 @@ BVH_API bvh_aabb bvh_aabb_empty(void) {
     b.max.x = b.max.y = b.max.z = -BVH_INF;
     return b;
 }
-BVH_API void bvh_aabb_grow(bvh_aabb *b, bvh_vec3 p) {
+/* The builders' box operations, inlined in their loops; the public functions wrap them. The
+   accumulating box is always the first operand, so that min/max pick alike between -0 and +0. */
+BVH__INLINE void bvh__grow(bvh_aabb *b, bvh_vec3 p) {
     b->min.x = bvh__minf(b->min.x, p.x); b->max.x = bvh__maxf(b->max.x, p.x);
     b->min.y = bvh__minf(b->min.y, p.y); b->max.y = bvh__maxf(b->max.y, p.y);
     b->min.z = bvh__minf(b->min.z, p.z); b->max.z = bvh__maxf(b->max.z, p.z);
 }
-BVH_API bvh_aabb bvh_aabb_merge(bvh_aabb a, bvh_aabb b) {
+BVH__INLINE bvh_aabb bvh__merge(bvh_aabb a, bvh_aabb b) {
     bvh_aabb r;
     r.min.x = bvh__minf(a.min.x, b.min.x); r.max.x = bvh__maxf(a.max.x, b.max.x);
     r.min.y = bvh__minf(a.min.y, b.min.y); r.max.y = bvh__maxf(a.max.y, b.max.y);
     r.min.z = bvh__minf(a.min.z, b.min.z); r.max.z = bvh__maxf(a.max.z, b.max.z);
     return r;
 }
+BVH_API void bvh_aabb_grow(bvh_aabb *b, bvh_vec3 p) { bvh__grow(b, p); }
+BVH_API bvh_aabb bvh_aabb_merge(bvh_aabb a, bvh_aabb b) { return bvh__merge(a, b); }
 static float bvh__half_area(bvh_aabb b) {
     float dx = b.max.x - b.min.x, dy = b.max.y - b.min.y, dz = b.max.z - b.min.z;
     if (!(dx >= 0.0f && dy >= 0.0f && dz >= 0.0f)) return 0.0f; /* empty (or NaN) box */
     return dx * dy + dy * dz + dz * dx;
 }
 BVH_API float bvh_aabb_area(bvh_aabb b) { return 2.0f * bvh__half_area(b); }
+/* Half the surface area in double, for costs summed over many boxes and for boxes near FLT_MAX
+   (whose float area would overflow); 0 for an empty box. */
+static double bvh__half_area_d(bvh_aabb b) {
+    double dx = (double)b.max.x - b.min.x;
+    double dy = (double)b.max.y - b.min.y;
+    double dz = (double)b.max.z - b.min.z;
+    if (!(dx >= 0.0 && dy >= 0.0 && dz >= 0.0)) return 0.0;
+    return dx * dy + dy * dz + dz * dx;
+}
 BVH_API bvh_vec3 bvh_aabb_centroid(bvh_aabb b) {
     bvh_vec3 c;
     c.x = 0.5f * (b.min.x + b.max.x); c.y = 0.5f * (b.min.y + b.max.y); c.z = 0.5f * (b.min.z + b.max.z);
@@ -474,6 +498,7 @@ BVH_API int bvh_aabb_contains(bvh_aabb o, bvh_aabb i) {
     return o.min.x <= i.min.x && o.min.y <= i.min.y && o.min.z <= i.min.z &&
            o.max.x >= i.max.x && o.max.y >= i.max.y && o.max.z >= i.max.z;
 }
+static int bvh__nonempty(bvh_aabb b) { return b.min.x <= b.max.x && b.min.y <= b.max.y && b.min.z <= b.max.z; }
 static bvh_aabb bvh__node_box(const bvh_node *n) {
     bvh_aabb b;
     b.min = n->min; b.max = n->max;
@@ -1927,7 +1952,6 @@ BVH__INLINE float bvh__f4_half_area(bvh__f4 lo, bvh__f4 hi) {
 #define BVH__TOP_NONE 0xffffffffu
 #define BVH__TOP_PLOC_MIN 64 /* PLOC's split is a candidate from this many clusters up */
 /* The top's nodes are bvh_node with the children in index and count (top bit: a cluster). */
-static double bvh__half_area_d(const bvh_node *n);
 /* Clusters [b, e) of buffer `buf` (0 or 1) become internal node `id` and the nodes below it (ids
    in pre-order: the left subtree from id + 1, the right from id + its left count); lo, hi: the
    bounds of their boxes; clo, chi: a range of their centroids (doubled: lo + hi) to bin over. */
@@ -2224,7 +2248,7 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
             uint32_t l = s->index - base;
             cc[x] = cc[l] + cc[l + 1]; lcc[x] = cc[l];
             par[l] = par[l + 1] = x;
-            ploc_cost += bvh__half_area_d(s);
+            ploc_cost += bvh__half_area_d(bvh__node_box(s));
         }
     }
     par[L - 1] = BVH__TOP_NONE;
@@ -2260,7 +2284,7 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
     if (r != BVH_SUCCESS) goto done;
     for (i = m - 1; i-- > 0;) { /* children have larger ids: summed areas and heights from the last */
         uint32_t hh = 0;
-        double sum = bvh__half_area_d(&nodes[i]);
+        double sum = bvh__half_area_d(bvh__node_box(&nodes[i]));
         for (h = 0; h < 2; h++) {
             uint32_t y = h ? nodes[i].count : nodes[i].index;
             if (!(y & BVH__TOP_CLUSTER)) { sum += cost[y]; if (height[y] > hh) hh = height[y]; }
@@ -2416,13 +2440,12 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
 
 enum { BVH__SM_NONE, BVH__SM_BIN, BVH__SM_OVERLAP, BVH__SM_SPLIT, BVH__SM_MEDIAN };
 
-typedef struct bvh__sm_box { float lo[3], hi[3]; } bvh__sm_box;
-typedef struct bvh__sm_ref { float lo[3], hi[3]; uint32_t id; } bvh__sm_ref; /* clipped bounds */
+typedef struct bvh__sm_ref { bvh_aabb box; uint32_t id; } bvh__sm_ref; /* box: clipped bounds */
 
 typedef struct bvh__sm_task {
     uint32_t node, count, depth; /* its references are work[top - count, top) when it is popped */
     uint32_t budget;             /* extra references this subtree may still create */
-    bvh__sm_box box, cbox;       /* bounds of the references and of their centroids */
+    bvh_aabb box, cbox;       /* bounds of the references and of their centroids */
 } bvh__sm_task;
 
 typedef struct bvh__sm_choice {
@@ -2431,7 +2454,7 @@ typedef struct bvh__sm_choice {
     float plane;       /* the mid-point of the chosen axis (the cut of the binning, or the plane) */
     float bin_lo, bin_scale;
     double cost;       /* C, the sum over both children of half-area * references */
-    bvh__sm_box left, right; /* BVH__SM_SPLIT: the children as costed, for unsplitting */
+    bvh_aabb left, right; /* BVH__SM_SPLIT: the children as costed, for unsplitting */
     uint32_t n_left, n_right;
 } bvh__sm_choice;
 
@@ -2442,41 +2465,29 @@ typedef struct bvh__sm {
     uint32_t top, cap, budget, extra, carry, node_max, bins;
     double root_area;
     /* evaluation scratch, per axis */
-    bvh__sm_box bin[3][BVH__SM_MAX_BINS + 1]; /* one more: the bin holding the mid-point, cut */
+    bvh_aabb bin[3][BVH__SM_MAX_BINS + 1]; /* one more: the bin holding the mid-point, cut */
     uint32_t bin_n[3][BVH__SM_MAX_BINS + 1];
     double right_area[BVH__SM_MAX_BINS + 1];
     uint32_t right_n[BVH__SM_MAX_BINS + 1];
 } bvh__sm;
 
-BVH__INLINE void bvh__sm_empty(bvh__sm_box *b) {
-    b->lo[0] = b->lo[1] = b->lo[2] = BVH_INF;
-    b->hi[0] = b->hi[1] = b->hi[2] = -BVH_INF;
-}
-BVH__INLINE void bvh__sm_grow(bvh__sm_box *b, const float *lo, const float *hi) {
-    b->lo[0] = bvh__minf(b->lo[0], lo[0]); b->hi[0] = bvh__maxf(b->hi[0], hi[0]);
-    b->lo[1] = bvh__minf(b->lo[1], lo[1]); b->hi[1] = bvh__maxf(b->hi[1], hi[1]);
-    b->lo[2] = bvh__minf(b->lo[2], lo[2]); b->hi[2] = bvh__maxf(b->hi[2], hi[2]);
-}
-BVH__INLINE void bvh__sm_merge(bvh__sm_box *b, const bvh__sm_box *x) { bvh__sm_grow(b, x->lo, x->hi); }
-/* Half the surface area in double (no overflow for huge boxes); 0 for an empty box. */
-BVH__INLINE double bvh__sm_area(const bvh__sm_box *b) {
-    double dx = (double)b->hi[0] - b->lo[0], dy = (double)b->hi[1] - b->lo[1], dz = (double)b->hi[2] - b->lo[2];
-    if (!(dx >= 0.0 && dy >= 0.0 && dz >= 0.0)) return 0.0;
-    return dx * dy + dy * dz + dz * dx;
-}
 /* Halving is exact (but for subnormals), so even a contracted (FMA) form gives the same value:
-   every pass bins a reference alike. */
-BVH__INLINE float bvh__sm_centre(const bvh__sm_ref *r, int a) { return 0.5f * r->lo[a] + 0.5f * r->hi[a]; }
+   every pass bins a reference alike. (Not bvh_aabb_centroid, which adds first: the two differ
+   where the sum overflows or a half is subnormal.) */
+BVH__INLINE float bvh__sm_centre(const bvh__sm_ref *r, int a) {
+    return 0.5f * bvh__at(&r->box.min, a) + 0.5f * bvh__at(&r->box.max, a);
+}
+BVH__INLINE bvh_vec3 bvh__sm_centroid(const bvh__sm_ref *r) {
+    bvh_vec3 c;
+    c.x = bvh__sm_centre(r, 0);
+    c.y = bvh__sm_centre(r, 1);
+    c.z = bvh__sm_centre(r, 2);
+    return c;
+}
 BVH__INLINE uint32_t bvh__sm_bin_of(float x, float lo, float scale, uint32_t bins) {
     /* (x - lo) * scale >= 0, +inf when the centroid range overflows float: clamp, then convert */
     float f = bvh__minf((x - lo) * scale, (float)(bins - 1));
     return (uint32_t)(int)f;
-}
-static bvh_aabb bvh__sm_aabb(const bvh__sm_box *b) {
-    bvh_aabb r;
-    r.min.x = b->lo[0]; r.min.y = b->lo[1]; r.min.z = b->lo[2];
-    r.max.x = b->hi[0]; r.max.y = b->hi[1]; r.max.z = b->hi[2];
-    return r;
 }
 static uint32_t bvh__sm_log2(uint32_t m) { /* ceil(log2(m)) */
     uint32_t l = 0;
@@ -2496,7 +2507,11 @@ static int bvh__sm_clip(const bvh__ctx *c, const bvh__sm_ref *r, int a, float p,
     int e, k, mask = 0;
     *l = *r;
     *rt = *r;
-    if (!c->tris) { l->hi[a] = p; rt->lo[a] = p; return 3; }
+    if (!c->tris) {
+        bvh__set(&l->box.max, a, p);
+        bvh__set(&rt->box.min, a, p);
+        return 3;
+    }
     bvh__ctx_triangle(c, r->id, t);
     for (k = 0; k < 3; k++) { llo[k] = rlo[k] = BVH_INF; lhi[k] = rhi[k] = -BVH_INF; }
     for (e = 0; e < 3; e++) {
@@ -2521,13 +2536,15 @@ static int bvh__sm_clip(const bvh__ctx *c, const bvh__sm_ref *r, int a, float p,
         }
     }
     for (k = 0; k < 3; k++) {
-        l->lo[k] = bvh__maxf(llo[k], r->lo[k]); l->hi[k] = bvh__minf(lhi[k], r->hi[k]);
-        rt->lo[k] = bvh__maxf(rlo[k], r->lo[k]); rt->hi[k] = bvh__minf(rhi[k], r->hi[k]);
+        bvh__set(&l->box.min, k, bvh__maxf(llo[k], bvh__at(&r->box.min, k)));
+        bvh__set(&l->box.max, k, bvh__minf(lhi[k], bvh__at(&r->box.max, k)));
+        bvh__set(&rt->box.min, k, bvh__maxf(rlo[k], bvh__at(&r->box.min, k)));
+        bvh__set(&rt->box.max, k, bvh__minf(rhi[k], bvh__at(&r->box.max, k)));
     }
-    l->hi[a] = bvh__minf(l->hi[a], p);
-    rt->lo[a] = bvh__maxf(rt->lo[a], p);
-    if (l->lo[0] <= l->hi[0] && l->lo[1] <= l->hi[1] && l->lo[2] <= l->hi[2] && l->lo[a] < p) mask |= 1;
-    if (rt->lo[0] <= rt->hi[0] && rt->lo[1] <= rt->hi[1] && rt->lo[2] <= rt->hi[2] && rt->hi[a] > p) mask |= 2;
+    bvh__set(&l->box.max, a, bvh__minf(bvh__at(&l->box.max, a), p));
+    bvh__set(&rt->box.min, a, bvh__maxf(bvh__at(&rt->box.min, a), p));
+    if (bvh__nonempty(l->box) && bvh__at(&l->box.min, a) < p) mask |= 1;
+    if (bvh__nonempty(rt->box) && bvh__at(&rt->box.max, a) > p) mask |= 2;
     if (!mask) { /* cannot happen with conservative boxes; keep the whole reference on one side */
         *l = *r;
         *rt = *r;
@@ -2537,11 +2554,15 @@ static int bvh__sm_clip(const bvh__ctx *c, const bvh__sm_ref *r, int a, float p,
 }
 
 /* Half area of the intersection of two boxes (0 when they do not overlap). */
-static double bvh__sm_overlap(const bvh__sm_box *x, const bvh__sm_box *y) {
-    bvh__sm_box i;
-    int k;
-    for (k = 0; k < 3; k++) { i.lo[k] = bvh__maxf(x->lo[k], y->lo[k]); i.hi[k] = bvh__minf(x->hi[k], y->hi[k]); }
-    return bvh__sm_area(&i);
+static double bvh__sm_overlap(const bvh_aabb *x, const bvh_aabb *y) {
+    bvh_aabb i;
+    i.min.x = bvh__maxf(x->min.x, y->min.x);
+    i.min.y = bvh__maxf(x->min.y, y->min.y);
+    i.min.z = bvh__maxf(x->min.z, y->min.z);
+    i.max.x = bvh__minf(x->max.x, y->max.x);
+    i.max.y = bvh__minf(x->max.y, y->max.y);
+    i.max.z = bvh__minf(x->max.z, y->max.z);
+    return bvh__half_area_d(i);
 }
 static int bvh__sm_offer(bvh__sm_choice *best, int kind, int axis, float plane, double cost) {
     if (best->kind != BVH__SM_NONE && !(cost < best->cost)) return 0; /* ties: the earlier candidate */
@@ -2563,7 +2584,7 @@ typedef struct bvh__sm_axis {
 } bvh__sm_axis;
 BVH__INLINE uint32_t bvh__sm_slot(const bvh__sm_ref *r, int a, float c, const bvh__sm_axis *x) { /* c: centroid */
     uint32_t k = x->bins > 1 ? bvh__sm_bin_of(c, x->lo, x->scale, x->bins) : 0;
-    uint32_t right = (uint32_t)(c >= x->p) & (uint32_t)((c != x->p) | (r->hi[a] > x->p)); /* not in D_L u O_L */
+    uint32_t right = (uint32_t)(c >= x->p) & (uint32_t)((c != x->p) | (bvh__at(&r->box.max, a) > x->p)); /* not in D_L u O_L */
     return k + (uint32_t)(k > x->kp) + ((uint32_t)(k == x->kp) & right);
 }
 
@@ -2573,62 +2594,64 @@ BVH__INLINE uint32_t bvh__sm_slot(const bvh__sm_ref *r, int a, float c, const bv
    into D_L, D_R and straddlers and clips the straddlers for C_S. With bins, pass 2 runs only
    where the best candidate so far has children overlapping by more than BVH__SAH_MIDPOINT_ALPHA
    of the root's area; without bins (the study's variant) C_S is always costed. */
-static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget, const bvh__sm_box *nb,
-                             const bvh__sm_box *cb, bvh__sm_choice *best) {
+static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget, const bvh_aabb *nb,
+                             const bvh_aabb *cb, bvh__sm_choice *best) {
     const uint32_t bins = s->bins < m ? s->bins : m, e = b + m; /* small nodes: fewer bins */
     bvh__sm_axis x[3];
-    bvh__sm_box dl[3], dr[3], sl[3], sr[3], lb, rb;
+    bvh_aabb dl[3], dr[3], sl[3], sr[3], lb, rb;
     uint32_t ndl[3], ndr[3], nsl[3], nsr[3], dup[3], slots[3], i, k, best_slot = 0;
     int mid_ok[3], clip[3], any_clip = 0, a;
     best->kind = BVH__SM_NONE;
     best->cost = 0.0;
     for (a = 0; a < 3; a++) {
         bvh__sm_axis *xa = &x[a];
-        xa->p = 0.5f * nb->lo[a] + 0.5f * nb->hi[a];
-        mid_ok[a] = nb->lo[a] < xa->p && xa->p < nb->hi[a];
-        xa->lo = cb->lo[a];
-        xa->bins = bins > 1 && cb->lo[a] < cb->hi[a] ? bins : 1;
-        xa->scale = xa->bins > 1 ? (float)((double)bins / ((double)cb->hi[a] - cb->lo[a])) : 0.0f;
+        const float nlo = bvh__at(&nb->min, a), nhi = bvh__at(&nb->max, a);
+        const float clo = bvh__at(&cb->min, a), chi = bvh__at(&cb->max, a);
+        xa->p = 0.5f * nlo + 0.5f * nhi;
+        mid_ok[a] = nlo < xa->p && xa->p < nhi;
+        xa->lo = clo;
+        xa->bins = bins > 1 && clo < chi ? bins : 1;
+        xa->scale = xa->bins > 1 ? (float)((double)bins / ((double)chi - clo)) : 0.0f;
         if (xa->bins > 1 && !(xa->scale > 0.0f && xa->scale <= FLT_MAX)) { xa->bins = 1; xa->scale = 0.0f; }
         xa->kp = xa->bins;
-        if (mid_ok[a] && cb->lo[a] <= xa->p && xa->p <= cb->hi[a])
+        if (mid_ok[a] && clo <= xa->p && xa->p <= chi)
             xa->kp = xa->bins > 1 ? bvh__sm_bin_of(xa->p, xa->lo, xa->scale, xa->bins) : 0;
         slots[a] = xa->bins + (xa->kp < xa->bins);
-        for (k = 0; k < slots[a]; k++) { bvh__sm_empty(&s->bin[a][k]); s->bin_n[a][k] = 0; }
+        for (k = 0; k < slots[a]; k++) { s->bin[a][k] = bvh_aabb_empty(); s->bin_n[a][k] = 0; }
     }
     for (i = b; i < e; i++) { /* pass 1 */
         const bvh__sm_ref *r = &s->work[i];
         for (a = 0; a < 3; a++) {
             if (slots[a] < 2) continue;
             k = bvh__sm_slot(r, a, bvh__sm_centre(r, a), &x[a]);
-            bvh__sm_grow(&s->bin[a][k], r->lo, r->hi);
+            s->bin[a][k] = bvh__merge(s->bin[a][k], r->box);
             s->bin_n[a][k]++;
         }
     }
     for (a = 0; a < 3; a++) { /* Wald 2007: sweep the slots from the right, then from the left */
-        bvh__sm_box acc;
+        bvh_aabb acc;
         uint32_t n = 0;
         double area = 0.0;
         if (slots[a] < 2) continue;
-        bvh__sm_empty(&acc);
+        acc = bvh_aabb_empty();
         for (k = slots[a] - 1; k > 0; k--) { /* an empty slot changes nothing: no area to compute */
             if (s->bin_n[a][k]) {
-                bvh__sm_merge(&acc, &s->bin[a][k]);
+                acc = bvh__merge(acc, s->bin[a][k]);
                 n += s->bin_n[a][k];
-                area = bvh__sm_area(&acc);
+                area = bvh__half_area_d(acc);
             }
             s->right_area[k] = area;
             s->right_n[k] = n;
         }
-        bvh__sm_empty(&acc);
+        acc = bvh_aabb_empty();
         n = 0;
         for (k = 1; k < slots[a]; k++) { /* after an empty slot the candidate repeats the previous one */
             if (!s->bin_n[a][k - 1]) continue;
-            bvh__sm_merge(&acc, &s->bin[a][k - 1]);
+            acc = bvh__merge(acc, s->bin[a][k - 1]);
             n += s->bin_n[a][k - 1];
             if (!s->right_n[k]) break;
             if (bvh__sm_offer(best, k == x[a].kp + 1 ? BVH__SM_OVERLAP : BVH__SM_BIN, a, x[a].p,
-                              bvh__sm_area(&acc) * n + s->right_area[k] * s->right_n[k]))
+                              bvh__half_area_d(acc) * n + s->right_area[k] * s->right_n[k]))
                 best_slot = k;
         }
     }
@@ -2645,15 +2668,18 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         int gate = s->bins > 0 && best->kind != BVH__SM_NONE;
         if (gate) {
             a = best->axis;
-            bvh__sm_empty(&lb);
-            bvh__sm_empty(&rb);
-            for (k = 0; k < slots[a]; k++) bvh__sm_merge(k < best_slot ? &lb : &rb, &s->bin[a][k]);
+            lb = bvh_aabb_empty();
+            rb = bvh_aabb_empty();
+            for (k = 0; k < slots[a]; k++) {
+                bvh_aabb *side = k < best_slot ? &lb : &rb;
+                *side = bvh__merge(*side, s->bin[a][k]);
+            }
             gate = !(bvh__sm_overlap(&lb, &rb) > BVH__SAH_MIDPOINT_ALPHA * s->root_area);
         }
         for (a = 0; a < 3; a++) {
             clip[a] = !gate && budget > 0 && mid_ok[a];
             any_clip |= clip[a];
-            bvh__sm_empty(&dl[a]); bvh__sm_empty(&dr[a]); bvh__sm_empty(&sl[a]); bvh__sm_empty(&sr[a]);
+            dl[a] = dr[a] = sl[a] = sr[a] = bvh_aabb_empty();
             ndl[a] = ndr[a] = nsl[a] = nsr[a] = dup[a] = 0;
         }
     }
@@ -2665,20 +2691,20 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
             int mask;
             float p = x[a].p;
             if (!clip[a]) continue;
-            if (r->hi[a] <= p) { bvh__sm_grow(&dl[a], r->lo, r->hi); ndl[a]++; continue; }
-            if (r->lo[a] >= p) { bvh__sm_grow(&dr[a], r->lo, r->hi); ndr[a]++; continue; }
+            if (bvh__at(&r->box.max, a) <= p) { dl[a] = bvh__merge(dl[a], r->box); ndl[a]++; continue; }
+            if (bvh__at(&r->box.min, a) >= p) { dr[a] = bvh__merge(dr[a], r->box); ndr[a]++; continue; }
             mask = bvh__sm_clip(s->c, r, a, p, &lp, &rp);
-            if (mask & 1) { bvh__sm_grow(&sl[a], lp.lo, lp.hi); nsl[a]++; }
-            if (mask & 2) { bvh__sm_grow(&sr[a], rp.lo, rp.hi); nsr[a]++; }
+            if (mask & 1) { sl[a] = bvh__merge(sl[a], lp.box); nsl[a]++; }
+            if (mask & 2) { sr[a] = bvh__merge(sr[a], rp.box); nsr[a]++; }
             if (mask == 3 && ++dup[a] > budget) clip[a] = 0; /* over budget: not a candidate */
         }
     }
     for (a = 0; a < 3; a++) {
         if (!clip[a] || !(nsl[a] + nsr[a]) || !(ndl[a] + nsl[a]) || !(ndr[a] + nsr[a])) continue;
-        lb = dl[a]; bvh__sm_merge(&lb, &sl[a]);
-        rb = dr[a]; bvh__sm_merge(&rb, &sr[a]);
+        lb = dl[a]; lb = bvh__merge(lb, sl[a]);
+        rb = dr[a]; rb = bvh__merge(rb, sr[a]);
         if (bvh__sm_offer(best, BVH__SM_SPLIT, a, x[a].p,
-                          bvh__sm_area(&lb) * (ndl[a] + nsl[a]) + bvh__sm_area(&rb) * (ndr[a] + nsr[a]))) {
+                          bvh__half_area_d(lb) * (ndl[a] + nsl[a]) + bvh__half_area_d(rb) * (ndr[a] + nsr[a]))) {
             best->left = lb; best->right = rb;
             best->n_left = ndl[a] + nsl[a]; best->n_right = ndr[a] + nsr[a];
         }
@@ -2687,24 +2713,22 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
 
 BVH__INLINE void bvh__sm_swap(bvh__sm_ref *x, bvh__sm_ref *y) { bvh__sm_ref t = *x; *x = *y; *y = t; }
 
-/* Grows a child's bounds and centroid bounds by reference r (cc: its centroid, or NULL). */
-BVH__INLINE void bvh__sm_add(bvh__sm_task *t, const bvh__sm_ref *r, const float *cc) {
-    float c[3];
-    if (!cc) { c[0] = bvh__sm_centre(r, 0); c[1] = bvh__sm_centre(r, 1); c[2] = bvh__sm_centre(r, 2); cc = c; }
-    bvh__sm_grow(&t->box, r->lo, r->hi);
-    bvh__sm_grow(&t->cbox, cc, cc);
+/* Grows a child's bounds and centroid bounds by reference r. */
+BVH__INLINE void bvh__sm_add(bvh__sm_task *t, const bvh__sm_ref *r, bvh_vec3 centroid) {
+    t->box = bvh__merge(t->box, r->box);
+    bvh__grow(&t->cbox, centroid);
 }
 /* Reference unsplitting (Stich, Friedrich & Dietrich 2009, Sec. 4.4), with bins only: keeps a
    straddler whole on one side when that costs less than referencing it on both, judged against
    the children as costed. Returns 1 (left), 2 (right) or 3 (split). */
 static int bvh__sm_unsplit(const bvh__sm_choice *ch, const bvh__sm_ref *r) {
-    bvh__sm_box l = ch->left, rt = ch->right;
-    double al = bvh__sm_area(&ch->left), ar = bvh__sm_area(&ch->right), split, c1, c2;
+    bvh_aabb l = ch->left, rt = ch->right;
+    double al = bvh__half_area_d(ch->left), ar = bvh__half_area_d(ch->right), split, c1, c2;
     split = al * ch->n_left + ar * ch->n_right;
-    bvh__sm_grow(&l, r->lo, r->hi);
-    bvh__sm_grow(&rt, r->lo, r->hi);
-    c1 = bvh__sm_area(&l) * ch->n_left + ar * (ch->n_right - 1);
-    c2 = al * (ch->n_left - 1) + bvh__sm_area(&rt) * ch->n_right;
+    l = bvh__merge(l, r->box);
+    rt = bvh__merge(rt, r->box);
+    c1 = bvh__half_area_d(l) * ch->n_left + ar * (ch->n_right - 1);
+    c2 = al * (ch->n_left - 1) + bvh__half_area_d(rt) * ch->n_right;
     if (c1 < split && c1 <= c2) return 1;
     if (c2 < split) return 2;
     return 3;
@@ -2725,8 +2749,8 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
         while (mid < hi) {
             bvh__sm_ref *r = &w[mid];
             int side; /* 1 left, 2 right, 3 both */
-            if (r->hi[a] <= p) side = 1;
-            else if (r->lo[a] >= p) side = 2;
+            if (bvh__at(&r->box.max, a) <= p) side = 1;
+            else if (bvh__at(&r->box.min, a) >= p) side = 2;
             else {
                 bvh__sm_ref lp, rp;
                 int mask = bvh__sm_clip(s->c, r, a, p, &lp, &rp);
@@ -2734,10 +2758,10 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
                 else {
                     side = s->bins ? bvh__sm_unsplit(ch, r) : 3; /* 1 or 2: whole, on that side */
                     if (side == 3 && dups >= budget) side = bvh__sm_centre(r, a) < p ? 1 : 2;
-                    if (side == 3) { w[top + dups++] = lp; *r = rp; bvh__sm_add(first, &lp, NULL); }
+                    if (side == 3) { w[top + dups++] = lp; *r = rp; bvh__sm_add(first, &lp, bvh__sm_centroid(&lp)); }
                 }
             }
-            bvh__sm_add(side == 1 ? first : second, r, NULL);
+            bvh__sm_add(side == 1 ? first : second, r, bvh__sm_centroid(r));
             if (side == 2) { bvh__sm_swap(&w[lo], &w[mid]); lo++; mid++; }
             else if (side == 3) mid++;
             else { hi--; bvh__sm_swap(&w[mid], &w[hi]); }
@@ -2753,10 +2777,11 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
         x.lo = ch->bin_lo; x.scale = ch->bin_scale; x.p = p; x.bins = ch->bins; x.kp = ch->cut;
         while (i < j) {
             const bvh__sm_ref *r = &w[i];
-            float cc[3];
+            const bvh_vec3 cc = bvh__sm_centroid(r);
+            const float ca = bvh__at(&cc, a);
             int go_first;
-            cc[0] = bvh__sm_centre(r, 0); cc[1] = bvh__sm_centre(r, 1); cc[2] = bvh__sm_centre(r, 2);
-            go_first = binned ? bvh__sm_slot(r, a, cc[a], &x) < ch->bin : r->hi[a] <= p || (r->lo[a] < p && cc[a] < p);
+            if (binned) go_first = bvh__sm_slot(r, a, ca, &x) < ch->bin;
+            else go_first = bvh__at(&r->box.max, a) <= p || (bvh__at(&r->box.min, a) < p && ca < p);
             bvh__sm_add(go_first ? first : second, r, cc);
             if (!go_first) i++;
             else { j--; bvh__sm_swap(&w[i], &w[j]); }
@@ -2770,21 +2795,19 @@ static float bvh__sm_key(const void *ctx, const void *e, int axis) {
     return bvh__sm_centre(BVH__CAST(const bvh__sm_ref *, e), axis);
 }
 /* Object median on the longest centroid axis; returns the first child's count (the upper half). */
-static uint32_t bvh__sm_median(bvh__sm *s, uint32_t b, uint32_t m, const bvh__sm_box *cb) {
-    int axis = bvh__median_axis(bvh__sm_aabb(cb));
+static uint32_t bvh__sm_median(bvh__sm *s, uint32_t b, uint32_t m, const bvh_aabb *cb) {
+    int axis = bvh__median_axis(*cb);
     if (axis >= 0) bvh__select(s->work + b, sizeof *s->work, m, m / 2, bvh__sm_key, NULL, axis);
     return m - m / 2;
 }
 
-static void bvh__sm_bounds(const bvh__sm_ref *v, uint32_t n, bvh__sm_box *box, bvh__sm_box *cbox) {
+static void bvh__sm_bounds(const bvh__sm_ref *v, uint32_t n, bvh_aabb *box, bvh_aabb *cbox) {
     uint32_t i;
-    bvh__sm_empty(box);
-    bvh__sm_empty(cbox);
+    *box = bvh_aabb_empty();
+    *cbox = bvh_aabb_empty();
     for (i = 0; i < n; i++) {
-        float cc[3];
-        cc[0] = bvh__sm_centre(&v[i], 0); cc[1] = bvh__sm_centre(&v[i], 1); cc[2] = bvh__sm_centre(&v[i], 2);
-        bvh__sm_grow(box, v[i].lo, v[i].hi);
-        bvh__sm_grow(cbox, cc, cc);
+        *box = bvh__merge(*box, v[i].box);
+        bvh__grow(cbox, bvh__sm_centroid(&v[i]));
     }
 }
 
@@ -2829,23 +2852,20 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
     o->ref_cap = s->cap;
     if (!s->work || !o->refs || !o->nodes) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
     for (i = 0; i < c->n; i++) {
-        bvh__sm_ref *w = &s->work[i];
-        const bvh_aabb *bx = &c->boxes[i];
-        w->lo[0] = bx->min.x; w->lo[1] = bx->min.y; w->lo[2] = bx->min.z;
-        w->hi[0] = bx->max.x; w->hi[1] = bx->max.y; w->hi[2] = bx->max.z;
-        w->id = i;
+        s->work[i].box = c->boxes[i];
+        s->work[i].id = i;
     }
     s->top = c->n;
     o->node_count = 1;
     stack[0].node = 0; stack[0].count = c->n; stack[0].depth = 1; stack[0].budget = s->budget;
     bvh__sm_bounds(s->work, c->n, &stack[0].box, &stack[0].cbox);
-    s->root_area = bvh__sm_area(&stack[0].box);
+    s->root_area = bvh__half_area_d(stack[0].box);
     sp = 1;
     while (sp) {
         bvh__sm_task t = stack[--sp], tl, tr;
         uint32_t m = t.count, b = s->top - m, nl, nr, left;
         bvh__sm_choice ch;
-        bvh__sm_box box;
+        bvh_aabb box;
         bvh_node *node;
         memset(&ch, 0, sizeof ch);
         ch.kind = BVH__SM_MEDIAN;
@@ -2856,7 +2876,7 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
         } else if (m <= 1) {
             ch.kind = BVH__SM_NONE;
         } else {
-            double area = bvh__sm_area(&t.box);
+            double area = bvh__half_area_d(t.box);
             bvh__sm_evaluate(s, b, m, t.budget, &t.box, &t.cbox, &ch);
             if (m <= c->max_leaf &&
                 (ch.kind == BVH__SM_NONE || area * ((double)c->ct * m + c->cl) <= c->ci * area + c->ct * ch.cost))
@@ -2866,7 +2886,7 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
         }
         node = &o->nodes[t.node];
         if (ch.kind == BVH__SM_NONE) { /* leaf */
-            bvh__set_box(node, bvh__sm_aabb(&t.box));
+            bvh__set_box(node, t.box);
             node->index = o->ref_count;
             node->count = m;
             for (i = b; i < b + m; i++) o->refs[o->ref_count++] = s->work[i].id;
@@ -2874,8 +2894,7 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
             s->carry = t.budget;
             continue;
         }
-        bvh__sm_empty(&tl.box); bvh__sm_empty(&tl.cbox);
-        bvh__sm_empty(&tr.box); bvh__sm_empty(&tr.cbox);
+        tl.box = tl.cbox = tr.box = tr.cbox = bvh_aabb_empty();
         nl = ch.kind == BVH__SM_MEDIAN ? 0 : bvh__sm_partition(s, b, t.budget, &ch, &tl, &tr);
         if (nl == 0 || nl == s->top - b) { /* median (no duplicates were made) */
             nl = bvh__sm_median(s, b, m, &t.cbox);
@@ -2894,8 +2913,8 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
         tl.count = nl; tr.count = nr;
         tl.depth = tr.depth = t.depth + 1;
         box = tl.box;
-        bvh__sm_merge(&box, &tr.box); /* split parts may be tighter than the node's references */
-        bvh__set_box(node, bvh__sm_aabb(&box));
+        box = bvh__merge(box, tr.box); /* split parts may be tighter than the node's references */
+        bvh__set_box(node, box);
         node->index = tl.node;
         node->count = 0;
         BVH_ASSERT(sp + 2 <= BVH__SM_STACK);
@@ -3249,12 +3268,6 @@ BVH_API bvh_aabb bvh_tree_bounds(const bvh_tree *tree) {
     return bvh__node_box(&tree->nodes[0]);
 }
 
-/* in double: boxes near FLT_MAX would overflow a float area */
-static double bvh__half_area_d(const bvh_node *n) {
-    double dx = (double)n->max.x - n->min.x, dy = (double)n->max.y - n->min.y, dz = (double)n->max.z - n->min.z;
-    if (!(dx >= 0.0 && dy >= 0.0 && dz >= 0.0)) return 0.0;
-    return dx * dy + dy * dz + dz * dx;
-}
 /* Visits every node reached from the root, parents before children, with its depth (root 1).
    Trusts nothing: BVH_ERROR_INVALID_TREE for a child index out of range, a tree deeper than
    BVH_MAX_DEPTH (so a cycle ends) or a node count that differs from the nodes reached. */
@@ -3287,7 +3300,7 @@ typedef struct bvh__sah_sum {
 } bvh__sah_sum;
 static void bvh__sah_visit(void *ctx, const bvh_node *n, uint32_t depth) {
     bvh__sah_sum *s = BVH__CAST(bvh__sah_sum *, ctx);
-    double a = s->root > 0.0 ? bvh__half_area_d(n) / s->root : 1.0;
+    double a = s->root > 0.0 ? bvh__half_area_d(bvh__node_box(n)) / s->root : 1.0;
     (void)depth;
     if (n->count) {
         s->sl += a;
@@ -3311,7 +3324,7 @@ BVH_API bvh_result bvh_sah(const bvh_tree *tree, const bvh_costs *costs, double 
     if (!tree->node_count) return BVH_SUCCESS;
     if (!tree->nodes) return BVH_ERROR_INVALID_TREE;
     memset(&sum, 0, sizeof sum);
-    sum.root = bvh__half_area_d(&tree->nodes[0]);
+    sum.root = bvh__half_area_d(bvh__node_box(&tree->nodes[0]));
     if ((r = bvh__walk(tree, bvh__sah_visit, &sum)) != BVH_SUCCESS) return r;
     *out = ci * sum.si + cl * sum.sl + ct * sum.st;
     return BVH_SUCCESS;

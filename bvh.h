@@ -1020,7 +1020,7 @@ static void bvh__morton_job_free(const bvh__ctx *c, bvh__morton_job *j) {
 }
 
 /* ============================================================================================ */
-/* == object median: selection and the longest axis (shared by the top-down builders) ============ */
+/* == shared builder rules: object median, SAH leaf test, depth bound ============================ */
 /* ============================================================================================ */
 /* Key of an element for the selection: the centroid coordinate on `axis` of element e (a local
    primitive id, or a sah-midpoint reference), computed exactly as its builder computes centroids. */
@@ -1075,6 +1075,20 @@ static int bvh__median_axis(bvh_aabb cb) {
     if (!(ex > 0.0f || ey > 0.0f || ez > 0.0f)) return -1;
     return ex >= ey && ex >= ez ? 0 : ey >= ez ? 1 : 2;
 }
+
+/* SAH cost of a leaf of n primitives whose box has half area a: E_t = a (C_l + C_t n) (Wald 2007),
+   computed in the type of a and n (float where the cost is stored per node, double where it is
+   compared with a sum over many boxes). */
+#define BVH__LEAF_COST(c, a, n) ((a) * ((c)->cl + (c)->ct * (n)))
+/* The SAH leaf-vs-split rule of every builder that asks it: a node of n primitives becomes a
+   leaf when a leaf may hold them and costs no more than splitting it (ties: the leaf, which
+   saves nodes). Float costs convert to double exactly, so the comparison is the same. */
+static int bvh__sah_leaf(const bvh__ctx *c, uint32_t n, double leaf_cost, double split_cost) {
+    return n <= c->max_leaf && leaf_cost <= split_cost;
+}
+/* The depth bound: a subtree whose root is at level `level` (the tree's root is level 1) and
+   that has `below` levels under its root keeps the tree within BVH_MAX_DEPTH levels. */
+static int bvh__fits_depth(uint32_t level, uint32_t below) { return level + below <= BVH_MAX_DEPTH; }
 
 /* ============================================================================================ */
 /* == object-median top-down (the study's baseline top-down builder) ============================= */
@@ -1235,7 +1249,7 @@ static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
     bvh__fu *cost = q->cost;
     if (s->count) {
         cnt[i] = s->count; height[i] = 0; size[i] = 1;
-        if (cost) cost[i].f = bvh__half_area(bvh__node_box(s)) * (c->cl + c->ct * (float)s->count);
+        if (cost) cost[i].f = BVH__LEAF_COST(c, bvh__half_area(bvh__node_box(s)), (float)s->count);
     } else {
         uint32_t l = s->index, n = (cnt[l] & ~BVH__COLLAPSE_BIT) + (cnt[l + 1] & ~BVH__COLLAPSE_BIT);
         uint32_t h = height[l] > height[l + 1] ? height[l] : height[l + 1];
@@ -1245,8 +1259,8 @@ static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
         if (cost) {
             float a = bvh__half_area(bvh__node_box(s));
             float split = c->ci * a + cost[l].f + cost[l + 1].f;
-            float leaf = a * (c->cl + c->ct * (float)n);
-            if (n <= c->max_leaf && leaf <= split) { cost[i].f = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; size[i] = 1; }
+            float leaf = BVH__LEAF_COST(c, a, (float)n);
+            if (bvh__sah_leaf(c, n, leaf, split)) { cost[i].f = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; size[i] = 1; }
             else cost[i].f = split;
         }
     }
@@ -1404,9 +1418,9 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
     }
     prims = cnt[src_count - 1] & ~BVH__COLLAPSE_BIT;
     /* exact size unless a subtree must be rebuilt for depth (then at most 2 n - 1 nodes) */
-    r = bvh__out_init(c, o, height[src_count - 1] > BVH_MAX_DEPTH - 1 ? 2 * prims - 1 : size[src_count - 1], prims);
+    r = bvh__out_init(c, o, !bvh__fits_depth(1, height[src_count - 1]) ? 2 * prims - 1 : size[src_count - 1], prims);
     if (r != BVH_SUCCESS) goto done;
-    if (blocks && block_count >= 2 && blocks[block_count - 1] == src_count && height[src_count - 1] <= BVH_MAX_DEPTH - 1 &&
+    if (blocks && block_count >= 2 && blocks[block_count - 1] == src_count && bvh__fits_depth(1, height[src_count - 1]) &&
         !src[src_count - 1].count && !(cnt[src_count - 1] & BVH__COLLAPSE_BIT)) {
         /* PLOC's runs: placed from the root down (bvh__place) */
         bvh__place pl;
@@ -1422,7 +1436,7 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
         o->ref_count = prims;
         goto done;
     }
-    if (height[src_count - 1] <= BVH_MAX_DEPTH - 1) {
+    if (bvh__fits_depth(1, height[src_count - 1])) {
         /* shallow enough: no subtree is rebuilt, so positions follow from the sizes and the
            subtrees can be written by the team. With several threads, the largest subtree is split
            until there are BVH__EMIT_TASKS of them or the largest has under 4096 nodes (half of
@@ -1473,13 +1487,15 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
         goto done;
     }
     o->node_count = 1;
-    stack[sp++] = src_count - 1; stack[sp++] = 0; stack[sp++] = 0;
+    stack[sp++] = src_count - 1; stack[sp++] = 0; stack[sp++] = 1;
     while (sp) {
-        uint32_t depth = stack[--sp], di = stack[--sp], si = stack[--sp];
+        uint32_t level = stack[--sp], di = stack[--sp], si = stack[--sp];
         const bvh_node *s = &src[si];
         bvh_node *d = &o->nodes[di];
         int flatten = s->count || (cnt[si] & BVH__COLLAPSE_BIT);
-        int too_deep = !flatten && depth <= BVH_MAX_DEPTH / 2 - 1 && depth + height[si] > BVH_MAX_DEPTH - 1;
+        /* rebuilt only in the upper half of the bound, where a median tree (ceil(log2 n) + 1 levels
+           for n <= 2^30 primitives) always fits */
+        int too_deep = !flatten && level <= BVH_MAX_DEPTH / 2 && !bvh__fits_depth(level, height[si]);
         if (flatten || too_deep) {
             /* gather every primitive below si: a small subtree, or (rarely) a too deep one */
             uint32_t first = o->ref_count, n = cnt[si] & ~BVH__COLLAPSE_BIT, *g = small;
@@ -1497,8 +1513,8 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
         d->count = 0;
         d->index = o->node_count;
         o->node_count += 2;
-        stack[sp++] = s->index + 1; stack[sp++] = d->index + 1; stack[sp++] = depth + 1;
-        stack[sp++] = s->index; stack[sp++] = d->index; stack[sp++] = depth + 1;
+        stack[sp++] = s->index + 1; stack[sp++] = d->index + 1; stack[sp++] = level + 1;
+        stack[sp++] = s->index; stack[sp++] = d->index; stack[sp++] = level + 1;
     }
 done:
     if (r != BVH_SUCCESS) bvh__out_free(c, o);
@@ -2871,15 +2887,16 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
         ch.kind = BVH__SM_MEDIAN;
         t.budget += s->carry; /* what the subtrees before this one left unused */
         s->carry = 0;
-        if (t.depth + bvh__sm_log2(m) + 4 >= BVH_MAX_DEPTH) { /* halve from here on: depth stays bounded */
+        if (!bvh__fits_depth(t.depth, bvh__sm_log2(m) + 5)) { /* halve from here on: depth stays bounded */
             if (m <= c->max_leaf) ch.kind = BVH__SM_NONE;
         } else if (m <= 1) {
             ch.kind = BVH__SM_NONE;
         } else {
-            double area = bvh__half_area_d(t.box);
+            double area = bvh__half_area_d(t.box), split;
             bvh__sm_evaluate(s, b, m, t.budget, &t.box, &t.cbox, &ch);
-            if (m <= c->max_leaf &&
-                (ch.kind == BVH__SM_NONE || area * ((double)c->ct * m + c->cl) <= c->ci * area + c->ct * ch.cost))
+            /* E_r = C_i A(n) + C_t C; where nothing separates, a leaf whenever one may hold them */
+            split = ch.kind == BVH__SM_NONE ? HUGE_VAL : c->ci * area + c->ct * ch.cost;
+            if (bvh__sah_leaf(c, m, BVH__LEAF_COST(c, area, (double)m), split))
                 ch.kind = BVH__SM_NONE; /* leaf: E_t <= E_r */
             else if (ch.kind == BVH__SM_NONE || !(ch.cost < area * m))
                 ch.kind = BVH__SM_MEDIAN;

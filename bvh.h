@@ -1394,98 +1394,91 @@ static void bvh__place_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     }
 }
 
-static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src_count, const uint32_t *map,
-                            int collapse, uint32_t nthreads, const uint32_t *blocks, uint32_t block_count,
-                            bvh__out *o) {
-    uint32_t *cnt = BVH__ALLOC(&c->al, uint32_t, src_count); /* prims below; top bit: collapsed */
-    uint32_t *size = BVH__ALLOC(&c->al, uint32_t, src_count); /* output nodes below, itself included */
-    uint8_t *height = BVH__ALLOC(&c->al, uint8_t, src_count); /* after collapsing, capped at 255 */
-    /* with blocks, the costs' array is also pass 2's pos (bvh__place) */
-    bvh__fu *cost = collapse || blocks ? BVH__ALLOC(&c->al, bvh__fu, src_count) : NULL;
-    uint32_t stack[3 * (BVH_MAX_DEPTH + 2)], small[2 * BVH__MAX_LEAF + 8], *gather = NULL, sp = 0, prims;
+/* Pass 2 with PLOC's runs (bvh__place): the root is written here, the runs below it by the team. */
+static bvh_result bvh__emit_placed(const bvh__ctx *c, const bvh__sizes *q, const uint32_t *map, uint32_t src_count,
+                                   uint32_t nthreads, bvh__out *o) {
+    bvh__place pl;
+    const bvh_node *root = &q->src[src_count - 1];
+    bvh_node *d = &o->nodes[0];
+    d->min = root->min;
+    d->max = root->max;
+    d->index = 1;
+    d->count = 0;
+    q->cost[root->index].u = 1; /* the pass 1 costs' array becomes the positions */
+    q->cost[root->index + 1].u = 0;
+    pl.src = q->src;
+    pl.map = map;
+    pl.cnt = q->cnt;
+    pl.size = q->size;
+    pl.blocks = q->blocks;
+    pl.pos = q->cost;
+    pl.o = o;
+    pl.block_count = q->block_count;
+    return bvh__team_run(&c->al, nthreads, bvh__place_fn, &pl);
+}
+
+/* Pass 2 when no subtree is rebuilt: positions follow from the sizes, so the subtrees can be
+   written by the team. With several threads, the largest subtree is split until there are
+   BVH__EMIT_TASKS of them or the largest has under 4096 nodes (half of
+   BVH__MIN_PRIMS_PER_THREAD, which the tests lower to split small trees too); the top nodes are
+   written here, each subtree goes to the least loaded thread so far. The output is the same for
+   any thread count. */
+static bvh_result bvh__emit_tasks(const bvh__ctx *c, const bvh__sizes *q, const uint32_t *map, uint32_t src_count,
+                                  uint32_t nthreads, bvh__out *o) {
+    const bvh_node *src = q->src;
+    const uint32_t *cnt = q->cnt, *size = q->size;
+    bvh__emit_task tasks[BVH__EMIT_TASKS];
+    uint32_t owner[BVH__EMIT_TASKS], load[BVH__EMIT_TASKS], nt = nthreads, k, t;
+    bvh__emit_job job;
+    uint32_t ntasks = 1;
+    tasks[0].si = src_count - 1; tasks[0].di = 0; tasks[0].node = 1; tasks[0].ref = 0;
+    if (nt > BVH__EMIT_TASKS / 4) nt = BVH__EMIT_TASKS / 4;
+    while (nt > 1 && ntasks + 1 < BVH__EMIT_TASKS) {
+        /* expand the largest task that is an interior node in the output */
+        uint32_t big = ntasks, bigsize = 0;
+        for (k = 0; k < ntasks; k++) {
+            const bvh_node *s = &src[tasks[k].si];
+            if (!s->count && !(cnt[tasks[k].si] & BVH__COLLAPSE_BIT) && size[tasks[k].si] > bigsize) {
+                big = k; bigsize = size[tasks[k].si];
+            }
+        }
+        if (big == ntasks || 2 * (size_t)bigsize < BVH__MIN_PRIMS_PER_THREAD) break;
+        {
+            bvh__emit_task x = tasks[big];
+            const bvh_node *s = &src[x.si];
+            bvh_node *d = &o->nodes[x.di];
+            uint32_t l = s->index;
+            d->min = s->min; d->max = s->max;
+            d->index = x.node; d->count = 0;
+            tasks[big].si = l; tasks[big].di = x.node; tasks[big].node = x.node + 2; tasks[big].ref = x.ref;
+            tasks[ntasks].si = l + 1; tasks[ntasks].di = x.node + 1;
+            tasks[ntasks].node = x.node + 1 + size[l]; tasks[ntasks].ref = x.ref + (cnt[l] & ~BVH__COLLAPSE_BIT);
+            ntasks++;
+        }
+    }
+    for (t = 0; t < nt; t++) load[t] = 0;
+    for (k = 0; k < ntasks; k++) { /* greedy: each task to the least loaded thread so far */
+        uint32_t least = 0;
+        for (t = 1; t < nt; t++) if (load[t] < load[least]) least = t;
+        owner[k] = least;
+        load[least] += size[tasks[k].si];
+    }
+    job.src = src; job.map = map; job.cnt = cnt; job.size = size; job.o = o;
+    job.tasks = tasks; job.owner = owner; job.task_count = ntasks;
+    return bvh__team_run(&c->al, nt, bvh__emit_team_fn, &job);
+}
+
+/* Pass 2 when the tree is too deep: one thread walks from the root and rebuilds with the median
+   builder every subtree that would cross the depth bound. Node positions then depend on the
+   rebuilt subtrees, so the nodes are appended as they come (still depth-first, children
+   adjacent). */
+static bvh_result bvh__emit_rebuild(const bvh__ctx *c, const bvh__sizes *q, const uint32_t *map, uint32_t src_count,
+                                    bvh__out *o) {
+    const bvh_node *src = q->src;
+    const uint32_t *cnt = q->cnt;
+    const uint8_t *height = q->height;
+    uint32_t stack[3 * (BVH_MAX_DEPTH + 2)], small[2 * BVH__MAX_LEAF + 8], *gather = NULL, sp = 0;
     bvh_result r = BVH_SUCCESS;
-    if (!cnt || !size || !height || ((collapse || blocks) && !cost)) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
-    {
-        bvh__sizes q;
-        q.c = c; q.src = src; q.cnt = cnt; q.size = size; q.height = height; q.cost = collapse ? cost : NULL;
-        q.blocks = blocks ? blocks : &src_count;
-        q.block_count = blocks ? block_count : 1;
-        r = bvh__team_run(&c->al, blocks ? nthreads : 1, bvh__sizes_fn, &q);
-        if (r == BVH_SUCCESS && collapse && c->budget &&
-            size[src_count - 1] > bvh__budget_nodes(c, cnt[src_count - 1] & ~BVH__COLLAPSE_BIT))
-            r = bvh__fit_budget(c, &q, blocks ? nthreads : 1);
-        if (r != BVH_SUCCESS) goto done;
-    }
-    prims = cnt[src_count - 1] & ~BVH__COLLAPSE_BIT;
-    /* exact size unless a subtree must be rebuilt for depth (then at most 2 n - 1 nodes) */
-    r = bvh__out_init(c, o, !bvh__fits_depth(1, height[src_count - 1]) ? 2 * prims - 1 : size[src_count - 1], prims);
-    if (r != BVH_SUCCESS) goto done;
-    if (blocks && block_count >= 2 && blocks[block_count - 1] == src_count && bvh__fits_depth(1, height[src_count - 1]) &&
-        !src[src_count - 1].count && !(cnt[src_count - 1] & BVH__COLLAPSE_BIT)) {
-        /* PLOC's runs: placed from the root down (bvh__place) */
-        bvh__place pl;
-        const bvh_node *root = &src[src_count - 1];
-        bvh_node *d = &o->nodes[0];
-        d->min = root->min; d->max = root->max; d->index = 1; d->count = 0;
-        cost[root->index].u = 1;
-        cost[root->index + 1].u = 0;
-        pl.src = src; pl.map = map; pl.cnt = cnt; pl.size = size; pl.blocks = blocks; pl.pos = cost; pl.o = o;
-        pl.block_count = block_count;
-        r = bvh__team_run(&c->al, nthreads, bvh__place_fn, &pl);
-        o->node_count = size[src_count - 1];
-        o->ref_count = prims;
-        goto done;
-    }
-    if (bvh__fits_depth(1, height[src_count - 1])) {
-        /* shallow enough: no subtree is rebuilt, so positions follow from the sizes and the
-           subtrees can be written by the team. With several threads, the largest subtree is split
-           until there are BVH__EMIT_TASKS of them or the largest has under 4096 nodes (half of
-           BVH__MIN_PRIMS_PER_THREAD, which the tests lower to split small trees too); the
-           top nodes are written here, each subtree goes to the least loaded thread so far. The
-           output is the same for any thread count. */
-        bvh__emit_task tasks[BVH__EMIT_TASKS];
-        uint32_t owner[BVH__EMIT_TASKS], load[BVH__EMIT_TASKS], nt = nthreads, k, t;
-        bvh__emit_job job;
-        uint32_t ntasks = 1;
-        tasks[0].si = src_count - 1; tasks[0].di = 0; tasks[0].node = 1; tasks[0].ref = 0;
-        if (nt > BVH__EMIT_TASKS / 4) nt = BVH__EMIT_TASKS / 4;
-        while (nt > 1 && ntasks + 1 < BVH__EMIT_TASKS) {
-            /* expand the largest task that is an interior node in the output */
-            uint32_t big = ntasks, bigsize = 0;
-            for (k = 0; k < ntasks; k++) {
-                const bvh_node *s = &src[tasks[k].si];
-                if (!s->count && !(cnt[tasks[k].si] & BVH__COLLAPSE_BIT) && size[tasks[k].si] > bigsize) {
-                    big = k; bigsize = size[tasks[k].si];
-                }
-            }
-            if (big == ntasks || 2 * (size_t)bigsize < BVH__MIN_PRIMS_PER_THREAD) break;
-            {
-                bvh__emit_task x = tasks[big];
-                const bvh_node *s = &src[x.si];
-                bvh_node *d = &o->nodes[x.di];
-                uint32_t l = s->index;
-                d->min = s->min; d->max = s->max;
-                d->index = x.node; d->count = 0;
-                tasks[big].si = l; tasks[big].di = x.node; tasks[big].node = x.node + 2; tasks[big].ref = x.ref;
-                tasks[ntasks].si = l + 1; tasks[ntasks].di = x.node + 1;
-                tasks[ntasks].node = x.node + 1 + size[l]; tasks[ntasks].ref = x.ref + (cnt[l] & ~BVH__COLLAPSE_BIT);
-                ntasks++;
-            }
-        }
-        for (t = 0; t < nt; t++) load[t] = 0;
-        for (k = 0; k < ntasks; k++) { /* greedy: each task to the least loaded thread so far */
-            uint32_t least = 0;
-            for (t = 1; t < nt; t++) if (load[t] < load[least]) least = t;
-            owner[k] = least;
-            load[least] += size[tasks[k].si];
-        }
-        job.src = src; job.map = map; job.cnt = cnt; job.size = size; job.o = o;
-        job.tasks = tasks; job.owner = owner; job.task_count = ntasks;
-        r = bvh__team_run(&c->al, nt, bvh__emit_team_fn, &job);
-        o->node_count = size[src_count - 1];
-        o->ref_count = prims;
-        goto done;
-    }
     o->node_count = 1;
     stack[sp++] = src_count - 1; stack[sp++] = 0; stack[sp++] = 1;
     while (sp) {
@@ -1500,7 +1493,7 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
             /* gather every primitive below si: a small subtree, or (rarely) a too deep one */
             uint32_t first = o->ref_count, n = cnt[si] & ~BVH__COLLAPSE_BIT, *g = small;
             if (too_deep) {
-                if (!gather && !(gather = BVH__ALLOC(&c->al, uint32_t, src_count))) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+                if (!gather && !(gather = BVH__ALLOC(&c->al, uint32_t, src_count))) { r = BVH_ERROR_OUT_OF_MEMORY; break; }
                 g = gather;
             }
             o->ref_count += bvh__gather_refs(src, map, si, g, o->refs + first);
@@ -1516,9 +1509,56 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
         stack[sp++] = s->index + 1; stack[sp++] = d->index + 1; stack[sp++] = level + 1;
         stack[sp++] = s->index; stack[sp++] = d->index; stack[sp++] = level + 1;
     }
+    bvh__free(&c->al, gather);
+    return r;
+}
+
+/* Writes the source tree to o: pass 1 (bvh__sizes_fn, and bvh__fit_budget over the memory
+   budget) sizes every subtree and makes the collapse decisions; pass 2 writes the nodes, by the
+   first of these that applies: PLOC's runs from the root down (bvh__emit_placed), subtrees in
+   parallel where no subtree crosses the depth bound (bvh__emit_tasks), else one walk that
+   rebuilds the subtrees that cross it (bvh__emit_rebuild). */
+static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src_count, const uint32_t *map,
+                            int collapse, uint32_t nthreads, const uint32_t *blocks, uint32_t block_count,
+                            bvh__out *o) {
+    uint32_t *cnt = BVH__ALLOC(&c->al, uint32_t, src_count); /* prims below; top bit: collapsed */
+    uint32_t *size = BVH__ALLOC(&c->al, uint32_t, src_count); /* output nodes below, itself included */
+    uint8_t *height = BVH__ALLOC(&c->al, uint8_t, src_count); /* after collapsing, capped at 255 */
+    /* with blocks, the costs' array is also pass 2's pos (bvh__place) */
+    bvh__fu *cost = collapse || blocks ? BVH__ALLOC(&c->al, bvh__fu, src_count) : NULL;
+    const uint32_t root = src_count - 1;
+    uint32_t prims;
+    int shallow;
+    bvh__sizes q;
+    bvh_result r = BVH_SUCCESS;
+    if (!cnt || !size || !height || ((collapse || blocks) && !cost)) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    q.c = c; q.src = src; q.cnt = cnt; q.size = size; q.height = height; q.cost = collapse ? cost : NULL;
+    q.blocks = blocks ? blocks : &src_count;
+    q.block_count = blocks ? block_count : 1;
+    r = bvh__team_run(&c->al, blocks ? nthreads : 1, bvh__sizes_fn, &q);
+    if (r == BVH_SUCCESS && collapse && c->budget && size[root] > bvh__budget_nodes(c, cnt[root] & ~BVH__COLLAPSE_BIT))
+        r = bvh__fit_budget(c, &q, blocks ? nthreads : 1);
+    if (r != BVH_SUCCESS) goto done;
+    q.c = c; /* bvh__fit_budget pointed it at its own copy */
+    q.cost = cost;
+    prims = cnt[root] & ~BVH__COLLAPSE_BIT;
+    shallow = bvh__fits_depth(1, height[root]);
+    /* exact size unless a subtree must be rebuilt for depth (then at most 2 n - 1 nodes) */
+    r = bvh__out_init(c, o, shallow ? size[root] : 2 * prims - 1, prims);
+    if (r != BVH_SUCCESS) goto done;
+    if (!shallow) {
+        r = bvh__emit_rebuild(c, &q, map, src_count, o);
+        goto done;
+    }
+    if (blocks && block_count >= 2 && blocks[block_count - 1] == src_count && !src[root].count &&
+        !(cnt[root] & BVH__COLLAPSE_BIT))
+        r = bvh__emit_placed(c, &q, map, src_count, nthreads, o);
+    else
+        r = bvh__emit_tasks(c, &q, map, src_count, nthreads, o);
+    o->node_count = size[root];
+    o->ref_count = prims;
 done:
     if (r != BVH_SUCCESS) bvh__out_free(c, o);
-    bvh__free(&c->al, gather);
     bvh__free(&c->al, cost);
     bvh__free(&c->al, height);
     bvh__free(&c->al, size);

@@ -452,14 +452,15 @@ static int bvh__finite(float f) { return (bvh__bits(f) & 0x7f800000u) != 0x7f800
 static int bvh__nan(float f) { return (bvh__bits(f) & 0x7fffffffu) > 0x7f800000u; }
 static int bvh__finite3(const float *p) { return bvh__finite(p[0]) && bvh__finite(p[1]) && bvh__finite(p[2]); }
 
-BVH_API bvh_aabb bvh_aabb_empty(void) {
+/* The builders' box operations, inlined in their loops; the public functions wrap them. The
+   accumulating box is always the first operand, so that min/max pick alike between -0 and +0. */
+BVH__INLINE bvh_aabb bvh__empty(void) {
     bvh_aabb b;
     b.min.x = b.min.y = b.min.z = BVH_INF;
     b.max.x = b.max.y = b.max.z = -BVH_INF;
     return b;
 }
-/* The builders' box operations, inlined in their loops; the public functions wrap them. The
-   accumulating box is always the first operand, so that min/max pick alike between -0 and +0. */
+BVH_API bvh_aabb bvh_aabb_empty(void) { return bvh__empty(); }
 BVH__INLINE void bvh__grow(bvh_aabb *b, bvh_vec3 p) {
     b->min.x = bvh__minf(b->min.x, p.x); b->max.x = bvh__maxf(b->max.x, p.x);
     b->min.y = bvh__minf(b->min.y, p.y); b->max.y = bvh__maxf(b->max.y, p.y);
@@ -489,11 +490,12 @@ static double bvh__half_area_d(bvh_aabb b) {
     if (!(dx >= 0.0 && dy >= 0.0 && dz >= 0.0)) return 0.0;
     return dx * dy + dy * dz + dz * dx;
 }
-BVH_API bvh_vec3 bvh_aabb_centroid(bvh_aabb b) {
+BVH__INLINE bvh_vec3 bvh__centroid(bvh_aabb b) {
     bvh_vec3 c;
     c.x = 0.5f * (b.min.x + b.max.x); c.y = 0.5f * (b.min.y + b.max.y); c.z = 0.5f * (b.min.z + b.max.z);
     return c;
 }
+BVH_API bvh_vec3 bvh_aabb_centroid(bvh_aabb b) { return bvh__centroid(b); }
 BVH_API int bvh_aabb_contains(bvh_aabb o, bvh_aabb i) {
     return o.min.x <= i.min.x && o.min.y <= i.min.y && o.min.z <= i.min.z &&
            o.max.x >= i.max.x && o.max.y >= i.max.y && o.max.z >= i.max.z;
@@ -505,7 +507,7 @@ static bvh_aabb bvh__node_box(const bvh_node *n) {
     return b;
 }
 static void bvh__set_box(bvh_node *n, bvh_aabb b) { n->min = b.min; n->max = b.max; }
-static bvh_aabb bvh__tri_box(const float *t) {
+BVH__INLINE bvh_aabb bvh__tri_box(const float *t) {
     bvh_aabb b;
     b.min.x = bvh__minf(bvh__minf(t[0], t[3]), t[6]); b.max.x = bvh__maxf(bvh__maxf(t[0], t[3]), t[6]);
     b.min.y = bvh__minf(bvh__minf(t[1], t[4]), t[7]); b.max.y = bvh__maxf(bvh__maxf(t[1], t[4]), t[7]);
@@ -956,7 +958,6 @@ static bvh_result bvh__out_init(const bvh__ctx *c, bvh__out *o, uint32_t node_ca
 
 static const float *bvh__vertex(const bvh_triangles *t, uint32_t v);
 BVH__INLINE void bvh__fetch_triangle(const bvh_triangles *t, uint32_t i, float out[9]);
-static bvh_aabb bvh__tri_box(const float *t);
 /* Triangle of local primitive id, read from the caller's input (no copy is kept during builds). */
 static void bvh__ctx_triangle(const bvh__ctx *c, uint32_t id, float out[9]) {
     bvh__fetch_triangle(c->tris, c->orig ? c->orig[id] : id, out);
@@ -969,7 +970,7 @@ static bvh_aabb bvh__prim_box(const bvh__ctx *c, uint32_t id) {
     bvh__ctx_triangle(c, id, t);
     return bvh__tri_box(t);
 }
-static bvh_vec3 bvh__prim_centroid(const bvh__ctx *c, uint32_t id) { return bvh_aabb_centroid(bvh__prim_box(c, id)); }
+static bvh_vec3 bvh__prim_centroid(const bvh__ctx *c, uint32_t id) { return bvh__centroid(bvh__prim_box(c, id)); }
 
 /* Sorts all primitives by the Morton code of their centroid; *out_ids gets the local ids in
    Morton order (ties in index order). Runs on the context's team if one is given. */
@@ -983,9 +984,8 @@ static void bvh__morton_codes_team(bvh__morton_job *j, uint32_t tid, uint32_t nt
     bvh__range(j->c->n, tid, nt, &b, &e);
     for (i = b; i < e; i++) {
         bvh_vec3 p;
-        if (j->c->boxes) { /* always, during builds; read in place (a call returning the box went through the stack) */
-            const bvh_aabb *x = &j->c->boxes[i];
-            p.x = 0.5f * (x->min.x + x->max.x); p.y = 0.5f * (x->min.y + x->max.y); p.z = 0.5f * (x->min.z + x->max.z);
+        if (j->c->boxes) { /* always, during builds; read in place */
+            p = bvh__centroid(j->c->boxes[i]);
         } else {
             p = bvh__prim_centroid(j->c, (uint32_t)i);
         }
@@ -1111,13 +1111,13 @@ static void bvh__median_build(const bvh__ctx *c, bvh__out *o, uint32_t root, uin
     while (sp) {
         uint32_t m = stack[--sp], b = stack[--sp], ni = stack[--sp], i, half;
         bvh_node *node = &o->nodes[ni];
-        bvh_aabb box = bvh_aabb_empty(), cb = bvh_aabb_empty();
+        bvh_aabb box = bvh__empty(), cb = bvh__empty();
         int axis;
         for (i = b; i < b + m; i++) {
             uint32_t id = o->refs[i];
             bvh_aabb pb = bvh__prim_box(c, id);
-            box = bvh_aabb_merge(box, pb);
-            bvh_aabb_grow(&cb, bvh_aabb_centroid(pb));
+            box = bvh__merge(box, pb);
+            bvh__grow(&cb, bvh__centroid(pb));
         }
         bvh__set_box(node, box);
         if (m <= c->max_leaf) { node->index = b; node->count = m; continue; }
@@ -1583,8 +1583,8 @@ static bvh_result bvh__build_bottom_up(const bvh__ctx *c, bvh__out *o) {
     bvh__team_run(&c->al, 1, bvh__morton_team_fn, &job);
     for (i = 0; i < leaves; i++) {
         uint32_t b = i * c->max_leaf, e = b + c->max_leaf < c->n ? b + c->max_leaf : c->n, k;
-        bvh_aabb box = bvh_aabb_empty();
-        for (k = b; k < e; k++) box = bvh_aabb_merge(box, c->boxes[job.sort.vals[k]]);
+        bvh_aabb box = bvh__empty();
+        for (k = b; k < e; k++) box = bvh__merge(box, c->boxes[job.sort.vals[k]]);
         bvh__set_box(&src[count], box);
         src[count].index = b;
         src[count].count = e - b;
@@ -1595,7 +1595,7 @@ static bvh_result bvh__build_bottom_up(const bvh__ctx *c, bvh__out *o) {
         uint32_t next = count;
         for (i = 0; i + 1 < len; i += 2) {
             bvh_node *p = &src[count++];
-            bvh__set_box(p, bvh_aabb_merge(bvh__node_box(&src[level + i]), bvh__node_box(&src[level + i + 1])));
+            bvh__set_box(p, bvh__merge(bvh__node_box(&src[level + i]), bvh__node_box(&src[level + i + 1])));
             p->index = level + i;
             p->count = 0;
         }
@@ -1909,7 +1909,7 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
                     bvh_node *n = &cout[k];
                     p->src[sl] = cin[i];
                     p->src[sl + 1] = cin[i + 1];
-                    bvh__set_box(n, bvh_aabb_merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[i + 1])));
+                    bvh__set_box(n, bvh__merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[i + 1])));
                     n->index = (uint32_t)sl;
                     n->count = 0;
                 } else {
@@ -1927,7 +1927,7 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
                 bvh_node *n = &cout[pos++];
                 p->src[slot] = cin[i];
                 p->src[slot + 1] = cin[j];
-                bvh__set_box(n, bvh_aabb_merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[j])));
+                bvh__set_box(n, bvh__merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[j])));
                 n->index = slot;
                 n->count = 0;
                 slot += 2;
@@ -1989,8 +1989,10 @@ BVH__F4_OP(bvh__f4_mul, a.v[k] * b.v[k])
 BVH__INLINE void bvh__f4_put(float *p, bvh__f4 a) { memcpy(p, a.v, sizeof a.v); }
 BVH__INLINE void bvh__f4_slots(uint32_t *p, bvh__f4 a) { int k; for (k = 0; k < 3; k++) p[k] = (uint32_t)a.v[k]; }
 #endif
+/* The half area of lanes 0-2, summed (xy + zx) + yz where bvh__half_area sums (xy + yz) + zx: the
+   same quantity rounded differently, so PLOC's top keeps its own (its trees depend on it). */
 #ifdef BVH__SSE
-BVH__INLINE float bvh__f4_half_area(bvh__f4 lo, bvh__f4 hi) { /* lanes 0-2; in registers */
+BVH__INLINE float bvh__f4_half_area(bvh__f4 lo, bvh__f4 hi) { /* in registers */
     __m128 d = _mm_sub_ps(hi, lo), p = _mm_mul_ps(d, _mm_shuffle_ps(d, d, _MM_SHUFFLE(3, 0, 2, 1)));
     __m128 s = _mm_add_ps(p, _mm_movehl_ps(p, p)); /* xy + zx, yz + 0 */
     return _mm_cvtss_f32(_mm_add_ss(s, _mm_shuffle_ps(s, s, _MM_SHUFFLE(1, 1, 1, 1))));
@@ -2091,16 +2093,14 @@ static void bvh__top_small(const bvh__top_job *j, const bvh__top_task *t) {
 static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bvh__top_task kids[2]) {
     uint32_t b = t->b, e = t->e, n = e - b, nb = n < BVH__TOP_BINS ? n : BVH__TOP_BINS, i, k, mid = b, out = 0, bb = 0;
     bvh_node *v = j->v[t->buf], *w = j->v[t->buf ^ 1u], *node = &j->nodes[t->id];
-    float ext[4], lo4[4], hi4[4], best = BVH_INF;
+    float ext[4], best = BVH_INF;
     uint32_t ps, pc[2] = {0, 0};
     bvh__f4 plo[2], phi[2];
     int ba = -1, a;
     bvh__f4 scale, last = bvh__f4_set((float)(nb - 1)), blo[2], bhi[2];
     if (n <= 3) { bvh__top_small(j, t); return 0; }
     bvh__f4_put(ext, bvh__f4_sub(t->chi, t->clo));
-    bvh__f4_put(lo4, t->lo); bvh__f4_put(hi4, t->hi);
-    node->min.x = lo4[0]; node->min.y = lo4[1]; node->min.z = lo4[2];
-    node->max.x = hi4[0]; node->max.y = hi4[1]; node->max.z = hi4[2];
+    bvh__top_put(node, t->lo, t->hi);
     {
         float s[4];
         for (a = 0; a < 3; a++) s[a] = ext[a] > 0.0f ? (float)nb / ext[a] : 0.0f;
@@ -2528,7 +2528,7 @@ typedef struct bvh__sm {
 } bvh__sm;
 
 /* Halving is exact (but for subnormals), so even a contracted (FMA) form gives the same value:
-   every pass bins a reference alike. (Not bvh_aabb_centroid, which adds first: the two differ
+   every pass bins a reference alike. (Not bvh__centroid, which adds first: the two differ
    where the sum overflows or a half is subnormal.) */
 BVH__INLINE float bvh__sm_centre(const bvh__sm_ref *r, int a) {
     return 0.5f * bvh__at(&r->box.min, a) + 0.5f * bvh__at(&r->box.max, a);
@@ -2673,7 +2673,7 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         if (mid_ok[a] && clo <= xa->p && xa->p <= chi)
             xa->kp = xa->bins > 1 ? bvh__sm_bin_of(xa->p, xa->lo, xa->scale, xa->bins) : 0;
         slots[a] = xa->bins + (xa->kp < xa->bins);
-        for (k = 0; k < slots[a]; k++) { s->bin[a][k] = bvh_aabb_empty(); s->bin_n[a][k] = 0; }
+        for (k = 0; k < slots[a]; k++) { s->bin[a][k] = bvh__empty(); s->bin_n[a][k] = 0; }
     }
     for (i = b; i < e; i++) { /* pass 1 */
         const bvh__sm_ref *r = &s->work[i];
@@ -2689,7 +2689,7 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         uint32_t n = 0;
         double area = 0.0;
         if (slots[a] < 2) continue;
-        acc = bvh_aabb_empty();
+        acc = bvh__empty();
         for (k = slots[a] - 1; k > 0; k--) { /* an empty slot changes nothing: no area to compute */
             if (s->bin_n[a][k]) {
                 acc = bvh__merge(acc, s->bin[a][k]);
@@ -2699,7 +2699,7 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
             s->right_area[k] = area;
             s->right_n[k] = n;
         }
-        acc = bvh_aabb_empty();
+        acc = bvh__empty();
         n = 0;
         for (k = 1; k < slots[a]; k++) { /* after an empty slot the candidate repeats the previous one */
             if (!s->bin_n[a][k - 1]) continue;
@@ -2724,8 +2724,8 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         int gate = s->bins > 0 && best->kind != BVH__SM_NONE;
         if (gate) {
             a = best->axis;
-            lb = bvh_aabb_empty();
-            rb = bvh_aabb_empty();
+            lb = bvh__empty();
+            rb = bvh__empty();
             for (k = 0; k < slots[a]; k++) {
                 bvh_aabb *side = k < best_slot ? &lb : &rb;
                 *side = bvh__merge(*side, s->bin[a][k]);
@@ -2735,7 +2735,7 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         for (a = 0; a < 3; a++) {
             clip[a] = !gate && budget > 0 && mid_ok[a];
             any_clip |= clip[a];
-            dl[a] = dr[a] = sl[a] = sr[a] = bvh_aabb_empty();
+            dl[a] = dr[a] = sl[a] = sr[a] = bvh__empty();
             ndl[a] = ndr[a] = nsl[a] = nsr[a] = dup[a] = 0;
         }
     }
@@ -2859,8 +2859,8 @@ static uint32_t bvh__sm_median(bvh__sm *s, uint32_t b, uint32_t m, const bvh_aab
 
 static void bvh__sm_bounds(const bvh__sm_ref *v, uint32_t n, bvh_aabb *box, bvh_aabb *cbox) {
     uint32_t i;
-    *box = bvh_aabb_empty();
-    *cbox = bvh_aabb_empty();
+    *box = bvh__empty();
+    *cbox = bvh__empty();
     for (i = 0; i < n; i++) {
         *box = bvh__merge(*box, v[i].box);
         bvh__grow(cbox, bvh__sm_centroid(&v[i]));
@@ -2951,7 +2951,7 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
             s->carry = t.budget;
             continue;
         }
-        tl.box = tl.cbox = tr.box = tr.cbox = bvh_aabb_empty();
+        tl.box = tl.cbox = tr.box = tr.cbox = bvh__empty();
         nl = ch.kind == BVH__SM_MEDIAN ? 0 : bvh__sm_partition(s, b, t.budget, &ch, &tl, &tr);
         if (nl == 0 || nl == s->top - b) { /* median (no duplicates were made) */
             nl = bvh__sm_median(s, b, m, &t.cbox);
@@ -3115,7 +3115,7 @@ static void bvh__front_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     bvh__front *f = BVH__CAST(bvh__front *, arg);
     const bvh_build_desc *d = f->desc;
     bvh__front_part *part = &f->part[tid];
-    bvh_aabb bounds = bvh_aabb_empty(), cbounds = bvh_aabb_empty();
+    bvh_aabb bounds = bvh__empty(), cbounds = bvh__empty();
     uint32_t invalid = 0;
     size_t b, e, i;
     (void)team;
@@ -3132,21 +3132,14 @@ static void bvh__front_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
             float t[9];
             bvh__fetch_triangle(&d->triangles, (uint32_t)i, t);
             ok = bvh__finite3(t) && bvh__finite3(t + 3) && bvh__finite3(t + 6);
-            box.min.x = bvh__minf(bvh__minf(t[0], t[3]), t[6]); box.max.x = bvh__maxf(bvh__maxf(t[0], t[3]), t[6]);
-            box.min.y = bvh__minf(bvh__minf(t[1], t[4]), t[7]); box.max.y = bvh__maxf(bvh__maxf(t[1], t[4]), t[7]);
-            box.min.z = bvh__minf(bvh__minf(t[2], t[5]), t[8]); box.max.z = bvh__maxf(bvh__maxf(t[2], t[5]), t[8]);
+            box = bvh__tri_box(t);
         }
         if (!ok) {
             box.min.x = NAN;
             invalid++;
-        } else { /* bvh_aabb_merge and bvh_aabb_grow(centroid), written out: the calls cost more */
-            float cx = 0.5f * (box.min.x + box.max.x), cy = 0.5f * (box.min.y + box.max.y), cz = 0.5f * (box.min.z + box.max.z);
-            bounds.min.x = bvh__minf(bounds.min.x, box.min.x); bounds.max.x = bvh__maxf(bounds.max.x, box.max.x);
-            bounds.min.y = bvh__minf(bounds.min.y, box.min.y); bounds.max.y = bvh__maxf(bounds.max.y, box.max.y);
-            bounds.min.z = bvh__minf(bounds.min.z, box.min.z); bounds.max.z = bvh__maxf(bounds.max.z, box.max.z);
-            cbounds.min.x = bvh__minf(cbounds.min.x, cx); cbounds.max.x = bvh__maxf(cbounds.max.x, cx);
-            cbounds.min.y = bvh__minf(cbounds.min.y, cy); cbounds.max.y = bvh__maxf(cbounds.max.y, cy);
-            cbounds.min.z = bvh__minf(cbounds.min.z, cz); cbounds.max.z = bvh__maxf(cbounds.max.z, cz);
+        } else {
+            bounds = bvh__merge(bounds, box);
+            bvh__grow(&cbounds, bvh__centroid(box));
         }
         f->boxes[i] = box;
     }
@@ -3247,10 +3240,10 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
         fr.part = BVH__ALLOC(&c.al, bvh__front_part, c.threads);
         if (!fr.part) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
         r = bvh__team_run(&c.al, c.threads, bvh__front_fn, &fr);
-        c.bounds = c.cbounds = bvh_aabb_empty();
+        c.bounds = c.cbounds = bvh__empty();
         for (i = 0; r == BVH_SUCCESS && i < fr.nt; i++) {
-            c.bounds = bvh_aabb_merge(c.bounds, fr.part[i].bounds);
-            c.cbounds = bvh_aabb_merge(c.cbounds, fr.part[i].cbounds);
+            c.bounds = bvh__merge(c.bounds, fr.part[i].bounds);
+            c.cbounds = bvh__merge(c.cbounds, fr.part[i].cbounds);
             n += fr.part[i].invalid;
         }
         bvh__free(&c.al, fr.part);
@@ -3259,14 +3252,14 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     if (n > 0) { /* some primitives are invalid (marked by a NaN box): refuse, or leave them out */
         if (!desc->skip_invalid) { r = BVH_ERROR_INVALID_GEOMETRY; goto fail; }
         if (!(orig = BVH__ALLOC(&c.al, uint32_t, count))) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
-        c.bounds = c.cbounds = bvh_aabb_empty();
+        c.bounds = c.cbounds = bvh__empty();
         for (i = 0, n = 0; i < count; i++) {
             bvh_aabb box = c.boxes[i];
             if (bvh__nan(box.min.x)) continue;
             orig[n] = i;
             c.boxes[n++] = box;
-            c.bounds = bvh_aabb_merge(c.bounds, box);
-            bvh_aabb_grow(&c.cbounds, bvh_aabb_centroid(box));
+            c.bounds = bvh__merge(c.bounds, box);
+            bvh__grow(&c.cbounds, bvh__centroid(box));
         }
     } else {
         n = count;

@@ -445,7 +445,18 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 /* ============================================================================================ */
 BVH__INLINE float bvh__minf(float a, float b) { return a < b ? a : b; }
 BVH__INLINE float bvh__maxf(float a, float b) { return a > b ? a : b; }
-static float bvh__get(bvh_vec3 v, int axis) { return axis == 0 ? v.x : axis == 1 ? v.y : v.z; }
+BVH__INLINE float bvh__get(bvh_vec3 v, int axis) { return axis == 0 ? v.x : axis == 1 ? v.y : v.z; }
+/* Coordinate `axis` of a vector in memory, as one indexed load or store (bvh_vec3 is three
+   floats without padding: checked below). */
+BVH__INLINE float bvh__at(const bvh_vec3 *v, int axis) {
+    float x;
+    memcpy(&x, BVH__CAST(const char *, (const void *)v) + (size_t)axis * sizeof x, sizeof x);
+    return x;
+}
+BVH__INLINE void bvh__set(bvh_vec3 *v, int axis, float x) {
+    memcpy(BVH__CAST(char *, (void *)v) + (size_t)axis * sizeof x, &x, sizeof x);
+}
+typedef char bvh__vec3_is_packed[sizeof(bvh_vec3) == 3 * sizeof(float) ? 1 : -1];
 /* NaN and Inf by their bits: no floating-point flag can fold these tests away. */
 static uint32_t bvh__bits(float f) {
     uint32_t u;
@@ -456,46 +467,62 @@ static int bvh__finite(float f) { return (bvh__bits(f) & 0x7f800000u) != 0x7f800
 static int bvh__nan(float f) { return (bvh__bits(f) & 0x7fffffffu) > 0x7f800000u; }
 static int bvh__finite3(const float *p) { return bvh__finite(p[0]) && bvh__finite(p[1]) && bvh__finite(p[2]); }
 
-BVH_API bvh_aabb bvh_aabb_empty(void) {
+/* The builders' box operations, inlined in their loops; the public functions wrap them. The
+   accumulating box is always the first operand, so that min/max pick alike between -0 and +0. */
+BVH__INLINE bvh_aabb bvh__empty(void) {
     bvh_aabb b;
     b.min.x = b.min.y = b.min.z = BVH_INF;
     b.max.x = b.max.y = b.max.z = -BVH_INF;
     return b;
 }
-BVH_API void bvh_aabb_grow(bvh_aabb *b, bvh_vec3 p) {
+BVH_API bvh_aabb bvh_aabb_empty(void) { return bvh__empty(); }
+BVH__INLINE void bvh__grow(bvh_aabb *b, bvh_vec3 p) {
     b->min.x = bvh__minf(b->min.x, p.x); b->max.x = bvh__maxf(b->max.x, p.x);
     b->min.y = bvh__minf(b->min.y, p.y); b->max.y = bvh__maxf(b->max.y, p.y);
     b->min.z = bvh__minf(b->min.z, p.z); b->max.z = bvh__maxf(b->max.z, p.z);
 }
-BVH_API bvh_aabb bvh_aabb_merge(bvh_aabb a, bvh_aabb b) {
+BVH__INLINE bvh_aabb bvh__merge(bvh_aabb a, bvh_aabb b) {
     bvh_aabb r;
     r.min.x = bvh__minf(a.min.x, b.min.x); r.max.x = bvh__maxf(a.max.x, b.max.x);
     r.min.y = bvh__minf(a.min.y, b.min.y); r.max.y = bvh__maxf(a.max.y, b.max.y);
     r.min.z = bvh__minf(a.min.z, b.min.z); r.max.z = bvh__maxf(a.max.z, b.max.z);
     return r;
 }
+BVH_API void bvh_aabb_grow(bvh_aabb *b, bvh_vec3 p) { bvh__grow(b, p); }
+BVH_API bvh_aabb bvh_aabb_merge(bvh_aabb a, bvh_aabb b) { return bvh__merge(a, b); }
 static float bvh__half_area(bvh_aabb b) {
     float dx = b.max.x - b.min.x, dy = b.max.y - b.min.y, dz = b.max.z - b.min.z;
     if (!(dx >= 0.0f && dy >= 0.0f && dz >= 0.0f)) return 0.0f; /* empty (or NaN) box */
     return dx * dy + dy * dz + dz * dx;
 }
 BVH_API float bvh_aabb_area(bvh_aabb b) { return 2.0f * bvh__half_area(b); }
-BVH_API bvh_vec3 bvh_aabb_centroid(bvh_aabb b) {
+/* Half the surface area in double, for costs summed over many boxes and for boxes near FLT_MAX
+   (whose float area would overflow); 0 for an empty box. */
+static double bvh__half_area_d(bvh_aabb b) {
+    double dx = (double)b.max.x - b.min.x;
+    double dy = (double)b.max.y - b.min.y;
+    double dz = (double)b.max.z - b.min.z;
+    if (!(dx >= 0.0 && dy >= 0.0 && dz >= 0.0)) return 0.0;
+    return dx * dy + dy * dz + dz * dx;
+}
+BVH__INLINE bvh_vec3 bvh__centroid(bvh_aabb b) {
     bvh_vec3 c;
     c.x = 0.5f * (b.min.x + b.max.x); c.y = 0.5f * (b.min.y + b.max.y); c.z = 0.5f * (b.min.z + b.max.z);
     return c;
 }
+BVH_API bvh_vec3 bvh_aabb_centroid(bvh_aabb b) { return bvh__centroid(b); }
 BVH_API int bvh_aabb_contains(bvh_aabb o, bvh_aabb i) {
     return o.min.x <= i.min.x && o.min.y <= i.min.y && o.min.z <= i.min.z &&
            o.max.x >= i.max.x && o.max.y >= i.max.y && o.max.z >= i.max.z;
 }
+static int bvh__nonempty(bvh_aabb b) { return b.min.x <= b.max.x && b.min.y <= b.max.y && b.min.z <= b.max.z; }
 static bvh_aabb bvh__node_box(const bvh_node *n) {
     bvh_aabb b;
     b.min = n->min; b.max = n->max;
     return b;
 }
 static void bvh__set_box(bvh_node *n, bvh_aabb b) { n->min = b.min; n->max = b.max; }
-static bvh_aabb bvh__tri_box(const float *t) {
+BVH__INLINE bvh_aabb bvh__tri_box(const float *t) {
     bvh_aabb b;
     b.min.x = bvh__minf(bvh__minf(t[0], t[3]), t[6]); b.max.x = bvh__maxf(bvh__maxf(t[0], t[3]), t[6]);
     b.min.y = bvh__minf(bvh__minf(t[1], t[4]), t[7]); b.max.y = bvh__maxf(bvh__maxf(t[1], t[4]), t[7]);
@@ -961,7 +988,6 @@ static bvh_result bvh__out_init(const bvh__ctx *c, bvh__out *o, uint32_t node_ca
 
 static const float *bvh__vertex(const bvh_triangles *t, uint32_t v);
 BVH__INLINE void bvh__fetch_triangle(const bvh_triangles *t, uint32_t i, float out[9]);
-static bvh_aabb bvh__tri_box(const float *t);
 /* Triangle of local primitive id, read from the caller's input (no copy is kept during builds). */
 static void bvh__ctx_triangle(const bvh__ctx *c, uint32_t id, float out[9]) {
     bvh__fetch_triangle(c->tris, c->orig ? c->orig[id] : id, out);
@@ -974,7 +1000,7 @@ static bvh_aabb bvh__prim_box(const bvh__ctx *c, uint32_t id) {
     bvh__ctx_triangle(c, id, t);
     return bvh__tri_box(t);
 }
-static bvh_vec3 bvh__prim_centroid(const bvh__ctx *c, uint32_t id) { return bvh_aabb_centroid(bvh__prim_box(c, id)); }
+static bvh_vec3 bvh__prim_centroid(const bvh__ctx *c, uint32_t id) { return bvh__centroid(bvh__prim_box(c, id)); }
 
 /* Sorts all primitives by the Morton code of their centroid; *out_ids gets the local ids in
    Morton order (ties in index order). Runs on the context's team if one is given. */
@@ -988,9 +1014,8 @@ static void bvh__morton_codes_team(bvh__morton_job *j, uint32_t tid, uint32_t nt
     bvh__range(j->c->n, tid, nt, &b, &e);
     for (i = b; i < e; i++) {
         bvh_vec3 p;
-        if (j->c->boxes) { /* always, during builds; read in place (a call returning the box went through the stack) */
-            const bvh_aabb *x = &j->c->boxes[i];
-            p.x = 0.5f * (x->min.x + x->max.x); p.y = 0.5f * (x->min.y + x->max.y); p.z = 0.5f * (x->min.z + x->max.z);
+        if (j->c->boxes) { /* always, during builds; read in place */
+            p = bvh__centroid(j->c->boxes[i]);
         } else {
             p = bvh__prim_centroid(j->c, (uint32_t)i);
         }
@@ -1025,32 +1050,87 @@ static void bvh__morton_job_free(const bvh__ctx *c, bvh__morton_job *j) {
 }
 
 /* ============================================================================================ */
+/* == shared builder rules: object median, SAH leaf test, depth bound ============================ */
+/* ============================================================================================ */
+/* Key of an element for the selection: the centroid coordinate on `axis` of element e (a local
+   primitive id, or a sah-midpoint reference), computed exactly as its builder computes centroids. */
+typedef float (*bvh__key_fn)(const void *ctx, const void *e, int axis);
+
+BVH__INLINE void bvh__swap_bytes(unsigned char *x, unsigned char *y, size_t size) {
+    unsigned char t[32]; /* the largest element selected (a sah-midpoint reference) fits */
+    BVH_ASSERT(size <= sizeof t);
+    memcpy(t, x, size);
+    memcpy(x, y, size);
+    memcpy(y, t, size);
+}
+/* Quickselect (Hoare 1961, "Algorithm 65: Find") with a median-of-three pivot and Hoare's
+   partition, which splits runs of equal keys evenly. Rearranges the n elements of `size` bytes
+   at v so that element k has the k-th smallest key, no larger key before it, no smaller after.
+   Inlined into each caller, so the key function is a direct call. */
+BVH__INLINE void bvh__select(void *v, size_t size, uint32_t n, uint32_t k, bvh__key_fn key, const void *ctx, int axis) {
+    unsigned char *e = BVH__CAST(unsigned char *, v);
+    uint32_t lo = 0, hi = n - 1;
+    while (hi > lo) {
+        uint32_t i = lo, j = hi, mid = lo + (hi - lo) / 2;
+        float a = key(ctx, e + (size_t)lo * size, axis);
+        float b = key(ctx, e + (size_t)mid * size, axis);
+        float d = key(ctx, e + (size_t)hi * size, axis);
+        float pivot = a < b ? (b < d ? b : (a < d ? d : a)) : (a < d ? a : (b < d ? d : b));
+        for (;;) {
+            while (key(ctx, e + (size_t)i * size, axis) < pivot) i++;
+            while (key(ctx, e + (size_t)j * size, axis) > pivot) j--;
+            if (i >= j) break;
+            bvh__swap_bytes(e + (size_t)i * size, e + (size_t)j * size, size);
+            i++;
+            j--;
+        }
+        /* now [lo, j] <= pivot <= [j+1, hi] (when i > j) or element i == pivot (i == j) */
+        if (i == j) {
+            if (k == i) return;
+            if (k < i) hi = i - 1;
+            else lo = i + 1;
+        } else if (k <= j) {
+            hi = j;
+        } else {
+            lo = j + 1;
+        }
+    }
+}
+/* The axis an object median splits: the longest of the centroid bounds cb (ties to the lower
+   axis), or -1 when all centroids are equal and any split in half is as good. */
+static int bvh__median_axis(bvh_aabb cb) {
+    float ex = cb.max.x - cb.min.x;
+    float ey = cb.max.y - cb.min.y;
+    float ez = cb.max.z - cb.min.z;
+    if (!(ex > 0.0f || ey > 0.0f || ez > 0.0f)) return -1;
+    return ex >= ey && ex >= ez ? 0 : ey >= ez ? 1 : 2;
+}
+
+/* SAH cost of a leaf of n primitives whose box has half area a: E_t = a (C_l + C_t n) (Wald 2007),
+   computed in the type of a and n (float where the cost is stored per node, double where it is
+   compared with a sum over many boxes). */
+#define BVH__LEAF_COST(c, a, n) ((a) * ((c)->cl + (c)->ct * (n)))
+/* The SAH leaf-vs-split rule of every builder that asks it: a node of n primitives becomes a
+   leaf when a leaf may hold them and costs no more than splitting it (ties: the leaf, which
+   saves nodes). Float costs convert to double exactly, so the comparison is the same. */
+static int bvh__sah_leaf(const bvh__ctx *c, uint32_t n, double leaf_cost, double split_cost) {
+    return n <= c->max_leaf && leaf_cost <= split_cost;
+}
+/* The depth bound: a subtree whose root is at level `level` (the tree's root is level 1) and
+   that has `below` levels under its root keeps the tree within BVH_MAX_DEPTH levels. */
+static int bvh__fits_depth(uint32_t level, uint32_t below) { return level + below <= BVH_MAX_DEPTH; }
+
+/* ============================================================================================ */
 /* == object-median top-down (the study's baseline top-down builder) ============================= */
 /* Splits the longest axis of the node's centroid bounds at the object median (quickselect, O(n)
    per level, so O(n log n) in all), leaf at max_leaf primitives or fewer. Also used to rebuild
    any subtree of another builder that would exceed BVH_MAX_DEPTH: its depth is ceil(log2(n)). */
 /* ============================================================================================ */
-static float bvh__key(const bvh__ctx *c, uint32_t id, int axis) { return bvh__get(bvh__prim_centroid(c, id), axis); }
-
-/* Rearranges ids[0..n) so that ids[k] has the k-th smallest key, smaller keys before it. */
-static void bvh__select(const bvh__ctx *c, uint32_t *ids, uint32_t n, uint32_t k, int axis) {
-    uint32_t lo = 0, hi = n - 1;
-    while (hi > lo) {
-        uint32_t i = lo, j = hi, mid = lo + (hi - lo) / 2, t;
-        float a = bvh__key(c, ids[lo], axis), b = bvh__key(c, ids[mid], axis), d = bvh__key(c, ids[hi], axis);
-        float pivot = a < b ? (b < d ? b : (a < d ? d : a)) : (a < d ? a : (b < d ? d : b));
-        for (;;) { /* Hoare partition: equal keys split evenly */
-            while (bvh__key(c, ids[i], axis) < pivot) i++;
-            while (bvh__key(c, ids[j], axis) > pivot) j--;
-            if (i >= j) break;
-            t = ids[i]; ids[i] = ids[j]; ids[j] = t;
-            i++; j--;
-        }
-        /* now [lo, j] <= pivot <= [j+1, hi] (when i > j) or ids[i] == pivot (i == j) */
-        if (i == j) { if (k == i) return; if (k < i) hi = i - 1; else lo = i + 1; }
-        else if (k <= j) hi = j;
-        else lo = j + 1;
-    }
+static float bvh__id_key(const void *ctx, const void *e, int axis) {
+    const bvh__ctx *c = BVH__CAST(const bvh__ctx *, ctx);
+    uint32_t id;
+    memcpy(&id, e, sizeof id);
+    return bvh__get(bvh__prim_centroid(c, id), axis);
 }
 
 /* Builds a median tree over o->refs[first .. first+count) with its root in node `root`. */
@@ -1061,22 +1141,19 @@ static void bvh__median_build(const bvh__ctx *c, bvh__out *o, uint32_t root, uin
     while (sp) {
         uint32_t m = stack[--sp], b = stack[--sp], ni = stack[--sp], i, half;
         bvh_node *node = &o->nodes[ni];
-        bvh_aabb box = bvh_aabb_empty(), cb = bvh_aabb_empty();
-        float ex, ey, ez;
+        bvh_aabb box = bvh__empty(), cb = bvh__empty();
         int axis;
         for (i = b; i < b + m; i++) {
             uint32_t id = o->refs[i];
             bvh_aabb pb = bvh__prim_box(c, id);
-            box = bvh_aabb_merge(box, pb);
-            bvh_aabb_grow(&cb, bvh_aabb_centroid(pb));
+            box = bvh__merge(box, pb);
+            bvh__grow(&cb, bvh__centroid(pb));
         }
         bvh__set_box(node, box);
         if (m <= c->max_leaf) { node->index = b; node->count = m; continue; }
-        ex = cb.max.x - cb.min.x; ey = cb.max.y - cb.min.y; ez = cb.max.z - cb.min.z;
-        axis = ex >= ey && ex >= ez ? 0 : ey >= ez ? 1 : 2;
+        axis = bvh__median_axis(cb);
         half = m / 2;
-        if (ex > 0.0f || ey > 0.0f || ez > 0.0f) bvh__select(c, o->refs + b, m, half, axis);
-        /* else: all centroids equal, any split in half is as good (and keeps the depth bounded) */
+        if (axis >= 0) bvh__select(o->refs + b, sizeof *o->refs, m, half, bvh__id_key, c, axis);
         node->index = o->node_count;
         node->count = 0;
         o->node_count += 2;
@@ -1202,7 +1279,7 @@ static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
     bvh__fu *cost = q->cost;
     if (s->count) {
         cnt[i] = s->count; height[i] = 0; size[i] = 1;
-        if (cost) cost[i].f = bvh__half_area(bvh__node_box(s)) * (c->cl + c->ct * (float)s->count);
+        if (cost) cost[i].f = BVH__LEAF_COST(c, bvh__half_area(bvh__node_box(s)), (float)s->count);
     } else {
         uint32_t l = s->index, n = (cnt[l] & ~BVH__COLLAPSE_BIT) + (cnt[l + 1] & ~BVH__COLLAPSE_BIT);
         uint32_t h = height[l] > height[l + 1] ? height[l] : height[l + 1];
@@ -1212,8 +1289,8 @@ static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
         if (cost) {
             float a = bvh__half_area(bvh__node_box(s));
             float split = c->ci * a + cost[l].f + cost[l + 1].f;
-            float leaf = a * (c->cl + c->ct * (float)n);
-            if (n <= c->max_leaf && leaf <= split) { cost[i].f = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; size[i] = 1; }
+            float leaf = BVH__LEAF_COST(c, a, (float)n);
+            if (bvh__sah_leaf(c, n, leaf, split)) { cost[i].f = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; size[i] = 1; }
             else cost[i].f = split;
         }
     }
@@ -1347,111 +1424,106 @@ static void bvh__place_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     }
 }
 
-static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src_count, const uint32_t *map,
-                            int collapse, uint32_t nthreads, const uint32_t *blocks, uint32_t block_count,
-                            bvh__out *o) {
-    uint32_t *cnt = BVH__ALLOC(&c->al, uint32_t, src_count); /* prims below; top bit: collapsed */
-    uint32_t *size = BVH__ALLOC(&c->al, uint32_t, src_count); /* output nodes below, itself included */
-    uint8_t *height = BVH__ALLOC(&c->al, uint8_t, src_count); /* after collapsing, capped at 255 */
-    /* with blocks, the costs' array is also pass 2's pos (bvh__place) */
-    bvh__fu *cost = collapse || blocks ? BVH__ALLOC(&c->al, bvh__fu, src_count) : NULL;
-    uint32_t stack[3 * (BVH_MAX_DEPTH + 2)], small[2 * BVH__MAX_LEAF + 8], *gather = NULL, sp = 0, prims;
+/* Pass 2 with PLOC's runs (bvh__place): the root is written here, the runs below it by the team. */
+static bvh_result bvh__emit_placed(const bvh__ctx *c, const bvh__sizes *q, const uint32_t *map, uint32_t src_count,
+                                   uint32_t nthreads, bvh__out *o) {
+    bvh__place pl;
+    const bvh_node *root = &q->src[src_count - 1];
+    bvh_node *d = &o->nodes[0];
+    d->min = root->min;
+    d->max = root->max;
+    d->index = 1;
+    d->count = 0;
+    q->cost[root->index].u = 1; /* the pass 1 costs' array becomes the positions */
+    q->cost[root->index + 1].u = 0;
+    pl.src = q->src;
+    pl.map = map;
+    pl.cnt = q->cnt;
+    pl.size = q->size;
+    pl.blocks = q->blocks;
+    pl.pos = q->cost;
+    pl.o = o;
+    pl.block_count = q->block_count;
+    return bvh__team_run(&c->al, nthreads, bvh__place_fn, &pl);
+}
+
+/* Pass 2 when no subtree is rebuilt: positions follow from the sizes, so the subtrees can be
+   written by the team. With several threads, the largest subtree is split until there are
+   BVH__EMIT_TASKS of them or the largest has under 4096 nodes (half of
+   BVH__MIN_PRIMS_PER_THREAD, which the tests lower to split small trees too); the top nodes are
+   written here, each subtree goes to the least loaded thread so far. The output is the same for
+   any thread count. */
+static bvh_result bvh__emit_tasks(const bvh__ctx *c, const bvh__sizes *q, const uint32_t *map, uint32_t src_count,
+                                  uint32_t nthreads, bvh__out *o) {
+    const bvh_node *src = q->src;
+    const uint32_t *cnt = q->cnt, *size = q->size;
+    bvh__emit_task tasks[BVH__EMIT_TASKS];
+    uint32_t owner[BVH__EMIT_TASKS], load[BVH__EMIT_TASKS], nt = nthreads, k, t;
+    bvh__emit_job job;
+    uint32_t ntasks = 1;
+    tasks[0].si = src_count - 1; tasks[0].di = 0; tasks[0].node = 1; tasks[0].ref = 0;
+    if (nt > BVH__EMIT_TASKS / 4) nt = BVH__EMIT_TASKS / 4;
+    while (nt > 1 && ntasks + 1 < BVH__EMIT_TASKS) {
+        /* expand the largest task that is an interior node in the output */
+        uint32_t big = ntasks, bigsize = 0;
+        for (k = 0; k < ntasks; k++) {
+            const bvh_node *s = &src[tasks[k].si];
+            if (!s->count && !(cnt[tasks[k].si] & BVH__COLLAPSE_BIT) && size[tasks[k].si] > bigsize) {
+                big = k; bigsize = size[tasks[k].si];
+            }
+        }
+        if (big == ntasks || 2 * (size_t)bigsize < BVH__MIN_PRIMS_PER_THREAD) break;
+        {
+            bvh__emit_task x = tasks[big];
+            const bvh_node *s = &src[x.si];
+            bvh_node *d = &o->nodes[x.di];
+            uint32_t l = s->index;
+            d->min = s->min; d->max = s->max;
+            d->index = x.node; d->count = 0;
+            tasks[big].si = l; tasks[big].di = x.node; tasks[big].node = x.node + 2; tasks[big].ref = x.ref;
+            tasks[ntasks].si = l + 1; tasks[ntasks].di = x.node + 1;
+            tasks[ntasks].node = x.node + 1 + size[l]; tasks[ntasks].ref = x.ref + (cnt[l] & ~BVH__COLLAPSE_BIT);
+            ntasks++;
+        }
+    }
+    for (t = 0; t < nt; t++) load[t] = 0;
+    for (k = 0; k < ntasks; k++) { /* greedy: each task to the least loaded thread so far */
+        uint32_t least = 0;
+        for (t = 1; t < nt; t++) if (load[t] < load[least]) least = t;
+        owner[k] = least;
+        load[least] += size[tasks[k].si];
+    }
+    job.src = src; job.map = map; job.cnt = cnt; job.size = size; job.o = o;
+    job.tasks = tasks; job.owner = owner; job.task_count = ntasks;
+    return bvh__team_run(&c->al, nt, bvh__emit_team_fn, &job);
+}
+
+/* Pass 2 when the tree is too deep: one thread walks from the root and rebuilds with the median
+   builder every subtree that would cross the depth bound. Node positions then depend on the
+   rebuilt subtrees, so the nodes are appended as they come (still depth-first, children
+   adjacent). */
+static bvh_result bvh__emit_rebuild(const bvh__ctx *c, const bvh__sizes *q, const uint32_t *map, uint32_t src_count,
+                                    bvh__out *o) {
+    const bvh_node *src = q->src;
+    const uint32_t *cnt = q->cnt;
+    const uint8_t *height = q->height;
+    uint32_t stack[3 * (BVH_MAX_DEPTH + 2)], small[2 * BVH__MAX_LEAF + 8], *gather = NULL, sp = 0;
     bvh_result r = BVH_SUCCESS;
-    if (!cnt || !size || !height || ((collapse || blocks) && !cost)) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
-    {
-        bvh__sizes q;
-        q.c = c; q.src = src; q.cnt = cnt; q.size = size; q.height = height; q.cost = collapse ? cost : NULL;
-        q.blocks = blocks ? blocks : &src_count;
-        q.block_count = blocks ? block_count : 1;
-        r = bvh__team_run(&c->al, blocks ? nthreads : 1, bvh__sizes_fn, &q);
-        if (r == BVH_SUCCESS && collapse && c->budget &&
-            size[src_count - 1] > bvh__budget_nodes(c, cnt[src_count - 1] & ~BVH__COLLAPSE_BIT))
-            r = bvh__fit_budget(c, &q, blocks ? nthreads : 1);
-        if (r != BVH_SUCCESS) goto done;
-    }
-    prims = cnt[src_count - 1] & ~BVH__COLLAPSE_BIT;
-    /* exact size unless a subtree must be rebuilt for depth (then at most 2 n - 1 nodes) */
-    r = bvh__out_init(c, o, height[src_count - 1] > BVH_MAX_DEPTH - 1 ? 2 * prims - 1 : size[src_count - 1], prims);
-    if (r != BVH_SUCCESS) goto done;
-    if (blocks && block_count >= 2 && blocks[block_count - 1] == src_count && height[src_count - 1] <= BVH_MAX_DEPTH - 1 &&
-        !src[src_count - 1].count && !(cnt[src_count - 1] & BVH__COLLAPSE_BIT)) {
-        /* PLOC's runs: placed from the root down (bvh__place) */
-        bvh__place pl;
-        const bvh_node *root = &src[src_count - 1];
-        bvh_node *d = &o->nodes[0];
-        d->min = root->min; d->max = root->max; d->index = 1; d->count = 0;
-        cost[root->index].u = 1;
-        cost[root->index + 1].u = 0;
-        pl.src = src; pl.map = map; pl.cnt = cnt; pl.size = size; pl.blocks = blocks; pl.pos = cost; pl.o = o;
-        pl.block_count = block_count;
-        r = bvh__team_run(&c->al, nthreads, bvh__place_fn, &pl);
-        o->node_count = size[src_count - 1];
-        o->ref_count = prims;
-        goto done;
-    }
-    if (height[src_count - 1] <= BVH_MAX_DEPTH - 1) {
-        /* shallow enough: no subtree is rebuilt, so positions follow from the sizes and the
-           subtrees can be written by the team. With several threads, the largest subtree is split
-           until there are BVH__EMIT_TASKS of them or the largest has under 4096 nodes (half of
-           BVH__MIN_PRIMS_PER_THREAD, which the tests lower to split small trees too); the
-           top nodes are written here, each subtree goes to the least loaded thread so far. The
-           output is the same for any thread count. */
-        bvh__emit_task tasks[BVH__EMIT_TASKS];
-        uint32_t owner[BVH__EMIT_TASKS], load[BVH__EMIT_TASKS], nt = nthreads, k, t;
-        bvh__emit_job job;
-        uint32_t ntasks = 1;
-        tasks[0].si = src_count - 1; tasks[0].di = 0; tasks[0].node = 1; tasks[0].ref = 0;
-        if (nt > BVH__EMIT_TASKS / 4) nt = BVH__EMIT_TASKS / 4;
-        while (nt > 1 && ntasks + 1 < BVH__EMIT_TASKS) {
-            /* expand the largest task that is an interior node in the output */
-            uint32_t big = ntasks, bigsize = 0;
-            for (k = 0; k < ntasks; k++) {
-                const bvh_node *s = &src[tasks[k].si];
-                if (!s->count && !(cnt[tasks[k].si] & BVH__COLLAPSE_BIT) && size[tasks[k].si] > bigsize) {
-                    big = k; bigsize = size[tasks[k].si];
-                }
-            }
-            if (big == ntasks || 2 * (size_t)bigsize < BVH__MIN_PRIMS_PER_THREAD) break;
-            {
-                bvh__emit_task x = tasks[big];
-                const bvh_node *s = &src[x.si];
-                bvh_node *d = &o->nodes[x.di];
-                uint32_t l = s->index;
-                d->min = s->min; d->max = s->max;
-                d->index = x.node; d->count = 0;
-                tasks[big].si = l; tasks[big].di = x.node; tasks[big].node = x.node + 2; tasks[big].ref = x.ref;
-                tasks[ntasks].si = l + 1; tasks[ntasks].di = x.node + 1;
-                tasks[ntasks].node = x.node + 1 + size[l]; tasks[ntasks].ref = x.ref + (cnt[l] & ~BVH__COLLAPSE_BIT);
-                ntasks++;
-            }
-        }
-        for (t = 0; t < nt; t++) load[t] = 0;
-        for (k = 0; k < ntasks; k++) { /* greedy: each task to the least loaded thread so far */
-            uint32_t least = 0;
-            for (t = 1; t < nt; t++) if (load[t] < load[least]) least = t;
-            owner[k] = least;
-            load[least] += size[tasks[k].si];
-        }
-        job.src = src; job.map = map; job.cnt = cnt; job.size = size; job.o = o;
-        job.tasks = tasks; job.owner = owner; job.task_count = ntasks;
-        r = bvh__team_run(&c->al, nt, bvh__emit_team_fn, &job);
-        o->node_count = size[src_count - 1];
-        o->ref_count = prims;
-        goto done;
-    }
     o->node_count = 1;
-    stack[sp++] = src_count - 1; stack[sp++] = 0; stack[sp++] = 0;
+    stack[sp++] = src_count - 1; stack[sp++] = 0; stack[sp++] = 1;
     while (sp) {
-        uint32_t depth = stack[--sp], di = stack[--sp], si = stack[--sp];
+        uint32_t level = stack[--sp], di = stack[--sp], si = stack[--sp];
         const bvh_node *s = &src[si];
         bvh_node *d = &o->nodes[di];
         int flatten = s->count || (cnt[si] & BVH__COLLAPSE_BIT);
-        int too_deep = !flatten && depth <= BVH_MAX_DEPTH / 2 - 1 && depth + height[si] > BVH_MAX_DEPTH - 1;
+        /* rebuilt only in the upper half of the bound, where a median tree (ceil(log2 n) + 1 levels
+           for n <= 2^30 primitives) always fits */
+        int too_deep = !flatten && level <= BVH_MAX_DEPTH / 2 && !bvh__fits_depth(level, height[si]);
         if (flatten || too_deep) {
             /* gather every primitive below si: a small subtree, or (rarely) a too deep one */
             uint32_t first = o->ref_count, n = cnt[si] & ~BVH__COLLAPSE_BIT, *g = small;
             if (too_deep) {
-                if (!gather && !(gather = BVH__ALLOC(&c->al, uint32_t, src_count))) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+                if (!gather && !(gather = BVH__ALLOC(&c->al, uint32_t, src_count))) { r = BVH_ERROR_OUT_OF_MEMORY; break; }
                 g = gather;
             }
             o->ref_count += bvh__gather_refs(src, map, si, g, o->refs + first);
@@ -1464,12 +1536,59 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
         d->count = 0;
         d->index = o->node_count;
         o->node_count += 2;
-        stack[sp++] = s->index + 1; stack[sp++] = d->index + 1; stack[sp++] = depth + 1;
-        stack[sp++] = s->index; stack[sp++] = d->index; stack[sp++] = depth + 1;
+        stack[sp++] = s->index + 1; stack[sp++] = d->index + 1; stack[sp++] = level + 1;
+        stack[sp++] = s->index; stack[sp++] = d->index; stack[sp++] = level + 1;
     }
+    bvh__free(&c->al, gather);
+    return r;
+}
+
+/* Writes the source tree to o: pass 1 (bvh__sizes_fn, and bvh__fit_budget over the memory
+   budget) sizes every subtree and makes the collapse decisions; pass 2 writes the nodes, by the
+   first of these that applies: PLOC's runs from the root down (bvh__emit_placed), subtrees in
+   parallel where no subtree crosses the depth bound (bvh__emit_tasks), else one walk that
+   rebuilds the subtrees that cross it (bvh__emit_rebuild). */
+static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src_count, const uint32_t *map,
+                            int collapse, uint32_t nthreads, const uint32_t *blocks, uint32_t block_count,
+                            bvh__out *o) {
+    uint32_t *cnt = BVH__ALLOC(&c->al, uint32_t, src_count); /* prims below; top bit: collapsed */
+    uint32_t *size = BVH__ALLOC(&c->al, uint32_t, src_count); /* output nodes below, itself included */
+    uint8_t *height = BVH__ALLOC(&c->al, uint8_t, src_count); /* after collapsing, capped at 255 */
+    /* with blocks, the costs' array is also pass 2's pos (bvh__place) */
+    bvh__fu *cost = collapse || blocks ? BVH__ALLOC(&c->al, bvh__fu, src_count) : NULL;
+    const uint32_t root = src_count - 1;
+    uint32_t prims;
+    int shallow;
+    bvh__sizes q;
+    bvh_result r = BVH_SUCCESS;
+    if (!cnt || !size || !height || ((collapse || blocks) && !cost)) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    q.c = c; q.src = src; q.cnt = cnt; q.size = size; q.height = height; q.cost = collapse ? cost : NULL;
+    q.blocks = blocks ? blocks : &src_count;
+    q.block_count = blocks ? block_count : 1;
+    r = bvh__team_run(&c->al, blocks ? nthreads : 1, bvh__sizes_fn, &q);
+    if (r == BVH_SUCCESS && collapse && c->budget && size[root] > bvh__budget_nodes(c, cnt[root] & ~BVH__COLLAPSE_BIT))
+        r = bvh__fit_budget(c, &q, blocks ? nthreads : 1);
+    if (r != BVH_SUCCESS) goto done;
+    q.c = c; /* bvh__fit_budget pointed it at its own copy */
+    q.cost = cost;
+    prims = cnt[root] & ~BVH__COLLAPSE_BIT;
+    shallow = bvh__fits_depth(1, height[root]);
+    /* exact size unless a subtree must be rebuilt for depth (then at most 2 n - 1 nodes) */
+    r = bvh__out_init(c, o, shallow ? size[root] : 2 * prims - 1, prims);
+    if (r != BVH_SUCCESS) goto done;
+    if (!shallow) {
+        r = bvh__emit_rebuild(c, &q, map, src_count, o);
+        goto done;
+    }
+    if (blocks && block_count >= 2 && blocks[block_count - 1] == src_count && !src[root].count &&
+        !(cnt[root] & BVH__COLLAPSE_BIT))
+        r = bvh__emit_placed(c, &q, map, src_count, nthreads, o);
+    else
+        r = bvh__emit_tasks(c, &q, map, src_count, nthreads, o);
+    o->node_count = size[root];
+    o->ref_count = prims;
 done:
     if (r != BVH_SUCCESS) bvh__out_free(c, o);
-    bvh__free(&c->al, gather);
     bvh__free(&c->al, cost);
     bvh__free(&c->al, height);
     bvh__free(&c->al, size);
@@ -1494,8 +1613,8 @@ static bvh_result bvh__build_bottom_up(const bvh__ctx *c, bvh__out *o) {
     bvh__team_run(&c->al, 1, bvh__morton_team_fn, &job);
     for (i = 0; i < leaves; i++) {
         uint32_t b = i * c->max_leaf, e = b + c->max_leaf < c->n ? b + c->max_leaf : c->n, k;
-        bvh_aabb box = bvh_aabb_empty();
-        for (k = b; k < e; k++) box = bvh_aabb_merge(box, c->boxes[job.sort.vals[k]]);
+        bvh_aabb box = bvh__empty();
+        for (k = b; k < e; k++) box = bvh__merge(box, c->boxes[job.sort.vals[k]]);
         bvh__set_box(&src[count], box);
         src[count].index = b;
         src[count].count = e - b;
@@ -1506,7 +1625,7 @@ static bvh_result bvh__build_bottom_up(const bvh__ctx *c, bvh__out *o) {
         uint32_t next = count;
         for (i = 0; i + 1 < len; i += 2) {
             bvh_node *p = &src[count++];
-            bvh__set_box(p, bvh_aabb_merge(bvh__node_box(&src[level + i]), bvh__node_box(&src[level + i + 1])));
+            bvh__set_box(p, bvh__merge(bvh__node_box(&src[level + i]), bvh__node_box(&src[level + i + 1])));
             p->index = level + i;
             p->count = 0;
         }
@@ -1820,7 +1939,7 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
                     bvh_node *n = &cout[k];
                     p->src[sl] = cin[i];
                     p->src[sl + 1] = cin[i + 1];
-                    bvh__set_box(n, bvh_aabb_merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[i + 1])));
+                    bvh__set_box(n, bvh__merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[i + 1])));
                     n->index = (uint32_t)sl;
                     n->count = 0;
                 } else {
@@ -1838,7 +1957,7 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
                 bvh_node *n = &cout[pos++];
                 p->src[slot] = cin[i];
                 p->src[slot + 1] = cin[j];
-                bvh__set_box(n, bvh_aabb_merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[j])));
+                bvh__set_box(n, bvh__merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[j])));
                 n->index = slot;
                 n->count = 0;
                 slot += 2;
@@ -1900,8 +2019,10 @@ BVH__F4_OP(bvh__f4_mul, a.v[k] * b.v[k])
 BVH__INLINE void bvh__f4_put(float *p, bvh__f4 a) { memcpy(p, a.v, sizeof a.v); }
 BVH__INLINE void bvh__f4_slots(uint32_t *p, bvh__f4 a) { int k; for (k = 0; k < 3; k++) p[k] = (uint32_t)a.v[k]; }
 #endif
+/* The half area of lanes 0-2, summed (xy + zx) + yz where bvh__half_area sums (xy + yz) + zx: the
+   same quantity rounded differently, so PLOC's top keeps its own (its trees depend on it). */
 #ifdef BVH__SSE
-BVH__INLINE float bvh__f4_half_area(bvh__f4 lo, bvh__f4 hi) { /* lanes 0-2; in registers */
+BVH__INLINE float bvh__f4_half_area(bvh__f4 lo, bvh__f4 hi) { /* in registers */
     __m128 d = _mm_sub_ps(hi, lo), p = _mm_mul_ps(d, _mm_shuffle_ps(d, d, _MM_SHUFFLE(3, 0, 2, 1)));
     __m128 s = _mm_add_ps(p, _mm_movehl_ps(p, p)); /* xy + zx, yz + 0 */
     return _mm_cvtss_f32(_mm_add_ss(s, _mm_shuffle_ps(s, s, _MM_SHUFFLE(1, 1, 1, 1))));
@@ -1919,7 +2040,6 @@ BVH__INLINE float bvh__f4_half_area(bvh__f4 lo, bvh__f4 hi) {
 #define BVH__TOP_NONE 0xffffffffu
 #define BVH__TOP_PLOC_MIN 64 /* PLOC's split is a candidate from this many clusters up */
 /* The top's nodes are bvh_node with the children in index and count (top bit: a cluster). */
-static double bvh__half_area_d(const bvh_node *n);
 /* Clusters [b, e) of buffer `buf` (0 or 1) become internal node `id` and the nodes below it (ids
    in pre-order: the left subtree from id + 1, the right from id + its left count); lo, hi: the
    bounds of their boxes; clo, chi: a range of their centroids (doubled: lo + hi) to bin over. */
@@ -2003,16 +2123,14 @@ static void bvh__top_small(const bvh__top_job *j, const bvh__top_task *t) {
 static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bvh__top_task kids[2]) {
     uint32_t b = t->b, e = t->e, n = e - b, nb = n < BVH__TOP_BINS ? n : BVH__TOP_BINS, i, k, mid = b, out = 0, bb = 0;
     bvh_node *v = j->v[t->buf], *w = j->v[t->buf ^ 1u], *node = &j->nodes[t->id];
-    float ext[4], lo4[4], hi4[4], best = BVH_INF;
+    float ext[4], best = BVH_INF;
     uint32_t ps, pc[2] = {0, 0};
     bvh__f4 plo[2], phi[2];
     int ba = -1, a;
     bvh__f4 scale, last = bvh__f4_set((float)(nb - 1)), blo[2], bhi[2];
     if (n <= 3) { bvh__top_small(j, t); return 0; }
     bvh__f4_put(ext, bvh__f4_sub(t->chi, t->clo));
-    bvh__f4_put(lo4, t->lo); bvh__f4_put(hi4, t->hi);
-    node->min.x = lo4[0]; node->min.y = lo4[1]; node->min.z = lo4[2];
-    node->max.x = hi4[0]; node->max.y = hi4[1]; node->max.z = hi4[2];
+    bvh__top_put(node, t->lo, t->hi);
     {
         float s[4];
         for (a = 0; a < 3; a++) s[a] = ext[a] > 0.0f ? (float)nb / ext[a] : 0.0f;
@@ -2216,7 +2334,7 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
             uint32_t l = s->index - base;
             cc[x] = cc[l] + cc[l + 1]; lcc[x] = cc[l];
             par[l] = par[l + 1] = x;
-            ploc_cost += bvh__half_area_d(s);
+            ploc_cost += bvh__half_area_d(bvh__node_box(s));
         }
     }
     par[L - 1] = BVH__TOP_NONE;
@@ -2252,7 +2370,7 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
     if (r != BVH_SUCCESS) goto done;
     for (i = m - 1; i-- > 0;) { /* children have larger ids: summed areas and heights from the last */
         uint32_t hh = 0;
-        double sum = bvh__half_area_d(&nodes[i]);
+        double sum = bvh__half_area_d(bvh__node_box(&nodes[i]));
         for (h = 0; h < 2; h++) {
             uint32_t y = h ? nodes[i].count : nodes[i].index;
             if (!(y & BVH__TOP_CLUSTER)) { sum += cost[y]; if (height[y] > hh) hh = height[y]; }
@@ -2408,13 +2526,12 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
 
 enum { BVH__SM_NONE, BVH__SM_BIN, BVH__SM_OVERLAP, BVH__SM_SPLIT, BVH__SM_MEDIAN };
 
-typedef struct bvh__sm_box { float lo[3], hi[3]; } bvh__sm_box;
-typedef struct bvh__sm_ref { float lo[3], hi[3]; uint32_t id; } bvh__sm_ref; /* clipped bounds */
+typedef struct bvh__sm_ref { bvh_aabb box; uint32_t id; } bvh__sm_ref; /* box: clipped bounds */
 
 typedef struct bvh__sm_task {
     uint32_t node, count, depth; /* its references are work[top - count, top) when it is popped */
     uint32_t budget;             /* extra references this subtree may still create */
-    bvh__sm_box box, cbox;       /* bounds of the references and of their centroids */
+    bvh_aabb box, cbox;       /* bounds of the references and of their centroids */
 } bvh__sm_task;
 
 typedef struct bvh__sm_choice {
@@ -2423,7 +2540,7 @@ typedef struct bvh__sm_choice {
     float plane;       /* the mid-point of the chosen axis (the cut of the binning, or the plane) */
     float bin_lo, bin_scale;
     double cost;       /* C, the sum over both children of half-area * references */
-    bvh__sm_box left, right; /* BVH__SM_SPLIT: the children as costed, for unsplitting */
+    bvh_aabb left, right; /* BVH__SM_SPLIT: the children as costed, for unsplitting */
     uint32_t n_left, n_right;
 } bvh__sm_choice;
 
@@ -2434,41 +2551,29 @@ typedef struct bvh__sm {
     uint32_t top, cap, budget, extra, carry, node_max, bins;
     double root_area;
     /* evaluation scratch, per axis */
-    bvh__sm_box bin[3][BVH__SM_MAX_BINS + 1]; /* one more: the bin holding the mid-point, cut */
+    bvh_aabb bin[3][BVH__SM_MAX_BINS + 1]; /* one more: the bin holding the mid-point, cut */
     uint32_t bin_n[3][BVH__SM_MAX_BINS + 1];
     double right_area[BVH__SM_MAX_BINS + 1];
     uint32_t right_n[BVH__SM_MAX_BINS + 1];
 } bvh__sm;
 
-BVH__INLINE void bvh__sm_empty(bvh__sm_box *b) {
-    b->lo[0] = b->lo[1] = b->lo[2] = BVH_INF;
-    b->hi[0] = b->hi[1] = b->hi[2] = -BVH_INF;
-}
-BVH__INLINE void bvh__sm_grow(bvh__sm_box *b, const float *lo, const float *hi) {
-    b->lo[0] = bvh__minf(b->lo[0], lo[0]); b->hi[0] = bvh__maxf(b->hi[0], hi[0]);
-    b->lo[1] = bvh__minf(b->lo[1], lo[1]); b->hi[1] = bvh__maxf(b->hi[1], hi[1]);
-    b->lo[2] = bvh__minf(b->lo[2], lo[2]); b->hi[2] = bvh__maxf(b->hi[2], hi[2]);
-}
-BVH__INLINE void bvh__sm_merge(bvh__sm_box *b, const bvh__sm_box *x) { bvh__sm_grow(b, x->lo, x->hi); }
-/* Half the surface area in double (no overflow for huge boxes); 0 for an empty box. */
-BVH__INLINE double bvh__sm_area(const bvh__sm_box *b) {
-    double dx = (double)b->hi[0] - b->lo[0], dy = (double)b->hi[1] - b->lo[1], dz = (double)b->hi[2] - b->lo[2];
-    if (!(dx >= 0.0 && dy >= 0.0 && dz >= 0.0)) return 0.0;
-    return dx * dy + dy * dz + dz * dx;
-}
 /* Halving is exact (but for subnormals), so even a contracted (FMA) form gives the same value:
-   every pass bins a reference alike. */
-BVH__INLINE float bvh__sm_centre(const bvh__sm_ref *r, int a) { return 0.5f * r->lo[a] + 0.5f * r->hi[a]; }
+   every pass bins a reference alike. (Not bvh__centroid, which adds first: the two differ
+   where the sum overflows or a half is subnormal.) */
+BVH__INLINE float bvh__sm_centre(const bvh__sm_ref *r, int a) {
+    return 0.5f * bvh__at(&r->box.min, a) + 0.5f * bvh__at(&r->box.max, a);
+}
+BVH__INLINE bvh_vec3 bvh__sm_centroid(const bvh__sm_ref *r) {
+    bvh_vec3 c;
+    c.x = bvh__sm_centre(r, 0);
+    c.y = bvh__sm_centre(r, 1);
+    c.z = bvh__sm_centre(r, 2);
+    return c;
+}
 BVH__INLINE uint32_t bvh__sm_bin_of(float x, float lo, float scale, uint32_t bins) {
     /* (x - lo) * scale >= 0, +inf when the centroid range overflows float: clamp, then convert */
     float f = bvh__minf((x - lo) * scale, (float)(bins - 1));
     return (uint32_t)(int)f;
-}
-static bvh_aabb bvh__sm_aabb(const bvh__sm_box *b) {
-    bvh_aabb r;
-    r.min.x = b->lo[0]; r.min.y = b->lo[1]; r.min.z = b->lo[2];
-    r.max.x = b->hi[0]; r.max.y = b->hi[1]; r.max.z = b->hi[2];
-    return r;
 }
 static uint32_t bvh__sm_log2(uint32_t m) { /* ceil(log2(m)) */
     uint32_t l = 0;
@@ -2488,7 +2593,11 @@ static int bvh__sm_clip(const bvh__ctx *c, const bvh__sm_ref *r, int a, float p,
     int e, k, mask = 0;
     *l = *r;
     *rt = *r;
-    if (!c->tris) { l->hi[a] = p; rt->lo[a] = p; return 3; }
+    if (!c->tris) {
+        bvh__set(&l->box.max, a, p);
+        bvh__set(&rt->box.min, a, p);
+        return 3;
+    }
     bvh__ctx_triangle(c, r->id, t);
     for (k = 0; k < 3; k++) { llo[k] = rlo[k] = BVH_INF; lhi[k] = rhi[k] = -BVH_INF; }
     for (e = 0; e < 3; e++) {
@@ -2513,13 +2622,15 @@ static int bvh__sm_clip(const bvh__ctx *c, const bvh__sm_ref *r, int a, float p,
         }
     }
     for (k = 0; k < 3; k++) {
-        l->lo[k] = bvh__maxf(llo[k], r->lo[k]); l->hi[k] = bvh__minf(lhi[k], r->hi[k]);
-        rt->lo[k] = bvh__maxf(rlo[k], r->lo[k]); rt->hi[k] = bvh__minf(rhi[k], r->hi[k]);
+        bvh__set(&l->box.min, k, bvh__maxf(llo[k], bvh__at(&r->box.min, k)));
+        bvh__set(&l->box.max, k, bvh__minf(lhi[k], bvh__at(&r->box.max, k)));
+        bvh__set(&rt->box.min, k, bvh__maxf(rlo[k], bvh__at(&r->box.min, k)));
+        bvh__set(&rt->box.max, k, bvh__minf(rhi[k], bvh__at(&r->box.max, k)));
     }
-    l->hi[a] = bvh__minf(l->hi[a], p);
-    rt->lo[a] = bvh__maxf(rt->lo[a], p);
-    if (l->lo[0] <= l->hi[0] && l->lo[1] <= l->hi[1] && l->lo[2] <= l->hi[2] && l->lo[a] < p) mask |= 1;
-    if (rt->lo[0] <= rt->hi[0] && rt->lo[1] <= rt->hi[1] && rt->lo[2] <= rt->hi[2] && rt->hi[a] > p) mask |= 2;
+    bvh__set(&l->box.max, a, bvh__minf(bvh__at(&l->box.max, a), p));
+    bvh__set(&rt->box.min, a, bvh__maxf(bvh__at(&rt->box.min, a), p));
+    if (bvh__nonempty(l->box) && bvh__at(&l->box.min, a) < p) mask |= 1;
+    if (bvh__nonempty(rt->box) && bvh__at(&rt->box.max, a) > p) mask |= 2;
     if (!mask) { /* cannot happen with conservative boxes; keep the whole reference on one side */
         *l = *r;
         *rt = *r;
@@ -2529,11 +2640,15 @@ static int bvh__sm_clip(const bvh__ctx *c, const bvh__sm_ref *r, int a, float p,
 }
 
 /* Half area of the intersection of two boxes (0 when they do not overlap). */
-static double bvh__sm_overlap(const bvh__sm_box *x, const bvh__sm_box *y) {
-    bvh__sm_box i;
-    int k;
-    for (k = 0; k < 3; k++) { i.lo[k] = bvh__maxf(x->lo[k], y->lo[k]); i.hi[k] = bvh__minf(x->hi[k], y->hi[k]); }
-    return bvh__sm_area(&i);
+static double bvh__sm_overlap(const bvh_aabb *x, const bvh_aabb *y) {
+    bvh_aabb i;
+    i.min.x = bvh__maxf(x->min.x, y->min.x);
+    i.min.y = bvh__maxf(x->min.y, y->min.y);
+    i.min.z = bvh__maxf(x->min.z, y->min.z);
+    i.max.x = bvh__minf(x->max.x, y->max.x);
+    i.max.y = bvh__minf(x->max.y, y->max.y);
+    i.max.z = bvh__minf(x->max.z, y->max.z);
+    return bvh__half_area_d(i);
 }
 static int bvh__sm_offer(bvh__sm_choice *best, int kind, int axis, float plane, double cost) {
     if (best->kind != BVH__SM_NONE && !(cost < best->cost)) return 0; /* ties: the earlier candidate */
@@ -2555,7 +2670,7 @@ typedef struct bvh__sm_axis {
 } bvh__sm_axis;
 BVH__INLINE uint32_t bvh__sm_slot(const bvh__sm_ref *r, int a, float c, const bvh__sm_axis *x) { /* c: centroid */
     uint32_t k = x->bins > 1 ? bvh__sm_bin_of(c, x->lo, x->scale, x->bins) : 0;
-    uint32_t right = (uint32_t)(c >= x->p) & (uint32_t)((c != x->p) | (r->hi[a] > x->p)); /* not in D_L u O_L */
+    uint32_t right = (uint32_t)(c >= x->p) & (uint32_t)((c != x->p) | (bvh__at(&r->box.max, a) > x->p)); /* not in D_L u O_L */
     return k + (uint32_t)(k > x->kp) + ((uint32_t)(k == x->kp) & right);
 }
 
@@ -2565,62 +2680,64 @@ BVH__INLINE uint32_t bvh__sm_slot(const bvh__sm_ref *r, int a, float c, const bv
    into D_L, D_R and straddlers and clips the straddlers for C_S. With bins, pass 2 runs only
    where the best candidate so far has children overlapping by more than BVH__SAH_MIDPOINT_ALPHA
    of the root's area; without bins (the study's variant) C_S is always costed. */
-static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget, const bvh__sm_box *nb,
-                             const bvh__sm_box *cb, bvh__sm_choice *best) {
+static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget, const bvh_aabb *nb,
+                             const bvh_aabb *cb, bvh__sm_choice *best) {
     const uint32_t bins = s->bins < m ? s->bins : m, e = b + m; /* small nodes: fewer bins */
     bvh__sm_axis x[3];
-    bvh__sm_box dl[3], dr[3], sl[3], sr[3], lb, rb;
+    bvh_aabb dl[3], dr[3], sl[3], sr[3], lb, rb;
     uint32_t ndl[3], ndr[3], nsl[3], nsr[3], dup[3], slots[3], i, k, best_slot = 0;
     int mid_ok[3], clip[3], any_clip = 0, a;
     best->kind = BVH__SM_NONE;
     best->cost = 0.0;
     for (a = 0; a < 3; a++) {
         bvh__sm_axis *xa = &x[a];
-        xa->p = 0.5f * nb->lo[a] + 0.5f * nb->hi[a];
-        mid_ok[a] = nb->lo[a] < xa->p && xa->p < nb->hi[a];
-        xa->lo = cb->lo[a];
-        xa->bins = bins > 1 && cb->lo[a] < cb->hi[a] ? bins : 1;
-        xa->scale = xa->bins > 1 ? (float)((double)bins / ((double)cb->hi[a] - cb->lo[a])) : 0.0f;
+        const float nlo = bvh__at(&nb->min, a), nhi = bvh__at(&nb->max, a);
+        const float clo = bvh__at(&cb->min, a), chi = bvh__at(&cb->max, a);
+        xa->p = 0.5f * nlo + 0.5f * nhi;
+        mid_ok[a] = nlo < xa->p && xa->p < nhi;
+        xa->lo = clo;
+        xa->bins = bins > 1 && clo < chi ? bins : 1;
+        xa->scale = xa->bins > 1 ? (float)((double)bins / ((double)chi - clo)) : 0.0f;
         if (xa->bins > 1 && !(xa->scale > 0.0f && xa->scale <= FLT_MAX)) { xa->bins = 1; xa->scale = 0.0f; }
         xa->kp = xa->bins;
-        if (mid_ok[a] && cb->lo[a] <= xa->p && xa->p <= cb->hi[a])
+        if (mid_ok[a] && clo <= xa->p && xa->p <= chi)
             xa->kp = xa->bins > 1 ? bvh__sm_bin_of(xa->p, xa->lo, xa->scale, xa->bins) : 0;
         slots[a] = xa->bins + (xa->kp < xa->bins);
-        for (k = 0; k < slots[a]; k++) { bvh__sm_empty(&s->bin[a][k]); s->bin_n[a][k] = 0; }
+        for (k = 0; k < slots[a]; k++) { s->bin[a][k] = bvh__empty(); s->bin_n[a][k] = 0; }
     }
     for (i = b; i < e; i++) { /* pass 1 */
         const bvh__sm_ref *r = &s->work[i];
         for (a = 0; a < 3; a++) {
             if (slots[a] < 2) continue;
             k = bvh__sm_slot(r, a, bvh__sm_centre(r, a), &x[a]);
-            bvh__sm_grow(&s->bin[a][k], r->lo, r->hi);
+            s->bin[a][k] = bvh__merge(s->bin[a][k], r->box);
             s->bin_n[a][k]++;
         }
     }
     for (a = 0; a < 3; a++) { /* Wald 2007: sweep the slots from the right, then from the left */
-        bvh__sm_box acc;
+        bvh_aabb acc;
         uint32_t n = 0;
         double area = 0.0;
         if (slots[a] < 2) continue;
-        bvh__sm_empty(&acc);
+        acc = bvh__empty();
         for (k = slots[a] - 1; k > 0; k--) { /* an empty slot changes nothing: no area to compute */
             if (s->bin_n[a][k]) {
-                bvh__sm_merge(&acc, &s->bin[a][k]);
+                acc = bvh__merge(acc, s->bin[a][k]);
                 n += s->bin_n[a][k];
-                area = bvh__sm_area(&acc);
+                area = bvh__half_area_d(acc);
             }
             s->right_area[k] = area;
             s->right_n[k] = n;
         }
-        bvh__sm_empty(&acc);
+        acc = bvh__empty();
         n = 0;
         for (k = 1; k < slots[a]; k++) { /* after an empty slot the candidate repeats the previous one */
             if (!s->bin_n[a][k - 1]) continue;
-            bvh__sm_merge(&acc, &s->bin[a][k - 1]);
+            acc = bvh__merge(acc, s->bin[a][k - 1]);
             n += s->bin_n[a][k - 1];
             if (!s->right_n[k]) break;
             if (bvh__sm_offer(best, k == x[a].kp + 1 ? BVH__SM_OVERLAP : BVH__SM_BIN, a, x[a].p,
-                              bvh__sm_area(&acc) * n + s->right_area[k] * s->right_n[k]))
+                              bvh__half_area_d(acc) * n + s->right_area[k] * s->right_n[k]))
                 best_slot = k;
         }
     }
@@ -2637,15 +2754,18 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         int gate = s->bins > 0 && best->kind != BVH__SM_NONE;
         if (gate) {
             a = best->axis;
-            bvh__sm_empty(&lb);
-            bvh__sm_empty(&rb);
-            for (k = 0; k < slots[a]; k++) bvh__sm_merge(k < best_slot ? &lb : &rb, &s->bin[a][k]);
+            lb = bvh__empty();
+            rb = bvh__empty();
+            for (k = 0; k < slots[a]; k++) {
+                bvh_aabb *side = k < best_slot ? &lb : &rb;
+                *side = bvh__merge(*side, s->bin[a][k]);
+            }
             gate = !(bvh__sm_overlap(&lb, &rb) > BVH__SAH_MIDPOINT_ALPHA * s->root_area);
         }
         for (a = 0; a < 3; a++) {
             clip[a] = !gate && budget > 0 && mid_ok[a];
             any_clip |= clip[a];
-            bvh__sm_empty(&dl[a]); bvh__sm_empty(&dr[a]); bvh__sm_empty(&sl[a]); bvh__sm_empty(&sr[a]);
+            dl[a] = dr[a] = sl[a] = sr[a] = bvh__empty();
             ndl[a] = ndr[a] = nsl[a] = nsr[a] = dup[a] = 0;
         }
     }
@@ -2657,20 +2777,20 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
             int mask;
             float p = x[a].p;
             if (!clip[a]) continue;
-            if (r->hi[a] <= p) { bvh__sm_grow(&dl[a], r->lo, r->hi); ndl[a]++; continue; }
-            if (r->lo[a] >= p) { bvh__sm_grow(&dr[a], r->lo, r->hi); ndr[a]++; continue; }
+            if (bvh__at(&r->box.max, a) <= p) { dl[a] = bvh__merge(dl[a], r->box); ndl[a]++; continue; }
+            if (bvh__at(&r->box.min, a) >= p) { dr[a] = bvh__merge(dr[a], r->box); ndr[a]++; continue; }
             mask = bvh__sm_clip(s->c, r, a, p, &lp, &rp);
-            if (mask & 1) { bvh__sm_grow(&sl[a], lp.lo, lp.hi); nsl[a]++; }
-            if (mask & 2) { bvh__sm_grow(&sr[a], rp.lo, rp.hi); nsr[a]++; }
+            if (mask & 1) { sl[a] = bvh__merge(sl[a], lp.box); nsl[a]++; }
+            if (mask & 2) { sr[a] = bvh__merge(sr[a], rp.box); nsr[a]++; }
             if (mask == 3 && ++dup[a] > budget) clip[a] = 0; /* over budget: not a candidate */
         }
     }
     for (a = 0; a < 3; a++) {
         if (!clip[a] || !(nsl[a] + nsr[a]) || !(ndl[a] + nsl[a]) || !(ndr[a] + nsr[a])) continue;
-        lb = dl[a]; bvh__sm_merge(&lb, &sl[a]);
-        rb = dr[a]; bvh__sm_merge(&rb, &sr[a]);
+        lb = dl[a]; lb = bvh__merge(lb, sl[a]);
+        rb = dr[a]; rb = bvh__merge(rb, sr[a]);
         if (bvh__sm_offer(best, BVH__SM_SPLIT, a, x[a].p,
-                          bvh__sm_area(&lb) * (ndl[a] + nsl[a]) + bvh__sm_area(&rb) * (ndr[a] + nsr[a]))) {
+                          bvh__half_area_d(lb) * (ndl[a] + nsl[a]) + bvh__half_area_d(rb) * (ndr[a] + nsr[a]))) {
             best->left = lb; best->right = rb;
             best->n_left = ndl[a] + nsl[a]; best->n_right = ndr[a] + nsr[a];
         }
@@ -2679,24 +2799,22 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
 
 BVH__INLINE void bvh__sm_swap(bvh__sm_ref *x, bvh__sm_ref *y) { bvh__sm_ref t = *x; *x = *y; *y = t; }
 
-/* Grows a child's bounds and centroid bounds by reference r (cc: its centroid, or NULL). */
-BVH__INLINE void bvh__sm_add(bvh__sm_task *t, const bvh__sm_ref *r, const float *cc) {
-    float c[3];
-    if (!cc) { c[0] = bvh__sm_centre(r, 0); c[1] = bvh__sm_centre(r, 1); c[2] = bvh__sm_centre(r, 2); cc = c; }
-    bvh__sm_grow(&t->box, r->lo, r->hi);
-    bvh__sm_grow(&t->cbox, cc, cc);
+/* Grows a child's bounds and centroid bounds by reference r. */
+BVH__INLINE void bvh__sm_add(bvh__sm_task *t, const bvh__sm_ref *r, bvh_vec3 centroid) {
+    t->box = bvh__merge(t->box, r->box);
+    bvh__grow(&t->cbox, centroid);
 }
 /* Reference unsplitting (Stich, Friedrich & Dietrich 2009, Sec. 4.4), with bins only: keeps a
    straddler whole on one side when that costs less than referencing it on both, judged against
    the children as costed. Returns 1 (left), 2 (right) or 3 (split). */
 static int bvh__sm_unsplit(const bvh__sm_choice *ch, const bvh__sm_ref *r) {
-    bvh__sm_box l = ch->left, rt = ch->right;
-    double al = bvh__sm_area(&ch->left), ar = bvh__sm_area(&ch->right), split, c1, c2;
+    bvh_aabb l = ch->left, rt = ch->right;
+    double al = bvh__half_area_d(ch->left), ar = bvh__half_area_d(ch->right), split, c1, c2;
     split = al * ch->n_left + ar * ch->n_right;
-    bvh__sm_grow(&l, r->lo, r->hi);
-    bvh__sm_grow(&rt, r->lo, r->hi);
-    c1 = bvh__sm_area(&l) * ch->n_left + ar * (ch->n_right - 1);
-    c2 = al * (ch->n_left - 1) + bvh__sm_area(&rt) * ch->n_right;
+    l = bvh__merge(l, r->box);
+    rt = bvh__merge(rt, r->box);
+    c1 = bvh__half_area_d(l) * ch->n_left + ar * (ch->n_right - 1);
+    c2 = al * (ch->n_left - 1) + bvh__half_area_d(rt) * ch->n_right;
     if (c1 < split && c1 <= c2) return 1;
     if (c2 < split) return 2;
     return 3;
@@ -2717,8 +2835,8 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
         while (mid < hi) {
             bvh__sm_ref *r = &w[mid];
             int side; /* 1 left, 2 right, 3 both */
-            if (r->hi[a] <= p) side = 1;
-            else if (r->lo[a] >= p) side = 2;
+            if (bvh__at(&r->box.max, a) <= p) side = 1;
+            else if (bvh__at(&r->box.min, a) >= p) side = 2;
             else {
                 bvh__sm_ref lp, rp;
                 int mask = bvh__sm_clip(s->c, r, a, p, &lp, &rp);
@@ -2726,10 +2844,10 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
                 else {
                     side = s->bins ? bvh__sm_unsplit(ch, r) : 3; /* 1 or 2: whole, on that side */
                     if (side == 3 && dups >= budget) side = bvh__sm_centre(r, a) < p ? 1 : 2;
-                    if (side == 3) { w[top + dups++] = lp; *r = rp; bvh__sm_add(first, &lp, NULL); }
+                    if (side == 3) { w[top + dups++] = lp; *r = rp; bvh__sm_add(first, &lp, bvh__sm_centroid(&lp)); }
                 }
             }
-            bvh__sm_add(side == 1 ? first : second, r, NULL);
+            bvh__sm_add(side == 1 ? first : second, r, bvh__sm_centroid(r));
             if (side == 2) { bvh__sm_swap(&w[lo], &w[mid]); lo++; mid++; }
             else if (side == 3) mid++;
             else { hi--; bvh__sm_swap(&w[mid], &w[hi]); }
@@ -2745,10 +2863,11 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
         x.lo = ch->bin_lo; x.scale = ch->bin_scale; x.p = p; x.bins = ch->bins; x.kp = ch->cut;
         while (i < j) {
             const bvh__sm_ref *r = &w[i];
-            float cc[3];
+            const bvh_vec3 cc = bvh__sm_centroid(r);
+            const float ca = bvh__at(&cc, a);
             int go_first;
-            cc[0] = bvh__sm_centre(r, 0); cc[1] = bvh__sm_centre(r, 1); cc[2] = bvh__sm_centre(r, 2);
-            go_first = binned ? bvh__sm_slot(r, a, cc[a], &x) < ch->bin : r->hi[a] <= p || (r->lo[a] < p && cc[a] < p);
+            if (binned) go_first = bvh__sm_slot(r, a, ca, &x) < ch->bin;
+            else go_first = bvh__at(&r->box.max, a) <= p || (bvh__at(&r->box.min, a) < p && ca < p);
             bvh__sm_add(go_first ? first : second, r, cc);
             if (!go_first) i++;
             else { j--; bvh__sm_swap(&w[i], &w[j]); }
@@ -2757,42 +2876,24 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
     return top - i;
 }
 
-/* Quickselect on centroids (bvh__select on clipped references): v[k] gets the k-th smallest key. */
-static void bvh__sm_select(bvh__sm_ref *v, uint32_t n, uint32_t k, int axis) {
-    uint32_t lo = 0, hi = n - 1;
-    while (hi > lo) {
-        uint32_t i = lo, j = hi, mid = lo + (hi - lo) / 2;
-        float x = bvh__sm_centre(&v[lo], axis), y = bvh__sm_centre(&v[mid], axis), z = bvh__sm_centre(&v[hi], axis);
-        float pivot = x < y ? (y < z ? y : (x < z ? z : x)) : (x < z ? x : (y < z ? z : y));
-        for (;;) { /* Hoare partition: equal keys split evenly */
-            while (bvh__sm_centre(&v[i], axis) < pivot) i++;
-            while (bvh__sm_centre(&v[j], axis) > pivot) j--;
-            if (i >= j) break;
-            bvh__sm_swap(&v[i], &v[j]);
-            i++; j--;
-        }
-        if (i == j) { if (k == i) return; if (k < i) hi = i - 1; else lo = i + 1; }
-        else if (k <= j) hi = j;
-        else lo = j + 1;
-    }
+static float bvh__sm_key(const void *ctx, const void *e, int axis) {
+    (void)ctx;
+    return bvh__sm_centre(BVH__CAST(const bvh__sm_ref *, e), axis);
 }
 /* Object median on the longest centroid axis; returns the first child's count (the upper half). */
-static uint32_t bvh__sm_median(bvh__sm *s, uint32_t b, uint32_t m, const bvh__sm_box *cb) {
-    float ex = cb->hi[0] - cb->lo[0], ey = cb->hi[1] - cb->lo[1], ez = cb->hi[2] - cb->lo[2];
-    int axis = ex >= ey && ex >= ez ? 0 : ey >= ez ? 1 : 2;
-    if (ex > 0.0f || ey > 0.0f || ez > 0.0f) bvh__sm_select(s->work + b, m, m / 2, axis);
+static uint32_t bvh__sm_median(bvh__sm *s, uint32_t b, uint32_t m, const bvh_aabb *cb) {
+    int axis = bvh__median_axis(*cb);
+    if (axis >= 0) bvh__select(s->work + b, sizeof *s->work, m, m / 2, bvh__sm_key, NULL, axis);
     return m - m / 2;
 }
 
-static void bvh__sm_bounds(const bvh__sm_ref *v, uint32_t n, bvh__sm_box *box, bvh__sm_box *cbox) {
+static void bvh__sm_bounds(const bvh__sm_ref *v, uint32_t n, bvh_aabb *box, bvh_aabb *cbox) {
     uint32_t i;
-    bvh__sm_empty(box);
-    bvh__sm_empty(cbox);
+    *box = bvh__empty();
+    *cbox = bvh__empty();
     for (i = 0; i < n; i++) {
-        float cc[3];
-        cc[0] = bvh__sm_centre(&v[i], 0); cc[1] = bvh__sm_centre(&v[i], 1); cc[2] = bvh__sm_centre(&v[i], 2);
-        bvh__sm_grow(box, v[i].lo, v[i].hi);
-        bvh__sm_grow(cbox, cc, cc);
+        *box = bvh__merge(*box, v[i].box);
+        bvh__grow(cbox, bvh__sm_centroid(&v[i]));
     }
 }
 
@@ -2837,44 +2938,42 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
     o->ref_cap = s->cap;
     if (!s->work || !o->refs || !o->nodes) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
     for (i = 0; i < c->n; i++) {
-        bvh__sm_ref *w = &s->work[i];
-        const bvh_aabb *bx = &c->boxes[i];
-        w->lo[0] = bx->min.x; w->lo[1] = bx->min.y; w->lo[2] = bx->min.z;
-        w->hi[0] = bx->max.x; w->hi[1] = bx->max.y; w->hi[2] = bx->max.z;
-        w->id = i;
+        s->work[i].box = c->boxes[i];
+        s->work[i].id = i;
     }
     s->top = c->n;
     o->node_count = 1;
     stack[0].node = 0; stack[0].count = c->n; stack[0].depth = 1; stack[0].budget = s->budget;
     bvh__sm_bounds(s->work, c->n, &stack[0].box, &stack[0].cbox);
-    s->root_area = bvh__sm_area(&stack[0].box);
+    s->root_area = bvh__half_area_d(stack[0].box);
     sp = 1;
     while (sp) {
         bvh__sm_task t = stack[--sp], tl, tr;
         uint32_t m = t.count, b = s->top - m, nl, nr, left;
         bvh__sm_choice ch;
-        bvh__sm_box box;
+        bvh_aabb box;
         bvh_node *node;
         memset(&ch, 0, sizeof ch);
         ch.kind = BVH__SM_MEDIAN;
         t.budget += s->carry; /* what the subtrees before this one left unused */
         s->carry = 0;
-        if (t.depth + bvh__sm_log2(m) + 4 >= BVH_MAX_DEPTH) { /* halve from here on: depth stays bounded */
+        if (!bvh__fits_depth(t.depth, bvh__sm_log2(m) + 5)) { /* halve from here on: depth stays bounded */
             if (m <= c->max_leaf) ch.kind = BVH__SM_NONE;
         } else if (m <= 1) {
             ch.kind = BVH__SM_NONE;
         } else {
-            double area = bvh__sm_area(&t.box);
+            double area = bvh__half_area_d(t.box), split;
             bvh__sm_evaluate(s, b, m, t.budget, &t.box, &t.cbox, &ch);
-            if (m <= c->max_leaf &&
-                (ch.kind == BVH__SM_NONE || area * ((double)c->ct * m + c->cl) <= c->ci * area + c->ct * ch.cost))
+            /* E_r = C_i A(n) + C_t C; where nothing separates, a leaf whenever one may hold them */
+            split = ch.kind == BVH__SM_NONE ? HUGE_VAL : c->ci * area + c->ct * ch.cost;
+            if (bvh__sah_leaf(c, m, BVH__LEAF_COST(c, area, (double)m), split))
                 ch.kind = BVH__SM_NONE; /* leaf: E_t <= E_r */
             else if (ch.kind == BVH__SM_NONE || !(ch.cost < area * m))
                 ch.kind = BVH__SM_MEDIAN;
         }
         node = &o->nodes[t.node];
         if (ch.kind == BVH__SM_NONE) { /* leaf */
-            bvh__set_box(node, bvh__sm_aabb(&t.box));
+            bvh__set_box(node, t.box);
             node->index = o->ref_count;
             node->count = m;
             for (i = b; i < b + m; i++) o->refs[o->ref_count++] = s->work[i].id;
@@ -2882,8 +2981,7 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
             s->carry = t.budget;
             continue;
         }
-        bvh__sm_empty(&tl.box); bvh__sm_empty(&tl.cbox);
-        bvh__sm_empty(&tr.box); bvh__sm_empty(&tr.cbox);
+        tl.box = tl.cbox = tr.box = tr.cbox = bvh__empty();
         nl = ch.kind == BVH__SM_MEDIAN ? 0 : bvh__sm_partition(s, b, t.budget, &ch, &tl, &tr);
         if (nl == 0 || nl == s->top - b) { /* median (no duplicates were made) */
             nl = bvh__sm_median(s, b, m, &t.cbox);
@@ -2902,8 +3000,8 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
         tl.count = nl; tr.count = nr;
         tl.depth = tr.depth = t.depth + 1;
         box = tl.box;
-        bvh__sm_merge(&box, &tr.box); /* split parts may be tighter than the node's references */
-        bvh__set_box(node, bvh__sm_aabb(&box));
+        box = bvh__merge(box, tr.box); /* split parts may be tighter than the node's references */
+        bvh__set_box(node, box);
         node->index = tl.node;
         node->count = 0;
         BVH_ASSERT(sp + 2 <= BVH__SM_STACK);
@@ -3047,7 +3145,7 @@ static void bvh__front_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     bvh__front *f = BVH__CAST(bvh__front *, arg);
     const bvh_build_desc *d = f->desc;
     bvh__front_part *part = &f->part[tid];
-    bvh_aabb bounds = bvh_aabb_empty(), cbounds = bvh_aabb_empty();
+    bvh_aabb bounds = bvh__empty(), cbounds = bvh__empty();
     uint32_t invalid = 0;
     size_t b, e, i;
     (void)team;
@@ -3064,21 +3162,14 @@ static void bvh__front_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
             float t[9];
             bvh__fetch_triangle(&d->triangles, (uint32_t)i, t);
             ok = bvh__finite3(t) && bvh__finite3(t + 3) && bvh__finite3(t + 6);
-            box.min.x = bvh__minf(bvh__minf(t[0], t[3]), t[6]); box.max.x = bvh__maxf(bvh__maxf(t[0], t[3]), t[6]);
-            box.min.y = bvh__minf(bvh__minf(t[1], t[4]), t[7]); box.max.y = bvh__maxf(bvh__maxf(t[1], t[4]), t[7]);
-            box.min.z = bvh__minf(bvh__minf(t[2], t[5]), t[8]); box.max.z = bvh__maxf(bvh__maxf(t[2], t[5]), t[8]);
+            box = bvh__tri_box(t);
         }
         if (!ok) {
             box.min.x = NAN;
             invalid++;
-        } else { /* bvh_aabb_merge and bvh_aabb_grow(centroid), written out: the calls cost more */
-            float cx = 0.5f * (box.min.x + box.max.x), cy = 0.5f * (box.min.y + box.max.y), cz = 0.5f * (box.min.z + box.max.z);
-            bounds.min.x = bvh__minf(bounds.min.x, box.min.x); bounds.max.x = bvh__maxf(bounds.max.x, box.max.x);
-            bounds.min.y = bvh__minf(bounds.min.y, box.min.y); bounds.max.y = bvh__maxf(bounds.max.y, box.max.y);
-            bounds.min.z = bvh__minf(bounds.min.z, box.min.z); bounds.max.z = bvh__maxf(bounds.max.z, box.max.z);
-            cbounds.min.x = bvh__minf(cbounds.min.x, cx); cbounds.max.x = bvh__maxf(cbounds.max.x, cx);
-            cbounds.min.y = bvh__minf(cbounds.min.y, cy); cbounds.max.y = bvh__maxf(cbounds.max.y, cy);
-            cbounds.min.z = bvh__minf(cbounds.min.z, cz); cbounds.max.z = bvh__maxf(cbounds.max.z, cz);
+        } else {
+            bounds = bvh__merge(bounds, box);
+            bvh__grow(&cbounds, bvh__centroid(box));
         }
         f->boxes[i] = box;
     }
@@ -3179,10 +3270,10 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
         fr.part = BVH__ALLOC(&c.al, bvh__front_part, c.threads);
         if (!fr.part) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
         r = bvh__team_run(&c.al, c.threads, bvh__front_fn, &fr);
-        c.bounds = c.cbounds = bvh_aabb_empty();
+        c.bounds = c.cbounds = bvh__empty();
         for (i = 0; r == BVH_SUCCESS && i < fr.nt; i++) {
-            c.bounds = bvh_aabb_merge(c.bounds, fr.part[i].bounds);
-            c.cbounds = bvh_aabb_merge(c.cbounds, fr.part[i].cbounds);
+            c.bounds = bvh__merge(c.bounds, fr.part[i].bounds);
+            c.cbounds = bvh__merge(c.cbounds, fr.part[i].cbounds);
             n += fr.part[i].invalid;
         }
         bvh__free(&c.al, fr.part);
@@ -3191,14 +3282,14 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     if (n > 0) { /* some primitives are invalid (marked by a NaN box): refuse, or leave them out */
         if (!desc->skip_invalid) { r = BVH_ERROR_INVALID_GEOMETRY; goto fail; }
         if (!(orig = BVH__ALLOC(&c.al, uint32_t, count))) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
-        c.bounds = c.cbounds = bvh_aabb_empty();
+        c.bounds = c.cbounds = bvh__empty();
         for (i = 0, n = 0; i < count; i++) {
             bvh_aabb box = c.boxes[i];
             if (bvh__nan(box.min.x)) continue;
             orig[n] = i;
             c.boxes[n++] = box;
-            c.bounds = bvh_aabb_merge(c.bounds, box);
-            bvh_aabb_grow(&c.cbounds, bvh_aabb_centroid(box));
+            c.bounds = bvh__merge(c.bounds, box);
+            bvh__grow(&c.cbounds, bvh__centroid(box));
         }
     } else {
         n = count;
@@ -3257,12 +3348,6 @@ BVH_API bvh_aabb bvh_tree_bounds(const bvh_tree *tree) {
     return bvh__node_box(&tree->nodes[0]);
 }
 
-/* in double: boxes near FLT_MAX would overflow a float area */
-static double bvh__half_area_d(const bvh_node *n) {
-    double dx = (double)n->max.x - n->min.x, dy = (double)n->max.y - n->min.y, dz = (double)n->max.z - n->min.z;
-    if (!(dx >= 0.0 && dy >= 0.0 && dz >= 0.0)) return 0.0;
-    return dx * dy + dy * dz + dz * dx;
-}
 /* Visits every node reached from the root, parents before children, with its depth (root 1).
    Trusts nothing: BVH_ERROR_INVALID_TREE for a child index out of range, a tree deeper than
    BVH_MAX_DEPTH (so a cycle ends) or a node count that differs from the nodes reached. */
@@ -3295,7 +3380,7 @@ typedef struct bvh__sah_sum {
 } bvh__sah_sum;
 static void bvh__sah_visit(void *ctx, const bvh_node *n, uint32_t depth) {
     bvh__sah_sum *s = BVH__CAST(bvh__sah_sum *, ctx);
-    double a = s->root > 0.0 ? bvh__half_area_d(n) / s->root : 1.0;
+    double a = s->root > 0.0 ? bvh__half_area_d(bvh__node_box(n)) / s->root : 1.0;
     (void)depth;
     if (n->count) {
         s->sl += a;
@@ -3319,7 +3404,7 @@ BVH_API bvh_result bvh_sah(const bvh_tree *tree, const bvh_costs *costs, double 
     if (!tree->node_count) return BVH_SUCCESS;
     if (!tree->nodes) return BVH_ERROR_INVALID_TREE;
     memset(&sum, 0, sizeof sum);
-    sum.root = bvh__half_area_d(&tree->nodes[0]);
+    sum.root = bvh__half_area_d(bvh__node_box(&tree->nodes[0]));
     if ((r = bvh__walk(tree, bvh__sah_visit, &sum)) != BVH_SUCCESS) return r;
     *out = ci * sum.si + cl * sum.sl + ct * sum.st;
     return BVH_SUCCESS;

@@ -1090,46 +1090,6 @@ static int bvh__sah_leaf(const bvh__ctx *c, uint32_t n, double leaf_cost, double
    that has `below` levels under its root keeps the tree within BVH_MAX_DEPTH levels. */
 static int bvh__fits_depth(uint32_t level, uint32_t below) { return level + below <= BVH_MAX_DEPTH; }
 
-/* Most slots one binned sweep takes: sah-midpoint's 64 bins with the mid-point's bin cut in two. */
-#define BVH__SWEEP_SLOTS 65
-/* SAH cost of splitting into boxes l and r of nl and nr references. Each builder passes its own
-   arithmetic (sah-midpoint's in double, PLOC's top's in float: a double holds it exactly). */
-typedef double (*bvh__split_cost_fn)(bvh_aabb l, uint32_t nl, bvh_aabb r, uint32_t nr);
-/* The binned SAH sweep (Wald 2007, Sec. 3): the n slots of one axis (boxes and counts, in order)
-   are accumulated from the right, then every boundary k (slots below k on the left, 1 <= k < n)
-   with references on both sides is costed from the left. A candidate is kept when it costs less
-   than *best, or when !*have (then *have becomes 1); ties keep the earlier one. Returns the last
-   k kept, 0 if none. An empty slot k - 1 is skipped: boundary k would repeat boundary k - 1. */
-BVH__INLINE uint32_t bvh__sah_sweep(const bvh_aabb *bin, const uint32_t *cnt, uint32_t n, bvh__split_cost_fn cost,
-                                    double *best, int *have) {
-    bvh_aabb right[BVH__SWEEP_SLOTS], acc = bvh__empty();
-    uint32_t right_n[BVH__SWEEP_SLOTS], m = 0, k, kept = 0;
-    BVH_ASSERT(n <= BVH__SWEEP_SLOTS);
-    for (k = n - 1; k > 0; k--) {
-        if (cnt[k]) {
-            acc = bvh__merge(acc, bin[k]);
-            m += cnt[k];
-        }
-        right[k] = acc;
-        right_n[k] = m;
-    }
-    acc = bvh__empty();
-    m = 0;
-    for (k = 1; k < n; k++) {
-        double c;
-        if (!cnt[k - 1]) continue;
-        acc = bvh__merge(acc, bin[k - 1]);
-        m += cnt[k - 1];
-        if (!right_n[k]) break; /* so are all later boundaries */
-        c = cost(acc, m, right[k], right_n[k]);
-        if (*have && !(c < *best)) continue;
-        *best = c;
-        *have = 1;
-        kept = k;
-    }
-    return kept;
-}
-
 /* ============================================================================================ */
 /* == object-median top-down (the study's baseline top-down builder) ============================= */
 /* Splits the longest axis of the node's centroid bounds at the object median (quickselect, O(n)
@@ -2089,32 +2049,20 @@ static uint32_t bvh__top_ploc_split(const bvh__top_job *j, uint32_t a, uint32_t 
     while (j->first[y] + j->cc[y] <= b) y = j->par[y];
     return j->first[y] + j->lcc[y];
 }
-static bvh_aabb bvh__top_aabb(bvh__f4 lo, bvh__f4 hi) {
-    float l[4], h[4];
-    bvh_aabb b;
-    bvh__f4_put(l, lo);
-    bvh__f4_put(h, hi);
-    b.min.x = l[0]; b.min.y = l[1]; b.min.z = l[2];
-    b.max.x = h[0]; b.max.y = h[1]; b.max.z = h[2];
-    return b;
-}
-static void bvh__top_put(bvh_node *d, bvh__f4 lo, bvh__f4 hi) { bvh__set_box(d, bvh__top_aabb(lo, hi)); }
-/* A vector as lanes 0-2, lane 3 zero (as bvh__f4_at3 gives, without reading past the vector). */
-BVH__INLINE bvh__f4 bvh__f4_vec(bvh_vec3 v) {
-    float f[4];
-    f[0] = v.x;
-    f[1] = v.y;
-    f[2] = v.z;
-    f[3] = 0.0f;
-    return bvh__f4_at(f);
-}
-/* The top's cost of a split (for bvh__sah_sweep), in float as its PLOC candidate is costed. */
-static double bvh__top_cost(bvh_aabb l, uint32_t nl, bvh_aabb r, uint32_t nr) {
-    float right = bvh__f4_half_area(bvh__f4_vec(r.min), bvh__f4_vec(r.max)) * (float)nr;
-    return bvh__f4_half_area(bvh__f4_vec(l.min), bvh__f4_vec(l.max)) * (float)nl + right;
-}
+/* Splits task t (two clusters or more) by binned SAH over the centroids (per axis, as many bins
+   as clusters up to BVH__TOP_BINS), writes its node and returns in kids its children that hold
+   two or more clusters (how many: the result). The clusters are partitioned into the other
+   buffer without a branch; the children's boxes come from the bins, their centroid ranges from
+   their boxes and the split plane (a range only needs to be near the centroids' bounds: slots
+   are clamped). The middle of the range when no plane separates. */
 /* Node `id` over two or three clusters at v: for three, the pair whose box is smallest goes
    under node id + 1 (the best of the three trees); no bins. */
+static void bvh__top_put(bvh_node *d, bvh__f4 lo, bvh__f4 hi) {
+    float l[4], h[4];
+    bvh__f4_put(l, lo); bvh__f4_put(h, hi);
+    d->min.x = l[0]; d->min.y = l[1]; d->min.z = l[2];
+    d->max.x = h[0]; d->max.y = h[1]; d->max.z = h[2];
+}
 static void bvh__top_small(const bvh__top_job *j, const bvh__top_task *t) {
     const bvh_node *v = j->v[t->buf] + t->b;
     bvh_node *node = &j->nodes[t->id];
@@ -2142,12 +2090,6 @@ static void bvh__top_small(const bvh__top_job *j, const bvh__top_task *t) {
         node[1].count = BVH__TOP_CLUSTER | v[pairs[q][1]].index;
     }
 }
-/* Splits task t (two clusters or more) by binned SAH over the centroids (per axis, as many bins
-   as clusters up to BVH__TOP_BINS), writes its node and returns in kids its children that hold
-   two or more clusters (how many: the result). The clusters are partitioned into the other
-   buffer without a branch; the children's boxes come from the bins, their centroid ranges from
-   their boxes and the split plane (a range only needs to be near the centroids' bounds: slots
-   are clamped). The middle of the range when no plane separates. */
 static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bvh__top_task kids[2]) {
     uint32_t b = t->b, e = t->e, n = e - b, nb = n < BVH__TOP_BINS ? n : BVH__TOP_BINS, i, k, mid = b, out = 0, bb = 0;
     bvh_node *v = j->v[t->buf], *w = j->v[t->buf ^ 1u], *node = &j->nodes[t->id];
@@ -2196,22 +2138,29 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
             if (cost < best) { best = cost; ba = 3; }
         }
         for (a = 0; a < 3; a++) {
-            bvh_aabb box[BVH__TOP_BINS];
-            double cost = best;
-            int have = 1; /* best: infinity, or the cost of PLOC's own split */
-            uint32_t kept;
+            float right[BVH__TOP_BINS];
+            bvh__f4 lo = bvh__f4_set(BVH_INF), hi = bvh__f4_set(-BVH_INF);
+            uint32_t c = 0;
             if (!(ext[a] > 0.0f)) continue;
             for (k = 0; qm && k < nb; k++) {
                 bin[0][a][k].lo = bvh__f4_min(bin[0][a][k].lo, bin[1][a][k].lo);
                 bin[0][a][k].hi = bvh__f4_max(bin[0][a][k].hi, bin[1][a][k].hi);
                 cnt[0][a][k] += cnt[1][a][k];
             }
-            for (k = 0; k < nb; k++) box[k] = bvh__top_aabb(bin[0][a][k].lo, bin[0][a][k].hi);
-            kept = bvh__sah_sweep(box, cnt[0][a], nb, bvh__top_cost, &cost, &have);
-            if (!kept) continue;
-            best = (float)cost; /* exact: a float cost */
-            ba = a;
-            bb = kept - 1; /* the last bin on the left */
+            for (k = nb - 1; k > 0; k--) {
+                lo = bvh__f4_min(lo, bin[0][a][k].lo); hi = bvh__f4_max(hi, bin[0][a][k].hi);
+                c += cnt[0][a][k];
+                right[k] = c ? bvh__f4_half_area(lo, hi) * (float)c : -1.0f;
+            }
+            lo = bvh__f4_set(BVH_INF); hi = bvh__f4_set(-BVH_INF); c = 0;
+            for (k = 0; k + 1 < nb; k++) {
+                float cost;
+                lo = bvh__f4_min(lo, bin[0][a][k].lo); hi = bvh__f4_max(hi, bin[0][a][k].hi);
+                c += cnt[0][a][k];
+                if (!c || right[k + 1] < 0.0f) continue;
+                cost = bvh__f4_half_area(lo, hi) * (float)c + right[k + 1];
+                if (cost < best) { best = cost; ba = a; bb = k; }
+            }
         }
         if (ba == 3) { blo[0] = plo[0]; blo[1] = plo[1]; bhi[0] = phi[0]; bhi[1] = phi[1]; }
         else if (ba >= 0)
@@ -2574,6 +2523,8 @@ typedef struct bvh__sm {
     /* evaluation scratch, per axis */
     bvh_aabb bin[3][BVH__SM_MAX_BINS + 1]; /* one more: the bin holding the mid-point, cut */
     uint32_t bin_n[3][BVH__SM_MAX_BINS + 1];
+    double right_area[BVH__SM_MAX_BINS + 1];
+    uint32_t right_n[BVH__SM_MAX_BINS + 1];
 } bvh__sm;
 
 /* Halving is exact (but for subnormals), so even a contracted (FMA) form gives the same value:
@@ -2669,9 +2620,6 @@ static double bvh__sm_overlap(const bvh_aabb *x, const bvh_aabb *y) {
     i.max.z = bvh__minf(x->max.z, y->max.z);
     return bvh__half_area_d(i);
 }
-static double bvh__sm_cost(bvh_aabb l, uint32_t nl, bvh_aabb r, uint32_t nr) {
-    return bvh__half_area_d(l) * nl + bvh__half_area_d(r) * nr;
-}
 static int bvh__sm_offer(bvh__sm_choice *best, int kind, int axis, float plane, double cost) {
     if (best->kind != BVH__SM_NONE && !(cost < best->cost)) return 0; /* ties: the earlier candidate */
     best->kind = kind;
@@ -2736,15 +2684,32 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
             s->bin_n[a][k]++;
         }
     }
-    for (a = 0; a < 3; a++) {
-        int have = best->kind != BVH__SM_NONE;
+    for (a = 0; a < 3; a++) { /* Wald 2007: sweep the slots from the right, then from the left */
+        bvh_aabb acc;
+        uint32_t n = 0;
+        double area = 0.0;
         if (slots[a] < 2) continue;
-        k = bvh__sah_sweep(s->bin[a], s->bin_n[a], slots[a], bvh__sm_cost, &best->cost, &have);
-        if (!k) continue;
-        best->kind = k == x[a].kp + 1 ? BVH__SM_OVERLAP : BVH__SM_BIN; /* C_O: the cut at the mid-point */
-        best->axis = a;
-        best->plane = x[a].p;
-        best_slot = k;
+        acc = bvh__empty();
+        for (k = slots[a] - 1; k > 0; k--) { /* an empty slot changes nothing: no area to compute */
+            if (s->bin_n[a][k]) {
+                acc = bvh__merge(acc, s->bin[a][k]);
+                n += s->bin_n[a][k];
+                area = bvh__half_area_d(acc);
+            }
+            s->right_area[k] = area;
+            s->right_n[k] = n;
+        }
+        acc = bvh__empty();
+        n = 0;
+        for (k = 1; k < slots[a]; k++) { /* after an empty slot the candidate repeats the previous one */
+            if (!s->bin_n[a][k - 1]) continue;
+            acc = bvh__merge(acc, s->bin[a][k - 1]);
+            n += s->bin_n[a][k - 1];
+            if (!s->right_n[k]) break;
+            if (bvh__sm_offer(best, k == x[a].kp + 1 ? BVH__SM_OVERLAP : BVH__SM_BIN, a, x[a].p,
+                              bvh__half_area_d(acc) * n + s->right_area[k] * s->right_n[k]))
+                best_slot = k;
+        }
     }
     if (best->kind == BVH__SM_BIN) {
         const bvh__sm_axis *xa = &x[best->axis];

@@ -655,8 +655,7 @@ static uint32_t bvh__resolve_threads(uint32_t t) {
 
 /* Barrier. The last thread to arrive bumps the generation; the others spin on it for a few
    microseconds before they sleep on the condition variable: a PLOC iteration on a mid-size
-   scene is shorter than a sleeping thread takes to wake up (70K triangles: about 120 barriers,
-   which made 2 threads slower than one). OpenMP runtimes spin far longer by default. A team
+   scene is shorter than a sleeping thread takes to wake up. A team
    with more threads than CPUs does not spin: a spinning thread would hold a CPU that a working
    one needs. With compilers that lack the GCC atomic builtins they
    sleep at once. */
@@ -1185,9 +1184,8 @@ static bvh_result bvh__build_top_down(const bvh__ctx *c, bvh__out *o) {
 #define BVH__COLLAPSE_BIT 0x80000000u
 /* The PLOC builders' collapse, when desc.costs is zero, costs an interior node 1.2 triangle
    tests instead of 1: a scan's many near-ties between a leaf of two or three triangles and a
-   node over them then go to the leaf. Measured with (1, 0, 1), the dragon's SAH moves from
-   50.94 to 50.99 while its tree shrinks from 42.4 to 37.2 bytes per triangle (-14% nodes);
-   the bunny, Sponza and gen:field:15 move by under 0.1%. */
+   node over them then go to the leaf, for a much smaller tree at almost the same SAH
+   (docs/DESIGN.md). */
 #ifndef BVH__PLOC_INTERIOR
 #define BVH__PLOC_INTERIOR 1.2f
 #endif
@@ -1655,8 +1653,8 @@ done:
    node is written back in place of the left cluster before compaction, as the study's
    pseudo-code does.
    Added to the paper (desc.ploc_top; BVH_PLOC_TOP_OFF gives the paper's PLOC): PLOC merges
-   greedily and locally, which leaves its trees 5-10% above a binned-SAH build on scanned meshes
-   at every level. So when the clusters first number n / ploc_top or fewer (n / 8 by default),
+   greedily and locally, which leaves its trees above a binned-SAH build's cost on scanned
+   meshes at every level (docs/DESIGN.md). So when the clusters first number n / ploc_top or fewer (n / 8 by default),
    the loop notes where it is and runs on to the root; then bvh__ploc_top builds a second top over
    those clusters, top-down by binned SAH (Wald 2007) with, from 64 clusters up, PLOC's own split
    of the node's clusters as one more candidate (that keeps the few huge clusters, a ground plane
@@ -3676,7 +3674,7 @@ BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
 }
 /* The rest of the watertight set-up (Woop et al.): the other two axes and the shear. Only the
    triangle test needs it, so the traversals make it when a ray first reaches a leaf: most rays
-   of a frame miss after a box or two (92% of the bunny's), and save its three divisions. */
+   of a frame miss after a box or two, and save its three divisions. */
 BVH__INLINE void bvh__ray_shear(bvh__rayx *rx) {
     const float *d = rx->d;
     rx->kx = rx->kz == 2 ? 0 : rx->kz + 1;

@@ -70,6 +70,12 @@
             CPU has it) whose leaves are SIMD packets of four triangles (bvh_tri4, tree.tri4);
             the watertight triangle test is done in float with a double fallback where an
             edge function is zero (hits, t, u and v change in the last bits); trace_width 8.
+            The builder table (bvh_builder_get_info) and one option resolver. The implementation
+            keeps IEEE semantics under -ffast-math (gcc; clang: #error without
+            -fno-finite-math-only). Vertices at any alignment; misaligned indices and
+            allocators, and half allocator pairs, are refused. bvh_sah and bvh_get_stats refuse
+            broken trees; box trees miss in the batch calls too. The CPU layout's numbering no
+            longer depends on the thread count. Removed: desc.keep_triangles (never read).
      0.4.1  PLOC builds ask ahead for the boxes gathered into Morton order and for the nodes
             that root-down emission writes (same trees, a few % faster).
      0.4.0  PLOC's memory budget (desc.max_bytes_per_prim, 40 by default; BVH_NO_MEMORY_LIMIT):
@@ -130,7 +136,8 @@ typedef enum bvh_result {
     BVH_ERROR_INDEX_OUT_OF_RANGE,  /* a triangle index >= vertex_count */
     BVH_ERROR_TOO_MANY_PRIMITIVES, /* count does not fit the 32-bit reference budget */
     BVH_ERROR_OUT_OF_MEMORY,       /* an allocation failed; nothing leaked, tree left empty */
-    BVH_ERROR_THREAD,              /* a worker thread could not be created */
+    BVH_ERROR_THREAD,              /* reserved, never returned: a build or batch whose worker
+                                      threads cannot all be created runs on those it has */
     BVH_ERROR_INVALID_TREE,        /* the validator found a defect (see bvh_validation) */
     BVH_ERROR_NO_TRIANGLES,        /* traversal asked of a tree built from boxes only */
     BVH_RESULT_COUNT
@@ -241,7 +248,6 @@ typedef struct bvh_build_desc {
                                  BVH_NO_MEMORY_LIMIT = the SAH alone decides */
     int skip_invalid;         /* 0: NaN/Inf geometry is refused with BVH_ERROR_INVALID_GEOMETRY;
                                  1: such primitives are left out and counted in tree.excluded */
-    int keep_triangles;       /* reserved, 0 */
     uint32_t trace_width;     /* CPU traversal: 0 or 8 = triangle builds add an 8-wide copy of
                                  the tree with triangle packets (tree.nodes8, tree.tri4) that
                                  bvh_intersect, bvh_occluded and the batch calls use: faster

@@ -4252,8 +4252,8 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), d); /* 1 / +0 = +inf */
     const unsigned finite = (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmplt_ps(_mm_and_ps(o, absm), inf), _mm_cmplt_ps(ad, inf)));
     const unsigned neg = (unsigned)_mm_movemask_ps(_mm_cmplt_ps(inv, _mm_setzero_ps()));
-    float fo[4], fd[4], fi[4];
-    int order[3], a;
+    float fo[4], fd[4], fi[4], ax, ay, az;
+    int a, gxy, gxz, gyz, order[3];
     if ((finite & 7u) != 7u || ray->tmin != ray->tmin || ray->tmax != ray->tmax || ray->tmin > ray->tmax) return 0;
     if ((_mm_movemask_ps(_mm_cmpeq_ps(d, _mm_setzero_ps())) & 7) == 7) return 0;
     _mm_storeu_ps(fo, o);
@@ -4265,19 +4265,24 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
         rx->inv[a] = fi[a];
     }
     rx->tmin = ray->tmin;
-    {
-        const float ax = fabsf(fd[0]), ay = fabsf(fd[1]), az = fabsf(fd[2]);
-        rx->kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
-    }
-    order[0] = rx->kz == 0 ? 1 : 0;
-    order[1] = rx->kz == 2 ? 1 : 2;
+    /* kz as bvh__ray_setup picks it, and the axes in the registers' order (kz last), computed
+       without branches: a diffuse ray's direction is random, and so would their outcome be */
+    ax = fabsf(fd[0]);
+    ay = fabsf(fd[1]);
+    az = fabsf(fd[2]);
+    gxy = ax > ay;
+    gxz = ax > az;
+    gyz = ay > az;
+    rx->kz = gxy * (2 - 2 * gxz) + (1 - gxy) * (2 - gyz);
+    order[0] = rx->kz == 0;
+    order[1] = 2 - (rx->kz == 2);
     order[2] = rx->kz;
     for (a = 0; a < 3; a++) {
-        const int n = (int)(neg >> order[a] & 1u);
-        q->so[a] = fo[order[a]];
-        q->sinv[a] = fi[order[a]];
-        q->near8[a] = n ? 24 + 8 * order[a] : 8 * order[a];
-        q->far8[a] = n ? 8 * order[a] : 24 + 8 * order[a];
+        const int k = order[a], n = (int)(neg >> k & 1u);
+        q->so[a] = fo[k];
+        q->sinv[a] = fi[k];
+        q->near8[a] = 8 * k + 24 * n;
+        q->far8[a] = 8 * k + 24 - 24 * n;
     }
     q->stmin = rx->tmin;
     if (sse) {

@@ -1,0 +1,61 @@
+#!/usr/bin/env python3
+"""The README's picture: one-thread tracing speed against Embree medium, per scene and ray kind.
+
+usage: bench/ratio_chart.py OUT.png BUILDER bench.json [more.json ...]
+Reads bvhbench --json rows (run with --paired N) and draws, for BUILDER's tree on every scene,
+the median paired ratio of its Mrays/s over Embree medium's on camera, diffuse and shadow rays,
+as bars on a linear axis with Embree at 1 (the min-max of the rounds as error bars). Needs
+gnuplot (Debian gnuplot-nox). Standard library only.
+"""
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+KINDS = [("camera", "ratio_mrays_1t_paired"), ("diffuse", "ratio_diffuse_1t_paired"),
+         ("shadow", "ratio_shadow_1t_paired")]
+
+
+def main(out, builder, paths):
+    rows = []
+    for p in paths:
+        with open(p) as f:
+            rows += [json.loads(line) for line in f if line.strip()]
+    rows = [r for r in rows if r.get("builder") == builder and r.get("status") == "ok"]
+    if not rows:
+        sys.exit("ratio_chart: no rows of %s with paired ratios" % builder)
+    with tempfile.TemporaryDirectory() as tmp:
+        dat = os.path.join(tmp, "ratios.dat")
+        with open(dat, "w") as f:
+            f.write("# scene " + " ".join("%s lo hi" % k for k, _ in KINDS) + "\n")
+            for r in rows:
+                cells = []
+                for _, key in KINDS:
+                    v = r.get(key)
+                    lo, hi = r.get(key + "_min", v), r.get(key + "_max", v)
+                    cells += ["%.3f %.3f %.3f" % (v, lo, hi) if v is not None else "NaN NaN NaN"]
+                f.write('"%s" %s\n' % (r["scene"].replace(".glb", "").replace(".obj", ""), " ".join(cells)))
+        top = max([1.2] + [r.get(k + "_max") or 0 for r in rows for _, k in KINDS]) * 1.1
+        script = f"""
+set terminal pngcairo size 900,420 font "sans,11" noenhanced
+set output "{out}"
+set title "bvh.h ({builder} tree) against Embree 3 medium: Mrays/s on one thread, same rays"
+set ylabel "bvh.h / Embree  (1 = as fast)"
+set yrange [0:{top:.2f}]
+set style data histograms
+set style histogram errorbars gap 2 lw 1
+set style fill solid 0.8 border -1
+set key top left
+set grid ytics
+set arrow from graph 0, first 1 to graph 1, first 1 nohead lw 2 dt 2 lc rgb "black"
+plot "{dat}" using 2:3:4:xtic(1) title "camera rays", '' using 5:6:7 title "diffuse bounces", \\
+     '' using 8:9:10 title "shadow rays"
+"""
+        subprocess.run(["gnuplot"], input=script.encode(), check=True)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) < 4:
+        sys.exit(__doc__)
+    main(sys.argv[1], sys.argv[2], sys.argv[3:])

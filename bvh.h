@@ -390,6 +390,21 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #if defined(__linux__) && defined(BVH__DEFAULT_MALLOC) && !defined(BVH_NO_HUGEPAGES)
 #include <sys/mman.h>
 #endif
+/* The implementation keeps IEEE semantics whatever the floating-point flags of the file that
+   includes it (-ffast-math, -Ofast, -ffp-contract=fast): its input checks must see NaN and Inf,
+   its traversal relies on Inf boxes and on the order of NaN in min and max, and the SIMD and
+   scalar tests must give the same bits as the brute-force loop. gcc switches the flags off for
+   the implementation's functions. clang's pragmas cannot undo -ffinite-math-only nor the fused
+   multiply-adds of -ffp-contract=fast, so it refuses -ffast-math; -ffp-contract=fast alone,
+   which no macro reveals, must be left off for this file by the user (README: compiler flags). */
+#if defined(__clang__)
+#if defined(__FAST_MATH__) || (defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__)
+#error "bvh.h: clang cannot keep IEEE semantics for BVH_IMPLEMENTATION under -ffast-math / -Ofast: compile the file that defines BVH_IMPLEMENTATION with -fno-fast-math (your other files may keep -ffast-math), or use gcc"
+#endif
+#pragma float_control(precise, on, push)
+#pragma clang fp contract(off)
+#define BVH__FP_POP _Pragma("float_control(pop)")
+#endif
 #if !defined(BVH_NO_SIMD) && (defined(__SSE2__) || defined(_M_X64) || (defined(_M_IX86_FP) && _M_IX86_FP >= 2))
 #include <emmintrin.h>
 #define BVH__SSE 1
@@ -427,22 +442,12 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #define BVH__MAX_THREADS 256u
 #define BVH__W 8u /* slots of a wide node (bvh_node8) */
 
-/* The implementation keeps IEEE semantics whatever the floating-point flags of the file that
-   includes it (-ffast-math, -Ofast, -ffp-contract=fast): its input checks must see NaN and Inf,
-   its traversal relies on Inf boxes and on the order of NaN in min and max, and the SIMD and
-   scalar tests must give the same bits as the brute-force loop. gcc switches the flags off for
-   the implementation; clang can do so for all but -ffinite-math-only, which it cannot undo. */
-#if defined(__clang__)
-#if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
-#error "bvh.h: clang cannot compile BVH_IMPLEMENTATION with -ffinite-math-only (part of -ffast-math and -Ofast): add -fno-finite-math-only for the file that defines BVH_IMPLEMENTATION (the rest of -ffast-math is fine), or use gcc"
-#endif
-#pragma float_control(precise, on, push)
-#define BVH__FP_POP _Pragma("float_control(pop)")
-#elif defined(__GNUC__)
+
+#if defined(__GNUC__) && !defined(__clang__) /* after the system headers: their inline functions keep their own options */
 #pragma GCC push_options
 #pragma GCC optimize("no-fast-math", "fp-contract=off")
 #define BVH__FP_POP _Pragma("GCC pop_options")
-#else
+#elif !defined(__clang__)
 #define BVH__FP_POP
 #endif
 

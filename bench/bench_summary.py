@@ -29,7 +29,7 @@ def main(paths):
         if r["scene"] not in scenes:
             scenes.append(r["scene"])
     cols = [("build ms", "build_ms", -1), ("SAH", "sah", 2), ("B/tri", "bytes_per_tri", 1),
-            ("4-wide B/tri", "wide_bytes_per_tri", 1), ("peak B/tri", "peak_build_bytes_per_tri", 0), ("Mrays/s 1t", "mrays_1t", 1),
+            ("CPU layout B/tri", "wide_bytes_per_tri", 1), ("peak B/tri", "peak_build_bytes_per_tri", 0), ("Mrays/s 1t", "mrays_1t", 1),
             ("Mrays/s 2t", "mrays_mt", 1), ("Mrays/s OpenCL", "mrays_opencl", 1),
             ("diffuse Mrays/s 1t", "diffuse_mrays_1t", 2), ("diffuse Mrays/s 2t", "diffuse_mrays_mt", 2),
             ("shadow Mrays/s 1t", "shadow_mrays_1t", 2), ("shadow Mrays/s 2t", "shadow_mrays_mt", 2),

@@ -4482,30 +4482,40 @@ out:
     }
     return 1;
 }
-#ifdef BVH__AVX2
-__attribute__((target("avx2"))) static int bvh__traverse8_avx2(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q,
-                                                                 float tmax, bvh_hit *hit, int any) {
-    return bvh__traverse8_body(tree, rx, q, tmax, hit, any, 1);
-}
-#endif
-static int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+/* The ray's set-up and the loop in one function for each slab test, so that a ray that misses
+   after a node or two pays one call, and its set-up is not passed on through memory. hit, when given,
+   gets the miss record (t = tmax, prim BVH_INVALID) where no triangle is hit, as bvh__traverse. */
+BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, int avx2) {
     bvh__rayx rx;
     bvh__ray8 q;
-#ifdef BVH__AVX2
-    const int avx2 = bvh__have_avx2();
-#else
-    const int avx2 = 0;
-#endif
 #ifdef BVH__SSE
-    if (!bvh__ray8_start(ray, &rx, &q, !avx2)) return 0;
+    if (bvh__ray8_start(ray, &rx, &q, !avx2) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, avx2)) return 1;
 #else
-    (void)avx2;
-    if (!bvh__ray_setup(ray, &rx)) return 0;
+    if (bvh__ray_setup(ray, &rx) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, avx2)) return 1;
 #endif
+    if (hit) {
+        hit->t = ray->tmax;
+        hit->u = hit->v = 0.0f;
+        hit->prim = BVH_INVALID;
+    }
+    return 0;
+}
 #ifdef BVH__AVX2
-    if (avx2) return bvh__traverse8_avx2(tree, &rx, &q, ray->tmax, hit, any);
+__attribute__((target("avx2"))) static int bvh__trace8_avx2(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
+                                                              int any) {
+    return bvh__trace8(tree, ray, hit, any, 1);
+}
 #endif
-    return bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, 0);
+static int bvh__trace8_base(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+    return bvh__trace8(tree, ray, hit, any, 0);
+}
+/* The wide traversal for the single-ray calls and the batches: tree->nodes8 is set only on a
+   tree with triangles and nodes (bvh__make_wide), which is all bvh__traverse checks first. */
+BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+#ifdef BVH__AVX2
+    if (bvh__have_avx2()) return bvh__trace8_avx2(tree, ray, hit, any);
+#endif
+    return bvh__trace8_base(tree, ray, hit, any);
 }
 
 static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, uint32_t *visited) {
@@ -4564,12 +4574,14 @@ out:
 }
 
 BVH_API int bvh_intersect(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit) {
+    if (tree && ray && tree->nodes8 && tree->tris) return bvh__traverse8(tree, ray, hit, 0);
     return bvh__traverse(tree, ray, hit, 0, NULL);
 }
 BVH_API int bvh_intersect_counted(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, uint32_t *visited) {
     return bvh__traverse(tree, ray, hit, 0, visited);
 }
 BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray) {
+    if (tree && ray && tree->nodes8 && tree->tris) return bvh__traverse8(tree, ray, NULL, 1);
     return bvh__traverse(tree, ray, NULL, 1, NULL);
 }
 

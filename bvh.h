@@ -3808,14 +3808,15 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
    it: starting from the binary node's two children, the interior one of largest surface area is
    replaced by its two children until there are eight or only leaf slots are left (fewer levels:
    each level a ray descends is one dependent load). A leaf slot is a binary leaf, or a binary
-   subtree of at most BVH__SLOT_REFS references: testing a packet costs about what testing a
-   wide node does, and a node whose slots would all be such small leaves (most often two) is a
-   dependent load and 256 bytes for little culling. The child boxes are the binary nodes' boxes,
+   subtree of at most BVH__SLOT_REFS references: a node whose slots would all be such small
+   leaves is a dependent load and 256 bytes for little culling, while a leaf of four packets is
+   two passes of the AVX2 packet test on lines side by side, and its packets are fuller (a slot
+   leaves at most three lanes empty, whatever its size). The child boxes are the binary nodes' boxes,
    bit for bit, and the slab test below is the binary one lane by lane, so the argument that no box
    culls a hit the brute-force loop finds holds as it is; the packet test is bvh__tri_test lane by
    lane. The numbering depends on the tree alone, never on the thread count. */
 #define BVH__PACKET 4u     /* triangles per packet */
-#define BVH__SLOT_REFS 6u  /* a binary subtree of at most this many references is one leaf slot */
+#define BVH__SLOT_REFS 16u /* a binary subtree of at most this many references is one leaf slot */
 typedef struct bvh__wide_src {
     const bvh_node *nodes;
     const uint32_t *sub;   /* references below each binary node */
@@ -4214,6 +4215,127 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
     }
     return found;
 }
+#ifdef BVH__AVX2
+/* bvh__packets on two packets per pass of eight lanes (a leaf's packets are side by side): the
+   same operations in the same order on each lane, so the same bits. An odd last packet is loaded
+   twice and its copy's lanes are masked off. Not forced inline: only bvh__trace8_avx2, compiled
+   for AVX2 as well, takes it in. */
+__attribute__((target("avx2"))) static inline __m256 bvh__load8(const float *lo, const float *hi) {
+    return _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(lo)), _mm_loadu_ps(hi), 1);
+}
+__attribute__((target("avx2"))) static inline float bvh__lane8(__m256 x, unsigned i) {
+    float f[8];
+    _mm256_storeu_ps(f, x);
+    return f[i];
+}
+__attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np,
+                                                                     bvh__best *b, int any) {
+    const int kx = r->kx, ky = r->ky, kz = r->kz;
+    const __m256 ox = _mm256_set1_ps(r->o[kx]), oy = _mm256_set1_ps(r->o[ky]), oz = _mm256_set1_ps(r->o[kz]);
+    const __m256 sx = _mm256_set1_ps(r->sx), sy = _mm256_set1_ps(r->sy), zero = _mm256_setzero_ps();
+    const __m256 inf = _mm256_set1_ps(BVH_INF);
+    uint32_t q;
+    int found = 0;
+    for (q = 0; q < np; q += 2, p += 2) {
+        const bvh_tri4 *p1 = q + 1 < np ? p + 1 : p;
+        const unsigned lanes = q + 1 < np ? 0xffu : 0x0fu;
+        __m256 x[3], y[3], z[3], U, V, W, ft, det, neg, pos, T, ok, tn, tf, t0[3], t1[3], slack;
+        const __m256 sz = _mm256_set1_ps(r->sz);
+        unsigned m, zm;
+        int k;
+        for (k = 0; k < 3; k++) {
+            z[k] = _mm256_sub_ps(bvh__load8(p->v[k][kz], p1->v[k][kz]), oz);
+            x[k] = _mm256_sub_ps(_mm256_sub_ps(bvh__load8(p->v[k][kx], p1->v[k][kx]), ox), _mm256_mul_ps(sx, z[k]));
+            y[k] = _mm256_sub_ps(_mm256_sub_ps(bvh__load8(p->v[k][ky], p1->v[k][ky]), oy), _mm256_mul_ps(sy, z[k]));
+        }
+        U = _mm256_sub_ps(_mm256_mul_ps(x[2], y[1]), _mm256_mul_ps(y[2], x[1]));
+        V = _mm256_sub_ps(_mm256_mul_ps(x[0], y[2]), _mm256_mul_ps(y[0], x[2]));
+        W = _mm256_sub_ps(_mm256_mul_ps(x[1], y[0]), _mm256_mul_ps(y[1], x[0]));
+        zm = lanes & (unsigned)_mm256_movemask_ps(_mm256_or_ps(
+                         _mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_EQ_OQ), _mm256_cmp_ps(V, zero, _CMP_EQ_OQ)),
+                         _mm256_cmp_ps(W, zero, _CMP_EQ_OQ)));
+        if (zm) { /* the lanes with a zero edge function, redone in double */
+            float fx[3][8], fy[3][8], fu[8], fv[8], fw[8], lx[3], ly[3];
+            unsigned i;
+            for (k = 0; k < 3; k++) {
+                _mm256_storeu_ps(fx[k], x[k]);
+                _mm256_storeu_ps(fy[k], y[k]);
+            }
+            _mm256_storeu_ps(fu, U);
+            _mm256_storeu_ps(fv, V);
+            _mm256_storeu_ps(fw, W);
+            for (i = 0; i < 8; i++) {
+                if (!(zm >> i & 1u)) continue;
+                for (k = 0; k < 3; k++) {
+                    lx[k] = fx[k][i];
+                    ly[k] = fy[k][i];
+                }
+                bvh__edges_exact(lx, ly, &fu[i], &fv[i], &fw[i]);
+            }
+            U = _mm256_loadu_ps(fu);
+            V = _mm256_loadu_ps(fv);
+            W = _mm256_loadu_ps(fw);
+        }
+        neg = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_LT_OQ), _mm256_cmp_ps(V, zero, _CMP_LT_OQ)),
+                           _mm256_cmp_ps(W, zero, _CMP_LT_OQ));
+        pos = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_GT_OQ), _mm256_cmp_ps(V, zero, _CMP_GT_OQ)),
+                           _mm256_cmp_ps(W, zero, _CMP_GT_OQ));
+        m = lanes & ~(unsigned)_mm256_movemask_ps(_mm256_and_ps(neg, pos));
+        if (!m) continue;
+        /* bvh__packet_hits on eight lanes */
+        det = _mm256_add_ps(_mm256_add_ps(U, V), W);
+        T = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(U, _mm256_mul_ps(sz, z[0])), _mm256_mul_ps(V, _mm256_mul_ps(sz, z[1]))),
+                          _mm256_mul_ps(W, _mm256_mul_ps(sz, z[2])));
+        ft = _mm256_div_ps(T, det);
+        ok = _mm256_and_ps(_mm256_cmp_ps(ft, _mm256_set1_ps(r->tmin), _CMP_GE_OQ),
+                           _mm256_cmp_ps(ft, _mm256_set1_ps(b->t), _CMP_LE_OQ));
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps(ft, inf, _CMP_LT_OQ));
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps(det, zero, _CMP_NEQ_UQ));
+        m &= (unsigned)_mm256_movemask_ps(ok);
+        if (!m) continue;
+        /* bvh__reach4 on eight lanes: the triangles' boxes (bvh__tri_box) reached by ft */
+        tn = _mm256_set1_ps(r->tmin);
+        tf = inf;
+        for (k = 0; k < 3; k++) {
+            const __m256 v0 = bvh__load8(p->v[0][k], p1->v[0][k]), v1 = bvh__load8(p->v[1][k], p1->v[1][k]);
+            const __m256 v2 = bvh__load8(p->v[2][k], p1->v[2][k]);
+            const __m256 lo = _mm256_min_ps(_mm256_min_ps(v0, v1), v2), hi = _mm256_max_ps(_mm256_max_ps(v0, v1), v2);
+            const __m256 o = _mm256_set1_ps(r->o[k]), inv = _mm256_set1_ps(r->inv[k]);
+            const int ng = r->inv[k] < 0.0f;
+            t0[k] = _mm256_mul_ps(_mm256_sub_ps(ng ? hi : lo, o), inv);
+            t1[k] = _mm256_mul_ps(_mm256_sub_ps(ng ? lo : hi, o), inv);
+            tn = _mm256_max_ps(t0[k], tn);
+            tf = _mm256_min_ps(t1[k], tf);
+        }
+        tf = _mm256_mul_ps(tf, _mm256_set1_ps(1.0000004f));
+        slack = _mm256_max_ps(t1[kz], _mm256_sub_ps(zero, t0[kz]));
+        tn = _mm256_sub_ps(tn, _mm256_mul_ps(slack, _mm256_set1_ps(3.814697265625e-6f)));
+        tf = _mm256_min_ps(tf, ft);
+        m &= (unsigned)_mm256_movemask_ps(_mm256_cmp_ps(tn, tf, _CMP_LE_OQ));
+        if (!m) continue;
+        if (any) {
+            const unsigned i = BVH__CTZ(m);
+            b->t = bvh__lane8(ft, i);
+            b->prim = (i < 4 ? p : p1)->prim[i & 3u];
+            return 1;
+        }
+        while (m) { /* the nearest lane; ties in t: the lowest primitive index */
+            const unsigned i = BVH__CTZ(m);
+            const float t = bvh__lane8(ft, i), d = bvh__lane8(det, i);
+            const uint32_t prim = (i < 4 ? p : p1)->prim[i & 3u];
+            m &= m - 1;
+            if (t > b->t || (t == b->t && prim > b->prim)) continue;
+            b->t = t;
+            b->u = bvh__lane8(V, i) / d;
+            b->v = bvh__lane8(W, i) / d;
+            b->prim = prim;
+            found = 1;
+        }
+    }
+    return found;
+}
+#define BVH__PACKETS(r, p, np, b, any) (avx2 ? bvh__packets_avx2(r, p, np, b, any) : bvh__packets(r, p, np, b, any))
+#endif
 #else
 static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
     uint32_t q;
@@ -4370,6 +4492,9 @@ __attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh
 #define BVH__SLAB8(n, tfar, tn) bvh__slab8(rx, n, tfar, tn)
 typedef struct bvh__ray8 { int unused; } bvh__ray8; /* plain C: the slab test reads bvh__rayx */
 #endif
+#ifndef BVH__PACKETS
+#define BVH__PACKETS(r, p, np, b, any) bvh__packets(r, p, np, b, any)
+#endif
 /* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
    order, unsorted), the farther ones on the stack; a leaf's packets tested at once. avx2: the
    slab test in one AVX2 pass (a constant: the loop is compiled once for each). */
@@ -4464,7 +4589,7 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                 bvh__ray_shear(rx);
                 sheared = 1;
             }
-            if (bvh__packets(rx, tree->tri4 + cur, lc, &best, any) && any) goto out;
+            if (BVH__PACKETS(rx, tree->tri4 + cur, lc, &best, any) && any) goto out;
         }
         for (;;) { /* pop the next node still in reach of the current best */
             if (!sp) goto out;
@@ -4487,30 +4612,40 @@ out:
     }
     return 1;
 }
-#ifdef BVH__AVX2
-__attribute__((target("avx2"))) static int bvh__traverse8_avx2(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q,
-                                                                 float tmax, bvh_hit *hit, int any) {
-    return bvh__traverse8_body(tree, rx, q, tmax, hit, any, 1);
-}
-#endif
-static int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+/* The ray's set-up and the loop in one function for each slab test, so that a ray that misses
+   after a node or two pays one call, and its set-up is not passed on through memory. hit, when given,
+   gets the miss record (t = tmax, prim BVH_INVALID) where no triangle is hit, as bvh__traverse. */
+BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, int avx2) {
     bvh__rayx rx;
     bvh__ray8 q;
-#ifdef BVH__AVX2
-    const int avx2 = bvh__have_avx2();
-#else
-    const int avx2 = 0;
-#endif
 #ifdef BVH__SSE
-    if (!bvh__ray8_start(ray, &rx, &q, !avx2)) return 0;
+    if (bvh__ray8_start(ray, &rx, &q, !avx2) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, avx2)) return 1;
 #else
-    (void)avx2;
-    if (!bvh__ray_setup(ray, &rx)) return 0;
+    if (bvh__ray_setup(ray, &rx) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, avx2)) return 1;
 #endif
+    if (hit) {
+        hit->t = ray->tmax;
+        hit->u = hit->v = 0.0f;
+        hit->prim = BVH_INVALID;
+    }
+    return 0;
+}
 #ifdef BVH__AVX2
-    if (avx2) return bvh__traverse8_avx2(tree, &rx, &q, ray->tmax, hit, any);
+__attribute__((target("avx2"))) static int bvh__trace8_avx2(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
+                                                              int any) {
+    return bvh__trace8(tree, ray, hit, any, 1);
+}
 #endif
-    return bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, 0);
+static int bvh__trace8_base(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+    return bvh__trace8(tree, ray, hit, any, 0);
+}
+/* The wide traversal for the single-ray calls and the batches: tree->nodes8 is set only on a
+   tree with triangles and nodes (bvh__make_wide), which is all bvh__traverse checks first. */
+BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+#ifdef BVH__AVX2
+    if (bvh__have_avx2()) return bvh__trace8_avx2(tree, ray, hit, any);
+#endif
+    return bvh__trace8_base(tree, ray, hit, any);
 }
 
 static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, uint32_t *visited) {
@@ -4569,12 +4704,14 @@ out:
 }
 
 BVH_API int bvh_intersect(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit) {
+    if (tree && ray && tree->nodes8 && tree->tris) return bvh__traverse8(tree, ray, hit, 0);
     return bvh__traverse(tree, ray, hit, 0, NULL);
 }
 BVH_API int bvh_intersect_counted(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, uint32_t *visited) {
     return bvh__traverse(tree, ray, hit, 0, visited);
 }
 BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray) {
+    if (tree && ray && tree->nodes8 && tree->tris) return bvh__traverse8(tree, ray, NULL, 1);
     return bvh__traverse(tree, ray, NULL, 1, NULL);
 }
 

@@ -3728,6 +3728,23 @@ static void bvh__edges_exact(const float *x, const float *y, float *U, float *V,
     *V = (float)((double)x[0] * y[2] - (double)y[0] * x[2]);
     *W = (float)((double)x[1] * y[0] - (double)y[1] * x[0]);
 }
+#ifdef BVH__SSE
+/* bvh__edges_exact on the lanes of mask zm of a packet test of `w` lanes, whose sheared vertices
+   are fx[k * w + lane], fy[k * w + lane] and edge functions fu/fv/fw[lane]. */
+static void bvh__edges_exact_lanes(const float *fx, const float *fy, float *fu, float *fv, float *fw, unsigned zm,
+                                   unsigned w) {
+    float lx[3], ly[3];
+    unsigned i, k;
+    for (i = 0; i < w; i++) {
+        if (!(zm >> i & 1u)) continue;
+        for (k = 0; k < 3; k++) {
+            lx[k] = fx[k * w + i];
+            ly[k] = fy[k * w + i];
+        }
+        bvh__edges_exact(lx, ly, &fu[i], &fv[i], &fw[i]);
+    }
+}
+#endif
 BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, float *t, float *u, float *v) {
     const int kx = r->kx, ky = r->ky, kz = r->kz;
     const float sx = r->sx, sy = r->sy, sz = r->sz;
@@ -4169,8 +4186,7 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
         zm = (unsigned)_mm_movemask_ps(
             _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(U, zero), _mm_cmpeq_ps(V, zero)), _mm_cmpeq_ps(W, zero)));
         if (zm) { /* the lanes with a zero edge function, redone in double */
-            float fx[3][4], fy[3][4], fu[4], fv[4], fw[4], lx[3], ly[3];
-            unsigned i;
+            float fx[3][4], fy[3][4], fu[4], fv[4], fw[4];
             for (k = 0; k < 3; k++) {
                 _mm_storeu_ps(fx[k], x[k]);
                 _mm_storeu_ps(fy[k], y[k]);
@@ -4178,14 +4194,7 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
             _mm_storeu_ps(fu, U);
             _mm_storeu_ps(fv, V);
             _mm_storeu_ps(fw, W);
-            for (i = 0; i < 4; i++) {
-                if (!(zm >> i & 1u)) continue;
-                for (k = 0; k < 3; k++) {
-                    lx[k] = fx[k][i];
-                    ly[k] = fy[k][i];
-                }
-                bvh__edges_exact(lx, ly, &fu[i], &fv[i], &fw[i]);
-            }
+            bvh__edges_exact_lanes(&fx[0][0], &fy[0][0], fu, fv, fw, zm, 4);
             U = _mm_loadu_ps(fu);
             V = _mm_loadu_ps(fv);
             W = _mm_loadu_ps(fw);
@@ -4255,8 +4264,7 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
                          _mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_EQ_OQ), _mm256_cmp_ps(V, zero, _CMP_EQ_OQ)),
                          _mm256_cmp_ps(W, zero, _CMP_EQ_OQ)));
         if (zm) { /* the lanes with a zero edge function, redone in double */
-            float fx[3][8], fy[3][8], fu[8], fv[8], fw[8], lx[3], ly[3];
-            unsigned i;
+            float fx[3][8], fy[3][8], fu[8], fv[8], fw[8];
             for (k = 0; k < 3; k++) {
                 _mm256_storeu_ps(fx[k], x[k]);
                 _mm256_storeu_ps(fy[k], y[k]);
@@ -4264,14 +4272,7 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
             _mm256_storeu_ps(fu, U);
             _mm256_storeu_ps(fv, V);
             _mm256_storeu_ps(fw, W);
-            for (i = 0; i < 8; i++) {
-                if (!(zm >> i & 1u)) continue;
-                for (k = 0; k < 3; k++) {
-                    lx[k] = fx[k][i];
-                    ly[k] = fy[k][i];
-                }
-                bvh__edges_exact(lx, ly, &fu[i], &fv[i], &fw[i]);
-            }
+            bvh__edges_exact_lanes(&fx[0][0], &fy[0][0], fu, fv, fw, zm, 8);
             U = _mm256_loadu_ps(fu);
             V = _mm256_loadu_ps(fv);
             W = _mm256_loadu_ps(fw);

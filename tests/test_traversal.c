@@ -107,15 +107,9 @@ static void exact_hits(void **state) {
 static void renderer_rays(const float *tris, uint32_t n, uint64_t seed, bvh_ray *rays, size_t count) {
     unsigned retries = 0;
     tu_rng r = tu_rng_make(seed);
-    bvh_aabb b = bvh_aabb_empty();
     const bvh_vec3 light = tu_v3(0.3f, 1.0f, 0.2f);
-    float diag;
+    float diag = tu_diag(tris, n, NULL);
     size_t i;
-    uint32_t k;
-    for (k = 0; k < n; k++)
-        if (tu_finite9(tris + 9 * (size_t)k)) b = bvh_aabb_merge(b, tu_tri_box(tris + 9 * (size_t)k));
-    diag = sqrtf((b.max.x - b.min.x) * (b.max.x - b.min.x) + (b.max.y - b.min.y) * (b.max.y - b.min.y) +
-                 (b.max.z - b.min.z) * (b.max.z - b.min.z));
     for (i = 0; i < count; i++) {
         const float *t;
         bvh_vec3 e1, e2, nrm, d;

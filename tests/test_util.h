@@ -683,16 +683,21 @@ TU_FN bvh_vec3 tu_axis_dir(tu_rng *r, int axis) {
    7 from an exact vertex, one direction component +-0.0 (rays in the planes of the grid);
    8 random origin and direction with a finite tmax and sometimes tmin > 0;
    9 from an exact vertex along an axis (+-0.0 components), tmin 0. */
-TU_FN void tu_make_rays(const float *tris, uint32_t n, uint64_t seed, bvh_ray *rays, size_t count) {
-    tu_rng r = tu_rng_make(seed);
+/* The finite triangles' bounds and their diagonal. */
+TU_FN float tu_diag(const float *tris, uint32_t n, bvh_aabb *bounds) {
     bvh_aabb b = bvh_aabb_empty();
-    float diag;
-    size_t i;
     uint32_t k;
     for (k = 0; k < n; k++)
         if (tu_finite9(tris + 9 * (size_t)k)) b = bvh_aabb_merge(b, tu_tri_box(tris + 9 * (size_t)k));
-    diag = sqrtf((b.max.x - b.min.x) * (b.max.x - b.min.x) + (b.max.y - b.min.y) * (b.max.y - b.min.y) +
+    if (bounds) *bounds = b;
+    return sqrtf((b.max.x - b.min.x) * (b.max.x - b.min.x) + (b.max.y - b.min.y) * (b.max.y - b.min.y) +
                  (b.max.z - b.min.z) * (b.max.z - b.min.z));
+}
+TU_FN void tu_make_rays(const float *tris, uint32_t n, uint64_t seed, bvh_ray *rays, size_t count) {
+    tu_rng r = tu_rng_make(seed);
+    bvh_aabb b;
+    float diag = tu_diag(tris, n, &b);
+    size_t i;
     if (!(diag > 0.0f)) diag = 1.0f;
     for (i = 0; i < count; i++) {
         bvh_ray *ray = &rays[i];

@@ -4237,38 +4237,48 @@ __attribute__((target("avx2"))) static inline float bvh__lane8(__m256 x, unsigne
     _mm256_storeu_ps(f, x);
     return f[i];
 }
+/* Vertex k of the lanes of packets p (lanes 0-3) and p1 (4-7), translated and sheared. */
+__attribute__((target("avx2"))) BVH__INLINE void bvh__shear8(const bvh__rayx *r, const bvh_tri4 *p, const bvh_tri4 *p1, int k,
+                                                            __m256 *x, __m256 *y, __m256 *z) {
+    const __m256 zk = _mm256_sub_ps(bvh__load8(p->v[k][r->kz], p1->v[k][r->kz]), _mm256_set1_ps(r->o[r->kz]));
+    *z = zk;
+    *x = _mm256_sub_ps(_mm256_sub_ps(bvh__load8(p->v[k][r->kx], p1->v[k][r->kx]), _mm256_set1_ps(r->o[r->kx])),
+                       _mm256_mul_ps(_mm256_set1_ps(r->sx), zk));
+    *y = _mm256_sub_ps(_mm256_sub_ps(bvh__load8(p->v[k][r->ky], p1->v[k][r->ky]), _mm256_set1_ps(r->o[r->ky])),
+                       _mm256_mul_ps(_mm256_set1_ps(r->sy), zk));
+}
 __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np,
                                                                      bvh__best *b, int any) {
-    const int kx = r->kx, ky = r->ky, kz = r->kz;
-    const __m256 ox = _mm256_set1_ps(r->o[kx]), oy = _mm256_set1_ps(r->o[ky]), oz = _mm256_set1_ps(r->o[kz]);
-    const __m256 sx = _mm256_set1_ps(r->sx), sy = _mm256_set1_ps(r->sy), zero = _mm256_setzero_ps();
-    const __m256 inf = _mm256_set1_ps(BVH_INF);
+    const int kz = r->kz;
+    const __m256 zero = _mm256_setzero_ps(), inf = _mm256_set1_ps(BVH_INF);
     uint32_t q;
     int found = 0;
     for (q = 0; q < np; q += 2, p += 2) {
         const bvh_tri4 *p1 = q + 1 < np ? p + 1 : p;
         const unsigned lanes = q + 1 < np ? 0xffu : 0x0fu;
-        __m256 x[3], y[3], z[3], U, V, W, ft, det, neg, pos, T, ok, tn, tf, t0[3], t1[3], slack;
+        /* named registers, not arrays: an array indexed in a loop the compiler does not unroll
+           lives in memory */
+        __m256 x0, y0, z0, x1, y1, z1, x2, y2, z2, U, V, W, ft, det, neg, pos, T, ok, tn, tf, slack;
         const __m256 sz = _mm256_set1_ps(r->sz);
         unsigned m, zm;
         int k;
-        for (k = 0; k < 3; k++) {
-            z[k] = _mm256_sub_ps(bvh__load8(p->v[k][kz], p1->v[k][kz]), oz);
-            x[k] = _mm256_sub_ps(_mm256_sub_ps(bvh__load8(p->v[k][kx], p1->v[k][kx]), ox), _mm256_mul_ps(sx, z[k]));
-            y[k] = _mm256_sub_ps(_mm256_sub_ps(bvh__load8(p->v[k][ky], p1->v[k][ky]), oy), _mm256_mul_ps(sy, z[k]));
-        }
-        U = _mm256_sub_ps(_mm256_mul_ps(x[2], y[1]), _mm256_mul_ps(y[2], x[1]));
-        V = _mm256_sub_ps(_mm256_mul_ps(x[0], y[2]), _mm256_mul_ps(y[0], x[2]));
-        W = _mm256_sub_ps(_mm256_mul_ps(x[1], y[0]), _mm256_mul_ps(y[1], x[0]));
+        bvh__shear8(r, p, p1, 0, &x0, &y0, &z0);
+        bvh__shear8(r, p, p1, 1, &x1, &y1, &z1);
+        bvh__shear8(r, p, p1, 2, &x2, &y2, &z2);
+        U = _mm256_sub_ps(_mm256_mul_ps(x2, y1), _mm256_mul_ps(y2, x1));
+        V = _mm256_sub_ps(_mm256_mul_ps(x0, y2), _mm256_mul_ps(y0, x2));
+        W = _mm256_sub_ps(_mm256_mul_ps(x1, y0), _mm256_mul_ps(y1, x0));
         zm = lanes & (unsigned)_mm256_movemask_ps(_mm256_or_ps(
                          _mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_EQ_OQ), _mm256_cmp_ps(V, zero, _CMP_EQ_OQ)),
                          _mm256_cmp_ps(W, zero, _CMP_EQ_OQ)));
         if (zm) { /* the lanes with a zero edge function, redone in double */
             float fx[3][8], fy[3][8], fu[8], fv[8], fw[8];
-            for (k = 0; k < 3; k++) {
-                _mm256_storeu_ps(fx[k], x[k]);
-                _mm256_storeu_ps(fy[k], y[k]);
-            }
+            _mm256_storeu_ps(fx[0], x0);
+            _mm256_storeu_ps(fx[1], x1);
+            _mm256_storeu_ps(fx[2], x2);
+            _mm256_storeu_ps(fy[0], y0);
+            _mm256_storeu_ps(fy[1], y1);
+            _mm256_storeu_ps(fy[2], y2);
             _mm256_storeu_ps(fu, U);
             _mm256_storeu_ps(fv, V);
             _mm256_storeu_ps(fw, W);
@@ -4285,8 +4295,8 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
         if (!m) continue;
         /* bvh__packet_hits on eight lanes */
         det = _mm256_add_ps(_mm256_add_ps(U, V), W);
-        T = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(U, _mm256_mul_ps(sz, z[0])), _mm256_mul_ps(V, _mm256_mul_ps(sz, z[1]))),
-                          _mm256_mul_ps(W, _mm256_mul_ps(sz, z[2])));
+        T = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(U, _mm256_mul_ps(sz, z0)), _mm256_mul_ps(V, _mm256_mul_ps(sz, z1))),
+                          _mm256_mul_ps(W, _mm256_mul_ps(sz, z2)));
         ft = _mm256_div_ps(T, det);
         ok = _mm256_and_ps(_mm256_cmp_ps(ft, _mm256_set1_ps(r->tmin), _CMP_GE_OQ),
                            _mm256_cmp_ps(ft, _mm256_set1_ps(b->t), _CMP_LE_OQ));
@@ -4297,19 +4307,20 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
         /* bvh__reach4 on eight lanes: the triangles' boxes (bvh__tri_box) reached by ft */
         tn = _mm256_set1_ps(r->tmin);
         tf = inf;
+        slack = zero;
         for (k = 0; k < 3; k++) {
             const __m256 v0 = bvh__load8(p->v[0][k], p1->v[0][k]), v1 = bvh__load8(p->v[1][k], p1->v[1][k]);
             const __m256 v2 = bvh__load8(p->v[2][k], p1->v[2][k]);
             const __m256 lo = _mm256_min_ps(_mm256_min_ps(v0, v1), v2), hi = _mm256_max_ps(_mm256_max_ps(v0, v1), v2);
             const __m256 o = _mm256_set1_ps(r->o[k]), inv = _mm256_set1_ps(r->inv[k]);
             const int ng = r->inv[k] < 0.0f;
-            t0[k] = _mm256_mul_ps(_mm256_sub_ps(ng ? hi : lo, o), inv);
-            t1[k] = _mm256_mul_ps(_mm256_sub_ps(ng ? lo : hi, o), inv);
-            tn = _mm256_max_ps(t0[k], tn);
-            tf = _mm256_min_ps(t1[k], tf);
+            const __m256 t0 = _mm256_mul_ps(_mm256_sub_ps(ng ? hi : lo, o), inv);
+            const __m256 t1 = _mm256_mul_ps(_mm256_sub_ps(ng ? lo : hi, o), inv);
+            tn = _mm256_max_ps(t0, tn);
+            tf = _mm256_min_ps(t1, tf);
+            if (k == kz) slack = _mm256_max_ps(t1, _mm256_sub_ps(zero, t0));
         }
         tf = _mm256_mul_ps(tf, _mm256_set1_ps(1.0000004f));
-        slack = _mm256_max_ps(t1[kz], _mm256_sub_ps(zero, t0[kz]));
         tn = _mm256_sub_ps(tn, _mm256_mul_ps(slack, _mm256_set1_ps(3.814697265625e-6f)));
         tf = _mm256_min_ps(tf, ft);
         m &= (unsigned)_mm256_movemask_ps(_mm256_cmp_ps(tn, tf, _CMP_LE_OQ));
@@ -4371,6 +4382,14 @@ typedef struct bvh__ray8 {
    rounds 1 / d as scalar code does), the three axes at once. Only what the SIMD wide traversal
    reads: not the plain-C slab test's plane offsets (near, near8, far8), and the SSE registers
    only when the slab test is the SSE one (sse). */
+/* kz (the dominant axis, first of equals in the order z, y, x as bvh__ray_setup picks it) from
+   the three comparisons |dx| > |dy|, |dx| > |dz|, |dy| > |dz| as bits 0-2, looked up rather than
+   branched on: a diffuse ray's direction is random, and so would the branches be. bvh__axes: the
+   axes in the slab test's order, kz last (its distances give the slack); bvh__near8: the offset in
+   a bvh_node8 of an axis' min (0) and max (1) planes. */
+static const unsigned char bvh__kz[8] = {2, 2, 2, 0, 1, 2, 1, 0};
+static const unsigned char bvh__axes[3][3] = {{1, 2, 0}, {0, 2, 1}, {0, 1, 2}};
+static const unsigned char bvh__near8[3][2] = {{0, 24}, {8, 32}, {16, 40}};
 BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int sse) {
     const __m128 o = _mm_loadu_ps(&ray->origin.x), d0 = _mm_loadu_ps(&ray->dir.x); /* xyz, tmin / tmax */
     const __m128 absm = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)), inf = _mm_set1_ps(BVH_INF);
@@ -4381,7 +4400,8 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     const unsigned finite = (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmplt_ps(_mm_and_ps(o, absm), inf), _mm_cmplt_ps(ad, inf)));
     const unsigned neg = (unsigned)_mm_movemask_ps(_mm_cmplt_ps(inv, _mm_setzero_ps()));
     float fo[4], fd[4], fi[4], ax, ay, az;
-    int a, gxy, gxz, gyz, order[3];
+    const unsigned char *order;
+    int a;
     if ((finite & 7u) != 7u || ray->tmin != ray->tmin || ray->tmax != ray->tmax || ray->tmin > ray->tmax) return 0;
     if ((_mm_movemask_ps(_mm_cmpeq_ps(d, _mm_setzero_ps())) & 7) == 7) return 0;
     _mm_storeu_ps(fo, o);
@@ -4393,24 +4413,17 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
         rx->inv[a] = fi[a];
     }
     rx->tmin = ray->tmin;
-    /* kz as bvh__ray_setup picks it, and the axes in the registers' order (kz last), computed
-       without branches: a diffuse ray's direction is random, and so would their outcome be */
     ax = fabsf(fd[0]);
     ay = fabsf(fd[1]);
     az = fabsf(fd[2]);
-    gxy = ax > ay;
-    gxz = ax > az;
-    gyz = ay > az;
-    rx->kz = gxy * (2 - 2 * gxz) + (1 - gxy) * (2 - gyz);
-    order[0] = rx->kz == 0;
-    order[1] = 2 - (rx->kz == 2);
-    order[2] = rx->kz;
+    rx->kz = bvh__kz[(ax > ay) | (ax > az) << 1 | (ay > az) << 2];
+    order = bvh__axes[rx->kz];
     for (a = 0; a < 3; a++) {
         const int k = order[a], n = (int)(neg >> k & 1u);
         q->so[a] = fo[k];
         q->sinv[a] = fi[k];
-        q->near8[a] = 8 * k + 24 * n;
-        q->far8[a] = 8 * k + 24 - 24 * n;
+        q->near8[a] = bvh__near8[k][n];
+        q->far8[a] = bvh__near8[k][n ^ 1];
     }
     q->stmin = rx->tmin;
     if (sse) {

@@ -3,6 +3,7 @@
 #   make demo       the main job: render the bunny with every builder and print a table
 #   make test       every test (installs missing Debian packages first when run as root)
 #   make bench      the study's Table I, side by side with Embree
+#   make install    bvh.h, cl/bvh_cl.h, cl/trace.cl, pkg-config and CMake files (PREFIX, DESTDIR)
 # CFLAGS, CC, CXX may be overridden.
 CC      ?= cc
 CXX     ?= c++
@@ -30,7 +31,7 @@ BENCH    = $(patsubst bench/%.c,$(BUILD)/%,$(wildcard bench/*.c))
 TESTS    = $(patsubst tests/%.c,$(BUILD)/tests/%,$(wildcard tests/test_*.c))
 HEADERS  = bvh.h $(wildcard examples/*.h) $(wildcard bench/*.h) $(wildcard cl/*.h) $(wildcard cl/*.cl) $(wildcard tests/*.h)
 
-.PHONY: all demo test bench clean deps-test deps-demo deps-bench
+.PHONY: all demo test bench clean deps-test deps-demo deps-bench install uninstall
 all: $(EXAMPLES) $(BENCH)
 
 $(BUILD)/%: examples/%.c $(HEADERS)
@@ -122,15 +123,54 @@ deps-bench:
 	@scripts/deps.sh bench
 
 # tests/exit_codes.sh runs $(BUILD)/render and $(BUILD)/cl_info; tests/examples.sh runs
-# $(BUILD)/minimal and $(BUILD)/boxes. scripts/run-tests.sh prints a line per program and keeps
-# every output in $(BUILD)/test-logs/.
+# $(BUILD)/minimal and $(BUILD)/boxes; tests/install.sh installs into $(BUILD)/install-test/ and
+# builds a consumer with pkg-config and CMake. scripts/run-tests.sh prints a line per program and
+# keeps every output in $(BUILD)/test-logs/.
 test: deps-test
 	@$(MAKE) --no-print-directory $(TESTS) $(CHECKS) $(BUILD)/render $(BUILD)/cl_info $(COPYABLE)
-	@BUILD=$(BUILD) scripts/run-tests.sh $(TESTS) $(CHECKS) tests/exit_codes.sh tests/examples.sh
+	@BUILD=$(BUILD) scripts/run-tests.sh $(TESTS) $(CHECKS) tests/exit_codes.sh tests/examples.sh tests/install.sh
 
 demo: deps-demo
 	@$(MAKE) --no-print-directory $(BUILD)/render
 	@scripts/demo.sh
+
+# Install (header-only: nothing to build). PREFIX (default /usr/local) is where the files are used;
+# DESTDIR, if set, is prepended when writing them (staged installs, packages).
+#   include/bvh.h              #include "bvh.h"
+#   include/bvh/cl/bvh_cl.h    #include "cl/bvh_cl.h" (the .pc and CMake files add include/bvh)
+#   share/bvh/trace.cl         the OpenCL kernel; the installed bvh_cl.h reads it by default
+#   share/pkgconfig/bvh.pc     pkg-config module bvh
+#   share/cmake/bvh/           find_package(bvh) gives the INTERFACE target bvh::bvh
+# The version is bvh.h's BVH_VERSION_* macros, read here; the kernel's installed path replaces
+# the default BVH_CL_KERNEL_PATH ("cl/trace.cl", relative to the working directory) in the copy
+# of bvh_cl.h.
+PREFIX  ?= /usr/local
+DESTDIR ?=
+VERSION := $(shell awk '/^.define BVH_VERSION_(MAJOR|MINOR|PATCH) / { v = v (v == "" ? "" : ".") $$3 } END { print v }' bvh.h)
+KERNEL   = $(PREFIX)/share/bvh/trace.cl
+INSTALLED = include/bvh.h include/bvh/cl/bvh_cl.h share/bvh/trace.cl share/pkgconfig/bvh.pc \
+            share/cmake/bvh/bvhConfig.cmake share/cmake/bvh/bvhConfigVersion.cmake
+SUBST    = sed -e 's|@PREFIX@|$(PREFIX)|g' -e 's|@KERNEL@|$(KERNEL)|g' -e 's|@VERSION@|$(VERSION)|g' \
+               -e 's|@MAJOR@|$(word 1,$(subst ., ,$(VERSION)))|g' -e 's|@MINOR@|$(word 2,$(subst ., ,$(VERSION)))|g'
+install:
+	@case "$(PREFIX)" in /*) ;; *) echo "install: PREFIX must be an absolute path, not '$(PREFIX)'"; exit 1 ;; esac
+	@case "$(VERSION)" in [0-9]*.[0-9]*.[0-9]*) ;; *) echo "install: no version in bvh.h's BVH_VERSION_* macros"; exit 1 ;; esac
+	install -d $(DESTDIR)$(PREFIX)/include/bvh/cl $(DESTDIR)$(PREFIX)/share/bvh \
+	  $(DESTDIR)$(PREFIX)/share/pkgconfig $(DESTDIR)$(PREFIX)/share/cmake/bvh
+	install -m 644 bvh.h $(DESTDIR)$(PREFIX)/include/bvh.h
+	install -m 644 cl/trace.cl $(DESTDIR)$(KERNEL)
+	sed -e '/BVH_CL_KERNEL_PATH/s|"cl/trace\.cl"|"$(KERNEL)"|' cl/bvh_cl.h >$(DESTDIR)$(PREFIX)/include/bvh/cl/bvh_cl.h
+	@grep -q '^#define BVH_CL_KERNEL_PATH "$(KERNEL)"$$' $(DESTDIR)$(PREFIX)/include/bvh/cl/bvh_cl.h || \
+	  { echo "install: cl/bvh_cl.h has no '#define BVH_CL_KERNEL_PATH \"cl/trace.cl\"' to point at the kernel"; exit 1; }
+	$(SUBST) packaging/bvh.pc.in >$(DESTDIR)$(PREFIX)/share/pkgconfig/bvh.pc
+	$(SUBST) packaging/bvhConfig.cmake.in >$(DESTDIR)$(PREFIX)/share/cmake/bvh/bvhConfig.cmake
+	$(SUBST) packaging/bvhConfigVersion.cmake.in >$(DESTDIR)$(PREFIX)/share/cmake/bvh/bvhConfigVersion.cmake
+	@echo "installed bvh.h $(VERSION) into $(DESTDIR)$(PREFIX)"
+# Removes the files install writes, then the directories of its own that are left empty.
+uninstall:
+	rm -f $(addprefix $(DESTDIR)$(PREFIX)/,$(INSTALLED))
+	-rmdir $(DESTDIR)$(PREFIX)/include/bvh/cl $(DESTDIR)$(PREFIX)/include/bvh $(DESTDIR)$(PREFIX)/share/bvh \
+	  $(DESTDIR)$(PREFIX)/share/cmake/bvh 2>/dev/null
 
 clean:
 	rm -rf $(BUILD) out

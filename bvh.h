@@ -4652,6 +4652,21 @@ typedef struct bvh__ray8 { int unused; } bvh__ray8; /* plain C: the slab test re
 #ifndef BVH__PACKETS
 #define BVH__PACKETS(r, p, np, b, any) bvh__packets(r, p, np, b, any)
 #endif
+/* Slot i of node n onto the stack. Its lines are asked for now, so that they arrive while the
+   nearer children are being tested (the nearest child is read at once: asking for it gains
+   nothing). */
+BVH__INLINE void bvh__push8(const bvh_tree *tree, const bvh_node8 *n, unsigned i, const float *tn, bvh__entry8 *stack,
+                            uint32_t *sp) {
+    const uint32_t c = n->child[i], k = n->count[i];
+    const char *a = k ? (const char *)(tree->tri4 + c) : (const char *)(tree->nodes8 + c);
+    BVH__PREFETCH(a);
+    BVH__PREFETCH(a + 64);
+    BVH__PREFETCH(a + 128);
+    stack[*sp].child = c;
+    stack[*sp].count = k;
+    stack[*sp].t = tn[i];
+    ++*sp;
+}
 /* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
    order, unsorted), the farther ones on the stack; a leaf's packets tested at once. isa (a
    constant: the loop is compiled once for each): 0 SSE or plain C, 1 AVX2 (the slab test in one
@@ -4684,19 +4699,6 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                     continue;
                 }
                 if (sp + BVH__W > sizeof stack / sizeof stack[0]) goto out; /* deeper than builders make */
-                { /* two or more children entered: all are asked for now, so that their lines
-                     arrive while the nearest is being tested, or before they are popped */
-                    unsigned pm = m | 1u << i0;
-                    while (pm) {
-                        unsigned i = BVH__CTZ(pm);
-                        const char *a = n->count[i] ? (const char *)(tree->tri4 + n->child[i])
-                                                    : (const char *)(nodes + n->child[i]);
-                        pm &= pm - 1;
-                        BVH__PREFETCH(a);
-                        BVH__PREFETCH(a + 64);
-                        BVH__PREFETCH(a + 128);
-                    }
-                }
                 i1 = BVH__CTZ(m);
                 m &= m - 1;
                 if (!any && !m) { /* two: the farther one waits */
@@ -4705,19 +4707,13 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                         i0 = i1;
                         i1 = x;
                     }
-                    stack[sp].child = n->child[i1];
-                    stack[sp].count = n->count[i1];
-                    stack[sp].t = tn[i1];
-                    sp++;
+                    bvh__push8(tree, n, i1, tn, stack, &sp);
                 } else if (any) { /* any hit: in slot order */
                     m |= 1u << i1;
                     while (m) {
                         i1 = BVH__CTZ(m);
                         m &= m - 1;
-                        stack[sp].child = n->child[i1];
-                        stack[sp].count = n->count[i1];
-                        stack[sp].t = tn[i1];
-                        sp++;
+                        bvh__push8(tree, n, i1, tn, stack, &sp);
                     }
                 } else { /* three or more: insertion by entry distance, nearest first */
                     uint32_t idx[BVH__W], k = 2, j;
@@ -4730,12 +4726,8 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                         idx[j] = i;
                         k++;
                     }
-                    for (j = k - 1; j > 0; j--) { /* farthest at the bottom */
-                        stack[sp].child = n->child[idx[j]];
-                        stack[sp].count = n->count[idx[j]];
-                        stack[sp].t = tn[idx[j]];
-                        sp++;
-                    }
+                    for (j = k - 1; j > 0; j--) /* farthest at the bottom */
+                        bvh__push8(tree, n, idx[j], tn, stack, &sp);
                     i0 = idx[0];
                 }
                 cur = n->child[i0];

@@ -61,7 +61,7 @@
      No global mutable state: any function may be called from several threads on different trees.
      Parallel builders create their worker threads once per build phase (six per build, eight
      with the 8-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
-     memory budget applies), never per iteration; at barriers they spin for up to about half a millisecond before sleeping,
+     memory budget applies), never per iteration. At barriers they spin briefly before sleeping,
      unless the build has more threads than the machine has CPUs.
 
    LICENSE
@@ -648,8 +648,7 @@ static void *bvh__alloc(const bvh_allocator *al, size_t count, size_t elem) {
 #if defined(__linux__) && defined(BVH__DEFAULT_MALLOC) && !defined(BVH_NO_HUGEPAGES) && defined(MADV_HUGEPAGE)
     /* Big build arrays and the tree itself are touched once each, at random (sort scatter, node
        emission, traversal): transparent huge pages take most of the page faults and TLB misses
-       out (about a quarter of a 3M-triangle PLOC build on Linux; Embree advises its blocks the
-       same way). Only the whole 2 MiB pages inside the block are advised. */
+       out (docs/DESIGN.md, Memory). Only the whole 2 MiB pages inside the block are advised. */
     if (p && size >= ((size_t)4 << 20)) {
         const uintptr_t huge = (uintptr_t)1 << 21;
         uintptr_t b = ((uintptr_t)p + huge - 1) & ~(huge - 1), e = ((uintptr_t)p + size) & ~(huge - 1);
@@ -1412,7 +1411,7 @@ static uint64_t bvh__budget_nodes(const bvh__ctx *c, uint32_t prims) {
    the tree is within 1% of the budget or BVH__BUDGET_STEPS tries; the tree kept is the one of the
    lowest cost found to fit, so it always fits if any does. If even an unbounded cost (every
    subtree of max_leaf primitives or fewer a leaf) does not fit, that smallest tree is kept. Each
-   try is one more pass 1, O(n); random triangle soups take 3 to 5. */
+   try is one more pass 1, O(n). */
 static bvh_result bvh__fit_budget(const bvh__ctx *c, bvh__sizes *q, uint32_t nthreads) {
     bvh__ctx cc = *c;
     uint32_t root = q->blocks[q->block_count - 1] - 1, k;
@@ -1719,24 +1718,17 @@ done:
 /* ============================================================================================ */
 /* == PLOC: Parallel Locally-Ordered Clustering (Meister & Bittner 2018, Alg. 1) ================= */
 /* Clusters start as one leaf per primitive in Morton order (63-bit codes, ties by index). Each
-   iteration: every cluster finds its nearest neighbour within `radius` positions, by the surface
-   area of the merged box; mutual nearest neighbours merge; a prefix scan compacts the survivors.
-   Ties in distance go to the nearest position, then to the pair (2k, 2k+1), so that equal boxes
-   still halve the cluster count each iteration. Distances are computed once per pair, four pairs
-   at a time (bvh__ploc_search), and each pair's distance is offered to both of its ends. Then bvh__emit collapses subtrees into
-   leaves where the SAH says so. One code path for `ploc` (a team of one, no thread created) and
-   `ploc-parallel` (a team of pthreads meeting at barriers, 4 per iteration): every phase splits
-   the clusters by the thread count and every result is independent of it, so both give exactly
-   the same tree. Differences from the paper: CPU threads instead of GPU work groups; the merged
-   node is written back in place of the left cluster before compaction, as the study's
-   pseudo-code does.
-   Added to the paper (desc.ploc_top; BVH_PLOC_TOP_OFF gives the paper's PLOC): PLOC merges
-   greedily and locally, which leaves its trees above a binned-SAH build's cost on scanned
-   meshes at every level (docs/DESIGN.md). So when the clusters first number n / ploc_top or fewer (n / 8 by default),
-   the loop notes where it is and runs on to the root; then bvh__ploc_top builds a second top over
-   those clusters, top-down by binned SAH (Wald 2007) with, from 64 clusters up, PLOC's own split
-   of the node's clusters as one more candidate (that keeps the few huge clusters, a ground plane
-   say, as high as PLOC put them), and keeps whichever top has the lower summed node area. */
+   iteration: every cluster finds its nearest neighbour within `radius` positions by the area of
+   the merged box (bvh__ploc_search); mutual nearest neighbours merge; a prefix scan compacts the
+   survivors. Ties in distance go to the nearest position, then to the pair (2k, 2k+1), so that
+   equal boxes still halve the count. bvh__emit then collapses subtrees into leaves by the SAH.
+   `ploc` is a team of one, `ploc-parallel` a team of pthreads; every phase's result is
+   independent of the thread count, so both give the same tree. Differences from the paper: CPU
+   threads instead of GPU work groups; the merged node replaces the left cluster before
+   compaction, as the study's pseudo-code does; and the SAH top (desc.ploc.top; BVH_OFF = the
+   paper's PLOC): when the clusters first number n / top or fewer, bvh__ploc_top builds a second
+   top over them by binned SAH (with PLOC's own split as one more candidate) and the cheaper top
+   is kept. Why and what it gives: docs/DESIGN.md. */
 /* ============================================================================================ */
 typedef struct bvh__nn bvh__nn;
 typedef struct bvh__ploc {
@@ -2483,8 +2475,8 @@ done:
 }
 
 /* Memory: the clustering needs cin, cout, the node pairs (2n nodes) and the offers; it is run
-   after the boxes and the sort's scratch are released, so the peak stays near 140 bytes per
-   primitive instead of the ~230 that holding everything at once would take. */
+   after the boxes and the sort's scratch are released, so that they are never all held at once
+   (the peak: docs/DESIGN.md, Memory). */
 static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     bvh__ploc p;
     bvh_result r;
@@ -2549,49 +2541,19 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
 
 /* ============================================================================================ */
 /* == SAH-guided top-down with mid-point split partitioning ====================================== */
-/* After Ganestam & Doggett 2016 ("SAH guided spatial split partitioning for fast BVH
-   construction", Eurographics 2016), as the study defines it. At every node and on each axis the
-   spatial mid-point plane of the node's bounds sorts the references into wholly left (D_L),
-   wholly right (D_R) and straddling. Two options are costed on each axis:
-       C_O = A(D_L u O_L)|D_L u O_L| + A(D_R u O_R)|D_R u O_R|   straddlers kept whole, each on the
-                                                                  side of its centroid (O_L, O_R)
-       C_S = A(D_L u S_L)|D_L u S_L| + A(D_R u S_R)|D_R u S_R|   straddlers split at the plane and
-                                                                  referenced on both sides (S_L, S_R)
-   The cheapest gives E_r = C_i A(n) + C_t C; the node becomes a leaf when N(n) <= max_leaf and
-   E_t = C_t A(n) N(n) + C_l A(n) <= E_r. A split clips the triangle itself: the bounds of the
-   clipped polygon (computed in double, points on the plane widened by (|u| + |v|) 2^-21 on the
-   other axes so that no rounding loses a sliver) intersected with the reference's current box;
-   box input clips the box. A part that is empty on one side (or only touches the plane) is
-   referenced on the other side only, so no reference lands on a side it does not touch and a
-   leaf never holds one primitive twice.
-   Split budget: at most split_budget * n extra references in all. The root gets the whole budget;
-   a node spends what its split duplicates and shares the rest between its children in proportion
-   to their sizes; what a leaf leaves unused goes to the next node in depth-first order. An option
-   that needs more than its node has is not a candidate.
-   Added to the study's definition (desc.sah_bins = BVH_SAH_MIDPOINT_ONLY gives exactly the study's variant):
-   - binned SAH object splits (Wald 2007) with desc.sah_bins bins per axis over the
-     centroid bounds (32; at most one per reference in small nodes), costed alongside C_O and C_S;
-   - with bins, C_S is costed only where the best candidate's children overlap by more than
-     BVH__SAH_MIDPOINT_ALPHA (1e-3) of the root's area (Stich, Friedrich & Dietrich 2009, Sec. 4):
-     clipping every straddler dominated the build time where a split has nothing to gain;
-   - with bins, reference unsplitting (the same paper, Sec. 4.4): when C_S wins, a straddler is
-     kept whole on one side if that is cheaper than referencing it on both.
-   With bins, C_O is found by the bin sweep itself: the bin holding the mid-point is cut in two
-   there (see bvh__sm_axis), so the mid-point options cost one pass over the references, plus
-   one for C_S where it is costed.
-   An object median on the longest centroid axis (as bvh__median_build) is used when no candidate
-   separates the references (flat node, all centroids equal, a plane that leaves a side empty),
-   when the best candidate is no cheaper than not separating (C >= A(n) N(n), which a median
-   always matches: identical triangles are not split forever), and for every node from the depth
-   at which halving is needed to stay within BVH_MAX_DEPTH.
-   Differences from the paper: the paper splits while it coarsely partitions the scene and hands
-   the sets to a fast builder (or runs as a pre-split pass); here the choice is made at every node
-   of one top-down build, and (without bins) all straddlers of a plane are split or none. One
-   thread.
-   Memory: one scratch array of n * (1 + budget) clipped references used as a stack (the node
-   being processed is always on top, so a split appends its duplicates in place), the reference
-   output of the same size, and the node array, grown by half when full (2 refs - 1 at most).
-   Nodes come out depth-first, children adjacent, as bvh__median_build writes them. */
+/* After Ganestam & Doggett 2016, as the study defines it: at every node and on each axis the
+   mid-point plane of the node's bounds sorts the references into wholly left, wholly right and
+   straddling; the straddlers are costed kept whole on their centroid's side (C_O) and clipped
+   and referenced on both sides (C_S); the cheapest option wins unless a leaf costs no more.
+   Invariants: a clipped part that only touches the plane is referenced on the other side only,
+   so no leaf holds a primitive twice; at most split_budget * n extra references in all (the root
+   gets the budget, a node shares what its split leaves between its children by size, a leaf's
+   unused share goes to the next node depth-first); an object median is taken when no candidate
+   separates the references or none is cheaper than not separating, and from the depth where
+   halving is needed to stay within BVH_MAX_DEPTH. Added to the study (desc.sah_midpoint.bins;
+   BVH_OFF = the study's variant): binned SAH object splits, C_S costed only where children
+   overlap, reference unsplitting. Nodes come out depth-first, children adjacent and after their
+   parent. One thread. The method in full, and the differences from the paper: docs/DESIGN.md. */
 /* ============================================================================================ */
 #ifndef BVH__SAH_MIDPOINT_ALPHA
 #define BVH__SAH_MIDPOINT_ALPHA 1e-3
@@ -4803,9 +4765,9 @@ typedef struct bvh__batch {
     uint8_t *occluded;
     size_t count, next; /* next: first ray no thread has taken */
 } bvh__batch;
-/* Chunks of 64 rays taken in turn from a shared counter: the cost of a ray varies by orders of
-   magnitude across a frame (a mesh in one part of it), and fixed interleaved chunks of 256
-   left one of two threads idle for a third of the dragon's frame. */
+/* Chunks of 64 rays taken in turn from a shared counter, not fixed shares: the cost of a ray
+   varies by orders of magnitude across a frame (a mesh in one part of it), so fixed shares leave
+   threads idle (docs/DESIGN.md, Threads). */
 #define BVH__BATCH_CHUNK 64u
 static size_t bvh__batch_take(bvh__batch *b, bvh__team *team) {
 #if defined(__GNUC__) || defined(__clang__)

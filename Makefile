@@ -54,9 +54,10 @@ $(BUILD)/tests/%: tests/%.c $(HEADERS)
 # Compile checks of the header itself, built and run by `make test` (a warning or a wrong answer
 # fails it): C11 with BVH_STATIC, with and without threads (tests/compile_static.c); two C
 # translation units (tests/two_tu_*.c); C++11 (tests/compile_cpp.cpp); a C++ program linked with
-# the implementation compiled as C; the traversal test without SSE (BVH_NO_SIMD), the builder
-# tests without AVX2 (BVH_NO_AVX2). With $(CC)/$(CXX) in build/check/cc/, and with clang/clang++
-# in build/check/clang/ when present. No -D_GNU_SOURCE: the header must build in strict ISO mode.
+# the implementation compiled as C; BVH_MALLOC without BVH_FREE refused; the traversal test
+# without SSE (BVH_NO_SIMD), the builder tests without AVX2 (BVH_NO_AVX2). With $(CC)/$(CXX) in
+# build/check/cc/, and with clang/clang++ in build/check/clang/ when present. No -D_GNU_SOURCE:
+# the header must build in strict ISO mode.
 CXXSTD      = -std=c++11
 CXXWARN     = -Wall -Wextra -Wpedantic -Werror
 HAVE_CLANG := $(shell command -v clang >/dev/null 2>&1 && command -v clang++ >/dev/null 2>&1 && echo 1)
@@ -68,7 +69,8 @@ CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
            $(addprefix $(BUILD)/check/$(c)/,static static-no-threads two-tu cxx11 cxx11-links-c)) \
          $(if $(HAVE_CLANG),$(BUILD)/check/clang/fast-math-refused) \
          $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 $(BUILD)/check/builders-no-avx2 \
-         $(BUILD)/check/traversal-fast-math $(BUILD)/check/robust-fast-math
+         $(BUILD)/check/traversal-fast-math $(BUILD)/check/robust-fast-math \
+         $(BUILD)/check/half-allocator-refused
 
 $(BUILD)/check/%/static: tests/compile_static.c bvh.h
 	@mkdir -p $(dir $@)
@@ -98,6 +100,18 @@ $(BUILD)/check/clang/fast-math-refused: tests/compile_static.c bvh.h
 	@if clang $(STD) -ffast-math -DBVH_STATIC -I. -c $< -o $@.o 2>$@.log; then echo "clang -ffast-math was not refused"; exit 1; fi
 	@grep -q "with -fno-fast-math" $@.log || { cat $@.log; exit 1; }
 	@printf '#!/bin/sh\necho "clang -ffast-math: the implementation is refused with #error, as documented"\n' >$@
+	@chmod +x $@
+# BVH_MALLOC without BVH_FREE (and the reverse) is refused with #error: a half pair would free
+# one allocator's blocks with the other.
+$(BUILD)/check/half-allocator-refused: bvh.h
+	@mkdir -p $(dir $@)
+	@for m in 'BVH_MALLOC(s,u)=malloc(s)' 'BVH_FREE(p,u)=free(p)'; do \
+	    if printf '#define BVH_IMPLEMENTATION\n#include "bvh.h"\n' | \
+	        $(CC) $(STD) -DBVH_STATIC "-D$$m" -I. -x c -c - -o $@.o 2>$@.log; then \
+	        echo "half allocator pair $$m not refused"; exit 1; fi; \
+	    grep -q "define both BVH_MALLOC and BVH_FREE" $@.log || { cat $@.log; exit 1; }; \
+	done
+	@printf '#!/bin/sh\necho "BVH_MALLOC or BVH_FREE alone: refused with #error, as documented"\n' >$@
 	@chmod +x $@
 # The builder tests again with PLOC's neighbour search on SSE only (BVH_NO_AVX2), where the CPU
 # would take the AVX2 path.

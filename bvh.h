@@ -1,4 +1,4 @@
-/* bvh.h - v0.5.0 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.6.0 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -32,8 +32,9 @@
          bvh_free(&tree);
 
    CONFIGURATION (define before including the implementation)
-     BVH_MALLOC(size, user) / BVH_FREE(ptr, user)  default allocator (malloc/free); a per-build
-                           allocator with a user pointer goes in bvh_build_desc.allocator
+     BVH_MALLOC(size, user) / BVH_FREE(ptr, user)  default allocator (malloc/free); define both
+                           or neither (one alone is a compile error); a per-build allocator with
+                           a user pointer goes in bvh_build_desc.allocator (also both or neither)
      BVH_ASSERT(c)         internal consistency checks (default: assert from <assert.h>)
      BVH_STATIC            make every function static (private copy per translation unit)
      BVH_API               decoration of every public function (default extern, or static)
@@ -51,15 +52,16 @@
                            hits); this keeps both to SSE
 
    ERRORS
-     Every call that can fail returns a bvh_result; bvh_result_string() names it. The library
-     never aborts, exits or prints. Bad geometry (NaN/Inf vertices, indices out of range) is
-     refused with a code, or skipped and counted when desc.skip_invalid is set.
+     Every call that can fail returns a bvh_result; bvh_result_string() names it; the codes each
+     call returns are listed beside its prototype. The library never aborts, exits or prints.
+     NaN/Inf vertices (and boxes with min > max) are refused with a code, or left out and counted
+     when desc.skip_invalid is set; indices out of range are always refused.
 
    THREADS
      No global mutable state: any function may be called from several threads on different trees.
      Parallel builders create their worker threads once per build phase (six per build, eight
      with the 8-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
-     memory budget applies), never per iteration; at barriers they spin for up to about half a millisecond before sleeping,
+     memory budget applies), never per iteration. At barriers they spin briefly before sleeping,
      unless the build has more threads than the machine has CPUs.
      Tracing only reads the tree (every call that takes a const bvh_tree *): any number of
      threads may trace one tree at once, batch calls included, while none builds into or frees it.
@@ -82,6 +84,19 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.6.0  The public surface made regular. Builder-specific options moved into nested structs,
+            zero still the default (the same trees): desc.ploc_radius -> desc.ploc.radius,
+            desc.ploc_top -> desc.ploc.top, desc.max_bytes_per_prim ->
+            desc.ploc.max_bytes_per_prim, desc.sah_bins -> desc.sah_midpoint.bins,
+            desc.split_budget -> desc.sah_midpoint.split_budget. One spelling of "off", BVH_OFF,
+            replaces BVH_PLOC_TOP_OFF, BVH_NO_MEMORY_LIMIT and BVH_SAH_MIDPOINT_ONLY, and a
+            negative split budget (now refused; BVH_OFF = no splits). bvh_builder_info gives the
+            defaults of both (info.ploc, info.sah_midpoint). Defining only one of BVH_MALLOC and
+            BVH_FREE is a compile error; bvh_validate and the batch calls refuse a tree with a half
+            allocator pair as bvh_build refuses such a desc. bvh_validate refuses a child stored
+            before its parent. Each call's result codes are listed beside its prototype.
+            cl/bvh_cl.h 0.3.0: bvh_cl_desc.allocator (a bvh_allocator), BVH_CL_MALLOC/BVH_CL_FREE
+            take the user pointer.
      0.5.0  CPU tracing walks an 8-wide copy (bvh_node8, tree.nodes8; AVX2 slab test when the
             CPU has it) whose leaves are SIMD packets of four triangles (bvh_tri4, tree.tri4);
             the watertight triangle test is done in float with a double fallback where an
@@ -110,7 +125,7 @@
 #define BVH_H_INCLUDED
 
 #define BVH_VERSION_MAJOR 0
-#define BVH_VERSION_MINOR 5
+#define BVH_VERSION_MINOR 6
 #define BVH_VERSION_PATCH 0
 
 #include <math.h>
@@ -136,9 +151,11 @@
 
 #define BVH_INF HUGE_VALF
 #define BVH_INVALID 0xFFFFFFFFu
-#define BVH_SAH_MIDPOINT_ONLY 0xFFFFFFFFu
-#define BVH_PLOC_TOP_OFF 0xFFFFFFFFu
-#define BVH_NO_MEMORY_LIMIT 0xFFFFFFFFu
+/* Turns off a build option that can be switched off (desc.ploc.top, desc.ploc.max_bytes_per_prim,
+   desc.sah_midpoint.bins, desc.sah_midpoint.split_budget): one spelling for every such option,
+   integer or float. 2^31 is exact as a float, and as a number it would mean "never" in every
+   integer option that takes it. */
+#define BVH_OFF 0x80000000u
 
 #ifdef __cplusplus
 extern "C" {
@@ -176,7 +193,10 @@ typedef struct bvh_aabb { bvh_vec3 min, max; } bvh_aabb; /* empty: min = +inf, m
 
 /* A node: 32 bytes. count == 0: interior node whose children are nodes[index] and
    nodes[index + 1]. count > 0: leaf referencing tree.prims[index .. index + count - 1].
-   The root is nodes[0]. cl/trace.cl reads this array as-is. */
+   The root is nodes[0]. cl/trace.cl reads this array as-is.
+   Invariant of every builder's output: children are stored after their parent (index > the
+   parent's own position), so one forward pass meets every parent before its children and no
+   index can form a cycle; bvh_validate refuses a tree that breaks it. */
 typedef struct bvh_node {
     bvh_vec3 min;
     uint32_t index;
@@ -216,9 +236,12 @@ typedef struct bvh_hit {
 } bvh_hit;
 
 /* ---- build description -------------------------------------------------------------------- */
+/* Both functions or neither: both NULL = BVH_MALLOC / BVH_FREE; one without the other is refused
+   (BVH_ERROR_INVALID_ARGUMENT) by every call that takes an allocator. Blocks must be aligned as
+   malloc's are. */
 typedef struct bvh_allocator {
-    void *(*alloc)(size_t size, void *user); /* NULL: BVH_MALLOC */
-    void (*free)(void *ptr, void *user);     /* NULL: BVH_FREE */
+    void *(*alloc)(size_t size, void *user);
+    void (*free)(void *ptr, void *user);
     void *user;
 } bvh_allocator;
 
@@ -234,34 +257,45 @@ typedef struct bvh_triangles {
     uint32_t triangle_count;
 } bvh_triangles;
 
+/* Options of the ploc builders (ploc, ploc-parallel; others ignore them). Zero = the default
+   (bvh_builder_info.ploc). */
+typedef struct bvh_ploc_options {
+    uint32_t radius;             /* search radius in Morton order; 0 = 16; above 256 refused */
+    uint32_t top;                /* when PLOC has merged the n primitives down to n / top clusters
+                                    or fewer, a binned-SAH top is built over those (with PLOC's own
+                                    split among the candidates) and replaces PLOC's top if its SAH
+                                    cost is lower; 0 = 8 (1 acts as 2); BVH_OFF = PLOC alone, as
+                                    the paper and the study */
+    uint32_t max_bytes_per_prim; /* the tree (nodes + reference indices) at most this many bytes per
+                                    primitive; when the SAH collapse gives more, it is redone with
+                                    a dearer interior node until the tree fits (larger leaves, a
+                                    higher SAH cost; below what leaves of max_leaf_size allow: the
+                                    smallest such tree); 0 = 40; BVH_OFF = the SAH alone decides */
+} bvh_ploc_options;
+
+/* Options of the sah-midpoint builder (others ignore them). Zero = the default
+   (bvh_builder_info.sah_midpoint). */
+typedef struct bvh_sah_midpoint_options {
+    uint32_t bins;      /* binned SAH object-split candidates per axis costed beside the mid-point
+                           plane; 0 = 32; above 64 refused; BVH_OFF = the study's variant
+                           (mid-point only) */
+    float split_budget; /* extra references allowed, as a fraction of the primitive count; 0 = 0.3;
+                           BVH_OFF (2^31 as a float) = no splits; negative, NaN or other values
+                           above 1 refused */
+} bvh_sah_midpoint_options;
+
+/* The description of a build. Zero is the sensible default for every field. */
 typedef struct bvh_build_desc {
     bvh_builder builder;
     bvh_triangles triangles;  /* either triangles ... */
     const bvh_aabb *boxes;    /* ... or one box per custom primitive (then set box_count) */
     uint32_t box_count;
-    uint32_t max_leaf_size;   /* 0 = 4 (top-down, bottom-up) or 8 (SAH-collapsed builders);
-                                 above 255: BVH_ERROR_INVALID_ARGUMENT */
+    uint32_t max_leaf_size;   /* 0 = the builder's (bvh_builder_info.max_leaf_size: 4 for top-down
+                                 and bottom-up, 8 for the SAH-collapsed builders); above 255 refused */
     uint32_t threads;         /* ploc-parallel: 0 = all online CPUs; above 256 clamped to 256;
                                  at most one per 8192 primitives (the tree is the same) */
-    uint32_t ploc_radius;     /* PLOC search radius in Morton order; 0 = 16; above 256 refused */
-    uint32_t ploc_top;        /* ploc builders: when PLOC has merged the n primitives down to
-                                 n / ploc_top clusters or fewer, a binned-SAH top is built over
-                                 those (with PLOC's own split among the candidates) and replaces
-                                 PLOC's top if its SAH cost is lower; 0 = 8 (1 acts as 2);
-                                 BVH_PLOC_TOP_OFF = PLOC alone, as the paper and the study */
-    float split_budget;       /* sah-midpoint: extra references allowed, as a fraction of the
-                                 primitive count; 0 = 0.3; negative = no splits; above 1 refused */
-    uint32_t sah_bins;        /* sah-midpoint: binned SAH object-split candidates per axis costed
-                                 beside the mid-point plane; 0 = 32, above 64 refused;
-                                 BVH_SAH_MIDPOINT_ONLY = the study's variant (mid-point only) */
     bvh_costs costs;          /* build-time SAH costs, zero = (1, 0, 1) (PLOC's collapse: (1.2,
                                  0, 1), for smaller trees at the same SAH); negative/NaN refused */
-    uint32_t max_bytes_per_prim; /* ploc builders: the tree (nodes + reference indices) at most
-                                 this many bytes per primitive; when the SAH collapse gives more,
-                                 it is redone with a dearer interior node until the tree fits
-                                 (larger leaves, a higher SAH cost; below what leaves of
-                                 max_leaf_size allow: the smallest such tree); 0 = 40;
-                                 BVH_NO_MEMORY_LIMIT = the SAH alone decides */
     int skip_invalid;         /* 0: NaN/Inf geometry is refused with BVH_ERROR_INVALID_GEOMETRY;
                                  1: such primitives are left out and counted in tree.excluded */
     uint32_t trace_width;     /* CPU traversal: 0 or 8 = triangle builds add an 8-wide copy of
@@ -269,7 +303,9 @@ typedef struct bvh_build_desc {
                                  bvh_intersect, bvh_occluded and the batch calls use: faster
                                  tracing for a few percent of build time; 2 = binary nodes only;
                                  anything else is refused */
-    bvh_allocator allocator;
+    bvh_allocator allocator;  /* both functions or neither (a half pair is refused) */
+    bvh_ploc_options ploc;
+    bvh_sah_midpoint_options sah_midpoint;
 } bvh_build_desc;
 
 /* ---- the tree ------------------------------------------------------------------------------ */
@@ -310,8 +346,11 @@ typedef struct bvh_camera {
 } bvh_camera;
 
 /* ---- API ----------------------------------------------------------------------------------- */
-BVH_API const char *bvh_result_string(bvh_result r);
-BVH_API const char *bvh_builder_name(bvh_builder b); /* "top-down", "ploc"... */
+/* Each fallible call lists the codes it returns; "ARGUMENT" stands for BVH_ERROR_INVALID_ARGUMENT
+   and so on. */
+BVH_API const char *bvh_result_string(bvh_result r); /* "unknown result code" out of range */
+BVH_API const char *bvh_builder_name(bvh_builder b); /* "top-down", "ploc"...; "unknown" */
+/* SUCCESS; ARGUMENT: name or out NULL, or no builder of that name. */
 BVH_API bvh_result bvh_builder_from_name(const char *name, bvh_builder *out);
 /* What a builder does with a zero description: its row of the builder table. */
 typedef struct bvh_builder_info {
@@ -320,26 +359,44 @@ typedef struct bvh_builder_info {
     float interior_cost;    /* the default interior cost of its SAH decisions (costs all zero) */
     int uses_threads;       /* builds on desc.threads (the same tree for any count) */
     int splits_references;  /* may reference a primitive from several leaves (ref_count > prims) */
+    bvh_ploc_options ploc;  /* the defaults of desc.ploc (zero for builders that ignore it) */
+    bvh_sah_midpoint_options sah_midpoint; /* the defaults of desc.sah_midpoint (likewise) */
 } bvh_builder_info;
-/* BVH_BUILDER_DEFAULT describes the builder it stands for. */
+/* BVH_BUILDER_DEFAULT describes the builder it stands for.
+   SUCCESS; ARGUMENT: b out of range or out NULL. */
 BVH_API bvh_result bvh_builder_get_info(bvh_builder b, bvh_builder_info *out);
 
-/* Builds a tree. On failure *tree is zeroed and nothing is leaked. */
+/* Builds a tree. On failure *tree is zeroed and nothing is leaked. Every builder stores a node's
+   children after the node itself (see bvh_node).
+   SUCCESS (also for zero primitives, or all of them left out: an empty tree);
+   ARGUMENT: tree or desc NULL, an option out of range, triangles and boxes both given, positions
+     or boxes NULL with a count, stride below 12, indices not 4-byte aligned, a half allocator pair
+     or one whose blocks are aligned less than malloc's;
+   GEOMETRY: a NaN or Inf coordinate, or a box with min > max (unless desc.skip_invalid);
+   INDEX_OUT_OF_RANGE: an index >= vertex_count (or vertex_count < 3 * triangle_count without
+     indices); TOO_MANY_PRIMITIVES: more than 2^30; OUT_OF_MEMORY: an allocation failed (or the
+     caller's allocator gave no block when tried). A worker thread that cannot be created is no
+     error: the build runs on those it has, and the tree is the same. */
 BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc);
+/* Releases what bvh_build allocated, with the tree's allocator; zeroes all but tree->allocator.
+   NULL and empty trees are ignored. */
 BVH_API void bvh_free(bvh_tree *tree);
 
 /* SAH = Ci * sum_I A(n)/A(root) + Cl * sum_L A(n)/A(root) + Ct * sum_L A(n) N(n)/A(root).
    costs NULL or all zero = (1, 0, 1). A tree whose root has zero area uses A(n)/A(root) = 1.
-   Like bvh_get_stats, it walks the tree from the root and returns BVH_ERROR_INVALID_TREE where
-   the structure is broken (an index out of range, a cycle, nodes not reached exactly once). */
+   SUCCESS; ARGUMENT: tree or out_cost NULL, a cost negative or NaN; TREE: the walk from the root
+   finds the structure broken (an index out of range, a cycle, nodes not reached exactly once). */
 BVH_API bvh_result bvh_sah(const bvh_tree *tree, const bvh_costs *costs, double *out_cost);
 
-/* Checks the structure: every node reached once, children inside parents, leaves contain their
-   primitives (prim_boxes, or the tree's triangles when NULL; for split references: overlap),
-   every primitive referenced (exactly once unless the builder splits), depth <= BVH_MAX_DEPTH.
-   A tree built from boxes needs its prim_boxes (NULL: BVH_ERROR_INVALID_ARGUMENT). */
+/* Checks the structure: every node reached once, children stored after their parent and inside
+   its box, leaves contain their primitives (prim_boxes, or the tree's triangles when NULL; for
+   split references: overlap), every primitive referenced (exactly once unless the builder
+   splits), depth <= BVH_MAX_DEPTH, and the same of the 8-wide copy. report may be NULL.
+   SUCCESS; ARGUMENT: tree NULL, a half allocator pair in the tree, or a tree built from boxes
+   without its prim_boxes; TREE: a defect, named in report; OUT_OF_MEMORY. */
 BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes,
                                 bvh_validation *report);
+/* SUCCESS; ARGUMENT: tree or out NULL; TREE: as bvh_sah. */
 BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *out);
 
 /* Closest hit (returns 1 and fills *hit) or 0 with hit->prim = BVH_INVALID. Rays with NaN, a
@@ -353,7 +410,10 @@ BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray);
 /* Same as bvh_intersect, counting nodes visited (for heat maps and statistics). */
 BVH_API int bvh_intersect_counted(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
                                   uint32_t *nodes_visited);
-/* Traces count rays on `threads` threads (0 = all online CPUs). */
+/* Traces count rays on `threads` threads (0 = all online CPUs).
+   SUCCESS; ARGUMENT: tree NULL, rays or the output NULL with count > 0, a half allocator pair
+   in the tree; NO_TRIANGLES: a tree built from boxes (every ray missed); OUT_OF_MEMORY: the
+   worker threads' bookkeeping could not be allocated. */
 BVH_API bvh_result bvh_intersect_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits,
                                        size_t count, uint32_t threads);
 BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays,
@@ -396,6 +456,9 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #ifndef BVH_ASSERT
 #include <assert.h>
 #define BVH_ASSERT(c) assert(c)
+#endif
+#if defined(BVH_MALLOC) != defined(BVH_FREE)
+#error "bvh.h: define both BVH_MALLOC and BVH_FREE, or neither"
 #endif
 #ifndef BVH_MALLOC
 #include <stdlib.h>
@@ -604,8 +667,7 @@ static void *bvh__alloc(const bvh_allocator *al, size_t count, size_t elem) {
 #if defined(__linux__) && defined(BVH__DEFAULT_MALLOC) && !defined(BVH_NO_HUGEPAGES) && defined(MADV_HUGEPAGE)
     /* Big build arrays and the tree itself are touched once each, at random (sort scatter, node
        emission, traversal): transparent huge pages take most of the page faults and TLB misses
-       out (about a quarter of a 3M-triangle PLOC build on Linux; Embree advises its blocks the
-       same way). Only the whole 2 MiB pages inside the block are advised. */
+       out (docs/DESIGN.md, Memory). Only the whole 2 MiB pages inside the block are advised. */
     if (p && size >= ((size_t)4 << 20)) {
         const uintptr_t huge = (uintptr_t)1 << 21;
         uintptr_t b = ((uintptr_t)p + huge - 1) & ~(huge - 1), e = ((uintptr_t)p + size) & ~(huge - 1);
@@ -620,10 +682,14 @@ static void bvh__free(const bvh_allocator *al, void *p) {
     else BVH_FREE(p, al->user);
 }
 #define BVH__ALLOC(al, T, n) BVH__CAST(T *, bvh__alloc((al), (size_t)(n), sizeof(T)))
-/* A caller allocator, tried once: BVH_ERROR_INVALID_ARGUMENT if its blocks are aligned less than
-   malloc's, BVH_ERROR_OUT_OF_MEMORY if it gives none. */
+/* Both functions or neither: a half pair would hand the caller's blocks to BVH_FREE or malloc's to
+   the caller. Every public call that takes an allocator (a desc's or a tree's) checks it. */
+static int bvh__allocator_paired(const bvh_allocator *al) { return !al->alloc == !al->free; }
+/* A caller allocator, tried once: BVH_ERROR_INVALID_ARGUMENT if it is a half pair or its blocks
+   are aligned less than malloc's, BVH_ERROR_OUT_OF_MEMORY if it gives none. */
 static bvh_result bvh__allocator_ok(const bvh_allocator *al) {
     void *p;
+    if (!bvh__allocator_paired(al)) return BVH_ERROR_INVALID_ARGUMENT;
     if (!al->alloc) return BVH_SUCCESS;
     if (!(p = al->alloc(64, al->user))) return BVH_ERROR_OUT_OF_MEMORY;
     al->free(p, al->user);
@@ -988,7 +1054,7 @@ typedef struct bvh__ctx {
     const bvh_aabb *in_boxes;  /* the caller's boxes, NULL for triangle input */
     const uint32_t *orig;  /* local id -> caller index when primitives were left out, else NULL */
     bvh_aabb bounds, cbounds;
-    uint32_t max_leaf, threads, radius, sah_bins, ploc_top; /* ploc_top: 0 = off, else >= 2 */
+    uint32_t max_leaf, threads, radius, sah_bins, ploc_top; /* sah_bins, ploc_top: 0 = off; else ploc_top >= 2 */
     uint32_t budget;       /* collapse: tree bytes per primitive at most; 0 = no limit */
     float ci, cl, ct, split_budget;
 } bvh__ctx;
@@ -1351,7 +1417,7 @@ static void bvh__sizes_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     }
 }
 
-/* The memory budget (desc.max_bytes_per_prim) as output nodes, for a tree of `prims` references. */
+/* The memory budget (desc.ploc.max_bytes_per_prim) as output nodes, for a tree of `prims` references. */
 static uint64_t bvh__budget_nodes(const bvh__ctx *c, uint32_t prims) {
     uint64_t bytes = (uint64_t)c->budget * prims, idx = (uint64_t)prims * sizeof(uint32_t);
     return bytes > idx ? (bytes - idx) / sizeof(bvh_node) : 0;
@@ -1364,7 +1430,7 @@ static uint64_t bvh__budget_nodes(const bvh__ctx *c, uint32_t prims) {
    the tree is within 1% of the budget or BVH__BUDGET_STEPS tries; the tree kept is the one of the
    lowest cost found to fit, so it always fits if any does. If even an unbounded cost (every
    subtree of max_leaf primitives or fewer a leaf) does not fit, that smallest tree is kept. Each
-   try is one more pass 1, O(n); random triangle soups take 3 to 5. */
+   try is one more pass 1, O(n). */
 static bvh_result bvh__fit_budget(const bvh__ctx *c, bvh__sizes *q, uint32_t nthreads) {
     bvh__ctx cc = *c;
     uint32_t root = q->blocks[q->block_count - 1] - 1, k;
@@ -1671,24 +1737,17 @@ done:
 /* ============================================================================================ */
 /* == PLOC: Parallel Locally-Ordered Clustering (Meister & Bittner 2018, Alg. 1) ================= */
 /* Clusters start as one leaf per primitive in Morton order (63-bit codes, ties by index). Each
-   iteration: every cluster finds its nearest neighbour within `radius` positions, by the surface
-   area of the merged box; mutual nearest neighbours merge; a prefix scan compacts the survivors.
-   Ties in distance go to the nearest position, then to the pair (2k, 2k+1), so that equal boxes
-   still halve the cluster count each iteration. Distances are computed once per pair, four pairs
-   at a time (bvh__ploc_search), and each pair's distance is offered to both of its ends. Then bvh__emit collapses subtrees into
-   leaves where the SAH says so. One code path for `ploc` (a team of one, no thread created) and
-   `ploc-parallel` (a team of pthreads meeting at barriers, 4 per iteration): every phase splits
-   the clusters by the thread count and every result is independent of it, so both give exactly
-   the same tree. Differences from the paper: CPU threads instead of GPU work groups; the merged
-   node is written back in place of the left cluster before compaction, as the study's
-   pseudo-code does.
-   Added to the paper (desc.ploc_top; BVH_PLOC_TOP_OFF gives the paper's PLOC): PLOC merges
-   greedily and locally, which leaves its trees above a binned-SAH build's cost on scanned
-   meshes at every level (docs/DESIGN.md). So when the clusters first number n / ploc_top or fewer (n / 8 by default),
-   the loop notes where it is and runs on to the root; then bvh__ploc_top builds a second top over
-   those clusters, top-down by binned SAH (Wald 2007) with, from 64 clusters up, PLOC's own split
-   of the node's clusters as one more candidate (that keeps the few huge clusters, a ground plane
-   say, as high as PLOC put them), and keeps whichever top has the lower summed node area. */
+   iteration: every cluster finds its nearest neighbour within `radius` positions by the area of
+   the merged box (bvh__ploc_search); mutual nearest neighbours merge; a prefix scan compacts the
+   survivors. Ties in distance go to the nearest position, then to the pair (2k, 2k+1), so that
+   equal boxes still halve the count. bvh__emit then collapses subtrees into leaves by the SAH.
+   `ploc` is a team of one, `ploc-parallel` a team of pthreads; every phase's result is
+   independent of the thread count, so both give the same tree. Differences from the paper: CPU
+   threads instead of GPU work groups; the merged node replaces the left cluster before
+   compaction, as the study's pseudo-code does; and the SAH top (desc.ploc.top; BVH_OFF = the
+   paper's PLOC): when the clusters first number n / top or fewer, bvh__ploc_top builds a second
+   top over them by binned SAH (with PLOC's own split as one more candidate) and the cheaper top
+   is kept. Why and what it gives: docs/DESIGN.md. */
 /* ============================================================================================ */
 typedef struct bvh__nn bvh__nn;
 typedef struct bvh__ploc {
@@ -2438,8 +2497,8 @@ done:
 }
 
 /* Memory: the clustering needs cin, cout, the node pairs (2n nodes) and the offers; it is run
-   after the boxes and the sort's scratch are released, so the peak stays near 140 bytes per
-   primitive instead of the ~230 that holding everything at once would take. */
+   after the boxes and the sort's scratch are released, so that they are never all held at once
+   (the peak: docs/DESIGN.md, Memory). */
 static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     bvh__ploc p;
     bvh_result r;
@@ -2504,49 +2563,19 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
 
 /* ============================================================================================ */
 /* == SAH-guided top-down with mid-point split partitioning ====================================== */
-/* After Ganestam & Doggett 2016 ("SAH guided spatial split partitioning for fast BVH
-   construction", Eurographics 2016), as the study defines it. At every node and on each axis the
-   spatial mid-point plane of the node's bounds sorts the references into wholly left (D_L),
-   wholly right (D_R) and straddling. Two options are costed on each axis:
-       C_O = A(D_L u O_L)|D_L u O_L| + A(D_R u O_R)|D_R u O_R|   straddlers kept whole, each on the
-                                                                  side of its centroid (O_L, O_R)
-       C_S = A(D_L u S_L)|D_L u S_L| + A(D_R u S_R)|D_R u S_R|   straddlers split at the plane and
-                                                                  referenced on both sides (S_L, S_R)
-   The cheapest gives E_r = C_i A(n) + C_t C; the node becomes a leaf when N(n) <= max_leaf and
-   E_t = C_t A(n) N(n) + C_l A(n) <= E_r. A split clips the triangle itself: the bounds of the
-   clipped polygon (computed in double, points on the plane widened by (|u| + |v|) 2^-21 on the
-   other axes so that no rounding loses a sliver) intersected with the reference's current box;
-   box input clips the box. A part that is empty on one side (or only touches the plane) is
-   referenced on the other side only, so no reference lands on a side it does not touch and a
-   leaf never holds one primitive twice.
-   Split budget: at most split_budget * n extra references in all. The root gets the whole budget;
-   a node spends what its split duplicates and shares the rest between its children in proportion
-   to their sizes; what a leaf leaves unused goes to the next node in depth-first order. An option
-   that needs more than its node has is not a candidate.
-   Added to the study's definition (desc.sah_bins = BVH_SAH_MIDPOINT_ONLY gives exactly the study's variant):
-   - binned SAH object splits (Wald 2007) with desc.sah_bins bins per axis over the
-     centroid bounds (32; at most one per reference in small nodes), costed alongside C_O and C_S;
-   - with bins, C_S is costed only where the best candidate's children overlap by more than
-     BVH__SAH_MIDPOINT_ALPHA (1e-3) of the root's area (Stich, Friedrich & Dietrich 2009, Sec. 4):
-     clipping every straddler dominated the build time where a split has nothing to gain;
-   - with bins, reference unsplitting (the same paper, Sec. 4.4): when C_S wins, a straddler is
-     kept whole on one side if that is cheaper than referencing it on both.
-   With bins, C_O is found by the bin sweep itself: the bin holding the mid-point is cut in two
-   there (see bvh__sm_axis), so the mid-point options cost one pass over the references, plus
-   one for C_S where it is costed.
-   An object median on the longest centroid axis (as bvh__median_build) is used when no candidate
-   separates the references (flat node, all centroids equal, a plane that leaves a side empty),
-   when the best candidate is no cheaper than not separating (C >= A(n) N(n), which a median
-   always matches: identical triangles are not split forever), and for every node from the depth
-   at which halving is needed to stay within BVH_MAX_DEPTH.
-   Differences from the paper: the paper splits while it coarsely partitions the scene and hands
-   the sets to a fast builder (or runs as a pre-split pass); here the choice is made at every node
-   of one top-down build, and (without bins) all straddlers of a plane are split or none. One
-   thread.
-   Memory: one scratch array of n * (1 + budget) clipped references used as a stack (the node
-   being processed is always on top, so a split appends its duplicates in place), the reference
-   output of the same size, and the node array, grown by half when full (2 refs - 1 at most).
-   Nodes come out depth-first, children adjacent, as bvh__median_build writes them. */
+/* After Ganestam & Doggett 2016, as the study defines it: at every node and on each axis the
+   mid-point plane of the node's bounds sorts the references into wholly left, wholly right and
+   straddling; the straddlers are costed kept whole on their centroid's side (C_O) and clipped
+   and referenced on both sides (C_S); the cheapest option wins unless a leaf costs no more.
+   Invariants: a clipped part that only touches the plane is referenced on the other side only,
+   so no leaf holds a primitive twice; at most split_budget * n extra references in all (the root
+   gets the budget, a node shares what its split leaves between its children by size, a leaf's
+   unused share goes to the next node depth-first); an object median is taken when no candidate
+   separates the references or none is cheaper than not separating, and from the depth where
+   halving is needed to stay within BVH_MAX_DEPTH. Added to the study (desc.sah_midpoint.bins;
+   BVH_OFF = the study's variant): binned SAH object splits, C_S costed only where children
+   overlap, reference unsplitting. Nodes come out depth-first, children adjacent and after their
+   parent. One thread. The method in full, and the differences from the paper: docs/DESIGN.md. */
 /* ============================================================================================ */
 #ifndef BVH__SAH_MIDPOINT_ALPHA
 #define BVH__SAH_MIDPOINT_ALPHA 1e-3
@@ -3068,14 +3097,19 @@ typedef struct bvh__builder_row {
 } bvh__builder_row;
 /* Row 0 (BVH_BUILDER_DEFAULT) stands for ploc-parallel: bvh__builder() resolves it. PLOC's
    collapse prices an interior node a little dearer (BVH__PLOC_INTERIOR): smaller trees at the
-   same SAH. */
+   same SAH. The defaults of the builder-specific options: radius, top, max_bytes_per_prim; bins,
+   split_budget. */
+#define BVH__PLOC_DEFAULTS {16, 8, 40}
+#define BVH__SAH_MIDPOINT_DEFAULTS {32, 0.3f}
+#define BVH__NO_PLOC {0, 0, 0}
+#define BVH__NO_SAH_MIDPOINT {0, 0.0f}
 static const bvh__builder_row bvh__builders[BVH_BUILDER_COUNT] = {
-    {{"default", 8, BVH__PLOC_INTERIOR, 1, 0}, bvh__build_ploc_team},
-    {{"top-down", 4, 1.0f, 0, 0}, bvh__build_top_down_row},
-    {{"bottom-up", 4, 1.0f, 0, 0}, bvh__build_bottom_up_row},
-    {{"sah-midpoint", 8, 1.0f, 0, 1}, bvh__build_sah_midpoint_row},
-    {{"ploc", 8, BVH__PLOC_INTERIOR, 0, 0}, bvh__build_ploc_one},
-    {{"ploc-parallel", 8, BVH__PLOC_INTERIOR, 1, 0}, bvh__build_ploc_team},
+    {{"default", 8, BVH__PLOC_INTERIOR, 1, 0, BVH__PLOC_DEFAULTS, BVH__NO_SAH_MIDPOINT}, bvh__build_ploc_team},
+    {{"top-down", 4, 1.0f, 0, 0, BVH__NO_PLOC, BVH__NO_SAH_MIDPOINT}, bvh__build_top_down_row},
+    {{"bottom-up", 4, 1.0f, 0, 0, BVH__NO_PLOC, BVH__NO_SAH_MIDPOINT}, bvh__build_bottom_up_row},
+    {{"sah-midpoint", 8, 1.0f, 0, 1, BVH__NO_PLOC, BVH__SAH_MIDPOINT_DEFAULTS}, bvh__build_sah_midpoint_row},
+    {{"ploc", 8, BVH__PLOC_INTERIOR, 0, 0, BVH__PLOC_DEFAULTS, BVH__NO_SAH_MIDPOINT}, bvh__build_ploc_one},
+    {{"ploc-parallel", 8, BVH__PLOC_INTERIOR, 1, 0, BVH__PLOC_DEFAULTS, BVH__NO_SAH_MIDPOINT}, bvh__build_ploc_team},
 };
 static bvh_builder bvh__builder(bvh_builder b) { return b == BVH_BUILDER_DEFAULT ? BVH_BUILDER_PLOC_PARALLEL : b; }
 BVH_API const char *bvh_builder_name(bvh_builder b) {
@@ -3118,16 +3152,19 @@ static int bvh__costs_valid(const bvh_costs *k) {
     return bvh__finite(k->interior) && bvh__finite(k->leaf) && bvh__finite(k->triangle) &&
            k->interior >= 0.0f && k->leaf >= 0.0f && k->triangle >= 0.0f;
 }
+/* BVH_OFF in the float option: the conversion is exact (2^31), so the comparison is too. */
+static int bvh__split_budget_off(float b) { return b == (float)BVH_OFF; }
 static bvh_result bvh__check_desc(const bvh_build_desc *d, uint32_t *count) {
     const bvh_triangles *t = &d->triangles;
     uint32_t i;
     if ((unsigned)d->builder >= BVH_BUILDER_COUNT) return BVH_ERROR_INVALID_ARGUMENT;
-    if (d->max_leaf_size > BVH__MAX_LEAF || d->ploc_radius > 256) return BVH_ERROR_INVALID_ARGUMENT;
+    if (d->max_leaf_size > BVH__MAX_LEAF || d->ploc.radius > 256) return BVH_ERROR_INVALID_ARGUMENT;
     if (d->trace_width != 0 && d->trace_width != 2 && d->trace_width != 8) return BVH_ERROR_INVALID_ARGUMENT;
-    if (d->sah_bins > 64 && d->sah_bins != BVH_SAH_MIDPOINT_ONLY) return BVH_ERROR_INVALID_ARGUMENT;
-    if (!bvh__costs_valid(&d->costs) || bvh__nan(d->split_budget) || d->split_budget > 1.0f)
+    if (d->sah_midpoint.bins > 64 && d->sah_midpoint.bins != BVH_OFF) return BVH_ERROR_INVALID_ARGUMENT;
+    if (!bvh__costs_valid(&d->costs)) return BVH_ERROR_INVALID_ARGUMENT;
+    if (!bvh__split_budget_off(d->sah_midpoint.split_budget) &&
+        !(d->sah_midpoint.split_budget >= 0.0f && d->sah_midpoint.split_budget <= 1.0f)) /* NaN too */
         return BVH_ERROR_INVALID_ARGUMENT;
-    if (!d->allocator.alloc != !d->allocator.free) return BVH_ERROR_INVALID_ARGUMENT; /* both or none */
     if (t->triangle_count && (d->boxes || d->box_count)) return BVH_ERROR_INVALID_ARGUMENT;
     if (d->box_count) {
         if (!d->boxes) return BVH_ERROR_INVALID_ARGUMENT;
@@ -3241,8 +3278,8 @@ static void bvh__back_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) 
 }
 
 /* The one place where the zero-means-default description becomes the builder's options (the
-   description is checked first, by bvh__check_desc): 0 takes the default, the BVH_*_OFF values
-   turn an option off. */
+   description is checked first, by bvh__check_desc): 0 takes the default of the builder's row,
+   BVH_OFF turns an option off. */
 static void bvh__resolve(const bvh_build_desc *d, bvh_builder builder, uint32_t count, bvh__ctx *c) {
     const bvh_builder_info *row = &bvh__builders[builder].info;
     memset(c, 0, sizeof *c);
@@ -3253,9 +3290,11 @@ static void bvh__resolve(const bvh_build_desc *d, bvh_builder builder, uint32_t 
        and meeting at barriers costs more than the work (the tree does not depend on the count) */
     if (c->threads > 1 && count / BVH__MIN_PRIMS_PER_THREAD < c->threads)
         c->threads = count / BVH__MIN_PRIMS_PER_THREAD > 1 ? count / BVH__MIN_PRIMS_PER_THREAD : 1;
-    c->radius = d->ploc_radius ? d->ploc_radius : 16;
-    c->ploc_top = d->ploc_top == BVH_PLOC_TOP_OFF ? 0 : d->ploc_top == 0 ? 8 : d->ploc_top < 2 ? 2 : d->ploc_top;
-    c->sah_bins = d->sah_bins == BVH_SAH_MIDPOINT_ONLY ? 0 : d->sah_bins ? d->sah_bins : 32;
+    c->radius = d->ploc.radius ? d->ploc.radius : row->ploc.radius;
+    c->ploc_top = d->ploc.top ? d->ploc.top : row->ploc.top;
+    c->ploc_top = c->ploc_top == BVH_OFF ? 0 : c->ploc_top < 2 ? 2 : c->ploc_top;
+    c->sah_bins = d->sah_midpoint.bins ? d->sah_midpoint.bins : row->sah_midpoint.bins;
+    if (c->sah_bins == BVH_OFF) c->sah_bins = 0;
     if (d->costs.interior == 0.0f && d->costs.leaf == 0.0f && d->costs.triangle == 0.0f) {
         c->ci = row->interior_cost;
         c->cl = 0.0f;
@@ -3265,8 +3304,10 @@ static void bvh__resolve(const bvh_build_desc *d, bvh_builder builder, uint32_t 
         c->cl = d->costs.leaf;
         c->ct = d->costs.triangle;
     }
-    c->budget = d->max_bytes_per_prim == BVH_NO_MEMORY_LIMIT ? 0 : d->max_bytes_per_prim ? d->max_bytes_per_prim : 40;
-    c->split_budget = d->split_budget == 0.0f ? 0.3f : d->split_budget < 0.0f ? 0.0f : d->split_budget;
+    c->budget = d->ploc.max_bytes_per_prim ? d->ploc.max_bytes_per_prim : row->ploc.max_bytes_per_prim;
+    if (c->budget == BVH_OFF) c->budget = 0;
+    c->split_budget = d->sah_midpoint.split_budget == 0.0f ? row->sah_midpoint.split_budget : d->sah_midpoint.split_budget;
+    if (bvh__split_budget_off(c->split_budget)) c->split_budget = 0.0f;
 }
 
 static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32_t threads);
@@ -3591,7 +3632,7 @@ BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
     int splits;
     bvh_result r = BVH_SUCCESS;
     if (rep) { rep->node = BVH_INVALID; strcpy(rep->message, "ok"); }
-    if (!tree) return BVH_ERROR_INVALID_ARGUMENT;
+    if (!tree || !bvh__allocator_paired(&tree->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
     al = tree->allocator;
     if (!tree->node_count) {
         if (tree->ref_count) return bvh__invalid(rep, BVH_INVALID, "empty tree with references");
@@ -3643,6 +3684,7 @@ BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
         }
         if (n->index == 0 || n->index >= tree->node_count - 1)
             { r = bvh__invalid(rep, ni, "child index out of range"); goto done; }
+        if (n->index <= ni) { r = bvh__invalid(rep, ni, "child stored before its parent"); goto done; }
         for (i = 0; i < 2; i++) {
             if (!bvh_aabb_contains(box, bvh__node_box(&tree->nodes[n->index + i])))
                 { r = bvh__invalid(rep, n->index + i, "child box not inside its parent"); goto done; }
@@ -4880,9 +4922,9 @@ typedef struct bvh__batch {
     uint8_t *occluded;
     size_t count, next; /* next: first ray no thread has taken */
 } bvh__batch;
-/* Chunks of 64 rays taken in turn from a shared counter: the cost of a ray varies by orders of
-   magnitude across a frame (a mesh in one part of it), and fixed interleaved chunks of 256
-   left one of two threads idle for a third of the dragon's frame. */
+/* Chunks of 64 rays taken in turn from a shared counter, not fixed shares: the cost of a ray
+   varies by orders of magnitude across a frame (a mesh in one part of it), so fixed shares leave
+   threads idle (docs/DESIGN.md, Threads). */
 #define BVH__BATCH_CHUNK 64u
 static size_t bvh__batch_take(bvh__batch *b, bvh__team *team) {
 #if defined(__GNUC__) || defined(__clang__)
@@ -4919,6 +4961,7 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
     bvh__batch b;
     uint32_t nt;
     if (!tree || (count && (!rays || (!hits && !occ)))) return BVH_ERROR_INVALID_ARGUMENT;
+    if (!bvh__allocator_paired(&tree->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
     if (tree->node_count && !tree->tris) { /* as the single-ray calls: every ray misses */
         size_t i;
         for (i = 0; i < count; i++) {

@@ -653,8 +653,8 @@ static void bench_desc(const run_ctx *c, bvh_builder builder, bvh_build_desc *de
     desc->builder = builder;
     desc->threads = o->threads;
     desc->trace_width = o->trace_width;
-    desc->ploc_top = o->ploc_top;
-    desc->max_bytes_per_prim = o->max_bytes;
+    desc->ploc.top = o->ploc_top;
+    desc->ploc.max_bytes_per_prim = o->max_bytes;
     desc->skip_invalid = 1;
     desc->triangles.positions = c->s->v;
     desc->triangles.vertex_count = 3 * c->s->triangles;
@@ -1618,10 +1618,12 @@ static void header_lines(FILE *f, const options *o, const header_info *h, const 
     fprintf(f, "%sCPU: %s, %u cores online; threads %u (ploc-parallel, multi-thread tracing, Embree)\n", prefix,
             h->cpu, scene_cpu_count(), o->nthreads);
     fprintf(f, "%sEmbree: %s\n", prefix, h->embree);
-    if (o->ploc_top == BVH_PLOC_TOP_OFF) fprintf(f, "%sPLOC: the paper's, without the SAH top (--ploc-top off)\n", prefix);
-    else fprintf(f, "%sPLOC: with the SAH top over the last n/%u clusters (--ploc-top)\n", prefix, o->ploc_top ? o->ploc_top : 8);
-    if (o->max_bytes == BVH_NO_MEMORY_LIMIT) fprintf(f, "%sPLOC's collapse: the SAH alone (--max-bytes off)\n", prefix);
-    else fprintf(f, "%sPLOC's collapse: tree at most %u bytes per triangle (--max-bytes)\n", prefix, o->max_bytes ? o->max_bytes : 40);
+    bvh_builder_info ploc;
+    bvh_builder_get_info(BVH_BUILDER_PLOC, &ploc); /* the defaults of desc.ploc */
+    if (o->ploc_top == BVH_OFF) fprintf(f, "%sPLOC: the paper's, without the SAH top (--ploc-top off)\n", prefix);
+    else fprintf(f, "%sPLOC: with the SAH top over the last n/%u clusters (--ploc-top)\n", prefix, o->ploc_top ? o->ploc_top : ploc.ploc.top);
+    if (o->max_bytes == BVH_OFF) fprintf(f, "%sPLOC's collapse: the SAH alone (--max-bytes off)\n", prefix);
+    else fprintf(f, "%sPLOC's collapse: tree at most %u bytes per triangle (--max-bytes)\n", prefix, o->max_bytes ? o->max_bytes : ploc.ploc.max_bytes_per_prim);
     fprintf(f, "%sOpenCL: %s\n", prefix, h->opencl);
     fprintf(f, "%sbuild: median of %u timed build(s) after one warm-up; frame: %ux%u primary rays of the standard camera, "
                "traced %s (CPU, OpenCL and Embree: median of %d frames); frame ms = fastest tracer; CPU tracing walks the "
@@ -2050,7 +2052,7 @@ static int parse_args(int argc, char **argv, options *o) {
                 return 2;
             }
         } else if (!strcmp(a, "--ploc-top")) {
-            if (parse_count_or_off(v, BVH_PLOC_TOP_OFF, &o->ploc_top)) {
+            if (parse_count_or_off(v, BVH_OFF, &o->ploc_top)) {
                 fprintf(stderr, "bvhbench: --ploc-top wants a divisor (0 = default) or off, not '%s'\n", v ? v : "");
                 return 2;
             }
@@ -2060,7 +2062,7 @@ static int parse_args(int argc, char **argv, options *o) {
                 return 2;
             }
         } else if (!strcmp(a, "--max-bytes")) {
-            if (parse_count_or_off(v, BVH_NO_MEMORY_LIMIT, &o->max_bytes)) {
+            if (parse_count_or_off(v, BVH_OFF, &o->max_bytes)) {
                 fprintf(stderr, "bvhbench: --max-bytes wants bytes per triangle (0 = default) or off, not '%s'\n", v ? v : "");
                 return 2;
             }

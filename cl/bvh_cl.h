@@ -1,4 +1,4 @@
-/* bvh_cl.h - v0.2.0 - OpenCL companion of bvh.h: trace bvh.h trees on any OpenCL 1.2 device
+/* bvh_cl.h - v0.3.0 - OpenCL companion of bvh.h: trace bvh.h trees on any OpenCL 1.2 device
 
    WHAT
      Uploads a bvh_tree (nodes, reference-ordered triangles, primitive ids) to an OpenCL device as
@@ -33,7 +33,9 @@
 
    CONFIGURATION (define before including the implementation)
      BVH_CL_KERNEL_PATH    file read when bvh_cl_desc.kernel_source is NULL ("cl/trace.cl")
-     BVH_CL_MALLOC(size) / BVH_CL_FREE(ptr)   host allocations (malloc/free)
+     BVH_CL_MALLOC(size, user) / BVH_CL_FREE(ptr, user)  default host allocator (malloc/free);
+                           define both or neither; a per-context allocator with a user pointer
+                           goes in bvh_cl_desc.allocator (also both or neither)
      BVH_CL_API            decoration of every public function (extern; static with BVH_STATIC
                            or BVH_CL_STATIC)
      BVH_CL_DEVICE         (environment variable) "platform:device" indices used when
@@ -42,7 +44,9 @@
    ERRORS
      Every call that can fail returns a bvh_cl_result; bvh_cl_result_string() names it and
      bvh_cl_last_error() gives the OpenCL error number and call. The library never aborts, exits
-     or prints.
+     or prints. Every call returns BVH_CL_ERROR_NOT_AVAILABLE without BVH_HAVE_OPENCL, and
+     BVH_CL_ERROR_INVALID_ARGUMENT for a NULL context, tree or output; the other codes each call
+     returns are listed beside its prototype.
 
    THREADS
      No global state. A context and its trees must be used by one thread at a time (they share a
@@ -59,7 +63,7 @@
 #endif
 
 #define BVH_CL_VERSION_MAJOR 0
-#define BVH_CL_VERSION_MINOR 2
+#define BVH_CL_VERSION_MINOR 3
 #define BVH_CL_VERSION_PATCH 0
 
 #ifndef BVH_CL_API
@@ -113,6 +117,9 @@ typedef struct bvh_cl_desc {
     char *log;                 /* optional: on failure of bvh_cl_create, receives the compiler's
                                   log (BUILD_FAILED) or the failing call; NUL-terminated */
     size_t log_size;
+    bvh_allocator allocator;   /* host memory of the context and its trees, as bvh.h's: both
+                                  NULL = BVH_CL_MALLOC / BVH_CL_FREE, one alone refused; blocks
+                                  aligned less than malloc's count as failed allocations */
 } bvh_cl_desc;
 
 typedef struct bvh_cl_device_info {
@@ -131,13 +138,17 @@ typedef struct bvh_cl_tree bvh_cl_tree;       /* a tree uploaded to the device o
 BVH_CL_API const char *bvh_cl_result_string(bvh_cl_result r);
 
 /* Lists up to `capacity` devices of all platforms (max_alloc and exact filled as for a context
-   without override); *count receives the number of devices found. */
+   without override); *count receives the number of devices found.
+   SUCCESS; ARGUMENT: count NULL (or out NULL with capacity > 0); NO_PLATFORM; NO_DEVICE. */
 BVH_CL_API bvh_cl_result bvh_cl_enumerate(bvh_cl_device_info *out, uint32_t capacity, uint32_t *count);
 
 /* Picks the device, creates a context and queue, compiles the kernels. On failure *ctx is NULL
-   and desc->log (if given) says why. */
+   and desc->log (if given) says why. desc NULL = all defaults.
+   SUCCESS; ARGUMENT: ctx NULL, frame_rays out of range, a bad device string, a half allocator
+   pair; NO_PLATFORM; NO_DEVICE; KERNEL_NOT_FOUND; BUILD_FAILED; OUT_OF_RESOURCES; OPENCL. */
 BVH_CL_API bvh_cl_result bvh_cl_create(bvh_cl_context **ctx, const bvh_cl_desc *desc);
 BVH_CL_API void bvh_cl_destroy(bvh_cl_context *ctx); /* free its trees first; NULL is ignored */
+/* SUCCESS; ARGUMENT. */
 BVH_CL_API bvh_cl_result bvh_cl_get_info(const bvh_cl_context *ctx, bvh_cl_device_info *out);
 /* The compiler's log of the successful build (warnings), "" if none. */
 BVH_CL_API const char *bvh_cl_build_log(const bvh_cl_context *ctx);
@@ -147,11 +158,14 @@ BVH_CL_API int bvh_cl_last_error(const bvh_cl_context *ctx, const char **call);
 BVH_CL_API double bvh_cl_last_kernel_ms(const bvh_cl_context *ctx);
 
 /* Copies the tree's nodes, triangles and primitive ids to the device (the tree may be freed
-   afterwards). A tree built from boxes has no triangles: BVH_CL_ERROR_INVALID_ARGUMENT. */
+   afterwards). SUCCESS; ARGUMENT: also a tree built from boxes (no triangles); BUFFER_TOO_LARGE;
+   OUT_OF_RESOURCES; OPENCL. */
 BVH_CL_API bvh_cl_result bvh_cl_upload(bvh_cl_context *ctx, const bvh_tree *tree, bvh_cl_tree **out);
 BVH_CL_API void bvh_cl_tree_free(bvh_cl_tree *tree);
 
-/* bvh_intersect_batch / bvh_occluded_batch on the device; blocking. */
+/* bvh_intersect_batch / bvh_occluded_batch on the device; blocking.
+   SUCCESS; ARGUMENT: rays or the output NULL with count > 0; BUFFER_TOO_LARGE; OUT_OF_RESOURCES;
+   OPENCL. */
 BVH_CL_API bvh_cl_result bvh_cl_intersect(bvh_cl_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count);
 BVH_CL_API bvh_cl_result bvh_cl_occluded(bvh_cl_tree *tree, const bvh_ray *rays, uint8_t *occluded,
                                          size_t count);
@@ -162,7 +176,8 @@ BVH_CL_API bvh_cl_result bvh_cl_occluded(bvh_cl_tree *tree, const bvh_ray *rays,
    hits     bvh_hit per pixel, equal to bvh_intersect of bvh_camera_ray(cam, x, y)
    visited  nodes visited per pixel, equal to bvh_intersect_counted (for heat maps)
    On a CPU device (desc.frame_rays), frames without visited counts trace packets of 4 x 4 pixels
-   per work-item, set up and box-tested as float16 (PoCL: 1.5-2.3x the one-ray kernel). */
+   per work-item, set up and box-tested as float16.
+   SUCCESS; ARGUMENT: cam NULL; BUFFER_TOO_LARGE; OUT_OF_RESOURCES; OPENCL. */
 BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera *cam, uint8_t *rgba,
                                              bvh_hit *hits, uint32_t *visited);
 
@@ -181,9 +196,12 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera
 #include <stdlib.h>
 #include <string.h>
 
+#if defined(BVH_CL_MALLOC) != defined(BVH_CL_FREE)
+#error "bvh_cl.h: define both BVH_CL_MALLOC and BVH_CL_FREE, or neither"
+#endif
 #ifndef BVH_CL_MALLOC
-#define BVH_CL_MALLOC(size) malloc(size)
-#define BVH_CL_FREE(ptr) free(ptr)
+#define BVH_CL_MALLOC(size, user) ((void)(user), malloc(size))
+#define BVH_CL_FREE(ptr, user) ((void)(user), free(ptr))
 #endif
 
 #ifdef __cplusplus
@@ -288,6 +306,7 @@ static const char *const bvh_cl__kernel_names[BVH_CL__K_COUNT] = {"bvh_intersect
                                                                    "bvh_frame_kernel", "bvh_frame_packet_kernel"};
 
 struct bvh_cl_context {
+    bvh_allocator al; /* desc.allocator: the context's own block, its log and its trees' */
     cl_platform_id platform;
     cl_device_id device;
     cl_context context;
@@ -306,10 +325,29 @@ struct bvh_cl_context {
 };
 
 struct bvh_cl_tree {
+    bvh_allocator al; /* the context's (the tree's block is freed after the context's trees) */
     bvh_cl_context *ctx;
     cl_mem nodes, tris, prims;
     cl_uint node_count, ref_count;
 };
+
+/* Host memory through the caller's pair (or the macros); a block aligned less than malloc's is
+   given back and counts as a failure, as in bvh.h. */
+static void *bvh_cl__alloc(const bvh_allocator *al, size_t size) {
+    void *p;
+    if (!al->alloc) return BVH_CL_MALLOC(size, al->user);
+    p = al->alloc(size, al->user);
+    if (p && (uintptr_t)p % (sizeof(void *) >= 8 ? 16u : 8u)) {
+        al->free(p, al->user);
+        return NULL;
+    }
+    return p;
+}
+static void bvh_cl__free(const bvh_allocator *al, void *p) {
+    if (!p) return;
+    if (al->free) al->free(p, al->user);
+    else BVH_CL_FREE(p, al->user);
+}
 
 static void bvh_cl__logf(const bvh_cl_desc *d, const char *fmt, ...) {
     va_list ap;
@@ -453,14 +491,14 @@ BVH_CL_API bvh_cl_result bvh_cl_enumerate(bvh_cl_device_info *out, uint32_t capa
 /* ============================================================================================ */
 /* == program build ================================================================================ */
 /* ============================================================================================ */
-static char *bvh_cl__read_file(const char *path) {
+static char *bvh_cl__read_file(const bvh_allocator *al, const char *path) {
     FILE *f = fopen(path, "rb");
     char *s = NULL;
     long n;
     if (!f) return NULL;
     if (fseek(f, 0, SEEK_END) == 0 && (n = ftell(f)) >= 0 && fseek(f, 0, SEEK_SET) == 0 &&
-        (s = BVH_CL__CAST(char *, BVH_CL_MALLOC((size_t)n + 1))) != NULL) {
-        if (fread(s, 1, (size_t)n, f) != (size_t)n) { BVH_CL_FREE(s); s = NULL; }
+        (s = BVH_CL__CAST(char *, bvh_cl__alloc(al, (size_t)n + 1))) != NULL) {
+        if (fread(s, 1, (size_t)n, f) != (size_t)n) { bvh_cl__free(al, s); s = NULL; }
         else s[n] = '\0';
     }
     fclose(f);
@@ -471,7 +509,7 @@ static char *bvh_cl__program_log(bvh_cl_context *c) {
     size_t n = 0;
     char *s;
     if (clGetProgramBuildInfo(c->program, c->device, CL_PROGRAM_BUILD_LOG, 0, NULL, &n) != CL_SUCCESS) n = 0;
-    s = BVH_CL__CAST(char *, BVH_CL_MALLOC(n + 1));
+    s = BVH_CL__CAST(char *, bvh_cl__alloc(&c->al, n + 1));
     if (!s) return NULL;
     if (n && clGetProgramBuildInfo(c->program, c->device, CL_PROGRAM_BUILD_LOG, n, s, NULL) != CL_SUCCESS) n = 0;
     s[n] = '\0';
@@ -490,7 +528,7 @@ static bvh_cl_result bvh_cl__build(bvh_cl_context *c, const bvh_cl_desc *desc) {
     cl_int err;
     int i;
     if (!src) {
-        src = file = bvh_cl__read_file(path);
+        src = file = bvh_cl__read_file(&c->al, path);
         if (!src) {
             bvh_cl__logf(desc, "cannot read the kernel source \"%s\"", path);
             return BVH_CL_ERROR_KERNEL_NOT_FOUND;
@@ -498,7 +536,7 @@ static bvh_cl_result bvh_cl__build(bvh_cl_context *c, const bvh_cl_desc *desc) {
     }
     len = strlen(src);
     c->program = clCreateProgramWithSource(c->context, 1, &src, &len, &err);
-    BVH_CL_FREE(file);
+    bvh_cl__free(&c->al, file);
     if (err != CL_SUCCESS) {
         bvh_cl__logf(desc, "clCreateProgramWithSource: %d", (int)err);
         return bvh_cl__fail(c, err, "clCreateProgramWithSource");
@@ -507,14 +545,14 @@ static bvh_cl_result bvh_cl__build(bvh_cl_context *c, const bvh_cl_desc *desc) {
        rounded division and sqrt when the device offers them, for hits identical to the CPU's */
     clGetDeviceInfo(c->device, CL_DEVICE_OPENCL_C_VERSION, sizeof cver - 1, cver, NULL);
     clGetDeviceInfo(c->device, CL_DEVICE_SINGLE_FP_CONFIG, sizeof sp, &sp, NULL);
-    opts = BVH_CL__CAST(char *, BVH_CL_MALLOC(strlen(extra) + 128));
+    opts = BVH_CL__CAST(char *, bvh_cl__alloc(&c->al, strlen(extra) + 128));
     if (!opts) return BVH_CL_ERROR_OUT_OF_RESOURCES;
     sprintf(opts, "%s%s-DBVH_MAX_DEPTH=%d -DBVH_CL_PACKET=%d %s",
             strncmp(cver, "OpenCL C 1.0", 12) && strncmp(cver, "OpenCL C 1.1", 12) ? "-cl-std=CL1.2 " : "",
             (sp & CL_FP_CORRECTLY_ROUNDED_DIVIDE_SQRT) ? "-cl-fp32-correctly-rounded-divide-sqrt " : "",
             (int)BVH_MAX_DEPTH, c->frame_rays > 1 ? c->frame_rays : 8, extra);
     err = clBuildProgram(c->program, 1, &c->device, opts, NULL, NULL);
-    BVH_CL_FREE(opts);
+    bvh_cl__free(&c->al, opts);
     c->build_log = bvh_cl__program_log(c);
     if (err != CL_SUCCESS) {
         bvh_cl__logf(desc, "%s", c->build_log && *c->build_log ? c->build_log : "clBuildProgram failed, no log");
@@ -535,8 +573,10 @@ static bvh_cl_result bvh_cl__build(bvh_cl_context *c, const bvh_cl_desc *desc) {
 /* == context ===================================================================================== */
 /* ============================================================================================ */
 BVH_CL_API void bvh_cl_destroy(bvh_cl_context *c) {
+    bvh_allocator al;
     int i;
     if (!c) return;
+    al = c->al;
     for (i = 0; i < BVH_CL__S_COUNT; i++)
         if (c->scratch[i]) clReleaseMemObject(c->scratch[i]);
     for (i = 0; i < BVH_CL__K_COUNT; i++)
@@ -544,8 +584,8 @@ BVH_CL_API void bvh_cl_destroy(bvh_cl_context *c) {
     if (c->program) clReleaseProgram(c->program);
     if (c->queue) clReleaseCommandQueue(c->queue);
     if (c->context) clReleaseContext(c->context);
-    BVH_CL_FREE(c->build_log);
-    BVH_CL_FREE(c);
+    bvh_cl__free(&al, c->build_log);
+    bvh_cl__free(&al, c);
 }
 
 /* the work-group size: desc.local_size (64), within what the device and every kernel allow */
@@ -578,9 +618,11 @@ BVH_CL_API bvh_cl_result bvh_cl_create(bvh_cl_context **out, const bvh_cl_desc *
     if (desc->log && desc->log_size) desc->log[0] = '\0';
     if (desc->frame_rays != 0 && desc->frame_rays != 1 && desc->frame_rays != 8 && desc->frame_rays != 16)
         return BVH_CL_ERROR_INVALID_ARGUMENT;
-    c = BVH_CL__CAST(bvh_cl_context *, BVH_CL_MALLOC(sizeof *c));
+    if (!desc->allocator.alloc != !desc->allocator.free) return BVH_CL_ERROR_INVALID_ARGUMENT; /* both or none */
+    c = BVH_CL__CAST(bvh_cl_context *, bvh_cl__alloc(&desc->allocator, sizeof *c));
     if (!c) return BVH_CL_ERROR_OUT_OF_RESOURCES;
     memset(c, 0, sizeof *c);
+    c->al = desc->allocator;
     r = bvh_cl__pick(desc, c);
     if (r == BVH_CL_SUCCESS) {
         props[0] = CL_CONTEXT_PLATFORM;
@@ -631,7 +673,7 @@ BVH_CL_API void bvh_cl_tree_free(bvh_cl_tree *t) {
     if (t->nodes) clReleaseMemObject(t->nodes);
     if (t->tris) clReleaseMemObject(t->tris);
     if (t->prims) clReleaseMemObject(t->prims);
-    BVH_CL_FREE(t);
+    bvh_cl__free(&t->al, t);
 }
 
 static cl_mem bvh_cl__buffer(bvh_cl_context *c, size_t size, const void *data, cl_int *err) {
@@ -654,9 +696,10 @@ BVH_CL_API bvh_cl_result bvh_cl_upload(bvh_cl_context *c, const bvh_tree *tree, 
     if (nb > c->max_alloc || tb > c->max_alloc || pb > c->max_alloc ||
         (c->info.global_mem && (uint64_t)nb + tb + pb > c->info.global_mem))
         return BVH_CL_ERROR_BUFFER_TOO_LARGE;
-    t = BVH_CL__CAST(bvh_cl_tree *, BVH_CL_MALLOC(sizeof *t));
+    t = BVH_CL__CAST(bvh_cl_tree *, bvh_cl__alloc(&c->al, sizeof *t));
     if (!t) return BVH_CL_ERROR_OUT_OF_RESOURCES;
     memset(t, 0, sizeof *t);
+    t->al = c->al;
     t->ctx = c;
     t->node_count = tree->node_count;
     t->ref_count = tree->node_count ? tree->ref_count : 0;

@@ -8,8 +8,8 @@
    `build/fuzz/fuzz_build build/fuzz/crash-...`, and once fixed add it to tests/fuzz/ so that every
    later run replays it first.
 
-   The input bytes become build options (two builders, max_leaf_size, ploc_radius, threads 1-3,
-   ploc_top, max_bytes_per_prim, skip_invalid, costs, split budget, trace_width 0 or 2, stride, an
+   The input bytes become build options (two builders, max_leaf_size, ploc.radius, threads 1-3,
+   ploc.top, ploc.max_bytes_per_prim, skip_invalid, costs, split budget, trace_width 0 or 2, stride, an
    allocation to fail) and a triangle list: vertex
    coordinates straight from the bytes (raw floats: NaN, Inf, huge, denormal values occur), or
    quantized to small multiples of 1/4 (exact coincidences, shared edges, axis-aligned and
@@ -137,26 +137,27 @@ static void fz_parse_options(fz_in *in, fz_case *c, uint8_t *flags, uint8_t *ext
     if (c->other == d->builder) c->other = d->builder == BVH_BUILDER_PLOC ? BVH_BUILDER_PLOC_PARALLEL : BVH_BUILDER_PLOC;
     d->skip_invalid = *flags & 1;
     d->max_leaf_size = (*extra & 4) ? fz_u16(in) : lf;
-    d->ploc_radius = rad >= 240 ? 256u + (rad - 240u) % 3u : rad % 20u;
+    d->ploc.radius = rad >= 240 ? 256u + (rad - 240u) % 3u : rad % 20u;
     d->threads = 1u + th % 3u;
     { /* PLOC's SAH top: default, every other cut, off (the byte's other bits) */
-        static const uint32_t tops[5] = {0, 2, 3, 1, BVH_PLOC_TOP_OFF};
-        d->ploc_top = tops[(th / 3u) % 5u];
+        static const uint32_t tops[5] = {0, 2, 3, 1, BVH_OFF};
+        d->ploc.top = tops[(th / 3u) % 5u];
     }
     { /* PLOC's memory budget: default (40), none, unreachable (1 byte), 60 */
-        static const uint32_t budgets[4] = {0, BVH_NO_MEMORY_LIMIT, 1, 60};
-        d->max_bytes_per_prim = budgets[(th / 15u) % 4u];
+        static const uint32_t budgets[4] = {0, BVH_OFF, 1, 60};
+        d->ploc.max_bytes_per_prim = budgets[(th / 15u) % 4u];
     }
     d->triangles.stride = strides[st % 8];
     c->fail_alloc = (*flags & 0x80) != 0;
     c->alloc.fail_at = c->fail_alloc ? (long)fail : -1;
     if (*extra & 1) { d->costs.interior = fz_raw(in); d->costs.leaf = fz_raw(in); d->costs.triangle = fz_raw(in); }
-    if (*extra & 2) d->split_budget = fz_raw(in);
+    if (*extra & 2) d->sah_midpoint.split_budget = fz_raw(in);
     c->batch = (*extra & 16) != 0;
     c->negative_tmin = (*extra & 64) != 0;
     if (*extra & 128) d->trace_width = 2; /* binary traversal; else the 8-wide copy */
-    c->arg_err = d->max_leaf_size > 255 || d->ploc_radius > 256 || !fz_costs_ok(&d->costs) ||
-                 d->split_budget != d->split_budget || d->split_budget > 1.0f;
+    c->arg_err = d->max_leaf_size > 255 || d->ploc.radius > 256 || !fz_costs_ok(&d->costs) ||
+                 (d->sah_midpoint.split_budget != (float)BVH_OFF &&
+                  !(d->sah_midpoint.split_budget >= 0.0f && d->sah_midpoint.split_budget <= 1.0f));
 }
 
 /* Vertices into an exact-size buffer (padding floats NaN), indices, and the expanded triangles. */

@@ -118,7 +118,7 @@ static void build_argument_errors(void **state) {
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
         d = ok; d.max_leaf_size = 255;
         build_expect(&d, BVH_SUCCESS);
-        d = ok; d.ploc_radius = 257;
+        d = ok; d.ploc.radius = 257;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
         d = ok; d.trace_width = 3;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
@@ -128,9 +128,9 @@ static void build_argument_errors(void **state) {
         build_expect(&d, BVH_SUCCESS);
         d = ok; d.trace_width = 2;
         build_expect(&d, BVH_SUCCESS);
-        d = ok; d.split_budget = 1.5f;
+        d = ok; d.sah_midpoint.split_budget = 1.5f;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.split_budget = NAN;
+        d = ok; d.sah_midpoint.split_budget = NAN;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
         for (k = 0; k < 5; k++) {
             d = ok; d.costs = bad_costs[k];
@@ -569,6 +569,17 @@ static void failing_allocator_after_build(void **state) {
         assert_int_equal(c.live, live);
     }
     c.fail_at = 0;
+    { /* a tree whose allocator is a half pair is refused, as bvh_build refuses such a desc */
+        bvh_allocator whole = t.allocator;
+        t.allocator.free = NULL;
+        assert_int_equal(bvh_validate(&t, NULL, &rep), BVH_ERROR_INVALID_ARGUMENT);
+        assert_int_equal(bvh_intersect_batch(&t, rays, hits, 1024, 2), BVH_ERROR_INVALID_ARGUMENT);
+        assert_int_equal(bvh_occluded_batch(&t, rays, occ, 1024, 2), BVH_ERROR_INVALID_ARGUMENT);
+        t.allocator = whole;
+        t.allocator.alloc = NULL;
+        assert_int_equal(bvh_validate(&t, NULL, &rep), BVH_ERROR_INVALID_ARGUMENT);
+        t.allocator = whole;
+    }
     bvh_free(&t);
     assert_int_equal(c.live, 0);
     free(tris);
@@ -760,6 +771,40 @@ static uint32_t inner_interior(const bvh_tree *t, uint32_t *pair) {
     fail_msg("no interior node below the root");
     return 0;
 }
+/* The node-order invariant (children stored after their parent, bvh_node): a hand-made box tree
+   that keeps every other rule is valid in order and refused with a child before its parent. */
+static void child_before_parent(void **state) {
+    static const bvh_aabb boxes[3] = {{{0, 0, 0}, {1, 1, 1}}, {{2, 0, 0}, {3, 1, 1}}, {{4, 0, 0}, {5, 1, 1}}};
+    /* in order: root -> (leaf prim 2, interior -> (leaf prim 0, leaf prim 1)) */
+    static const bvh_node in_order[5] = {
+        {{0, 0, 0}, 1, {5, 1, 1}, 0}, {{4, 0, 0}, 0, {5, 1, 1}, 1}, {{0, 0, 0}, 3, {3, 1, 1}, 0},
+        {{0, 0, 0}, 1, {1, 1, 1}, 1}, {{2, 0, 0}, 2, {3, 1, 1}, 1}};
+    /* the same tree with the interior pair's leaves stored before it: root -> (3, 4), 4 -> (1, 2) */
+    static const bvh_node reversed[5] = {
+        {{0, 0, 0}, 3, {5, 1, 1}, 0}, {{0, 0, 0}, 1, {1, 1, 1}, 1}, {{2, 0, 0}, 2, {3, 1, 1}, 1},
+        {{4, 0, 0}, 0, {5, 1, 1}, 1}, {{0, 0, 0}, 1, {3, 1, 1}, 0}};
+    uint32_t prims[3] = {2, 0, 1};
+    bvh_node nodes[5];
+    bvh_tree t;
+    bvh_validation rep;
+    double sah;
+    (void)state;
+    memset(&t, 0, sizeof t);
+    t.nodes = nodes;
+    t.node_count = 5;
+    t.prims = prims;
+    t.ref_count = 3;
+    t.prim_count = 3;
+    t.builder = BVH_BUILDER_TOP_DOWN;
+    memcpy(nodes, in_order, sizeof nodes);
+    assert_int_equal(bvh_validate(&t, boxes, &rep), BVH_SUCCESS);
+    memcpy(nodes, reversed, sizeof nodes);
+    assert_int_equal(bvh_sah(&t, NULL, &sah), BVH_SUCCESS); /* reachable once each: walkable */
+    assert_int_equal(bvh_validate(&t, boxes, &rep), BVH_ERROR_INVALID_TREE);
+    assert_int_equal(rep.node, 4);
+    assert_string_equal(rep.message, "child stored before its parent");
+}
+
 static void corrupted_trees(void **state) {
     tu_scene s;
     int b;
@@ -963,6 +1008,7 @@ int main(void) {
         cmocka_unit_test(aabb_helpers),
         cmocka_unit_test(triangle_and_camera),
         cmocka_unit_test(corrupted_trees),
+        cmocka_unit_test(child_before_parent),
         cmocka_unit_test(depth_limit),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

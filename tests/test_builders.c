@@ -181,7 +181,7 @@ static void ploc_parallel_equals_ploc_options(void **state) {
     tu_scene_random(&s, 6000, 0x4f5054ULL);
     for (k = 0; k < sizeof radius / sizeof radius[0]; k++) {
         d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
-        d.ploc_radius = radius[k];
+        d.ploc.radius = radius[k];
         ploc_parallel_same_tree(&s, &d);
     }
     for (k = 0; k < sizeof leaf / sizeof leaf[0]; k++) {
@@ -195,7 +195,7 @@ static void ploc_parallel_equals_ploc_options(void **state) {
     tu_scene_free(&s);
     tu_scene_grid(&s);
     d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
-    d.ploc_radius = 3;
+    d.ploc.radius = 3;
     ploc_parallel_same_tree(&s, &d);
     tu_scene_free(&s);
 }
@@ -212,13 +212,13 @@ static void hits_as_brute_force(const tu_scene *s, const bvh_tree *t, const bvh_
     }
 }
 
-/* PLOC's SAH top (desc.ploc_top): off, at every other cut (2, 3), the default (8) and a late one
+/* PLOC's SAH top (desc.ploc.top): off, at every other cut (2, 3), the default (8) and a late one
    (64) give valid trees with exactly the brute-force hits; ploc-parallel gives ploc's tree at
    every setting; the SAH top is used where it lowers the cost (random triangles) and never
    raises it above PLOC alone by more than rounding. */
 static void ploc_top_variants(void **state) {
     enum { RAYS = 3000 };
-    static const uint32_t tops[] = {BVH_PLOC_TOP_OFF, 1, 2, 3, 0, 64};
+    static const uint32_t tops[] = {BVH_OFF, 1, 2, 3, 0, 64};
     int scene;
     size_t k;
     (void)state;
@@ -239,7 +239,7 @@ static void ploc_top_variants(void **state) {
         for (k = 0; k < sizeof tops / sizeof tops[0]; k++) {
             bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
             bvh_tree t;
-            d.ploc_top = tops[k];
+            d.ploc.top = tops[k];
             tu_build_valid(&s, &d, &t);
             check_stats(&s, &t, 8);
             assert_int_equal(bvh_sah(&t, NULL, &sah[k]), BVH_SUCCESS);
@@ -255,7 +255,7 @@ static void ploc_top_variants(void **state) {
     }
 }
 
-/* PLOC's memory budget (desc.max_bytes_per_prim): random triangles, whose SAH-best leaves are
+/* PLOC's memory budget (desc.ploc.max_bytes_per_prim): random triangles, whose SAH-best leaves are
    one triangle each, give trees over 40 bytes per triangle without it; by default the tree fits
    in 40 and stays within 1% of it, at a higher but bounded SAH cost; a budget of 60 fits between
    the two; the smallest budget gives the smallest tree leaves of 8 allow; leaves of one triangle
@@ -270,7 +270,7 @@ static void memory_budget(void **state) {
     size_t z, i, k;
     (void)state;
     for (z = 0; z < sizeof sizes / sizeof sizes[0]; z++) {
-        static const uint32_t budgets[] = {BVH_NO_MEMORY_LIMIT, 0, 60, 1};
+        static const uint32_t budgets[] = {BVH_OFF, 0, 60, 1};
         tu_scene s;
         float *tris;
         bvh_ray *rays = (bvh_ray *)malloc(RAYS * sizeof *rays);
@@ -284,7 +284,7 @@ static void memory_budget(void **state) {
         for (k = 0; k < 4; k++) {
             bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
             bvh_tree t;
-            d.max_bytes_per_prim = budgets[k];
+            d.ploc.max_bytes_per_prim = budgets[k];
             tu_build_valid(&s, &d, &t);
             check_stats(&s, &t, 8);
             bytes[k] = tree_bytes_per_tri(&t);
@@ -318,7 +318,7 @@ static void memory_budget(void **state) {
         d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
         d.max_leaf_size = 1;
         tu_build_valid(&s, &d, &a);
-        d.max_bytes_per_prim = BVH_NO_MEMORY_LIMIT;
+        d.ploc.max_bytes_per_prim = BVH_OFF;
         tu_build_valid(&s, &d, &b);
         assert_int_equal(a.node_count, 2 * s.tri_count - 1);
         assert_int_equal(a.node_count, b.node_count);
@@ -355,7 +355,7 @@ static void leaf_sizes(void **state) {
 /* Build-time options: cost triples, ploc radius, split budget, thread counts - all valid. */
 static void options_build_valid(void **state) {
     static const bvh_costs costs[] = {{1, 0, 1}, {1, 1, 1}, {2, 0.5f, 3}, {0, 0, 1}, {1, 0, 0}, {0, 5, 0}};
-    static const float budgets[] = {-1.0f, 0.0f, 0.01f, 0.5f, 1.0f};
+    static const float budgets[] = {(float)BVH_OFF, 0.0f, 0.01f, 0.5f, 1.0f};
     tu_scene s;
     int b;
     size_t k;
@@ -372,18 +372,18 @@ static void options_build_valid(void **state) {
         }
         for (k = 0; k < sizeof budgets / sizeof budgets[0]; k++) {
             bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
-            d.split_budget = budgets[k];
+            d.sah_midpoint.split_budget = budgets[k];
             tu_build_valid(&s, &d, &t);
-            if (tu_builder(b) == BVH_BUILDER_SAH_MIDPOINT && budgets[k] > 0.0f)
+            if (tu_builder(b) == BVH_BUILDER_SAH_MIDPOINT && budgets[k] == (float)BVH_OFF)
+                assert_int_equal(t.ref_count, s.tri_count); /* off: no splits */
+            else if (tu_builder(b) == BVH_BUILDER_SAH_MIDPOINT && budgets[k] > 0.0f)
                 assert_true(t.ref_count <= s.tri_count + (uint32_t)(budgets[k] * (float)s.tri_count) + 1);
-            else if (tu_builder(b) == BVH_BUILDER_SAH_MIDPOINT && budgets[k] < 0.0f)
-                assert_int_equal(t.ref_count, s.tri_count); /* negative: no splits */
             bvh_free(&t);
         }
         {
             bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
             d.threads = 1000; /* clamped to 256 */
-            d.ploc_radius = 256;
+            d.ploc.radius = 256;
             tu_build_valid(&s, &d, &t);
             bvh_free(&t);
         }

@@ -587,6 +587,55 @@ static void invalid_arguments(void **state) {
     bvh_cl_destroy(NULL);
 }
 
+/* The host allocator of bvh_cl_desc (bvh.h's bvh_allocator): a half pair is refused, and a whole
+   one gets every block of the context and its trees back. */
+typedef struct oc_counting { long live, calls; } oc_counting;
+static void *oc_alloc(size_t size, void *user) {
+    oc_counting *c = (oc_counting *)user;
+    c->live++;
+    c->calls++;
+    return malloc(size);
+}
+static void oc_free(void *p, void *user) {
+    oc_counting *c = (oc_counting *)user;
+    if (p) c->live--;
+    free(p);
+}
+static void caller_allocator(void **state) {
+    static const float v[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    oc_counting count = {0, 0};
+    bvh_cl_context *c = (bvh_cl_context *)&c;
+    bvh_cl_tree *g = NULL;
+    bvh_cl_desc d;
+    bvh_build_desc bd;
+    bvh_tree t;
+    bvh_ray ray = {{0.2f, 0.2f, -1}, 0, {0, 0, 1}, BVH_INF};
+    bvh_hit hit;
+    (void)state;
+    NEED_DEVICE();
+    memset(&d, 0, sizeof d);
+    d.allocator.alloc = oc_alloc;
+    d.allocator.user = &count;
+    assert_int_equal(bvh_cl_create(&c, &d), BVH_CL_ERROR_INVALID_ARGUMENT); /* alloc without free */
+    assert_null(c);
+    assert_int_equal(count.calls, 0);
+    d.allocator.free = oc_free;
+    assert_int_equal(bvh_cl_create(&c, &d), BVH_CL_SUCCESS);
+    memset(&bd, 0, sizeof bd);
+    bd.triangles.positions = v;
+    bd.triangles.vertex_count = 3;
+    bd.triangles.triangle_count = 1;
+    assert_int_equal(bvh_build(&t, &bd), BVH_SUCCESS);
+    assert_int_equal(bvh_cl_upload(c, &t, &g), BVH_CL_SUCCESS);
+    assert_int_equal(bvh_cl_intersect(g, &ray, &hit, 1), BVH_CL_SUCCESS);
+    assert_int_equal(hit.prim, 0);
+    bvh_cl_tree_free(g);
+    bvh_cl_destroy(c);
+    bvh_free(&t);
+    assert_true(count.calls >= 2); /* the context and the tree at least */
+    assert_int_equal(count.live, 0);
+}
+
 static int group_setup(void **state) {
     bvh_cl_desc d;
     (void)state;
@@ -625,6 +674,7 @@ int main(void) {
         cmocka_unit_test(bad_kernel_source),
         cmocka_unit_test(no_platform_or_device),
         cmocka_unit_test(invalid_arguments),
+        cmocka_unit_test(caller_allocator),
     };
     return cmocka_run_group_tests(tests, group_setup, group_teardown);
 }

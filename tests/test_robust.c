@@ -1058,10 +1058,10 @@ static void test_options(void **state) {
         bvh_free(&t);
         d = base; d.max_leaf_size = 256; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "max_leaf_size 256");
         d = base; d.max_leaf_size = UINT32_MAX; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "max_leaf_size 2^32-1");
-        d = base; d.ploc_radius = 0; rb_expect(d, BVH_SUCCESS, "ploc_radius 0 (default)");
-        d = base; d.ploc_radius = 1; rb_expect(d, BVH_SUCCESS, "ploc_radius 1");
-        d = base; d.ploc_radius = 256; rb_expect(d, BVH_SUCCESS, "ploc_radius 256");
-        d = base; d.ploc_radius = 257; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "ploc_radius 257");
+        d = base; d.ploc.radius = 0; rb_expect(d, BVH_SUCCESS, "ploc_radius 0 (default)");
+        d = base; d.ploc.radius = 1; rb_expect(d, BVH_SUCCESS, "ploc_radius 1");
+        d = base; d.ploc.radius = 256; rb_expect(d, BVH_SUCCESS, "ploc_radius 256");
+        d = base; d.ploc.radius = 257; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "ploc_radius 257");
         d = base; d.threads = 0; rb_expect(d, BVH_SUCCESS, "threads 0 (all CPUs)");
         d = base; d.threads = 10000; rb_expect(d, BVH_SUCCESS, "threads 10000 (clamped to 256)");
         d = base; d.costs.interior = -1; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "negative interior cost");
@@ -1073,12 +1073,17 @@ static void test_options(void **state) {
         d = base; d.costs.interior = 2; d.costs.leaf = 1; d.costs.triangle = 0.25f;
         rb_expect(d, BVH_SUCCESS, "positive costs");
         d = base; d.costs.interior = 0; d.costs.leaf = 0; d.costs.triangle = 1e-3f; rb_expect(d, BVH_SUCCESS, "zero interior cost");
-        d = base; d.split_budget = NAN; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget NaN");
-        d = base; d.split_budget = 1.0001f; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget > 1");
-        d = base; d.split_budget = INFINITY; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget Inf");
-        d = base; d.split_budget = 1.0f; rb_expect(d, BVH_SUCCESS, "split_budget 1");
-        d = base; d.split_budget = -1.0f; rb_expect(d, BVH_SUCCESS, "split_budget -1 (no splits)");
-        d = base; d.split_budget = 1e-7f; rb_expect(d, BVH_SUCCESS, "split_budget tiny");
+        d = base; d.sah_midpoint.split_budget = NAN; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget NaN");
+        d = base; d.sah_midpoint.split_budget = 1.0001f; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget > 1");
+        d = base; d.sah_midpoint.split_budget = INFINITY; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget Inf");
+        d = base; d.sah_midpoint.split_budget = 1.0f; rb_expect(d, BVH_SUCCESS, "split_budget 1");
+        d = base; d.sah_midpoint.split_budget = -1.0f; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget -1");
+        d = base; d.sah_midpoint.split_budget = -0.0f; rb_expect(d, BVH_SUCCESS, "split_budget -0 (default)");
+        d = base; d.sah_midpoint.split_budget = BVH_OFF; rb_expect(d, BVH_SUCCESS, "split_budget BVH_OFF (no splits)");
+        d = base; d.sah_midpoint.split_budget = 2147483520.0f; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget below BVH_OFF");
+        d = base; d.sah_midpoint.bins = BVH_OFF; rb_expect(d, BVH_SUCCESS, "sah bins BVH_OFF (mid-point only)");
+        d = base; d.sah_midpoint.bins = 65; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "sah bins 65");
+        d = base; d.sah_midpoint.split_budget = 1e-7f; rb_expect(d, BVH_SUCCESS, "split_budget tiny");
     }
     {
         bvh_build_desc d = rb_desc(&s, BVH_BUILDER_PLOC);
@@ -1400,7 +1405,7 @@ static void test_threads_ploc_parallel(void **state) {
         rb_threads_scene(&s, which);
         d = rb_desc(&s, BVH_BUILDER_PLOC);
         d.skip_invalid = 1;
-        d.ploc_radius = which == 3 ? 3 : 0;
+        d.ploc.radius = which == 3 ? 3 : 0;
         assert_int_equal(bvh_build(&ref, &d), BVH_SUCCESS);
         d.builder = BVH_BUILDER_PLOC_PARALLEL;
         for (th = 2; th <= 8; th++) {

@@ -199,7 +199,7 @@ static void built_trees_agree_with_reference(void **state) {
 /* PLOC collapses subtrees into leaves where the SAH says a leaf is cheaper (bottom-up, so the
    choice is optimal for the clustering): with the costs it was built for, the collapsed tree's SAH
    is never above the one of the same clustering without collapse (max_leaf_size 1). Without the
-   memory budget (desc.max_bytes_per_prim), which trades SAH for bytes on random triangles. */
+   memory budget (desc.ploc.max_bytes_per_prim), which trades SAH for bytes on random triangles. */
 static void ploc_collapse_never_worse(void **state) {
     static const float costs[4][3] = {{1, 0, 1}, {1, 1, 1}, {2, 0.5f, 3}, {1, 0, 4}};
     tu_scene s;
@@ -213,7 +213,7 @@ static void ploc_collapse_never_worse(void **state) {
             bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
             double a, b;
             d.costs.interior = costs[k][0]; d.costs.leaf = costs[k][1]; d.costs.triangle = costs[k][2];
-            d.max_bytes_per_prim = BVH_NO_MEMORY_LIMIT;
+            d.ploc.max_bytes_per_prim = BVH_OFF;
             d.max_leaf_size = 1;
             tu_build_valid(&s, &d, &flat);
             d.max_leaf_size = 0;

@@ -49,7 +49,10 @@
      BVH_NO_AVX2           PLOC's neighbour search takes 8 pairs at a time, and traversal tests
                            8 boxes at a time, with AVX2 when the CPU has it (gcc/clang on x86;
                            compiled with a target attribute, no flag needed, the same tree and
-                           hits); this keeps both to SSE
+                           hits); this keeps both to SSE (and leaves out AVX-512)
+     BVH_NO_AVX512         traversal tests a leaf of up to 16 triangles in one pass with
+                           AVX-512F when the CPU has it (target attribute, the same hits); this
+                           keeps the leaf test to AVX2
 
    ERRORS
      Every call that can fail returns a bvh_result; bvh_result_string() names it; the codes each

@@ -3760,7 +3760,7 @@ BVH__INLINE void bvh__ray_shear(bvh__rayx *rx) {
     if (d[rx->kz] < 0.0f) { int t = rx->kx; rx->kx = rx->ky; rx->ky = t; }
     rx->sx = d[rx->kx] / d[rx->kz];
     rx->sy = d[rx->ky] / d[rx->kz];
-    rx->sz = 1.0f / d[rx->kz];
+    rx->sz = rx->inv[rx->kz]; /* 1 / d[kz], made by the set-up */
 }
 
 /* Returns 1 and sets *t, *u, *v if the triangle is hit with tmin <= t <= tmax, t finite.
@@ -4573,11 +4573,9 @@ typedef struct bvh__ray8 {
 /* kz (the dominant axis, first of equals in the order z, y, x as bvh__ray_setup picks it) from
    the three comparisons |dx| > |dy|, |dx| > |dz|, |dy| > |dz| as bits 0-2, looked up rather than
    branched on: a diffuse ray's direction is random, and so would the branches be. bvh__axes: the
-   axes in the slab test's order, kz last (its distances give the slack); bvh__near8: the offset in
-   a bvh_node8 of an axis' min (0) and max (1) planes. */
+   axes in the slab test's order, kz last (its distances give the slack). */
 static const unsigned char bvh__kz[8] = {2, 2, 2, 0, 1, 2, 1, 0};
 static const unsigned char bvh__axes[3][3] = {{1, 2, 0}, {0, 2, 1}, {0, 1, 2}};
-static const unsigned char bvh__near8[3][2] = {{0, 24}, {8, 32}, {16, 40}};
 BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int sse) {
     const __m128 o = _mm_loadu_ps(&ray->origin.x), d0 = _mm_loadu_ps(&ray->dir.x); /* xyz, tmin / tmax */
     const __m128 absm = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)), inf = _mm_set1_ps(BVH_INF);
@@ -4610,8 +4608,8 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
         const int k = order[a], n = (int)(neg >> k & 1u);
         q->so[a] = fo[k];
         q->sinv[a] = fi[k];
-        q->near8[a] = bvh__near8[k][n];
-        q->far8[a] = bvh__near8[k][n ^ 1];
+        q->near8[a] = 8 * k + 24 * n;
+        q->far8[a] = 8 * k + 24 - 24 * n;
     }
     q->stmin = rx->tmin;
     if (sse) {

@@ -49,7 +49,10 @@
      BVH_NO_AVX2           PLOC's neighbour search takes 8 pairs at a time, and traversal tests
                            8 boxes at a time, with AVX2 when the CPU has it (gcc/clang on x86;
                            compiled with a target attribute, no flag needed, the same tree and
-                           hits); this keeps both to SSE
+                           hits); this keeps both to SSE (and leaves out AVX-512)
+     BVH_NO_AVX512         traversal tests a leaf of up to 16 triangles in one pass with
+                           AVX-512F when the CPU has it (target attribute, the same hits); this
+                           keeps the leaf test to AVX2
 
    ERRORS
      Every call that can fail returns a bvh_result; bvh_result_string() names it; the codes each
@@ -492,6 +495,9 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
     (defined(__GNUC__) || defined(__clang__))
 #include <immintrin.h>
 #define BVH__AVX2 1 /* compiled for AVX2 on its own (target attribute), used when the CPU has it */
+#endif
+#if defined(BVH__AVX2) && !defined(BVH_NO_AVX512) && (defined(__clang__) || __GNUC__ >= 7)
+#define BVH__AVX512 1 /* the leaf test on 16 lanes (AVX-512F, target attribute), when the CPU has it */
 #endif
 #if defined(__GNUC__) || defined(__clang__)
 #define BVH__PREFETCH(p) __builtin_prefetch(p)
@@ -1846,6 +1852,9 @@ __attribute__((target("avx2"))) static void bvh__ploc_pairs8(bvh__nn *w, size_t 
 }
 /* 1 when the CPU runs AVX2 (the compiler's runtime check; the block search then takes 8 pairs). */
 static int bvh__have_avx2(void) { return __builtin_cpu_supports("avx2") ? 1 : 0; }
+#ifdef BVH__AVX512
+static int bvh__have_avx512(void) { return __builtin_cpu_supports("avx512f") ? 1 : 0; }
+#endif
 #else
 static int bvh__have_avx2(void) { return 0; }
 #endif
@@ -3751,7 +3760,7 @@ BVH__INLINE void bvh__ray_shear(bvh__rayx *rx) {
     if (d[rx->kz] < 0.0f) { int t = rx->kx; rx->kx = rx->ky; rx->ky = t; }
     rx->sx = d[rx->kx] / d[rx->kz];
     rx->sy = d[rx->ky] / d[rx->kz];
-    rx->sz = 1.0f / d[rx->kz];
+    rx->sz = rx->inv[rx->kz]; /* 1 / d[kz], made by the set-up */
 }
 
 /* Returns 1 and sets *t, *u, *v if the triangle is hit with tmin <= t <= tmax, t finite.
@@ -4295,38 +4304,48 @@ __attribute__((target("avx2"))) static inline float bvh__lane8(__m256 x, unsigne
     _mm256_storeu_ps(f, x);
     return f[i];
 }
+/* Vertex k of the lanes of packets p (lanes 0-3) and p1 (4-7), translated and sheared. */
+__attribute__((target("avx2"))) BVH__INLINE void bvh__shear8(const bvh__rayx *r, const bvh_tri4 *p, const bvh_tri4 *p1, int k,
+                                                            __m256 *x, __m256 *y, __m256 *z) {
+    const __m256 zk = _mm256_sub_ps(bvh__load8(p->v[k][r->kz], p1->v[k][r->kz]), _mm256_set1_ps(r->o[r->kz]));
+    *z = zk;
+    *x = _mm256_sub_ps(_mm256_sub_ps(bvh__load8(p->v[k][r->kx], p1->v[k][r->kx]), _mm256_set1_ps(r->o[r->kx])),
+                       _mm256_mul_ps(_mm256_set1_ps(r->sx), zk));
+    *y = _mm256_sub_ps(_mm256_sub_ps(bvh__load8(p->v[k][r->ky], p1->v[k][r->ky]), _mm256_set1_ps(r->o[r->ky])),
+                       _mm256_mul_ps(_mm256_set1_ps(r->sy), zk));
+}
 __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np,
                                                                      bvh__best *b, int any) {
-    const int kx = r->kx, ky = r->ky, kz = r->kz;
-    const __m256 ox = _mm256_set1_ps(r->o[kx]), oy = _mm256_set1_ps(r->o[ky]), oz = _mm256_set1_ps(r->o[kz]);
-    const __m256 sx = _mm256_set1_ps(r->sx), sy = _mm256_set1_ps(r->sy), zero = _mm256_setzero_ps();
-    const __m256 inf = _mm256_set1_ps(BVH_INF);
+    const int kz = r->kz;
+    const __m256 zero = _mm256_setzero_ps(), inf = _mm256_set1_ps(BVH_INF);
     uint32_t q;
     int found = 0;
     for (q = 0; q < np; q += 2, p += 2) {
         const bvh_tri4 *p1 = q + 1 < np ? p + 1 : p;
         const unsigned lanes = q + 1 < np ? 0xffu : 0x0fu;
-        __m256 x[3], y[3], z[3], U, V, W, ft, det, neg, pos, T, ok, tn, tf, t0[3], t1[3], slack;
+        /* named registers, not arrays: an array indexed in a loop the compiler does not unroll
+           lives in memory */
+        __m256 x0, y0, z0, x1, y1, z1, x2, y2, z2, U, V, W, ft, det, neg, pos, T, ok, tn, tf, slack;
         const __m256 sz = _mm256_set1_ps(r->sz);
         unsigned m, zm;
         int k;
-        for (k = 0; k < 3; k++) {
-            z[k] = _mm256_sub_ps(bvh__load8(p->v[k][kz], p1->v[k][kz]), oz);
-            x[k] = _mm256_sub_ps(_mm256_sub_ps(bvh__load8(p->v[k][kx], p1->v[k][kx]), ox), _mm256_mul_ps(sx, z[k]));
-            y[k] = _mm256_sub_ps(_mm256_sub_ps(bvh__load8(p->v[k][ky], p1->v[k][ky]), oy), _mm256_mul_ps(sy, z[k]));
-        }
-        U = _mm256_sub_ps(_mm256_mul_ps(x[2], y[1]), _mm256_mul_ps(y[2], x[1]));
-        V = _mm256_sub_ps(_mm256_mul_ps(x[0], y[2]), _mm256_mul_ps(y[0], x[2]));
-        W = _mm256_sub_ps(_mm256_mul_ps(x[1], y[0]), _mm256_mul_ps(y[1], x[0]));
+        bvh__shear8(r, p, p1, 0, &x0, &y0, &z0);
+        bvh__shear8(r, p, p1, 1, &x1, &y1, &z1);
+        bvh__shear8(r, p, p1, 2, &x2, &y2, &z2);
+        U = _mm256_sub_ps(_mm256_mul_ps(x2, y1), _mm256_mul_ps(y2, x1));
+        V = _mm256_sub_ps(_mm256_mul_ps(x0, y2), _mm256_mul_ps(y0, x2));
+        W = _mm256_sub_ps(_mm256_mul_ps(x1, y0), _mm256_mul_ps(y1, x0));
         zm = lanes & (unsigned)_mm256_movemask_ps(_mm256_or_ps(
                          _mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_EQ_OQ), _mm256_cmp_ps(V, zero, _CMP_EQ_OQ)),
                          _mm256_cmp_ps(W, zero, _CMP_EQ_OQ)));
         if (zm) { /* the lanes with a zero edge function, redone in double */
             float fx[3][8], fy[3][8], fu[8], fv[8], fw[8];
-            for (k = 0; k < 3; k++) {
-                _mm256_storeu_ps(fx[k], x[k]);
-                _mm256_storeu_ps(fy[k], y[k]);
-            }
+            _mm256_storeu_ps(fx[0], x0);
+            _mm256_storeu_ps(fx[1], x1);
+            _mm256_storeu_ps(fx[2], x2);
+            _mm256_storeu_ps(fy[0], y0);
+            _mm256_storeu_ps(fy[1], y1);
+            _mm256_storeu_ps(fy[2], y2);
             _mm256_storeu_ps(fu, U);
             _mm256_storeu_ps(fv, V);
             _mm256_storeu_ps(fw, W);
@@ -4343,8 +4362,8 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
         if (!m) continue;
         /* bvh__packet_hits on eight lanes */
         det = _mm256_add_ps(_mm256_add_ps(U, V), W);
-        T = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(U, _mm256_mul_ps(sz, z[0])), _mm256_mul_ps(V, _mm256_mul_ps(sz, z[1]))),
-                          _mm256_mul_ps(W, _mm256_mul_ps(sz, z[2])));
+        T = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(U, _mm256_mul_ps(sz, z0)), _mm256_mul_ps(V, _mm256_mul_ps(sz, z1))),
+                          _mm256_mul_ps(W, _mm256_mul_ps(sz, z2)));
         ft = _mm256_div_ps(T, det);
         ok = _mm256_and_ps(_mm256_cmp_ps(ft, _mm256_set1_ps(r->tmin), _CMP_GE_OQ),
                            _mm256_cmp_ps(ft, _mm256_set1_ps(b->t), _CMP_LE_OQ));
@@ -4355,19 +4374,20 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
         /* bvh__reach4 on eight lanes: the triangles' boxes (bvh__tri_box) reached by ft */
         tn = _mm256_set1_ps(r->tmin);
         tf = inf;
+        slack = zero;
         for (k = 0; k < 3; k++) {
             const __m256 v0 = bvh__load8(p->v[0][k], p1->v[0][k]), v1 = bvh__load8(p->v[1][k], p1->v[1][k]);
             const __m256 v2 = bvh__load8(p->v[2][k], p1->v[2][k]);
             const __m256 lo = _mm256_min_ps(_mm256_min_ps(v0, v1), v2), hi = _mm256_max_ps(_mm256_max_ps(v0, v1), v2);
             const __m256 o = _mm256_set1_ps(r->o[k]), inv = _mm256_set1_ps(r->inv[k]);
             const int ng = r->inv[k] < 0.0f;
-            t0[k] = _mm256_mul_ps(_mm256_sub_ps(ng ? hi : lo, o), inv);
-            t1[k] = _mm256_mul_ps(_mm256_sub_ps(ng ? lo : hi, o), inv);
-            tn = _mm256_max_ps(t0[k], tn);
-            tf = _mm256_min_ps(t1[k], tf);
+            const __m256 t0 = _mm256_mul_ps(_mm256_sub_ps(ng ? hi : lo, o), inv);
+            const __m256 t1 = _mm256_mul_ps(_mm256_sub_ps(ng ? lo : hi, o), inv);
+            tn = _mm256_max_ps(t0, tn);
+            tf = _mm256_min_ps(t1, tf);
+            if (k == kz) slack = _mm256_max_ps(t1, _mm256_sub_ps(zero, t0));
         }
         tf = _mm256_mul_ps(tf, _mm256_set1_ps(1.0000004f));
-        slack = _mm256_max_ps(t1[kz], _mm256_sub_ps(zero, t0[kz]));
         tn = _mm256_sub_ps(tn, _mm256_mul_ps(slack, _mm256_set1_ps(3.814697265625e-6f)));
         tf = _mm256_min_ps(tf, ft);
         m &= (unsigned)_mm256_movemask_ps(_mm256_cmp_ps(tn, tf, _CMP_LE_OQ));
@@ -4393,7 +4413,128 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
     }
     return found;
 }
-#define BVH__PACKETS(r, p, np, b, any) (avx2 ? bvh__packets_avx2(r, p, np, b, any) : bvh__packets(r, p, np, b, any))
+#ifdef BVH__AVX512
+/* bvh__packets on up to four packets per pass of sixteen lanes: a leaf slot of up to
+   BVH__SLOT_REFS references in one pass. The same operations in the same order on each lane, so
+   the same bits; lanes past the leaf's packets load packet 0 again and are masked off. */
+#define BVH__T512 __attribute__((target("avx2,avx512f")))
+BVH__T512 static inline __m512 bvh__load16(const bvh_tri4 *const g[4], int k, int a) {
+    __m512 x = _mm512_castps128_ps512(_mm_loadu_ps(g[0]->v[k][a]));
+    x = _mm512_insertf32x4(x, _mm_loadu_ps(g[1]->v[k][a]), 1);
+    x = _mm512_insertf32x4(x, _mm_loadu_ps(g[2]->v[k][a]), 2);
+    return _mm512_insertf32x4(x, _mm_loadu_ps(g[3]->v[k][a]), 3);
+}
+BVH__T512 static inline void bvh__shear16(const bvh__rayx *r, const bvh_tri4 *const g[4], int k, __m512 *x, __m512 *y,
+                                          __m512 *z) {
+    const __m512 zk = _mm512_sub_ps(bvh__load16(g, k, r->kz), _mm512_set1_ps(r->o[r->kz]));
+    *z = zk;
+    *x = _mm512_sub_ps(_mm512_sub_ps(bvh__load16(g, k, r->kx), _mm512_set1_ps(r->o[r->kx])),
+                       _mm512_mul_ps(_mm512_set1_ps(r->sx), zk));
+    *y = _mm512_sub_ps(_mm512_sub_ps(bvh__load16(g, k, r->ky), _mm512_set1_ps(r->o[r->ky])),
+                       _mm512_mul_ps(_mm512_set1_ps(r->sy), zk));
+}
+BVH__T512 static inline int bvh__packets_avx512(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b,
+                                                int any) {
+    const int kz = r->kz;
+    const __m512 zero = _mm512_setzero_ps(), inf = _mm512_set1_ps(BVH_INF), sz = _mm512_set1_ps(r->sz);
+    uint32_t q;
+    int found = 0;
+    for (q = 0; q < np; q += 4, p += 4) {
+        const uint32_t n = np - q < 4 ? np - q : 4;
+        const bvh_tri4 *const g[4] = {p, p + (n > 1 ? 1 : 0), p + (n > 2 ? 2 : 0), p + (n > 3 ? 3 : 0)};
+        const unsigned lanes = 0xffffu >> (16 - 4 * n);
+        __m512 x0, y0, z0, x1, y1, z1, x2, y2, z2, U, V, W, ft, det, T, tn, tf, slack;
+        float fl[4][16];
+        unsigned m, zm, k;
+        bvh__shear16(r, g, 0, &x0, &y0, &z0);
+        bvh__shear16(r, g, 1, &x1, &y1, &z1);
+        bvh__shear16(r, g, 2, &x2, &y2, &z2);
+        U = _mm512_sub_ps(_mm512_mul_ps(x2, y1), _mm512_mul_ps(y2, x1));
+        V = _mm512_sub_ps(_mm512_mul_ps(x0, y2), _mm512_mul_ps(y0, x2));
+        W = _mm512_sub_ps(_mm512_mul_ps(x1, y0), _mm512_mul_ps(y1, x0));
+        zm = lanes & (unsigned)(_mm512_cmp_ps_mask(U, zero, _CMP_EQ_OQ) | _mm512_cmp_ps_mask(V, zero, _CMP_EQ_OQ) |
+                                _mm512_cmp_ps_mask(W, zero, _CMP_EQ_OQ));
+        if (zm) { /* the lanes with a zero edge function, redone in double */
+            float fx[3][16], fy[3][16], fu[16], fv[16], fw[16];
+            _mm512_storeu_ps(fx[0], x0);
+            _mm512_storeu_ps(fx[1], x1);
+            _mm512_storeu_ps(fx[2], x2);
+            _mm512_storeu_ps(fy[0], y0);
+            _mm512_storeu_ps(fy[1], y1);
+            _mm512_storeu_ps(fy[2], y2);
+            _mm512_storeu_ps(fu, U);
+            _mm512_storeu_ps(fv, V);
+            _mm512_storeu_ps(fw, W);
+            bvh__edges_exact_lanes(&fx[0][0], &fy[0][0], fu, fv, fw, zm, 16);
+            U = _mm512_loadu_ps(fu);
+            V = _mm512_loadu_ps(fv);
+            W = _mm512_loadu_ps(fw);
+        }
+        m = lanes & ~(unsigned)((_mm512_cmp_ps_mask(U, zero, _CMP_LT_OQ) | _mm512_cmp_ps_mask(V, zero, _CMP_LT_OQ) |
+                                 _mm512_cmp_ps_mask(W, zero, _CMP_LT_OQ)) &
+                                (_mm512_cmp_ps_mask(U, zero, _CMP_GT_OQ) | _mm512_cmp_ps_mask(V, zero, _CMP_GT_OQ) |
+                                 _mm512_cmp_ps_mask(W, zero, _CMP_GT_OQ)));
+        if (!m) continue;
+        /* bvh__packet_hits on sixteen lanes */
+        det = _mm512_add_ps(_mm512_add_ps(U, V), W);
+        T = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(U, _mm512_mul_ps(sz, z0)), _mm512_mul_ps(V, _mm512_mul_ps(sz, z1))),
+                          _mm512_mul_ps(W, _mm512_mul_ps(sz, z2)));
+        ft = _mm512_div_ps(T, det);
+        m &= (unsigned)(_mm512_cmp_ps_mask(ft, _mm512_set1_ps(r->tmin), _CMP_GE_OQ) &
+                        _mm512_cmp_ps_mask(ft, _mm512_set1_ps(b->t), _CMP_LE_OQ) & _mm512_cmp_ps_mask(ft, inf, _CMP_LT_OQ) &
+                        _mm512_cmp_ps_mask(det, zero, _CMP_NEQ_UQ));
+        if (!m) continue;
+        /* bvh__reach4 on sixteen lanes: the triangles' boxes (bvh__tri_box) reached by ft */
+        tn = _mm512_set1_ps(r->tmin);
+        tf = inf;
+        slack = zero;
+        for (k = 0; k < 3; k++) {
+            const __m512 v0 = bvh__load16(g, 0, (int)k), v1 = bvh__load16(g, 1, (int)k), v2 = bvh__load16(g, 2, (int)k);
+            const __m512 lo = _mm512_min_ps(_mm512_min_ps(v0, v1), v2), hi = _mm512_max_ps(_mm512_max_ps(v0, v1), v2);
+            const __m512 o = _mm512_set1_ps(r->o[k]), inv = _mm512_set1_ps(r->inv[k]);
+            const int ng = r->inv[k] < 0.0f;
+            const __m512 t0 = _mm512_mul_ps(_mm512_sub_ps(ng ? hi : lo, o), inv);
+            const __m512 t1 = _mm512_mul_ps(_mm512_sub_ps(ng ? lo : hi, o), inv);
+            tn = _mm512_max_ps(t0, tn);
+            tf = _mm512_min_ps(t1, tf);
+            if ((int)k == kz) slack = _mm512_max_ps(t1, _mm512_sub_ps(zero, t0));
+        }
+        tf = _mm512_mul_ps(tf, _mm512_set1_ps(1.0000004f));
+        tn = _mm512_sub_ps(tn, _mm512_mul_ps(slack, _mm512_set1_ps(3.814697265625e-6f)));
+        tf = _mm512_min_ps(tf, ft);
+        m &= (unsigned)_mm512_cmp_ps_mask(tn, tf, _CMP_LE_OQ);
+        if (!m) continue;
+        _mm512_storeu_ps(fl[0], ft);
+        if (any) {
+            const unsigned i = BVH__CTZ(m);
+            b->t = fl[0][i];
+            b->prim = g[i >> 2]->prim[i & 3u];
+            return 1;
+        }
+        _mm512_storeu_ps(fl[1], det);
+        _mm512_storeu_ps(fl[2], V);
+        _mm512_storeu_ps(fl[3], W);
+        while (m) { /* the nearest lane; ties in t: the lowest primitive index */
+            const unsigned i = BVH__CTZ(m);
+            const float t = fl[0][i], d = fl[1][i];
+            const uint32_t prim = g[i >> 2]->prim[i & 3u];
+            m &= m - 1;
+            if (t > b->t || (t == b->t && prim > b->prim)) continue;
+            b->t = t;
+            b->u = fl[2][i] / d;
+            b->v = fl[3][i] / d;
+            b->prim = prim;
+            found = 1;
+        }
+    }
+    return found;
+}
+#define BVH__PACKETS(r, p, np, b, any)                                                                              \
+    (isa == 2 ? bvh__packets_avx512(r, p, np, b, any) : isa ? bvh__packets_avx2(r, p, np, b, any)                  \
+              : bvh__packets(r, p, np, b, any))
+#else
+#define BVH__PACKETS(r, p, np, b, any) (isa ? bvh__packets_avx2(r, p, np, b, any) : bvh__packets(r, p, np, b, any))
+#endif
 #endif
 #else
 static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
@@ -4429,6 +4570,12 @@ typedef struct bvh__ray8 {
    rounds 1 / d as scalar code does), the three axes at once. Only what the SIMD wide traversal
    reads: not the plain-C slab test's plane offsets (near, near8, far8), and the SSE registers
    only when the slab test is the SSE one (sse). */
+/* kz (the dominant axis, first of equals in the order z, y, x as bvh__ray_setup picks it) from
+   the three comparisons |dx| > |dy|, |dx| > |dz|, |dy| > |dz| as bits 0-2, looked up rather than
+   branched on: a diffuse ray's direction is random, and so would the branches be. bvh__axes: the
+   axes in the slab test's order, kz last (its distances give the slack). */
+static const unsigned char bvh__kz[8] = {2, 2, 2, 0, 1, 2, 1, 0};
+static const unsigned char bvh__axes[3][3] = {{1, 2, 0}, {0, 2, 1}, {0, 1, 2}};
 BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int sse) {
     const __m128 o = _mm_loadu_ps(&ray->origin.x), d0 = _mm_loadu_ps(&ray->dir.x); /* xyz, tmin / tmax */
     const __m128 absm = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)), inf = _mm_set1_ps(BVH_INF);
@@ -4439,7 +4586,8 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     const unsigned finite = (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmplt_ps(_mm_and_ps(o, absm), inf), _mm_cmplt_ps(ad, inf)));
     const unsigned neg = (unsigned)_mm_movemask_ps(_mm_cmplt_ps(inv, _mm_setzero_ps()));
     float fo[4], fd[4], fi[4], ax, ay, az;
-    int a, gxy, gxz, gyz, order[3];
+    const unsigned char *order;
+    int a;
     if ((finite & 7u) != 7u || ray->tmin != ray->tmin || ray->tmax != ray->tmax || ray->tmin > ray->tmax) return 0;
     if ((_mm_movemask_ps(_mm_cmpeq_ps(d, _mm_setzero_ps())) & 7) == 7) return 0;
     _mm_storeu_ps(fo, o);
@@ -4451,18 +4599,11 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
         rx->inv[a] = fi[a];
     }
     rx->tmin = ray->tmin;
-    /* kz as bvh__ray_setup picks it, and the axes in the registers' order (kz last), computed
-       without branches: a diffuse ray's direction is random, and so would their outcome be */
     ax = fabsf(fd[0]);
     ay = fabsf(fd[1]);
     az = fabsf(fd[2]);
-    gxy = ax > ay;
-    gxz = ax > az;
-    gyz = ay > az;
-    rx->kz = gxy * (2 - 2 * gxz) + (1 - gxy) * (2 - gyz);
-    order[0] = rx->kz == 0;
-    order[1] = 2 - (rx->kz == 2);
-    order[2] = rx->kz;
+    rx->kz = bvh__kz[(ax > ay) | (ax > az) << 1 | (ay > az) << 2];
+    order = bvh__axes[rx->kz];
     for (a = 0; a < 3; a++) {
         const int k = order[a], n = (int)(neg >> k & 1u);
         q->so[a] = fo[k];
@@ -4543,7 +4684,7 @@ __attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh
     return (unsigned)_mm256_movemask_ps(
         _mm256_and_ps(_mm256_cmp_ps(tn, tf, _CMP_LE_OQ), _mm256_cmp_ps(tn, inf, _CMP_LT_OQ)));
 }
-#define BVH__SLAB8(n, tfar, tn) (avx2 ? bvh__slab8_avx2(q, n, tfar, tn) : bvh__slab8q(q, n, tfar, tn))
+#define BVH__SLAB8(n, tfar, tn) (isa ? bvh__slab8_avx2(q, n, tfar, tn) : bvh__slab8q(q, n, tfar, tn))
 #else
 #define BVH__SLAB8(n, tfar, tn) bvh__slab8q(q, n, tfar, tn)
 #endif
@@ -4554,11 +4695,27 @@ typedef struct bvh__ray8 { int unused; } bvh__ray8; /* plain C: the slab test re
 #ifndef BVH__PACKETS
 #define BVH__PACKETS(r, p, np, b, any) bvh__packets(r, p, np, b, any)
 #endif
+/* Slot i of node n onto the stack. Its lines are asked for now, so that they arrive while the
+   nearer children are being tested (the nearest child is read at once: asking for it gains
+   nothing). */
+BVH__INLINE void bvh__push8(const bvh_tree *tree, const bvh_node8 *n, unsigned i, const float *tn, bvh__entry8 *stack,
+                            uint32_t *sp) {
+    const uint32_t c = n->child[i], k = n->count[i];
+    const char *a = k ? (const char *)(tree->tri4 + c) : (const char *)(tree->nodes8 + c);
+    BVH__PREFETCH(a);
+    BVH__PREFETCH(a + 64);
+    BVH__PREFETCH(a + 128);
+    stack[*sp].child = c;
+    stack[*sp].count = k;
+    stack[*sp].t = tn[i];
+    ++*sp;
+}
 /* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
-   order, unsorted), the farther ones on the stack; a leaf's packets tested at once. avx2: the
-   slab test in one AVX2 pass (a constant: the loop is compiled once for each). */
+   order, unsorted), the farther ones on the stack; a leaf's packets tested at once. isa (a
+   constant: the loop is compiled once for each): 0 SSE or plain C, 1 AVX2 (the slab test in one
+   pass, the leaf test on eight lanes), 2 AVX2 and AVX-512F (the leaf test on sixteen lanes). */
 BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
-                                    int any, int avx2) {
+                                    int any, int isa) {
     bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
     uint32_t sp = 0, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first packet */
     int sheared = 0;
@@ -4585,19 +4742,6 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                     continue;
                 }
                 if (sp + BVH__W > sizeof stack / sizeof stack[0]) goto out; /* deeper than builders make */
-                { /* two or more children entered: all are asked for now, so that their lines
-                     arrive while the nearest is being tested, or before they are popped */
-                    unsigned pm = m | 1u << i0;
-                    while (pm) {
-                        unsigned i = BVH__CTZ(pm);
-                        const char *a = n->count[i] ? (const char *)(tree->tri4 + n->child[i])
-                                                    : (const char *)(nodes + n->child[i]);
-                        pm &= pm - 1;
-                        BVH__PREFETCH(a);
-                        BVH__PREFETCH(a + 64);
-                        BVH__PREFETCH(a + 128);
-                    }
-                }
                 i1 = BVH__CTZ(m);
                 m &= m - 1;
                 if (!any && !m) { /* two: the farther one waits */
@@ -4606,19 +4750,13 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                         i0 = i1;
                         i1 = x;
                     }
-                    stack[sp].child = n->child[i1];
-                    stack[sp].count = n->count[i1];
-                    stack[sp].t = tn[i1];
-                    sp++;
+                    bvh__push8(tree, n, i1, tn, stack, &sp);
                 } else if (any) { /* any hit: in slot order */
                     m |= 1u << i1;
                     while (m) {
                         i1 = BVH__CTZ(m);
                         m &= m - 1;
-                        stack[sp].child = n->child[i1];
-                        stack[sp].count = n->count[i1];
-                        stack[sp].t = tn[i1];
-                        sp++;
+                        bvh__push8(tree, n, i1, tn, stack, &sp);
                     }
                 } else { /* three or more: insertion by entry distance, nearest first */
                     uint32_t idx[BVH__W], k = 2, j;
@@ -4631,12 +4769,8 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                         idx[j] = i;
                         k++;
                     }
-                    for (j = k - 1; j > 0; j--) { /* farthest at the bottom */
-                        stack[sp].child = n->child[idx[j]];
-                        stack[sp].count = n->count[idx[j]];
-                        stack[sp].t = tn[idx[j]];
-                        sp++;
-                    }
+                    for (j = k - 1; j > 0; j--) /* farthest at the bottom */
+                        bvh__push8(tree, n, idx[j], tn, stack, &sp);
                     i0 = idx[0];
                 }
                 cur = n->child[i0];
@@ -4661,7 +4795,7 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
         }
     }
 out:
-    (void)avx2;
+    (void)isa;
     if (best.prim == BVH_INVALID) return 0;
     if (hit) {
         hit->t = best.t;
@@ -4674,13 +4808,13 @@ out:
 /* The ray's set-up and the loop in one function for each slab test, so that a ray that misses
    after a node or two pays one call, and its set-up is not passed on through memory. hit, when given,
    gets the miss record (t = tmax, prim BVH_INVALID) where no triangle is hit, as bvh__traverse. */
-BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, int avx2) {
+BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, int isa) {
     bvh__rayx rx;
     bvh__ray8 q;
 #ifdef BVH__SSE
-    if (bvh__ray8_start(ray, &rx, &q, !avx2) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, avx2)) return 1;
+    if (bvh__ray8_start(ray, &rx, &q, !isa) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, isa)) return 1;
 #else
-    if (bvh__ray_setup(ray, &rx) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, avx2)) return 1;
+    if (bvh__ray_setup(ray, &rx) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, isa)) return 1;
 #endif
     if (hit) {
         hit->t = ray->tmax;
@@ -4695,12 +4829,20 @@ __attribute__((target("avx2"))) static int bvh__trace8_avx2(const bvh_tree *tree
     return bvh__trace8(tree, ray, hit, any, 1);
 }
 #endif
+#ifdef BVH__AVX512
+BVH__T512 static int bvh__trace8_avx512(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+    return bvh__trace8(tree, ray, hit, any, 2);
+}
+#endif
 static int bvh__trace8_base(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
     return bvh__trace8(tree, ray, hit, any, 0);
 }
 /* The wide traversal for the single-ray calls and the batches: tree->nodes8 is set only on a
    tree with triangles and nodes (bvh__make_wide), which is all bvh__traverse checks first. */
 BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+#ifdef BVH__AVX512
+    if (bvh__have_avx512()) return bvh__trace8_avx512(tree, ray, hit, any);
+#endif
 #ifdef BVH__AVX2
     if (bvh__have_avx2()) return bvh__trace8_avx2(tree, ray, hit, any);
 #endif

@@ -275,6 +275,16 @@ BVH_CL_FN void bvh_cl_trace(const bvh_cl_scene *s, float3 o, float tmin, float3 
     if (res->prim == BVH_CL_INVALID) { res->t = tmax; res->u = res->v = 0.0f; }
 }
 
+/* Ray i of a batch (origin, tmin, direction, tmax: 8 floats) traced into *res. */
+void bvh_cl_trace_batch_ray(__global const uint4 *nodes, uint node_count, __global const float *tris,
+                            __global const uint *prims, uint ref_count, __global const float *rays, uint i, int any,
+                            bvh_cl_hitrec *res) {
+    bvh_cl_scene s;
+    const float4 r0 = vload4(2 * (size_t)i, rays), r1 = vload4(2 * (size_t)i + 1, rays);
+    s.nodes = nodes; s.tris = tris; s.prims = prims; s.node_count = node_count; s.ref_count = ref_count;
+    bvh_cl_trace(&s, r0.xyz, r0.w, r1.xyz, r1.w, any, res);
+}
+
 /* ============================================================================================ */
 /* == kernels =================================================================================== */
 /* ============================================================================================ */
@@ -283,14 +293,9 @@ __kernel void bvh_intersect_kernel(__global const uint4 *nodes, uint node_count,
                                __global const uint *prims, uint ref_count, __global const float *rays,
                                __global uint4 *hits, uint count) {
     uint i = (uint)get_global_id(0);
-    bvh_cl_scene s;
     bvh_cl_hitrec res;
-    float4 r0, r1;
     if (i >= count) return;
-    s.nodes = nodes; s.tris = tris; s.prims = prims; s.node_count = node_count; s.ref_count = ref_count;
-    r0 = vload4(2 * (size_t)i, rays);
-    r1 = vload4(2 * (size_t)i + 1, rays);
-    bvh_cl_trace(&s, r0.xyz, r0.w, r1.xyz, r1.w, 0, &res);
+    bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, i, 0, &res);
     hits[i] = (uint4)(as_uint(res.t), as_uint(res.u), as_uint(res.v), res.prim);
 }
 
@@ -299,14 +304,9 @@ __kernel void bvh_occluded_kernel(__global const uint4 *nodes, uint node_count, 
                               __global const uint *prims, uint ref_count, __global const float *rays,
                               __global uchar *occluded, uint count) {
     uint i = (uint)get_global_id(0);
-    bvh_cl_scene s;
     bvh_cl_hitrec res;
-    float4 r0, r1;
     if (i >= count) return;
-    s.nodes = nodes; s.tris = tris; s.prims = prims; s.node_count = node_count; s.ref_count = ref_count;
-    r0 = vload4(2 * (size_t)i, rays);
-    r1 = vload4(2 * (size_t)i + 1, rays);
-    bvh_cl_trace(&s, r0.xyz, r0.w, r1.xyz, r1.w, 1, &res);
+    bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, i, 1, &res);
     occluded[i] = res.prim != BVH_CL_INVALID ? (uchar)1 : (uchar)0;
 }
 

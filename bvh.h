@@ -4418,6 +4418,10 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
    BVH__SLOT_REFS references in one pass. The same operations in the same order on each lane, so
    the same bits; lanes past the leaf's packets load packet 0 again and are masked off. */
 #define BVH__T512 __attribute__((target("avx2,avx512f")))
+/* _mm512_min_ps / _mm512_max_ps with every lane written: g++ 12 takes the undefined source
+   operand of the plain forms for an uninitialised value (-Wmaybe-uninitialized). */
+BVH__T512 static inline __m512 bvh__min16(__m512 a, __m512 b) { return _mm512_mask_min_ps(b, (__mmask16)0xffff, a, b); }
+BVH__T512 static inline __m512 bvh__max16(__m512 a, __m512 b) { return _mm512_mask_max_ps(b, (__mmask16)0xffff, a, b); }
 BVH__T512 static inline __m512 bvh__load16(const bvh_tri4 *const g[4], int k, int a) {
     __m512 x = _mm512_castps128_ps512(_mm_loadu_ps(g[0]->v[k][a]));
     x = _mm512_insertf32x4(x, _mm_loadu_ps(g[1]->v[k][a]), 1);
@@ -4490,18 +4494,18 @@ BVH__T512 static inline int bvh__packets_avx512(const bvh__rayx *r, const bvh_tr
         slack = zero;
         for (k = 0; k < 3; k++) {
             const __m512 v0 = bvh__load16(g, 0, (int)k), v1 = bvh__load16(g, 1, (int)k), v2 = bvh__load16(g, 2, (int)k);
-            const __m512 lo = _mm512_min_ps(_mm512_min_ps(v0, v1), v2), hi = _mm512_max_ps(_mm512_max_ps(v0, v1), v2);
+            const __m512 lo = bvh__min16(bvh__min16(v0, v1), v2), hi = bvh__max16(bvh__max16(v0, v1), v2);
             const __m512 o = _mm512_set1_ps(r->o[k]), inv = _mm512_set1_ps(r->inv[k]);
             const int ng = r->inv[k] < 0.0f;
             const __m512 t0 = _mm512_mul_ps(_mm512_sub_ps(ng ? hi : lo, o), inv);
             const __m512 t1 = _mm512_mul_ps(_mm512_sub_ps(ng ? lo : hi, o), inv);
-            tn = _mm512_max_ps(t0, tn);
-            tf = _mm512_min_ps(t1, tf);
-            if ((int)k == kz) slack = _mm512_max_ps(t1, _mm512_sub_ps(zero, t0));
+            tn = bvh__max16(t0, tn);
+            tf = bvh__min16(t1, tf);
+            if ((int)k == kz) slack = bvh__max16(t1, _mm512_sub_ps(zero, t0));
         }
         tf = _mm512_mul_ps(tf, _mm512_set1_ps(1.0000004f));
         tn = _mm512_sub_ps(tn, _mm512_mul_ps(slack, _mm512_set1_ps(3.814697265625e-6f)));
-        tf = _mm512_min_ps(tf, ft);
+        tf = bvh__min16(tf, ft);
         m &= (unsigned)_mm512_cmp_ps_mask(tn, tf, _CMP_LE_OQ);
         if (!m) continue;
         _mm512_storeu_ps(fl[0], ft);

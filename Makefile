@@ -55,8 +55,7 @@ $(BUILD)/tests/%: tests/%.c $(HEADERS)
 # fails it): C11 with BVH_STATIC, with and without threads (tests/compile_static.c); two C
 # translation units (tests/two_tu_*.c); C++11 (tests/compile_cpp.cpp); a C++ program linked with
 # the implementation compiled as C; BVH_MALLOC without BVH_FREE refused; the traversal test
-# without SSE (BVH_NO_SIMD), without AVX2 and without AVX-512, the builder tests without AVX2
-# (BVH_NO_AVX2). With $(CC)/$(CXX) in
+# without SSE (BVH_NO_SIMD), the builder tests without AVX2 (BVH_NO_AVX2). With $(CC)/$(CXX) in
 # build/check/cc/, and with clang/clang++ in build/check/clang/ when present. No -D_GNU_SOURCE:
 # the header must build in strict ISO mode.
 CXXSTD      = -std=c++11
@@ -69,7 +68,7 @@ CHECK_CXX_clang = clang++
 CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
            $(addprefix $(BUILD)/check/$(c)/,static static-no-threads two-tu cxx11 cxx11-links-c)) \
          $(if $(HAVE_CLANG),$(BUILD)/check/clang/fast-math-refused) \
-         $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 $(BUILD)/check/traversal-no-avx512 \
+         $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 \
          $(BUILD)/check/builders-no-avx2 \
          $(BUILD)/check/traversal-fast-math $(BUILD)/check/robust-fast-math \
          $(BUILD)/check/half-allocator-refused
@@ -89,11 +88,6 @@ $(BUILD)/check/traversal-no-simd: tests/test_traversal.c $(HEADERS)
 $(BUILD)/check/traversal-no-avx2: tests/test_traversal.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX2 -I. $< -o $@ -lcmocka $(LDLIBS)
-# The exact-hits traversal test again with the AVX2 leaf test (BVH_NO_AVX512), where the CPU
-# would take the AVX-512 one.
-$(BUILD)/check/traversal-no-avx512: tests/test_traversal.c $(HEADERS)
-	@mkdir -p $(dir $@)
-	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX512 -I. $< -o $@ -lcmocka $(LDLIBS)
 # The traversal and robust suites again as many renderers compile: -O3 -march=native -ffast-math
 # (the implementation keeps IEEE semantics under any flags; see its first lines).
 FAST_MATH = -O3 -march=native -ffast-math

@@ -49,10 +49,7 @@
      BVH_NO_AVX2           PLOC's neighbour search takes 8 pairs at a time, and traversal tests
                            8 boxes at a time, with AVX2 when the CPU has it (gcc/clang on x86;
                            compiled with a target attribute, no flag needed, the same tree and
-                           hits); this keeps both to SSE (and leaves out AVX-512)
-     BVH_NO_AVX512         traversal tests a leaf of up to 16 triangles in one pass with
-                           AVX-512F when the CPU has it (target attribute, the same hits); this
-                           keeps the leaf test to AVX2
+                           hits); this keeps both to SSE
 
    ERRORS
      Every call that can fail returns a bvh_result; bvh_result_string() names it; the codes each
@@ -495,9 +492,6 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
     (defined(__GNUC__) || defined(__clang__))
 #include <immintrin.h>
 #define BVH__AVX2 1 /* compiled for AVX2 on its own (target attribute), used when the CPU has it */
-#endif
-#if defined(BVH__AVX2) && !defined(BVH_NO_AVX512) && (defined(__clang__) || __GNUC__ >= 7)
-#define BVH__AVX512 1 /* the leaf test on 16 lanes (AVX-512F, target attribute), when the CPU has it */
 #endif
 #if defined(__GNUC__) || defined(__clang__)
 #define BVH__PREFETCH(p) __builtin_prefetch(p)
@@ -1852,9 +1846,6 @@ __attribute__((target("avx2"))) static void bvh__ploc_pairs8(bvh__nn *w, size_t 
 }
 /* 1 when the CPU runs AVX2 (the compiler's runtime check; the block search then takes 8 pairs). */
 static int bvh__have_avx2(void) { return __builtin_cpu_supports("avx2") ? 1 : 0; }
-#ifdef BVH__AVX512
-static int bvh__have_avx512(void) { return __builtin_cpu_supports("avx512f") ? 1 : 0; }
-#endif
 #else
 static int bvh__have_avx2(void) { return 0; }
 #endif
@@ -4413,132 +4404,7 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
     }
     return found;
 }
-#ifdef BVH__AVX512
-/* bvh__packets on up to four packets per pass of sixteen lanes: a leaf slot of up to
-   BVH__SLOT_REFS references in one pass. The same operations in the same order on each lane, so
-   the same bits; lanes past the leaf's packets load packet 0 again and are masked off. */
-#define BVH__T512 __attribute__((target("avx2,avx512f")))
-/* _mm512_min_ps / _mm512_max_ps with every lane written: g++ 12 takes the undefined source
-   operand of the plain forms for an uninitialised value (-Wmaybe-uninitialized). */
-BVH__T512 static inline __m512 bvh__min16(__m512 a, __m512 b) { return _mm512_mask_min_ps(b, (__mmask16)0xffff, a, b); }
-BVH__T512 static inline __m512 bvh__max16(__m512 a, __m512 b) { return _mm512_mask_max_ps(b, (__mmask16)0xffff, a, b); }
-BVH__T512 static inline __m512 bvh__load16(const bvh_tri4 *const g[4], int k, int a) {
-    __m512 x = _mm512_castps128_ps512(_mm_loadu_ps(g[0]->v[k][a]));
-    x = _mm512_insertf32x4(x, _mm_loadu_ps(g[1]->v[k][a]), 1);
-    x = _mm512_insertf32x4(x, _mm_loadu_ps(g[2]->v[k][a]), 2);
-    return _mm512_insertf32x4(x, _mm_loadu_ps(g[3]->v[k][a]), 3);
-}
-BVH__T512 static inline void bvh__shear16(const bvh__rayx *r, const bvh_tri4 *const g[4], int k, __m512 *x, __m512 *y,
-                                          __m512 *z) {
-    const __m512 zk = _mm512_sub_ps(bvh__load16(g, k, r->kz), _mm512_set1_ps(r->o[r->kz]));
-    *z = zk;
-    *x = _mm512_sub_ps(_mm512_sub_ps(bvh__load16(g, k, r->kx), _mm512_set1_ps(r->o[r->kx])),
-                       _mm512_mul_ps(_mm512_set1_ps(r->sx), zk));
-    *y = _mm512_sub_ps(_mm512_sub_ps(bvh__load16(g, k, r->ky), _mm512_set1_ps(r->o[r->ky])),
-                       _mm512_mul_ps(_mm512_set1_ps(r->sy), zk));
-}
-BVH__T512 static inline int bvh__packets_avx512(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b,
-                                                int any) {
-    const int kz = r->kz;
-    const __m512 zero = _mm512_setzero_ps(), inf = _mm512_set1_ps(BVH_INF), sz = _mm512_set1_ps(r->sz);
-    uint32_t q;
-    int found = 0;
-    for (q = 0; q < np; q += 4, p += 4) {
-        const uint32_t n = np - q < 4 ? np - q : 4;
-        const bvh_tri4 *const g[4] = {p, p + (n > 1 ? 1 : 0), p + (n > 2 ? 2 : 0), p + (n > 3 ? 3 : 0)};
-        const unsigned lanes = 0xffffu >> (16 - 4 * n);
-        __m512 x0, y0, z0, x1, y1, z1, x2, y2, z2, U, V, W, ft, det, T, tn, tf, slack;
-        float fl[4][16];
-        unsigned m, zm, k;
-        bvh__shear16(r, g, 0, &x0, &y0, &z0);
-        bvh__shear16(r, g, 1, &x1, &y1, &z1);
-        bvh__shear16(r, g, 2, &x2, &y2, &z2);
-        U = _mm512_sub_ps(_mm512_mul_ps(x2, y1), _mm512_mul_ps(y2, x1));
-        V = _mm512_sub_ps(_mm512_mul_ps(x0, y2), _mm512_mul_ps(y0, x2));
-        W = _mm512_sub_ps(_mm512_mul_ps(x1, y0), _mm512_mul_ps(y1, x0));
-        zm = lanes & (unsigned)(_mm512_cmp_ps_mask(U, zero, _CMP_EQ_OQ) | _mm512_cmp_ps_mask(V, zero, _CMP_EQ_OQ) |
-                                _mm512_cmp_ps_mask(W, zero, _CMP_EQ_OQ));
-        if (zm) { /* the lanes with a zero edge function, redone in double */
-            float fx[3][16], fy[3][16], fu[16], fv[16], fw[16];
-            _mm512_storeu_ps(fx[0], x0);
-            _mm512_storeu_ps(fx[1], x1);
-            _mm512_storeu_ps(fx[2], x2);
-            _mm512_storeu_ps(fy[0], y0);
-            _mm512_storeu_ps(fy[1], y1);
-            _mm512_storeu_ps(fy[2], y2);
-            _mm512_storeu_ps(fu, U);
-            _mm512_storeu_ps(fv, V);
-            _mm512_storeu_ps(fw, W);
-            bvh__edges_exact_lanes(&fx[0][0], &fy[0][0], fu, fv, fw, zm, 16);
-            U = _mm512_loadu_ps(fu);
-            V = _mm512_loadu_ps(fv);
-            W = _mm512_loadu_ps(fw);
-        }
-        m = lanes & ~(unsigned)((_mm512_cmp_ps_mask(U, zero, _CMP_LT_OQ) | _mm512_cmp_ps_mask(V, zero, _CMP_LT_OQ) |
-                                 _mm512_cmp_ps_mask(W, zero, _CMP_LT_OQ)) &
-                                (_mm512_cmp_ps_mask(U, zero, _CMP_GT_OQ) | _mm512_cmp_ps_mask(V, zero, _CMP_GT_OQ) |
-                                 _mm512_cmp_ps_mask(W, zero, _CMP_GT_OQ)));
-        if (!m) continue;
-        /* bvh__packet_hits on sixteen lanes */
-        det = _mm512_add_ps(_mm512_add_ps(U, V), W);
-        T = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(U, _mm512_mul_ps(sz, z0)), _mm512_mul_ps(V, _mm512_mul_ps(sz, z1))),
-                          _mm512_mul_ps(W, _mm512_mul_ps(sz, z2)));
-        ft = _mm512_div_ps(T, det);
-        m &= (unsigned)(_mm512_cmp_ps_mask(ft, _mm512_set1_ps(r->tmin), _CMP_GE_OQ) &
-                        _mm512_cmp_ps_mask(ft, _mm512_set1_ps(b->t), _CMP_LE_OQ) & _mm512_cmp_ps_mask(ft, inf, _CMP_LT_OQ) &
-                        _mm512_cmp_ps_mask(det, zero, _CMP_NEQ_UQ));
-        if (!m) continue;
-        /* bvh__reach4 on sixteen lanes: the triangles' boxes (bvh__tri_box) reached by ft */
-        tn = _mm512_set1_ps(r->tmin);
-        tf = inf;
-        slack = zero;
-        for (k = 0; k < 3; k++) {
-            const __m512 v0 = bvh__load16(g, 0, (int)k), v1 = bvh__load16(g, 1, (int)k), v2 = bvh__load16(g, 2, (int)k);
-            const __m512 lo = bvh__min16(bvh__min16(v0, v1), v2), hi = bvh__max16(bvh__max16(v0, v1), v2);
-            const __m512 o = _mm512_set1_ps(r->o[k]), inv = _mm512_set1_ps(r->inv[k]);
-            const int ng = r->inv[k] < 0.0f;
-            const __m512 t0 = _mm512_mul_ps(_mm512_sub_ps(ng ? hi : lo, o), inv);
-            const __m512 t1 = _mm512_mul_ps(_mm512_sub_ps(ng ? lo : hi, o), inv);
-            tn = bvh__max16(t0, tn);
-            tf = bvh__min16(t1, tf);
-            if ((int)k == kz) slack = bvh__max16(t1, _mm512_sub_ps(zero, t0));
-        }
-        tf = _mm512_mul_ps(tf, _mm512_set1_ps(1.0000004f));
-        tn = _mm512_sub_ps(tn, _mm512_mul_ps(slack, _mm512_set1_ps(3.814697265625e-6f)));
-        tf = bvh__min16(tf, ft);
-        m &= (unsigned)_mm512_cmp_ps_mask(tn, tf, _CMP_LE_OQ);
-        if (!m) continue;
-        _mm512_storeu_ps(fl[0], ft);
-        if (any) {
-            const unsigned i = BVH__CTZ(m);
-            b->t = fl[0][i];
-            b->prim = g[i >> 2]->prim[i & 3u];
-            return 1;
-        }
-        _mm512_storeu_ps(fl[1], det);
-        _mm512_storeu_ps(fl[2], V);
-        _mm512_storeu_ps(fl[3], W);
-        while (m) { /* the nearest lane; ties in t: the lowest primitive index */
-            const unsigned i = BVH__CTZ(m);
-            const float t = fl[0][i], d = fl[1][i];
-            const uint32_t prim = g[i >> 2]->prim[i & 3u];
-            m &= m - 1;
-            if (t > b->t || (t == b->t && prim > b->prim)) continue;
-            b->t = t;
-            b->u = fl[2][i] / d;
-            b->v = fl[3][i] / d;
-            b->prim = prim;
-            found = 1;
-        }
-    }
-    return found;
-}
-#define BVH__PACKETS(r, p, np, b, any)                                                                              \
-    (isa == 2 ? bvh__packets_avx512(r, p, np, b, any) : isa ? bvh__packets_avx2(r, p, np, b, any)                  \
-              : bvh__packets(r, p, np, b, any))
-#else
 #define BVH__PACKETS(r, p, np, b, any) (isa ? bvh__packets_avx2(r, p, np, b, any) : bvh__packets(r, p, np, b, any))
-#endif
 #endif
 #else
 static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
@@ -4717,7 +4583,7 @@ BVH__INLINE void bvh__push8(const bvh_tree *tree, const bvh_node8 *n, unsigned i
 /* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
    order, unsorted), the farther ones on the stack; a leaf's packets tested at once. isa (a
    constant: the loop is compiled once for each): 0 SSE or plain C, 1 AVX2 (the slab test in one
-   pass, the leaf test on eight lanes), 2 AVX2 and AVX-512F (the leaf test on sixteen lanes). */
+   pass, the leaf test on eight lanes). */
 BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
                                     int any, int isa) {
     bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
@@ -4833,20 +4699,12 @@ __attribute__((target("avx2"))) static int bvh__trace8_avx2(const bvh_tree *tree
     return bvh__trace8(tree, ray, hit, any, 1);
 }
 #endif
-#ifdef BVH__AVX512
-BVH__T512 static int bvh__trace8_avx512(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
-    return bvh__trace8(tree, ray, hit, any, 2);
-}
-#endif
 static int bvh__trace8_base(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
     return bvh__trace8(tree, ray, hit, any, 0);
 }
 /* The wide traversal for the single-ray calls and the batches: tree->nodes8 is set only on a
    tree with triangles and nodes (bvh__make_wide), which is all bvh__traverse checks first. */
 BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
-#ifdef BVH__AVX512
-    if (bvh__have_avx512()) return bvh__trace8_avx512(tree, ray, hit, any);
-#endif
 #ifdef BVH__AVX2
     if (bvh__have_avx2()) return bvh__trace8_avx2(tree, ray, hit, any);
 #endif

@@ -4,6 +4,7 @@
 #   make test       every test (installs missing Debian packages first when run as root)
 #   make bench      the study's Table I, side by side with Embree
 #   make install    bvh.h, cl/bvh_cl.h, cl/trace.cl, pkg-config and CMake files (PREFIX, DESTDIR)
+#   make kernel     copies cl/trace.cl into cl/bvh_cl.h (after an edit of the kernel)
 # CFLAGS, CC, CXX may be overridden.
 CC      ?= cc
 CXX     ?= c++
@@ -19,7 +20,7 @@ HAVE_EMBREE := $(shell [ -f /usr/include/embree3/rtcore.h ] && echo 1)
 HAVE_ASSIMP := $(shell [ -f /usr/include/assimp/cimport.h ] && echo 1)
 HAVE_STB    := $(shell [ -f /usr/include/stb/stb_image_write.h ] && echo 1)
 
-EX_DEFS = $(if $(HAVE_OPENCL),-DBVH_HAVE_OPENCL -DCL_TARGET_OPENCL_VERSION=120 -DBVH_CL_KERNEL_PATH=\"$(CURDIR)/cl/trace.cl\") \
+EX_DEFS = $(if $(HAVE_OPENCL),-DBVH_HAVE_OPENCL -DCL_TARGET_OPENCL_VERSION=120) \
           $(if $(HAVE_EMBREE),-DBVH_HAVE_EMBREE) $(if $(HAVE_ASSIMP),-DBVH_HAVE_ASSIMP) \
           $(if $(HAVE_STB),-DBVH_HAVE_STB)
 EX_LIBS = $(if $(HAVE_OPENCL),-lOpenCL) $(if $(HAVE_EMBREE),-lembree3) $(if $(HAVE_ASSIMP),-lassimp)
@@ -31,7 +32,7 @@ BENCH    = $(patsubst bench/%.c,$(BUILD)/%,$(wildcard bench/*.c))
 TESTS    = $(patsubst tests/%.c,$(BUILD)/tests/%,$(wildcard tests/test_*.c))
 HEADERS  = bvh.h $(wildcard examples/*.h) $(wildcard bench/*.h) $(wildcard cl/*.h) $(wildcard cl/*.cl) $(wildcard tests/*.h)
 
-.PHONY: all demo test bench clean deps-test deps-demo deps-bench install uninstall
+.PHONY: all demo test bench clean deps-test deps-demo deps-bench kernel install uninstall
 all: $(EXAMPLES) $(BENCH)
 
 $(BUILD)/%: examples/%.c $(HEADERS)
@@ -71,7 +72,7 @@ CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
          $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 \
          $(BUILD)/check/builders-no-avx2 \
          $(BUILD)/check/traversal-fast-math $(BUILD)/check/robust-fast-math \
-         $(BUILD)/check/half-allocator-refused
+         $(BUILD)/check/half-allocator-refused $(BUILD)/check/kernel-embedded
 
 $(BUILD)/check/%/static: tests/compile_static.c bvh.h
 	@mkdir -p $(dir $@)
@@ -88,6 +89,15 @@ $(BUILD)/check/traversal-no-simd: tests/test_traversal.c $(HEADERS)
 $(BUILD)/check/traversal-no-avx2: tests/test_traversal.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX2 -I. $< -o $@ -lcmocka $(LDLIBS)
+# cl/bvh_cl.h holds the current cl/trace.cl (`make kernel` copies it in after an edit).
+$(BUILD)/check/kernel-embedded: cl/trace.cl cl/bvh_cl.h scripts/embed-kernel.sh
+	@mkdir -p $(dir $@)
+	@scripts/embed-kernel.sh $@.h
+	@cmp -s $@.h cl/bvh_cl.h || { echo "cl/bvh_cl.h does not hold the current cl/trace.cl: run make kernel"; exit 1; }
+	@printf '#!/bin/sh\necho "cl/bvh_cl.h holds the current cl/trace.cl"\n' >$@
+	@chmod +x $@
+kernel:
+	scripts/embed-kernel.sh
 # The traversal and robust suites again as many renderers compile: -O3 -march=native -ffast-math
 # (the implementation keeps IEEE semantics under any flags; see its first lines).
 FAST_MATH = -O3 -march=native -ffast-math
@@ -153,12 +163,10 @@ demo: deps-demo
 # DESTDIR, if set, is prepended when writing them (staged installs, packages).
 #   include/bvh.h              #include "bvh.h"
 #   include/bvh/cl/bvh_cl.h    #include "cl/bvh_cl.h" (the .pc and CMake files add include/bvh)
-#   share/bvh/trace.cl         the OpenCL kernel; the installed bvh_cl.h reads it by default
+#   share/bvh/trace.cl         the OpenCL kernel's source (bvh_cl.h holds a copy and needs no file)
 #   share/pkgconfig/bvh.pc     pkg-config module bvh
 #   share/cmake/bvh/           find_package(bvh) gives the INTERFACE target bvh::bvh
-# The version is bvh.h's BVH_VERSION_* macros, read here; the kernel's installed path replaces
-# the default BVH_CL_KERNEL_PATH ("cl/trace.cl", relative to the working directory) in the copy
-# of bvh_cl.h.
+# The version is bvh.h's BVH_VERSION_* macros, read here.
 PREFIX  ?= /usr/local
 DESTDIR ?=
 VERSION := $(shell awk '/^.define BVH_VERSION_(MAJOR|MINOR|PATCH) / { v = v (v == "" ? "" : ".") $$3 } END { print v }' bvh.h)
@@ -174,9 +182,7 @@ install:
 	  $(DESTDIR)$(PREFIX)/share/pkgconfig $(DESTDIR)$(PREFIX)/share/cmake/bvh
 	install -m 644 bvh.h $(DESTDIR)$(PREFIX)/include/bvh.h
 	install -m 644 cl/trace.cl $(DESTDIR)$(KERNEL)
-	sed -e '/BVH_CL_KERNEL_PATH/s|"cl/trace\.cl"|"$(KERNEL)"|' cl/bvh_cl.h >$(DESTDIR)$(PREFIX)/include/bvh/cl/bvh_cl.h
-	@grep -q '^#define BVH_CL_KERNEL_PATH "$(KERNEL)"$$' $(DESTDIR)$(PREFIX)/include/bvh/cl/bvh_cl.h || \
-	  { echo "install: cl/bvh_cl.h has no '#define BVH_CL_KERNEL_PATH \"cl/trace.cl\"' to point at the kernel"; exit 1; }
+	install -m 644 cl/bvh_cl.h $(DESTDIR)$(PREFIX)/include/bvh/cl/bvh_cl.h
 	$(SUBST) packaging/bvh.pc.in >$(DESTDIR)$(PREFIX)/share/pkgconfig/bvh.pc
 	$(SUBST) packaging/bvhConfig.cmake.in >$(DESTDIR)$(PREFIX)/share/cmake/bvh/bvhConfig.cmake
 	$(SUBST) packaging/bvhConfigVersion.cmake.in >$(DESTDIR)$(PREFIX)/share/cmake/bvh/bvhConfigVersion.cmake

@@ -37,7 +37,8 @@
      BVH_ASSERT(c)         internal consistency checks (default: assert from <assert.h>)
      BVH_STATIC            make every function static (private copy per translation unit)
      BVH_API               decoration of every public function (default extern, or static)
-     BVH_NO_THREADS        no pthreads: parallel builders and batch tracing run on one thread
+     BVH_NO_THREADS        no pthreads: parallel builders and batch tracing run on one thread,
+                           or on the caller's own pool (bvh_thread_pool; see THREADS)
      BVH_NO_HUGEPAGES      on Linux with the default allocator, blocks of 4 MiB and more are
                            advised as transparent huge pages (madvise; needs _DEFAULT_SOURCE or
                            _GNU_SOURCE, as gcc's default gnu dialects have); this turns that off
@@ -63,6 +64,22 @@
      unless the build has more threads than the machine has CPUs.
      Tracing only reads the tree (every call that takes a const bvh_tree *): any number of
      threads may trace one tree at once, batch calls included, while none builds into or frees it.
+     Your own pool: desc.pool (and bvh_batch_desc.pool for bvh_intersect_batch_ex and
+     bvh_occluded_batch_ex) is a parallel-for over the application's workers (a job system, TBB,
+     OpenMP); with it the library creates no thread, splits each parallel phase into desc.threads
+     tasks and builds the very tree its own threads would. Its tasks never wait for one another,
+     so phases whose threads meet at barriers are cut into one run per step (PLOC's clustering
+     loop), or run on the calling thread (the Morton sort, the emission passes, PLOC's SAH top).
+     On a platform without pthreads (MSVC without winpthreads, consoles, WebAssembly), define
+     BVH_NO_THREADS and pass a pool with desc.threads set to its worker count: parallel builds
+     and batches with no pthread anywhere (see bvh_thread_pool).
+
+   PROGRESS AND CANCEL
+     desc.progress(user, fraction) is called on the thread that called bvh_build, one call at a
+     time: once at the start, between the build's stages and the steps of its parallel phases,
+     and every 65536 primitives in the serial builders' loops; fractions rise to a single 1 when
+     the build completes. A nonzero return cancels: bvh_build returns BVH_ERROR_CANCELLED soon
+     after (the tree empty, nothing leaked); the return of the call at 1 is ignored.
 
    MEMORY AND STACK
      bvh_build keeps no pointer to the caller's buffers: the tree holds its own copy of the
@@ -82,6 +99,10 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     unreleased  Your own thread pool: bvh_thread_pool in bvh_build_desc.pool and in
+            bvh_batch_desc (bvh_intersect_batch_ex, bvh_occluded_batch_ex), the same trees and hits
+            as the library's threads; with BVH_NO_THREADS, parallel builds without pthreads.
+            Progress and cancel: bvh_build_desc.progress / progress_user, BVH_ERROR_CANCELLED.
      0.5.0  CPU tracing walks an 8-wide copy (bvh_node8, tree.nodes8; AVX2 slab test when the
             CPU has it) whose leaves are SIMD packets of four triangles (bvh_tri4, tree.tri4);
             the watertight triangle test is done in float with a double fallback where an
@@ -289,9 +310,10 @@ typedef struct bvh_build_desc {
                                  pthreads) run by pool.run; the tree is the same either way */
     int (*progress)(void *user, float fraction); /* NULL: none. Called on the thread that called
                                  bvh_build, never concurrently, with a fraction from 0 rising to
-                                 1 (when the build completes), at least every 65536 primitives'
-                                 worth of work; return nonzero to cancel: the build stops soon
-                                 and returns BVH_ERROR_CANCELLED (tree empty, nothing leaked) */
+                                 1 (when the build completes), between stages and steps and every
+                                 65536 primitives of the serial loops (PROGRESS AND CANCEL above);
+                                 return nonzero to cancel: the build stops soon and returns
+                                 BVH_ERROR_CANCELLED (tree empty, nothing leaked) */
     void *progress_user;      /* passed to progress */
     bvh_allocator allocator;
 } bvh_build_desc;

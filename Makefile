@@ -72,7 +72,8 @@ CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
          $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 \
          $(BUILD)/check/builders-no-avx2 \
          $(BUILD)/check/traversal-fast-math $(BUILD)/check/robust-fast-math \
-         $(BUILD)/check/half-allocator-refused $(BUILD)/check/kernel-embedded
+         $(BUILD)/check/half-allocator-refused $(BUILD)/check/kernel-embedded \
+         $(BUILD)/check/pool-no-threads
 
 $(BUILD)/check/%/static: tests/compile_static.c bvh.h
 	@mkdir -p $(dir $@)
@@ -129,6 +130,11 @@ $(BUILD)/check/half-allocator-refused: bvh.h
 $(BUILD)/check/builders-no-avx2: tests/test_builders.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX2 -I. $(EX_DEFS) $< -o $@ -lcmocka $(EX_LIBS) $(LDLIBS)
+# The pool tests with BVH_NO_THREADS: the route for platforms without pthreads (the library has
+# none; the test's own pool still uses them) gives the same trees and hits.
+$(BUILD)/check/pool-no-threads: tests/test_pool.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_THREADS -I. $< -o $@ -lcmocka $(LDLIBS)
 $(BUILD)/check/%/two-tu: tests/two_tu_a.c tests/two_tu_b.c bvh.h
 	@mkdir -p $(dir $@)
 	$(CHECK_CC_$*) $(STD) $(WARN) $(CFLAGS) -I. tests/two_tu_a.c tests/two_tu_b.c -o $@ $(LDLIBS)

@@ -5,6 +5,7 @@
 #   make bench      the study's Table I, side by side with Embree
 #   make install    bvh.h, cl/bvh_cl.h, cl/trace.cl, pkg-config and CMake files (PREFIX, DESTDIR)
 #   make kernel     copies cl/trace.cl into cl/bvh_cl.h (after an edit of the kernel)
+#   make format     applies .clang-format to the sources (make format-check: CI's check)
 # CFLAGS, CC, CXX may be overridden.
 CC      ?= cc
 CXX     ?= c++
@@ -32,7 +33,7 @@ BENCH    = $(patsubst bench/%.c,$(BUILD)/%,$(wildcard bench/*.c))
 TESTS    = $(patsubst tests/%.c,$(BUILD)/tests/%,$(wildcard tests/test_*.c))
 HEADERS  = bvh.h $(wildcard examples/*.h) $(wildcard bench/*.h) $(wildcard cl/*.h) $(wildcard cl/*.cl) $(wildcard tests/*.h)
 
-.PHONY: all demo test bench clean deps-test deps-demo deps-bench kernel install uninstall
+.PHONY: all demo test bench clean deps-test deps-demo deps-bench kernel format format-check install uninstall
 all: $(EXAMPLES) $(BENCH)
 
 $(BUILD)/%: examples/%.c $(HEADERS)
@@ -99,6 +100,15 @@ $(BUILD)/check/kernel-embedded: cl/trace.cl cl/bvh_cl.h scripts/embed-kernel.sh
 	@chmod +x $@
 kernel:
 	scripts/embed-kernel.sh
+# The repository's .clang-format on every C source (the kernel is formatted in cl/trace.cl and
+# copied into cl/bvh_cl.h as it is). `make format` applies it; .ci/run checks it.
+FORMAT_FILES = bvh.h cl/bvh_cl.h cl/trace.cl $(wildcard examples/*.c examples/*.h bench/*.c bench/*.h \
+               tests/*.c tests/*.h tests/*.cpp tests/install/*.c)
+format:
+	clang-format -i $(FORMAT_FILES)
+	scripts/embed-kernel.sh
+format-check:
+	@clang-format --dry-run --Werror $(FORMAT_FILES) && echo "format: $(words $(FORMAT_FILES)) files as .clang-format has them"
 # The traversal and robust suites again as many renderers compile: -O3 -march=native -ffast-math
 # (the implementation keeps IEEE semantics under any flags; see its first lines).
 FAST_MATH = -O3 -march=native -ffast-math

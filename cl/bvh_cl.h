@@ -493,6 +493,7 @@ BVH_CL_API bvh_cl_result bvh_cl_enumerate(bvh_cl_device_info *out, uint32_t capa
 /* == program build ================================================================================ */
 /* ============================================================================================ */
 /* cl/trace.cl as one string per line (clCreateProgramWithSource takes them as they are). */
+/* clang-format off */
 /* == kernel source: generated from cl/trace.cl by scripts/embed-kernel.sh, do not edit == */
 static const char *const bvh_cl__source[] = {
 "/* cl/trace.cl - OpenCL C 1.2 ray tracing kernels for bvh.h trees (host side: cl/bvh_cl.h)\n",
@@ -1110,6 +1111,7 @@ static const char *const bvh_cl__source[] = {
 "}\n",
 };
 /* == end of kernel source == */
+/* clang-format on */
 static char *bvh_cl__read_file(const bvh_allocator *al, const char *path) {
     FILE *f = fopen(path, "rb");
     char *s = NULL;

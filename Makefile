@@ -4,6 +4,8 @@
 #   make test       every test (installs missing Debian packages first when run as root)
 #   make bench      the study's Table I, side by side with Embree
 #   make install    bvh.h, cl/bvh_cl.h, cl/trace.cl, pkg-config and CMake files (PREFIX, DESTDIR)
+#   make kernel     copies cl/trace.cl into cl/bvh_cl.h (after an edit of the kernel)
+#   make format     applies .clang-format to the sources (make format-check: CI's check)
 # CFLAGS, CC, CXX may be overridden.
 CC      ?= cc
 CXX     ?= c++
@@ -19,7 +21,7 @@ HAVE_EMBREE := $(shell [ -f /usr/include/embree3/rtcore.h ] && echo 1)
 HAVE_ASSIMP := $(shell [ -f /usr/include/assimp/cimport.h ] && echo 1)
 HAVE_STB    := $(shell [ -f /usr/include/stb/stb_image_write.h ] && echo 1)
 
-EX_DEFS = $(if $(HAVE_OPENCL),-DBVH_HAVE_OPENCL -DCL_TARGET_OPENCL_VERSION=120 -DBVH_CL_KERNEL_PATH=\"$(CURDIR)/cl/trace.cl\") \
+EX_DEFS = $(if $(HAVE_OPENCL),-DBVH_HAVE_OPENCL -DCL_TARGET_OPENCL_VERSION=120) \
           $(if $(HAVE_EMBREE),-DBVH_HAVE_EMBREE) $(if $(HAVE_ASSIMP),-DBVH_HAVE_ASSIMP) \
           $(if $(HAVE_STB),-DBVH_HAVE_STB)
 EX_LIBS = $(if $(HAVE_OPENCL),-lOpenCL) $(if $(HAVE_EMBREE),-lembree3) $(if $(HAVE_ASSIMP),-lassimp)
@@ -31,7 +33,7 @@ BENCH    = $(patsubst bench/%.c,$(BUILD)/%,$(wildcard bench/*.c))
 TESTS    = $(patsubst tests/%.c,$(BUILD)/tests/%,$(wildcard tests/test_*.c))
 HEADERS  = bvh.h $(wildcard examples/*.h) $(wildcard bench/*.h) $(wildcard cl/*.h) $(wildcard cl/*.cl) $(wildcard tests/*.h)
 
-.PHONY: all demo test bench clean deps-test deps-demo deps-bench install uninstall
+.PHONY: all demo test bench clean deps-test deps-demo deps-bench kernel format format-check install uninstall
 all: $(EXAMPLES) $(BENCH)
 
 $(BUILD)/%: examples/%.c $(HEADERS)
@@ -55,8 +57,7 @@ $(BUILD)/tests/%: tests/%.c $(HEADERS)
 # fails it): C11 with BVH_STATIC, with and without threads (tests/compile_static.c); two C
 # translation units (tests/two_tu_*.c); C++11 (tests/compile_cpp.cpp); a C++ program linked with
 # the implementation compiled as C; BVH_MALLOC without BVH_FREE refused; the traversal test
-# without SSE (BVH_NO_SIMD), without AVX2 and without AVX-512, the builder tests without AVX2
-# (BVH_NO_AVX2). With $(CC)/$(CXX) in
+# without SSE (BVH_NO_SIMD), the builder tests without AVX2 (BVH_NO_AVX2). With $(CC)/$(CXX) in
 # build/check/cc/, and with clang/clang++ in build/check/clang/ when present. No -D_GNU_SOURCE:
 # the header must build in strict ISO mode.
 CXXSTD      = -std=c++11
@@ -69,10 +70,11 @@ CHECK_CXX_clang = clang++
 CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
            $(addprefix $(BUILD)/check/$(c)/,static static-no-threads two-tu cxx11 cxx11-links-c)) \
          $(if $(HAVE_CLANG),$(BUILD)/check/clang/fast-math-refused) \
-         $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 $(BUILD)/check/traversal-no-avx512 \
+         $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 \
          $(BUILD)/check/builders-no-avx2 \
          $(BUILD)/check/traversal-fast-math $(BUILD)/check/robust-fast-math \
-         $(BUILD)/check/half-allocator-refused
+         $(BUILD)/check/half-allocator-refused $(BUILD)/check/kernel-embedded \
+         $(BUILD)/check/pool-no-threads
 
 $(BUILD)/check/%/static: tests/compile_static.c bvh.h
 	@mkdir -p $(dir $@)
@@ -89,11 +91,24 @@ $(BUILD)/check/traversal-no-simd: tests/test_traversal.c $(HEADERS)
 $(BUILD)/check/traversal-no-avx2: tests/test_traversal.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX2 -I. $< -o $@ -lcmocka $(LDLIBS)
-# The exact-hits traversal test again with the AVX2 leaf test (BVH_NO_AVX512), where the CPU
-# would take the AVX-512 one.
-$(BUILD)/check/traversal-no-avx512: tests/test_traversal.c $(HEADERS)
+# cl/bvh_cl.h holds the current cl/trace.cl (`make kernel` copies it in after an edit).
+$(BUILD)/check/kernel-embedded: cl/trace.cl cl/bvh_cl.h scripts/embed-kernel.sh
 	@mkdir -p $(dir $@)
-	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX512 -I. $< -o $@ -lcmocka $(LDLIBS)
+	@scripts/embed-kernel.sh $@.h
+	@cmp -s $@.h cl/bvh_cl.h || { echo "cl/bvh_cl.h does not hold the current cl/trace.cl: run make kernel"; exit 1; }
+	@printf '#!/bin/sh\necho "cl/bvh_cl.h holds the current cl/trace.cl"\n' >$@
+	@chmod +x $@
+kernel:
+	scripts/embed-kernel.sh
+# The repository's .clang-format on every C source (the kernel is formatted in cl/trace.cl and
+# copied into cl/bvh_cl.h as it is). `make format` applies it; .ci/run checks it.
+FORMAT_FILES = bvh.h cl/bvh_cl.h cl/trace.cl $(wildcard examples/*.c examples/*.h bench/*.c bench/*.h \
+               tests/*.c tests/*.h tests/*.cpp tests/install/*.c)
+format:
+	clang-format -i $(FORMAT_FILES)
+	scripts/embed-kernel.sh
+format-check:
+	@clang-format --dry-run --Werror $(FORMAT_FILES) && echo "format: $(words $(FORMAT_FILES)) files as .clang-format has them"
 # The traversal and robust suites again as many renderers compile: -O3 -march=native -ffast-math
 # (the implementation keeps IEEE semantics under any flags; see its first lines).
 FAST_MATH = -O3 -march=native -ffast-math
@@ -125,6 +140,11 @@ $(BUILD)/check/half-allocator-refused: bvh.h
 $(BUILD)/check/builders-no-avx2: tests/test_builders.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX2 -I. $(EX_DEFS) $< -o $@ -lcmocka $(EX_LIBS) $(LDLIBS)
+# The pool tests with BVH_NO_THREADS: the route for platforms without pthreads (the library has
+# none; the test's own pool still uses them) gives the same trees and hits.
+$(BUILD)/check/pool-no-threads: tests/test_pool.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_THREADS -I. $< -o $@ -lcmocka $(LDLIBS)
 $(BUILD)/check/%/two-tu: tests/two_tu_a.c tests/two_tu_b.c bvh.h
 	@mkdir -p $(dir $@)
 	$(CHECK_CC_$*) $(STD) $(WARN) $(CFLAGS) -I. tests/two_tu_a.c tests/two_tu_b.c -o $@ $(LDLIBS)
@@ -159,12 +179,10 @@ demo: deps-demo
 # DESTDIR, if set, is prepended when writing them (staged installs, packages).
 #   include/bvh.h              #include "bvh.h"
 #   include/bvh/cl/bvh_cl.h    #include "cl/bvh_cl.h" (the .pc and CMake files add include/bvh)
-#   share/bvh/trace.cl         the OpenCL kernel; the installed bvh_cl.h reads it by default
+#   share/bvh/trace.cl         the OpenCL kernel's source (bvh_cl.h holds a copy and needs no file)
 #   share/pkgconfig/bvh.pc     pkg-config module bvh
 #   share/cmake/bvh/           find_package(bvh) gives the INTERFACE target bvh::bvh
-# The version is bvh.h's BVH_VERSION_* macros, read here; the kernel's installed path replaces
-# the default BVH_CL_KERNEL_PATH ("cl/trace.cl", relative to the working directory) in the copy
-# of bvh_cl.h.
+# The version is bvh.h's BVH_VERSION_* macros, read here.
 PREFIX  ?= /usr/local
 DESTDIR ?=
 VERSION := $(shell awk '/^.define BVH_VERSION_(MAJOR|MINOR|PATCH) / { v = v (v == "" ? "" : ".") $$3 } END { print v }' bvh.h)
@@ -180,9 +198,7 @@ install:
 	  $(DESTDIR)$(PREFIX)/share/pkgconfig $(DESTDIR)$(PREFIX)/share/cmake/bvh
 	install -m 644 bvh.h $(DESTDIR)$(PREFIX)/include/bvh.h
 	install -m 644 cl/trace.cl $(DESTDIR)$(KERNEL)
-	sed -e '/BVH_CL_KERNEL_PATH/s|"cl/trace\.cl"|"$(KERNEL)"|' cl/bvh_cl.h >$(DESTDIR)$(PREFIX)/include/bvh/cl/bvh_cl.h
-	@grep -q '^#define BVH_CL_KERNEL_PATH "$(KERNEL)"$$' $(DESTDIR)$(PREFIX)/include/bvh/cl/bvh_cl.h || \
-	  { echo "install: cl/bvh_cl.h has no '#define BVH_CL_KERNEL_PATH \"cl/trace.cl\"' to point at the kernel"; exit 1; }
+	install -m 644 cl/bvh_cl.h $(DESTDIR)$(PREFIX)/include/bvh/cl/bvh_cl.h
 	$(SUBST) packaging/bvh.pc.in >$(DESTDIR)$(PREFIX)/share/pkgconfig/bvh.pc
 	$(SUBST) packaging/bvhConfig.cmake.in >$(DESTDIR)$(PREFIX)/share/cmake/bvh/bvhConfig.cmake
 	$(SUBST) packaging/bvhConfigVersion.cmake.in >$(DESTDIR)$(PREFIX)/share/cmake/bvh/bvhConfigVersion.cmake

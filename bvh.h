@@ -38,7 +38,8 @@
      BVH_ASSERT(c)         internal consistency checks (default: assert from <assert.h>)
      BVH_STATIC            make every function static (private copy per translation unit)
      BVH_API               decoration of every public function (default extern, or static)
-     BVH_NO_THREADS        no pthreads: parallel builders and batch tracing run on one thread
+     BVH_NO_THREADS        no pthreads: parallel builders and batch tracing run on one thread,
+                           or on the caller's own pool (bvh_thread_pool; see THREADS)
      BVH_NO_HUGEPAGES      on Linux with the default allocator, blocks of 4 MiB and more are
                            advised as transparent huge pages (madvise; needs _DEFAULT_SOURCE or
                            _GNU_SOURCE, as gcc's default gnu dialects have); this turns that off
@@ -49,10 +50,7 @@
      BVH_NO_AVX2           PLOC's neighbour search takes 8 pairs at a time, and traversal tests
                            8 boxes at a time, with AVX2 when the CPU has it (gcc/clang on x86;
                            compiled with a target attribute, no flag needed, the same tree and
-                           hits); this keeps both to SSE (and leaves out AVX-512)
-     BVH_NO_AVX512         traversal tests a leaf of up to 16 triangles in one pass with
-                           AVX-512F when the CPU has it (target attribute, the same hits); this
-                           keeps the leaf test to AVX2
+                           hits); this keeps both to SSE
 
    ERRORS
      Every call that can fail returns a bvh_result; bvh_result_string() names it; the codes each
@@ -68,6 +66,22 @@
      unless the build has more threads than the machine has CPUs.
      Tracing only reads the tree (every call that takes a const bvh_tree *): any number of
      threads may trace one tree at once, batch calls included, while none builds into or frees it.
+     Your own pool: desc.pool (and bvh_batch_desc.pool for bvh_intersect_batch_ex and
+     bvh_occluded_batch_ex) is a parallel-for over the application's workers (a job system, TBB,
+     OpenMP); with it the library creates no thread, splits each parallel phase into desc.threads
+     tasks and builds the very tree its own threads would. Its tasks never wait for one another,
+     so phases whose threads meet at barriers are cut into one run per step (PLOC's clustering
+     loop), or run on the calling thread (the Morton sort, the emission passes, PLOC's SAH top).
+     On a platform without pthreads (MSVC without winpthreads, consoles, WebAssembly), define
+     BVH_NO_THREADS and pass a pool with desc.threads set to its worker count: parallel builds
+     and batches with no pthread anywhere (see bvh_thread_pool).
+
+   PROGRESS AND CANCEL
+     desc.progress(user, fraction) is called on the thread that called bvh_build, one call at a
+     time: once at the start, between the build's stages and the steps of its parallel phases,
+     and every 65536 primitives in the serial builders' loops; fractions rise to a single 1 when
+     the build completes. A nonzero return cancels: bvh_build returns BVH_ERROR_CANCELLED soon
+     after (the tree empty, nothing leaked); the return of the call at 1 is ignored.
 
    MEMORY AND STACK
      bvh_build keeps no pointer to the caller's buffers: the tree holds its own copy of the
@@ -99,7 +113,13 @@
             allocator pair as bvh_build refuses such a desc. bvh_validate refuses a child stored
             before its parent. Each call's result codes are listed beside its prototype.
             cl/bvh_cl.h 0.3.0: bvh_cl_desc.allocator (a bvh_allocator), BVH_CL_MALLOC/BVH_CL_FREE
-            take the user pointer.
+            take the user pointer; it holds the kernel (no cl/trace.cl needed at run time;
+            BVH_CL_KERNEL_PATH and desc.kernel_path, when set, still read a file). The 8-wide
+            traversal runs fewer instructions per ray (the same hits).
+            Your own thread pool: bvh_thread_pool in bvh_build_desc.pool and in
+            bvh_batch_desc (bvh_intersect_batch_ex, bvh_occluded_batch_ex), the same trees and hits
+            as the library's threads; with BVH_NO_THREADS, parallel builds without pthreads.
+            Progress and cancel: bvh_build_desc.progress / progress_user, BVH_ERROR_CANCELLED.
      0.5.0  CPU tracing walks an 8-wide copy (bvh_node8, tree.nodes8; AVX2 slab test when the
             CPU has it) whose leaves are SIMD packets of four triangles (bvh_tri4, tree.tri4);
             the watertight triangle test is done in float with a double fallback where an
@@ -176,6 +196,8 @@ typedef enum bvh_result {
                                       threads cannot all be created runs on those it has */
     BVH_ERROR_INVALID_TREE,        /* the validator found a defect (see bvh_validation) */
     BVH_ERROR_NO_TRIANGLES,        /* traversal asked of a tree built from boxes only */
+    BVH_ERROR_CANCELLED,           /* the build's progress callback asked to stop; nothing
+                                      leaked, tree left empty */
     BVH_RESULT_COUNT
 } bvh_result;
 
@@ -287,6 +309,19 @@ typedef struct bvh_sah_midpoint_options {
                            above 1 refused */
 } bvh_sah_midpoint_options;
 
+/* An application's own workers (a job system, TBB, OpenMP...) in place of the library's
+   pthreads. run must call task(task_arg, i) exactly once for every i in [0, count), on any of
+   its threads, in any order, concurrently or one after another, and return when all have
+   returned. A task never waits for another task, so a pool that runs them serially, or on the
+   calling thread, is correct (only slower). run is only ever called from the thread that called
+   the library, one call at a time per build or batch; it may be called many times per build.
+   Zero (run NULL): the library's own pthreads (one thread without them, BVH_NO_THREADS). */
+typedef void (*bvh_task_fn)(void *task_arg, uint32_t index);
+typedef struct bvh_thread_pool {
+    void (*run)(void *user, uint32_t count, bvh_task_fn task, void *task_arg);
+    void *user;
+} bvh_thread_pool;
+
 /* The description of a build. Zero is the sensible default for every field. */
 typedef struct bvh_build_desc {
     bvh_builder builder;
@@ -306,6 +341,16 @@ typedef struct bvh_build_desc {
                                  bvh_intersect, bvh_occluded and the batch calls use: faster
                                  tracing for a few percent of build time; 2 = binary nodes only;
                                  anything else is refused */
+    bvh_thread_pool pool;     /* run NULL: the library's threads; else every parallel phase is
+                                 split into `threads` tasks (0 = online CPUs; set it without
+                                 pthreads) run by pool.run; the tree is the same either way */
+    int (*progress)(void *user, float fraction); /* NULL: none. Called on the thread that called
+                                 bvh_build, never concurrently, with a fraction from 0 rising to
+                                 1 (when the build completes), between stages and steps and every
+                                 65536 primitives of the serial loops (PROGRESS AND CANCEL above);
+                                 return nonzero to cancel: the build stops soon and returns
+                                 BVH_ERROR_CANCELLED (tree empty, nothing leaked) */
+    void *progress_user;      /* passed to progress */
     bvh_allocator allocator;  /* both functions or neither (a half pair is refused) */
     bvh_ploc_options ploc;
     bvh_sah_midpoint_options sah_midpoint;
@@ -421,6 +466,15 @@ BVH_API bvh_result bvh_intersect_batch(const bvh_tree *tree, const bvh_ray *rays
                                        size_t count, uint32_t threads);
 BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays,
                                       uint8_t *occluded, size_t count, uint32_t threads);
+/* The batch calls with options (desc NULL = all zero): the same hits and flags on any pool. */
+typedef struct bvh_batch_desc {
+    uint32_t threads;     /* threads, or tasks with a pool: 0 = online CPUs */
+    bvh_thread_pool pool; /* run NULL: the library's threads (see bvh_thread_pool) */
+} bvh_batch_desc;
+BVH_API bvh_result bvh_intersect_batch_ex(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits,
+                                          size_t count, const bvh_batch_desc *desc);
+BVH_API bvh_result bvh_occluded_batch_ex(const bvh_tree *tree, const bvh_ray *rays,
+                                         uint8_t *occluded, size_t count, const bvh_batch_desc *desc);
 
 /* Watertight ray/triangle test (Woop, Benthin & Wald 2013), the one traversal uses. */
 BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const float v1[3],
@@ -495,9 +549,6 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
     (defined(__GNUC__) || defined(__clang__))
 #include <immintrin.h>
 #define BVH__AVX2 1 /* compiled for AVX2 on its own (target attribute), used when the CPU has it */
-#endif
-#if defined(BVH__AVX2) && !defined(BVH_NO_AVX512) && (defined(__clang__) || __GNUC__ >= 7)
-#define BVH__AVX512 1 /* the leaf test on 16 lanes (AVX-512F, target attribute), when the CPU has it */
 #endif
 #if defined(__GNUC__) || defined(__clang__)
 #define BVH__PREFETCH(p) __builtin_prefetch(p)
@@ -640,6 +691,7 @@ BVH_API const char *bvh_result_string(bvh_result r) {
     case BVH_ERROR_THREAD: return "could not create a worker thread";
     case BVH_ERROR_INVALID_TREE: return "invalid tree (see the validation report)";
     case BVH_ERROR_NO_TRIANGLES: return "the tree was built from boxes and has no triangles to trace";
+    case BVH_ERROR_CANCELLED: return "the build was cancelled by its progress callback";
     default: return "unknown result code";
     }
 }
@@ -729,6 +781,7 @@ struct bvh__team {
     bvh__team_fn fn;
     void *arg;
     uint32_t n;
+    const bvh_thread_pool *pool; /* non-NULL: the n threads are tasks of a caller's pool */
 #ifndef BVH_NO_THREADS
     pthread_mutex_t mutex;
     pthread_cond_t cond;
@@ -777,7 +830,8 @@ static void bvh__team_sync(bvh__team *team) {
 #ifndef BVH_NO_THREADS
     uint32_t gen;
     int k;
-    if (team->n <= 1) return;
+    BVH_ASSERT(!team->pool || team->n <= 1); /* pool tasks never meet (bvh__team_run_on) */
+    if (team->n <= 1 || team->pool) return;
     pthread_mutex_lock(&team->mutex);
     gen = team->generation;
     if (++team->waiting == team->n) {
@@ -817,7 +871,7 @@ static void *bvh__worker_main(void *p) {
    cannot be allocated; thread creation failures reduce the team instead. */
 static bvh_result bvh__team_run(const bvh_allocator *al, uint32_t want, bvh__team_fn fn, void *arg) {
     bvh__team team;
-    team.fn = fn; team.arg = arg; team.n = 1;
+    team.fn = fn; team.arg = arg; team.n = 1; team.pool = NULL;
 #ifndef BVH_NO_THREADS
     if (want > 1) {
         uint32_t i, made = 0;
@@ -850,6 +904,26 @@ static bvh_result bvh__team_run(const bvh_allocator *al, uint32_t want, bvh__tea
     (void)want; (void)al;
 #endif
     fn(arg, 0, 1, &team);
+    return BVH_SUCCESS;
+}
+/* A caller's pool (bvh_thread_pool) in place of the team: thread tid of n becomes task tid. Its
+   tasks may run one after another on one thread, so they must not meet: only phases without
+   barriers (and without the team's mutex) run this way; `sync` marks a phase with barriers,
+   which then runs on the calling thread alone, as a team of one (every phase gives the same
+   result for any thread count). Phases that matter are cut at their barriers into steps, each
+   its own run (bvh__ploc_steps). */
+static void bvh__pool_task(void *arg, uint32_t index) {
+    bvh__team *team = BVH__CAST(bvh__team *, arg);
+    team->fn(team->arg, index, team->n, team);
+}
+static bvh_result bvh__team_run_on(const bvh_thread_pool *pool, const bvh_allocator *al, uint32_t want, int sync,
+                                   bvh__team_fn fn, void *arg) {
+    bvh__team team;
+    if (!pool || !pool->run) return bvh__team_run(al, want, fn, arg);
+    team.fn = fn; team.arg = arg; team.pool = pool;
+    team.n = sync || want < 1 ? 1 : want;
+    if (team.n == 1) fn(arg, 0, 1, &team);
+    else pool->run(pool->user, team.n, bvh__pool_task, &team);
     return BVH_SUCCESS;
 }
 /* Even split of [0, count) for thread tid of n. */
@@ -1049,8 +1123,58 @@ static void bvh__radix_sort_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__t
    options) and writes a bvh__out: nodes with the root at 0 and children adjacent, and references
    as local primitive ids. The front-end (bvh_build) maps them to the caller's indices. */
 /* ============================================================================================ */
+/* Progress and cancel (desc.progress). Reports come from the thread that called bvh_build
+   alone: from the build's serial loops, and in team phases from thread 0, which is that thread.
+   The build is cut into stages (front end, builder, back end, 8-wide copy), each a share
+   [lo, hi] of [0, 1]; a report inside a stage says how far into it the build is, and the
+   fractions passed on never go down. Once the callback has returned nonzero every later check
+   returns nonzero, and the build unwinds through its error paths with BVH_ERROR_CANCELLED. */
+typedef struct bvh__progress {
+    int (*fn)(void *user, float fraction);
+    void *user;
+    float lo, hi, last;
+    uint32_t work; /* units done in serial loops since the last report (bvh__tick) */
+    int cancelled;
+} bvh__progress;
+/* Stages of a build, as fractions: the builder's own share is cut further by bvh__stage_in. */
+#define BVH__STAGE_BUILD_LO 0.05f
+#define BVH__STAGE_BUILD_HI 0.85f
+#define BVH__STAGE_WIDE_LO 0.9f
+#define BVH__PROGRESS_WORK 65536u /* serial loops report at least once per this many primitives */
+static void bvh__stage(bvh__progress *g, float lo, float hi) {
+    if (g) { g->lo = lo; g->hi = hi; }
+}
+/* [a, b] of the builder's share */
+static void bvh__stage_in(bvh__progress *g, float a, float b) {
+    const float w = BVH__STAGE_BUILD_HI - BVH__STAGE_BUILD_LO;
+    bvh__stage(g, BVH__STAGE_BUILD_LO + w * a, BVH__STAGE_BUILD_LO + w * b);
+}
+/* Reports `done` (0..1) of the current stage; nonzero once the build is cancelled. */
+static int bvh__report(bvh__progress *g, double done) {
+    float f;
+    if (!g || !g->fn) return 0;
+    if (g->cancelled) return 1;
+    done = done > 0.0 ? (done < 1.0 ? done : 1.0) : 0.0;
+    f = g->lo + (float)((double)(g->hi - g->lo) * done);
+    if (f < g->last) f = g->last;
+    g->last = f;
+    g->work = 0;
+    if (g->fn(g->user, f)) g->cancelled = 1;
+    return g->cancelled;
+}
+/* In a serial loop: `work` more primitives handled; reports when BVH__PROGRESS_WORK have passed. */
+static int bvh__tick(bvh__progress *g, uint32_t work, double done) {
+    if (!g || !g->fn) return 0;
+    if (g->cancelled) return 1;
+    g->work += work < BVH__PROGRESS_WORK ? work : BVH__PROGRESS_WORK;
+    return g->work >= BVH__PROGRESS_WORK ? bvh__report(g, done) : 0;
+}
+static int bvh__cancelled(const bvh__progress *g) { return g && g->cancelled; }
+
 typedef struct bvh__ctx {
     bvh_allocator al;
+    const bvh_thread_pool *pool; /* the caller's pool, NULL: the team's threads */
+    bvh__progress *prog;   /* never NULL during builds */
     uint32_t n;            /* primitives taking part (n >= 1 inside builders) */
     bvh_aabb *boxes;       /* n boxes (PLOC releases them once its clusters hold them: NULL) */
     const bvh_triangles *tris; /* the caller's triangles, NULL for box input */
@@ -1082,6 +1206,11 @@ static bvh_result bvh__out_init(const bvh__ctx *c, bvh__out *o, uint32_t node_ca
     o->node_cap = node_cap;
     o->ref_cap = ref_cap;
     return BVH_SUCCESS;
+}
+
+/* Runs a build phase on the context's pool or team (see bvh__team_run_on; sync: it has barriers). */
+static bvh_result bvh__run(const bvh__ctx *c, uint32_t want, int sync, bvh__team_fn fn, void *arg) {
+    return bvh__team_run_on(c->pool, &c->al, want, sync, fn, arg);
 }
 
 static const float *bvh__vertex(const bvh_triangles *t, uint32_t v);
@@ -1232,15 +1361,19 @@ static float bvh__id_key(const void *ctx, const void *e, int axis) {
 }
 
 /* Builds a median tree over o->refs[first .. first+count) with its root in node `root`. */
+/* A cancelled build (c->prog) stops it early, the tree unfinished. */
 static void bvh__median_build(const bvh__ctx *c, bvh__out *o, uint32_t root, uint32_t first, uint32_t count) {
     uint32_t stack[3 * 40]; /* the median tree is at most ceil(log2(2^30)) + 1 deep */
     uint32_t sp = 0;
+    double work = 0.0, total = (double)count * (1.0 + log2((double)count / (double)c->max_leaf + 1.0));
     stack[sp++] = root; stack[sp++] = first; stack[sp++] = count;
     while (sp) {
         uint32_t m = stack[--sp], b = stack[--sp], ni = stack[--sp], i, half;
         bvh_node *node = &o->nodes[ni];
         bvh_aabb box = bvh__empty(), cb = bvh__empty();
         int axis;
+        work += m;
+        if (bvh__tick(c->prog, m, work / total)) return;
         for (i = b; i < b + m; i++) {
             uint32_t id = o->refs[i];
             bvh_aabb pb = bvh__prim_box(c, id);
@@ -1268,7 +1401,7 @@ static bvh_result bvh__build_top_down(const bvh__ctx *c, bvh__out *o) {
     o->ref_count = c->n;
     o->node_count = 1;
     bvh__median_build(c, o, 0, 0, c->n);
-    return BVH_SUCCESS;
+    return bvh__cancelled(c->prog) ? BVH_ERROR_CANCELLED : BVH_SUCCESS;
 }
 
 /* ============================================================================================ */
@@ -1444,12 +1577,13 @@ static bvh_result bvh__fit_budget(const bvh__ctx *c, bvh__sizes *q, uint32_t nth
     q->c = &cc;
     for (;;) { /* double until it fits */
         cc.ci = (float)hi;
-        if ((r = bvh__team_run(&c->al, nthreads, bvh__sizes_fn, q)) != BVH_SUCCESS) return r;
+        if ((r = bvh__run(c, nthreads, 1, bvh__sizes_fn, q)) != BVH_SUCCESS) return r;
+        if (bvh__report(c->prog, 0.0)) return BVH_ERROR_CANCELLED;
         nhi = q->size[root];
         if (nhi <= (double)limit) break;
         if (hi > top) { /* the smallest tree the leaf size allows */
             cc.ci = 3.0e38f; /* finite: a zero area times it stays zero */
-            return bvh__team_run(&c->al, nthreads, bvh__sizes_fn, q);
+            return bvh__run(c, nthreads, 1, bvh__sizes_fn, q);
         }
         lo = hi; nlo = nhi; hi *= 2.0;
     }
@@ -1457,14 +1591,15 @@ static bvh_result bvh__fit_budget(const bvh__ctx *c, bvh__sizes *q, uint32_t nth
         double aim = 0.995 * (double)limit, f = (log(nlo) - log(aim)) / (log(nlo) - log(nhi > 1.0 ? nhi : 1.0));
         double mid = lo * pow(hi / lo, f < 0.1 ? 0.1 : f > 0.9 ? 0.9 : f), n;
         cc.ci = (float)mid;
-        if ((r = bvh__team_run(&c->al, nthreads, bvh__sizes_fn, q)) != BVH_SUCCESS) return r;
+        if ((r = bvh__run(c, nthreads, 1, bvh__sizes_fn, q)) != BVH_SUCCESS) return r;
+        if (bvh__report(c->prog, 0.0)) return BVH_ERROR_CANCELLED;
         n = q->size[root];
         if (n > (double)limit) { lo = mid; nlo = n; held = 0; }
         else { hi = mid; nhi = n; held = 1; }
     }
     if (held) return BVH_SUCCESS;
     cc.ci = (float)hi;
-    return bvh__team_run(&c->al, nthreads, bvh__sizes_fn, q);
+    return bvh__run(c, nthreads, 1, bvh__sizes_fn, q);
 }
 
 /* Pass 2 of bvh__emit with `blocks`, when no subtree is rebuilt: src is walked from the root down,
@@ -1541,7 +1676,7 @@ static bvh_result bvh__emit_placed(const bvh__ctx *c, const bvh__sizes *q, const
     pl.pos = q->cost;
     pl.o = o;
     pl.block_count = q->block_count;
-    return bvh__team_run(&c->al, nthreads, bvh__place_fn, &pl);
+    return bvh__run(c, nthreads, 1, bvh__place_fn, &pl);
 }
 
 /* Pass 2 when no subtree is rebuilt: positions follow from the sizes, so the subtrees can be
@@ -1592,7 +1727,7 @@ static bvh_result bvh__emit_tasks(const bvh__ctx *c, const bvh__sizes *q, const 
     }
     job.src = src; job.map = map; job.cnt = cnt; job.size = size; job.o = o;
     job.tasks = tasks; job.owner = owner; job.task_count = ntasks;
-    return bvh__team_run(&c->al, nt, bvh__emit_team_fn, &job);
+    return bvh__run(c, nt, 0, bvh__emit_team_fn, &job);
 }
 
 /* Pass 2 when the tree is too deep: one thread walks from the root and rebuilds with the median
@@ -1662,7 +1797,8 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
     q.c = c; q.src = src; q.cnt = cnt; q.size = size; q.height = height; q.cost = collapse ? cost : NULL;
     q.blocks = blocks ? blocks : &src_count;
     q.block_count = blocks ? block_count : 1;
-    r = bvh__team_run(&c->al, blocks ? nthreads : 1, bvh__sizes_fn, &q);
+    r = bvh__run(c, blocks ? nthreads : 1, 1, bvh__sizes_fn, &q);
+    if (r == BVH_SUCCESS && bvh__report(c->prog, 0.0)) r = BVH_ERROR_CANCELLED;
     if (r == BVH_SUCCESS && collapse && c->budget && size[root] > bvh__budget_nodes(c, cnt[root] & ~BVH__COLLAPSE_BIT))
         r = bvh__fit_budget(c, &q, blocks ? nthreads : 1);
     if (r != BVH_SUCCESS) goto done;
@@ -1675,6 +1811,7 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
     if (r != BVH_SUCCESS) goto done;
     if (!shallow) {
         r = bvh__emit_rebuild(c, &q, map, src_count, o);
+        if (r == BVH_SUCCESS && bvh__cancelled(c->prog)) r = BVH_ERROR_CANCELLED;
         goto done;
     }
     if (blocks && block_count >= 2 && blocks[block_count - 1] == src_count && !src[root].count &&
@@ -1708,6 +1845,8 @@ static bvh_result bvh__build_bottom_up(const bvh__ctx *c, bvh__out *o) {
     if (r == BVH_SUCCESS && !(src = BVH__ALLOC(&c->al, bvh_node, cap))) r = BVH_ERROR_OUT_OF_MEMORY;
     if (r != BVH_SUCCESS) goto done;
     bvh__team_run(&c->al, 1, bvh__morton_team_fn, &job);
+    bvh__stage_in(c->prog, 0.5f, 1.0f);
+    if (bvh__report(c->prog, 0.0)) { r = BVH_ERROR_CANCELLED; goto done; }
     for (i = 0; i < leaves; i++) {
         uint32_t b = i * c->max_leaf, e = b + c->max_leaf < c->n ? b + c->max_leaf : c->n, k;
         bvh_aabb box = bvh__empty();
@@ -1768,6 +1907,7 @@ typedef struct bvh__ploc {
     uint32_t block_count, block_cap, radius, root;
     uint32_t top_cut;  /* bvh__ploc_top: top_m clusters were left when their count first fell */
     uint32_t top_m, top_slots, top_blocks; /* to top_cut; then src and blocks held this much */
+    int stop;          /* the build was cancelled (set by thread 0 before an iteration's first barrier) */
 } bvh__ploc;
 /* Room for every iteration's end and the root's: each iteration merges at least a 32nd of the
    clusters (or pairs them all), which bounds the count (about 660 for 2^30 primitives). */
@@ -1852,9 +1992,6 @@ __attribute__((target("avx2"))) static void bvh__ploc_pairs8(bvh__nn *w, size_t 
 }
 /* 1 when the CPU runs AVX2 (the compiler's runtime check; the block search then takes 8 pairs). */
 static int bvh__have_avx2(void) { return __builtin_cpu_supports("avx2") ? 1 : 0; }
-#ifdef BVH__AVX512
-static int bvh__have_avx512(void) { return __builtin_cpu_supports("avx512f") ? 1 : 0; }
-#endif
 #else
 static int bvh__have_avx2(void) { return 0; }
 #endif
@@ -1974,75 +2111,84 @@ static void bvh__ploc_init_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     }
 }
 
-/* Second team run: the clustering loop. */
-static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
-    bvh__ploc *p = BVH__CAST(bvh__ploc *, arg);
+/* The clustering loop, cut at its four barriers into steps, so that a team runs it with barriers
+   between the steps (bvh__ploc_team_fn) and a caller's pool as one run per step
+   (bvh__ploc_steps): the same code, the same tree. Between steps the loop's state is
+   bvh__ploc_iter: each thread of a team keeps its own copy (all compute the same); under a pool
+   the calling thread keeps the one copy. */
+typedef struct bvh__ploc_iter {
+    bvh_node *cin, *cout;
+    uint32_t count, slots, active; /* clusters; src entries written; threads with work */
+} bvh__ploc_iter;
+/* Before an iteration: where the SAH top would start, the threads with work and (thread 0 of a
+   team, or the pool's caller: `lead`) the progress report, whose cancel every thread reads
+   after the iteration's first barrier. */
+static void bvh__ploc_begin(bvh__ploc *p, bvh__ploc_iter *it, uint32_t nt, int lead) {
     const bvh__ctx *c = p->c;
-    bvh_node *cin = p->cin, *cout = p->cout;
+    if (lead && !p->top_m && it->count <= p->top_cut) { /* where the SAH top would start */
+        p->top_m = it->count; p->top_slots = it->slots; p->top_blocks = p->block_count;
+    }
+    it->active = it->count / (4 * p->radius + 256);
+    if (it->active < 1) it->active = 1;
+    if (it->active > nt) it->active = nt;
+    if (lead) p->stop = bvh__report(c->prog, 1.0 - (double)it->count / (double)c->n);
+}
+/* Merges and survivors of the iteration, from every thread's counts: fewer than 1/32 of the
+   clusters merging (nested or chained input would otherwise take O(n) iterations, O(n^2) time)
+   makes the iteration pair neighbours (2k, 2k+1) instead, as the bottom-up builder does, which
+   halves the count. Decided from the totals, so every thread count takes the same path. */
+static int bvh__ploc_totals(const bvh__ploc *p, uint32_t count, uint32_t nt, uint32_t *surv, uint32_t *merge) {
+    uint32_t t;
+    *surv = *merge = 0;
+    for (t = 0; t < nt; t++) { *surv += p->survivors[t]; *merge += p->merges[t]; }
+    if (*merge * 32 >= count) return 0;
+    *merge = count / 2;
+    *surv = count - *merge;
+    return 1;
+}
+/* Step k of an iteration for thread tid of nt; a barrier (or the end of a pool run) follows each. */
+static void bvh__ploc_step(bvh__ploc *p, const bvh__ploc_iter *it, int k, uint32_t tid, uint32_t nt) {
+    bvh_node *cin = it->cin, *cout = it->cout;
     uint64_t *best = p->best;
-    uint32_t r = p->radius, count = c->n, slots = 0, t;
-    size_t b, e, i;
-    while (count > 1) {
-        uint32_t active = count / (4 * r + 256), pos = 0, slot = 0, total_surv = 0, total_merge = 0;
-        uint64_t *bnd = p->bnd + (size_t)tid * r;
-        if (tid == 0 && !p->top_m && count <= p->top_cut) { /* where the SAH top would start */
-            p->top_m = count; p->top_slots = slots; p->top_blocks = p->block_count;
-        }
-        if (active < 1) active = 1;
-        if (active > nt) active = nt;
-        if (tid < active) bvh__range(count, tid, active, &b, &e);
-        else b = e = 0;
-        /* nearest neighbour search: pairs (i, j), i < j <= i + r, each computed once */
-        bvh__ploc_search(&p->nn[tid], cin, count, r, b, e, best, bnd);
-        bvh__team_sync(team);
-        if (tid > 0 && tid < active) { /* offers from pairs that start in the previous chunk */
+    uint32_t r = p->radius, count = it->count, slots = it->slots, t, pos = 0, slot = 0, tm, ts;
+    size_t b = 0, e = 0, i;
+    if (tid < it->active) bvh__range(count, tid, it->active, &b, &e);
+    if (k == 0) { /* nearest neighbour search: pairs (i, j), i < j <= i + r, each computed once */
+        bvh__ploc_search(&p->nn[tid], cin, count, r, b, e, best, p->bnd + (size_t)tid * r);
+    } else if (k == 1) {
+        if (tid > 0 && tid < it->active) { /* offers from pairs that start in the previous chunk */
             const uint64_t *prev = p->bnd + (size_t)(tid - 1) * r;
             for (t = 0; t < r && b + t < e; t++) best[b + t] = BVH__MIN64(best[b + t], prev[t]);
         }
-        bvh__team_sync(team);
-        /* merging decisions: count merges and survivors per chunk */
-        {
-            uint32_t m = 0, s = 0;
-            for (i = b; i < e; i++) { /* role: 0 survives alone, 1 merges with j > i, 2 is merged into j < i */
-                uint32_t j = bvh__ploc_neighbour((uint32_t)i, best[i]);
-                uint32_t mutual = bvh__ploc_neighbour(j, best[j]) == i, left = mutual & (i < j);
-                p->role[i] = (uint8_t)(mutual + (mutual & !left));
-                s += 1u - (mutual & !left);
-                m += left;
+    } else if (k == 2) { /* merging decisions: count merges and survivors per chunk */
+        uint32_t m = 0, sv = 0;
+        for (i = b; i < e; i++) { /* role: 0 survives alone, 1 merges with j > i, 2 is merged into j < i */
+            uint32_t j = bvh__ploc_neighbour((uint32_t)i, best[i]);
+            uint32_t mutual = bvh__ploc_neighbour(j, best[j]) == i, left = mutual & (i < j);
+            p->role[i] = (uint8_t)(mutual + (mutual & !left));
+            sv += 1u - (mutual & !left);
+            m += left;
+        }
+        p->merges[tid] = m;
+        p->survivors[tid] = sv;
+    } else if (bvh__ploc_totals(p, count, nt, &ts, &tm)) { /* pair neighbours (see bvh__ploc_totals) */
+        for (i = b + (b & 1); i < e; i += 2) {
+            size_t h = i / 2;
+            if (i + 1 < count) {
+                size_t sl = slots + 2 * h;
+                bvh_node *n = &cout[h];
+                p->src[sl] = cin[i];
+                p->src[sl + 1] = cin[i + 1];
+                bvh__set_box(n, bvh__merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[i + 1])));
+                n->index = (uint32_t)sl;
+                n->count = 0;
+            } else {
+                cout[h] = cin[i];
             }
-            p->merges[tid] = m;
-            p->survivors[tid] = s;
         }
-        bvh__team_sync(team);
-        for (t = 0; t < nt; t++) {
-            if (t < tid) { pos += p->survivors[t]; slot += 2 * p->merges[t]; }
-            total_surv += p->survivors[t];
-            total_merge += p->merges[t];
-        }
+    } else { /* merge and compact, at the positions the earlier chunks' counts give */
+        for (t = 0; t < tid; t++) { pos += p->survivors[t]; slot += 2 * p->merges[t]; }
         slot += slots;
-        if (total_merge * 32 < count) {
-            /* Fewer than 1/32 of the clusters merge (nested or chained input would otherwise take
-               O(n) iterations, O(n^2) time): this iteration pairs neighbours (2k, 2k+1) instead,
-               as the bottom-up builder does, which halves the count. Decided from the totals,
-               so every thread count takes the same path. */
-            for (i = b + (b & 1); i < e; i += 2) {
-                size_t k = i / 2;
-                if (i + 1 < count) {
-                    size_t sl = slots + 2 * k;
-                    bvh_node *n = &cout[k];
-                    p->src[sl] = cin[i];
-                    p->src[sl + 1] = cin[i + 1];
-                    bvh__set_box(n, bvh__merge(bvh__node_box(&cin[i]), bvh__node_box(&cin[i + 1])));
-                    n->index = (uint32_t)sl;
-                    n->count = 0;
-                } else {
-                    cout[k] = cin[i];
-                }
-            }
-            total_merge = count / 2;
-            total_surv = count - total_merge;
-        } else
-        /* merge and compact (prefix scan positions computed above) */
         for (i = b; i < e; i++) {
             uint8_t role = p->role[i];
             if (role == 1) {
@@ -2058,21 +2204,72 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
                 cout[pos++] = cin[i];
             }
         }
-        bvh__team_sync(team);
-        slots += 2 * total_merge;
-        count = total_surv;
-        if (tid == 0) {
-            if (p->block_count < p->block_cap) p->blocks[p->block_count] = slots;
-            p->block_count++;
-        }
-        { bvh_node *tmp = cin; cin = cout; cout = tmp; }
     }
-    if (tid == 0) {
-        p->src[slots] = cin[0];
-        p->root = slots;
-        if (p->block_count < p->block_cap) p->blocks[p->block_count] = slots + 1;
+}
+/* After an iteration's last step: the next one's state; `lead` records where the iteration ended. */
+static void bvh__ploc_advance(bvh__ploc *p, bvh__ploc_iter *it, uint32_t nt, int lead) {
+    uint32_t surv, merge;
+    bvh_node *tmp = it->cin;
+    bvh__ploc_totals(p, it->count, nt, &surv, &merge);
+    it->slots += 2 * merge;
+    it->count = surv;
+    if (lead) {
+        if (p->block_count < p->block_cap) p->blocks[p->block_count] = it->slots;
         p->block_count++;
     }
+    it->cin = it->cout; it->cout = tmp;
+}
+static void bvh__ploc_iter_init(const bvh__ploc *p, bvh__ploc_iter *it) {
+    it->cin = p->cin; it->cout = p->cout;
+    it->count = p->c->n; it->slots = 0; it->active = 1;
+}
+/* After the last iteration (unless cancelled): the root. */
+static void bvh__ploc_finish(bvh__ploc *p, const bvh__ploc_iter *it) {
+    p->src[it->slots] = it->cin[0];
+    p->root = it->slots;
+    if (p->block_count < p->block_cap) p->blocks[p->block_count] = it->slots + 1;
+    p->block_count++;
+}
+/* Second team run: the clustering loop. */
+static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__ploc *p = BVH__CAST(bvh__ploc *, arg);
+    bvh__ploc_iter it;
+    int k;
+    bvh__ploc_iter_init(p, &it);
+    while (it.count > 1) {
+        bvh__ploc_begin(p, &it, nt, tid == 0);
+        for (k = 0; k < 4; k++) {
+            bvh__ploc_step(p, &it, k, tid, nt);
+            bvh__team_sync(team);
+            if (k == 0 && p->stop) break; /* read by all between the first and second barrier */
+        }
+        if (k < 4) return;
+        bvh__ploc_advance(p, &it, nt, tid == 0);
+    }
+    if (tid == 0) bvh__ploc_finish(p, &it);
+}
+/* The clustering loop on a caller's pool: each step one run of nt tasks. */
+typedef struct bvh__ploc_run { bvh__ploc *p; const bvh__ploc_iter *it; int k; } bvh__ploc_run;
+static void bvh__ploc_step_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    const bvh__ploc_run *x = BVH__CAST(const bvh__ploc_run *, arg);
+    (void)team;
+    bvh__ploc_step(x->p, x->it, x->k, tid, nt);
+}
+static bvh_result bvh__ploc_steps(bvh__ploc *p, uint32_t nt) {
+    bvh__ploc_iter it;
+    bvh__ploc_run x;
+    bvh_result r;
+    bvh__ploc_iter_init(p, &it);
+    x.p = p; x.it = &it;
+    while (it.count > 1) {
+        bvh__ploc_begin(p, &it, nt, 1);
+        if (p->stop) return BVH_SUCCESS;
+        for (x.k = 0; x.k < 4; x.k++)
+            if ((r = bvh__run(p->c, nt, 0, bvh__ploc_step_fn, &x)) != BVH_SUCCESS) return r;
+        bvh__ploc_advance(p, &it, nt, 1);
+    }
+    bvh__ploc_finish(p, &it);
+    return BVH_SUCCESS;
 }
 
 /* -- SAH top over PLOC's clusters ------------------------------------------------------------ */
@@ -2459,7 +2656,7 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
     job->grain = m / (4 * nthreads) > BVH__MIN_PRIMS_PER_THREAD / 4 ? m / (4 * nthreads) : BVH__MIN_PRIMS_PER_THREAD / 4;
     tasks[0].id = 0; tasks[0].buf = 0;
     bvh__top_bounds(job->v[0], 0, m, &tasks[0]);
-    r = bvh__team_run(&c->al, nthreads, bvh__top_team_fn, job);
+    r = bvh__run(c, nthreads, 1, bvh__top_team_fn, job);
     if (r != BVH_SUCCESS) goto done;
     for (i = m - 1; i-- > 0;) { /* children have larger ids: summed areas and heights from the last */
         uint32_t hh = 0;
@@ -2512,7 +2709,9 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     r = bvh__morton_job_init(c, &p.mj, nthreads);
     p.cin = BVH__ALLOC(&c->al, bvh_node, n);
     if (r == BVH_SUCCESS && !p.cin) r = BVH_ERROR_OUT_OF_MEMORY;
-    if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_init_fn, &p);
+    bvh__stage_in(c->prog, 0.0f, 0.15f);
+    if (r == BVH_SUCCESS) r = bvh__run(c, nthreads, 1, bvh__ploc_init_fn, &p);
+    bvh__stage_in(c->prog, 0.15f, 0.75f);
     /* the clusters now hold the boxes; the sorted keys' array becomes the offers' */
     bvh__free(&c->al, c->boxes); c->boxes = NULL;
     bvh__free(&c->al, p.mj.sort.keys_tmp); bvh__free(&c->al, p.mj.sort.vals_tmp); bvh__free(&c->al, p.mj.sort.hist);
@@ -2546,7 +2745,11 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
         if (!p.cout || !p.src || !p.bnd || !p.nn || !p.nn_f || !p.nn_i || !p.role || !p.merges || !p.survivors || !p.blocks)
             r = BVH_ERROR_OUT_OF_MEMORY;
     }
-    if (r == BVH_SUCCESS) r = bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
+    /* under a pool, nthreads tasks per step (the clustering's buffers are per task) */
+    if (r == BVH_SUCCESS) r = c->pool ? bvh__ploc_steps(&p, nthreads) : bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
+    if (r == BVH_SUCCESS && p.stop) r = BVH_ERROR_CANCELLED;
+    bvh__stage_in(c->prog, 0.75f, 1.0f);
+    if (r == BVH_SUCCESS && bvh__report(c->prog, 0.0)) r = BVH_ERROR_CANCELLED;
     if (r == BVH_SUCCESS && p.top_m && p.block_count <= p.block_cap) r = bvh__ploc_top(&p, nthreads);
     /* release the clustering scratch before emission, which needs its own */
     bvh__free(&c->al, p.cin); bvh__free(&c->al, p.cout);
@@ -3016,6 +3219,7 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
         bvh__sm_choice ch;
         bvh_aabb box;
         bvh_node *node;
+        if (bvh__tick(c->prog, m, (double)o->ref_count / (double)s->cap)) { r = BVH_ERROR_CANCELLED; goto done; }
         memset(&ch, 0, sizeof ch);
         ch.kind = BVH__SM_MEDIAN;
         t.budget += s->carry; /* what the subtrees before this one left unused */
@@ -3287,6 +3491,7 @@ static void bvh__resolve(const bvh_build_desc *d, bvh_builder builder, uint32_t 
     const bvh_builder_info *row = &bvh__builders[builder].info;
     memset(c, 0, sizeof *c);
     c->al = d->allocator;
+    c->pool = d->pool.run ? &d->pool : NULL;
     c->max_leaf = d->max_leaf_size ? d->max_leaf_size : row->max_leaf_size;
     c->threads = row->uses_threads ? bvh__resolve_threads(d->threads) : 1;
     /* a thread per BVH__MIN_PRIMS_PER_THREAD primitives at most: on small inputs, creating threads
@@ -3313,10 +3518,12 @@ static void bvh__resolve(const bvh_build_desc *d, bvh_builder builder, uint32_t 
     if (bvh__split_budget_off(c->split_budget)) c->split_budget = 0.0f;
 }
 
-static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32_t threads);
+static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, const bvh_thread_pool *pool,
+                                 uint32_t threads);
 BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     bvh__ctx c;
     bvh__out o;
+    bvh__progress prog;
     uint32_t count = 0, i, n = 0, *orig = NULL;
     bvh_result r;
     bvh_builder builder;
@@ -3332,7 +3539,13 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     tree->prim_count = count;
     memset(&o, 0, sizeof o);
     bvh__resolve(desc, builder, count, &c);
-    if (count == 0) return BVH_SUCCESS; /* an empty tree: node_count 0, every ray misses */
+    memset(&prog, 0, sizeof prog);
+    prog.fn = desc->progress;
+    prog.user = desc->progress_user;
+    c.prog = &prog;
+    bvh__stage(&prog, 0.0f, BVH__STAGE_BUILD_LO);
+    if (bvh__report(&prog, 0.0)) { r = BVH_ERROR_CANCELLED; goto fail; }
+    if (count == 0) goto empty; /* an empty tree: node_count 0, every ray misses */
 
     c.boxes = BVH__ALLOC(&c.al, bvh_aabb, count);
     if (!c.boxes) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
@@ -3344,7 +3557,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
         fr.desc = desc; fr.boxes = c.boxes; fr.count = count; fr.nt = c.threads;
         fr.part = BVH__ALLOC(&c.al, bvh__front_part, c.threads);
         if (!fr.part) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
-        r = bvh__team_run(&c.al, c.threads, bvh__front_fn, &fr);
+        r = bvh__run(&c, c.threads, 0, bvh__front_fn, &fr);
         c.bounds = c.cbounds = bvh__empty();
         for (i = 0; r == BVH_SUCCESS && i < fr.nt; i++) {
             c.bounds = bvh__merge(c.bounds, fr.part[i].bounds);
@@ -3352,6 +3565,7 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
             n += fr.part[i].invalid;
         }
         bvh__free(&c.al, fr.part);
+        if (r == BVH_SUCCESS && bvh__report(&prog, 1.0)) r = BVH_ERROR_CANCELLED;
         if (r != BVH_SUCCESS) goto fail;
     }
     if (n > 0) { /* some primitives are invalid (marked by a NaN box): refuse, or leave them out */
@@ -3376,7 +3590,10 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     c.orig = orig;
     if (n == 0) goto empty;
 
+    bvh__stage(&prog, BVH__STAGE_BUILD_LO, BVH__STAGE_BUILD_HI);
     if ((r = bvh__builders[builder].build(&c, &o)) != BVH_SUCCESS) goto fail;
+    bvh__stage(&prog, BVH__STAGE_BUILD_HI, BVH__STAGE_WIDE_LO);
+    if (bvh__report(&prog, 0.0)) { r = BVH_ERROR_CANCELLED; goto fail; }
     bvh__free(&c.al, c.boxes); c.boxes = NULL;
 
     /* exact-size outputs: nodes, references mapped to caller indices, triangles in reference order */
@@ -3394,14 +3611,19 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     if (c.tris || orig) { /* triangles in reference order, references to caller ids */
         bvh__back bk;
         bk.c = &c; bk.tree = tree;
-        r = bvh__team_run(&c.al, c.threads, bvh__back_fn, &bk);
+        r = bvh__run(&c, c.threads, 0, bvh__back_fn, &bk);
         if (r != BVH_SUCCESS) goto fail;
     }
+    bvh__stage(&prog, BVH__STAGE_WIDE_LO, 1.0f);
+    if (bvh__report(&prog, 0.0)) { r = BVH_ERROR_CANCELLED; goto fail; }
     bvh__out_free(&c, &o); /* first, so that the 8-wide copy does not add to the peak */
     bvh__free(&c.al, orig);
     orig = NULL;
-    if (c.tris && desc->trace_width != 2 && (r = bvh__make_wide(tree, &c.al, c.threads)) != BVH_SUCCESS) goto fail;
+    if (c.tris && desc->trace_width != 2 && (r = bvh__make_wide(tree, &c.al, c.pool, c.threads)) != BVH_SUCCESS) goto fail;
 empty:
+    /* complete: 1 is reported once, and its answer no longer cancels */
+    bvh__stage(&prog, 1.0f, 1.0f);
+    (void)bvh__report(&prog, 1.0);
     bvh__out_free(&c, &o);
     bvh__free(&c.al, orig);
     bvh__free(&c.al, c.boxes);
@@ -4077,7 +4299,8 @@ static bvh_result bvh__wide_sub(const bvh_node *nodes, uint32_t count, uint32_t 
     }
     return BVH_SUCCESS;
 }
-static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32_t threads) {
+static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, const bvh_thread_pool *pool,
+                                 uint32_t threads) {
     uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], psize[BVH__WIDE_TOP], qlen = 1, top = 0;
     uint32_t i, k, pos, total, ptotal = 0, nt, kids[BVH__W], *sub;
     bvh__wide_job job;
@@ -4101,7 +4324,7 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32
     job.psize = psize;
     job.count = qlen - top;
     nt = threads < job.count ? threads : job.count;
-    if (job.count && (r = bvh__team_run(al, nt, bvh__wide_fn, &job)) != BVH_SUCCESS) goto done;
+    if (job.count && (r = bvh__team_run_on(pool, al, nt, 0, bvh__wide_fn, &job)) != BVH_SUCCESS) goto done;
     for (i = 0, total = top; i < job.count; i++) {
         uint32_t s = size[i], p = psize[i];
         if (!s || s > 0xffffffffu - total || p > 0xffffffffu - ptotal) {
@@ -4139,7 +4362,7 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32
             }
     }
     job.out = tree->nodes8;
-    r = job.count ? bvh__team_run(al, nt, bvh__wide_fn, &job) : BVH_SUCCESS;
+    r = job.count ? bvh__team_run_on(pool, al, nt, 0, bvh__wide_fn, &job) : BVH_SUCCESS;
 done:
     bvh__free(al, sub);
     return r;
@@ -4413,132 +4636,7 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
     }
     return found;
 }
-#ifdef BVH__AVX512
-/* bvh__packets on up to four packets per pass of sixteen lanes: a leaf slot of up to
-   BVH__SLOT_REFS references in one pass. The same operations in the same order on each lane, so
-   the same bits; lanes past the leaf's packets load packet 0 again and are masked off. */
-#define BVH__T512 __attribute__((target("avx2,avx512f")))
-/* _mm512_min_ps / _mm512_max_ps with every lane written: g++ 12 takes the undefined source
-   operand of the plain forms for an uninitialised value (-Wmaybe-uninitialized). */
-BVH__T512 static inline __m512 bvh__min16(__m512 a, __m512 b) { return _mm512_mask_min_ps(b, (__mmask16)0xffff, a, b); }
-BVH__T512 static inline __m512 bvh__max16(__m512 a, __m512 b) { return _mm512_mask_max_ps(b, (__mmask16)0xffff, a, b); }
-BVH__T512 static inline __m512 bvh__load16(const bvh_tri4 *const g[4], int k, int a) {
-    __m512 x = _mm512_castps128_ps512(_mm_loadu_ps(g[0]->v[k][a]));
-    x = _mm512_insertf32x4(x, _mm_loadu_ps(g[1]->v[k][a]), 1);
-    x = _mm512_insertf32x4(x, _mm_loadu_ps(g[2]->v[k][a]), 2);
-    return _mm512_insertf32x4(x, _mm_loadu_ps(g[3]->v[k][a]), 3);
-}
-BVH__T512 static inline void bvh__shear16(const bvh__rayx *r, const bvh_tri4 *const g[4], int k, __m512 *x, __m512 *y,
-                                          __m512 *z) {
-    const __m512 zk = _mm512_sub_ps(bvh__load16(g, k, r->kz), _mm512_set1_ps(r->o[r->kz]));
-    *z = zk;
-    *x = _mm512_sub_ps(_mm512_sub_ps(bvh__load16(g, k, r->kx), _mm512_set1_ps(r->o[r->kx])),
-                       _mm512_mul_ps(_mm512_set1_ps(r->sx), zk));
-    *y = _mm512_sub_ps(_mm512_sub_ps(bvh__load16(g, k, r->ky), _mm512_set1_ps(r->o[r->ky])),
-                       _mm512_mul_ps(_mm512_set1_ps(r->sy), zk));
-}
-BVH__T512 static inline int bvh__packets_avx512(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b,
-                                                int any) {
-    const int kz = r->kz;
-    const __m512 zero = _mm512_setzero_ps(), inf = _mm512_set1_ps(BVH_INF), sz = _mm512_set1_ps(r->sz);
-    uint32_t q;
-    int found = 0;
-    for (q = 0; q < np; q += 4, p += 4) {
-        const uint32_t n = np - q < 4 ? np - q : 4;
-        const bvh_tri4 *const g[4] = {p, p + (n > 1 ? 1 : 0), p + (n > 2 ? 2 : 0), p + (n > 3 ? 3 : 0)};
-        const unsigned lanes = 0xffffu >> (16 - 4 * n);
-        __m512 x0, y0, z0, x1, y1, z1, x2, y2, z2, U, V, W, ft, det, T, tn, tf, slack;
-        float fl[4][16];
-        unsigned m, zm, k;
-        bvh__shear16(r, g, 0, &x0, &y0, &z0);
-        bvh__shear16(r, g, 1, &x1, &y1, &z1);
-        bvh__shear16(r, g, 2, &x2, &y2, &z2);
-        U = _mm512_sub_ps(_mm512_mul_ps(x2, y1), _mm512_mul_ps(y2, x1));
-        V = _mm512_sub_ps(_mm512_mul_ps(x0, y2), _mm512_mul_ps(y0, x2));
-        W = _mm512_sub_ps(_mm512_mul_ps(x1, y0), _mm512_mul_ps(y1, x0));
-        zm = lanes & (unsigned)(_mm512_cmp_ps_mask(U, zero, _CMP_EQ_OQ) | _mm512_cmp_ps_mask(V, zero, _CMP_EQ_OQ) |
-                                _mm512_cmp_ps_mask(W, zero, _CMP_EQ_OQ));
-        if (zm) { /* the lanes with a zero edge function, redone in double */
-            float fx[3][16], fy[3][16], fu[16], fv[16], fw[16];
-            _mm512_storeu_ps(fx[0], x0);
-            _mm512_storeu_ps(fx[1], x1);
-            _mm512_storeu_ps(fx[2], x2);
-            _mm512_storeu_ps(fy[0], y0);
-            _mm512_storeu_ps(fy[1], y1);
-            _mm512_storeu_ps(fy[2], y2);
-            _mm512_storeu_ps(fu, U);
-            _mm512_storeu_ps(fv, V);
-            _mm512_storeu_ps(fw, W);
-            bvh__edges_exact_lanes(&fx[0][0], &fy[0][0], fu, fv, fw, zm, 16);
-            U = _mm512_loadu_ps(fu);
-            V = _mm512_loadu_ps(fv);
-            W = _mm512_loadu_ps(fw);
-        }
-        m = lanes & ~(unsigned)((_mm512_cmp_ps_mask(U, zero, _CMP_LT_OQ) | _mm512_cmp_ps_mask(V, zero, _CMP_LT_OQ) |
-                                 _mm512_cmp_ps_mask(W, zero, _CMP_LT_OQ)) &
-                                (_mm512_cmp_ps_mask(U, zero, _CMP_GT_OQ) | _mm512_cmp_ps_mask(V, zero, _CMP_GT_OQ) |
-                                 _mm512_cmp_ps_mask(W, zero, _CMP_GT_OQ)));
-        if (!m) continue;
-        /* bvh__packet_hits on sixteen lanes */
-        det = _mm512_add_ps(_mm512_add_ps(U, V), W);
-        T = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(U, _mm512_mul_ps(sz, z0)), _mm512_mul_ps(V, _mm512_mul_ps(sz, z1))),
-                          _mm512_mul_ps(W, _mm512_mul_ps(sz, z2)));
-        ft = _mm512_div_ps(T, det);
-        m &= (unsigned)(_mm512_cmp_ps_mask(ft, _mm512_set1_ps(r->tmin), _CMP_GE_OQ) &
-                        _mm512_cmp_ps_mask(ft, _mm512_set1_ps(b->t), _CMP_LE_OQ) & _mm512_cmp_ps_mask(ft, inf, _CMP_LT_OQ) &
-                        _mm512_cmp_ps_mask(det, zero, _CMP_NEQ_UQ));
-        if (!m) continue;
-        /* bvh__reach4 on sixteen lanes: the triangles' boxes (bvh__tri_box) reached by ft */
-        tn = _mm512_set1_ps(r->tmin);
-        tf = inf;
-        slack = zero;
-        for (k = 0; k < 3; k++) {
-            const __m512 v0 = bvh__load16(g, 0, (int)k), v1 = bvh__load16(g, 1, (int)k), v2 = bvh__load16(g, 2, (int)k);
-            const __m512 lo = bvh__min16(bvh__min16(v0, v1), v2), hi = bvh__max16(bvh__max16(v0, v1), v2);
-            const __m512 o = _mm512_set1_ps(r->o[k]), inv = _mm512_set1_ps(r->inv[k]);
-            const int ng = r->inv[k] < 0.0f;
-            const __m512 t0 = _mm512_mul_ps(_mm512_sub_ps(ng ? hi : lo, o), inv);
-            const __m512 t1 = _mm512_mul_ps(_mm512_sub_ps(ng ? lo : hi, o), inv);
-            tn = bvh__max16(t0, tn);
-            tf = bvh__min16(t1, tf);
-            if ((int)k == kz) slack = bvh__max16(t1, _mm512_sub_ps(zero, t0));
-        }
-        tf = _mm512_mul_ps(tf, _mm512_set1_ps(1.0000004f));
-        tn = _mm512_sub_ps(tn, _mm512_mul_ps(slack, _mm512_set1_ps(3.814697265625e-6f)));
-        tf = bvh__min16(tf, ft);
-        m &= (unsigned)_mm512_cmp_ps_mask(tn, tf, _CMP_LE_OQ);
-        if (!m) continue;
-        _mm512_storeu_ps(fl[0], ft);
-        if (any) {
-            const unsigned i = BVH__CTZ(m);
-            b->t = fl[0][i];
-            b->prim = g[i >> 2]->prim[i & 3u];
-            return 1;
-        }
-        _mm512_storeu_ps(fl[1], det);
-        _mm512_storeu_ps(fl[2], V);
-        _mm512_storeu_ps(fl[3], W);
-        while (m) { /* the nearest lane; ties in t: the lowest primitive index */
-            const unsigned i = BVH__CTZ(m);
-            const float t = fl[0][i], d = fl[1][i];
-            const uint32_t prim = g[i >> 2]->prim[i & 3u];
-            m &= m - 1;
-            if (t > b->t || (t == b->t && prim > b->prim)) continue;
-            b->t = t;
-            b->u = fl[2][i] / d;
-            b->v = fl[3][i] / d;
-            b->prim = prim;
-            found = 1;
-        }
-    }
-    return found;
-}
-#define BVH__PACKETS(r, p, np, b, any)                                                                              \
-    (isa == 2 ? bvh__packets_avx512(r, p, np, b, any) : isa ? bvh__packets_avx2(r, p, np, b, any)                  \
-              : bvh__packets(r, p, np, b, any))
-#else
 #define BVH__PACKETS(r, p, np, b, any) (isa ? bvh__packets_avx2(r, p, np, b, any) : bvh__packets(r, p, np, b, any))
-#endif
 #endif
 #else
 static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
@@ -4717,7 +4815,7 @@ BVH__INLINE void bvh__push8(const bvh_tree *tree, const bvh_node8 *n, unsigned i
 /* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
    order, unsorted), the farther ones on the stack; a leaf's packets tested at once. isa (a
    constant: the loop is compiled once for each): 0 SSE or plain C, 1 AVX2 (the slab test in one
-   pass, the leaf test on eight lanes), 2 AVX2 and AVX-512F (the leaf test on sixteen lanes). */
+   pass, the leaf test on eight lanes). */
 BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
                                     int any, int isa) {
     bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
@@ -4833,20 +4931,12 @@ __attribute__((target("avx2"))) static int bvh__trace8_avx2(const bvh_tree *tree
     return bvh__trace8(tree, ray, hit, any, 1);
 }
 #endif
-#ifdef BVH__AVX512
-BVH__T512 static int bvh__trace8_avx512(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
-    return bvh__trace8(tree, ray, hit, any, 2);
-}
-#endif
 static int bvh__trace8_base(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
     return bvh__trace8(tree, ray, hit, any, 0);
 }
 /* The wide traversal for the single-ray calls and the batches: tree->nodes8 is set only on a
    tree with triangles and nodes (bvh__make_wide), which is all bvh__traverse checks first. */
 BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
-#ifdef BVH__AVX512
-    if (bvh__have_avx512()) return bvh__trace8_avx512(tree, ray, hit, any);
-#endif
 #ifdef BVH__AVX2
     if (bvh__have_avx2()) return bvh__trace8_avx2(tree, ray, hit, any);
 #endif
@@ -4961,8 +5051,17 @@ static void bvh__batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
         }
     }
 }
+/* Under a caller's pool each chunk is a task: the pool balances them. */
+static void bvh__batch_task(void *arg, uint32_t index) {
+    const bvh__batch *b = BVH__CAST(const bvh__batch *, arg);
+    size_t i = (size_t)index * BVH__BATCH_CHUNK, e = i + BVH__BATCH_CHUNK < b->count ? i + BVH__BATCH_CHUNK : b->count;
+    for (; i < e; i++) {
+        if (b->hits) bvh__traverse(b->tree, &b->rays[i], &b->hits[i], 0, NULL);
+        else b->occluded[i] = (uint8_t)bvh__traverse(b->tree, &b->rays[i], NULL, 1, NULL);
+    }
+}
 static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ,
-                                 size_t count, uint32_t threads) {
+                                 size_t count, uint32_t threads, const bvh_thread_pool *pool) {
     bvh__batch b;
     uint32_t nt;
     if (!tree || (count && (!rays || (!hits && !occ)))) return BVH_ERROR_INVALID_ARGUMENT;
@@ -4976,6 +5075,20 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
         return BVH_ERROR_NO_TRIANGLES;
     }
     b.tree = tree; b.rays = rays; b.hits = hits; b.occluded = occ; b.count = count; b.next = 0;
+    if (pool && pool->run) {
+        size_t chunks = (count + BVH__BATCH_CHUNK - 1) / BVH__BATCH_CHUNK, done;
+        (void)threads; /* the pool balances the chunks itself */
+        for (done = 0; done < chunks;) { /* runs of at most 2^32 - 1 tasks */
+            uint32_t k = chunks - done > 0xffffffffu ? 0xffffffffu : (uint32_t)(chunks - done);
+            b.rays = rays + done * BVH__BATCH_CHUNK;
+            b.hits = hits ? hits + done * BVH__BATCH_CHUNK : NULL;
+            b.occluded = occ ? occ + done * BVH__BATCH_CHUNK : NULL;
+            b.count = count - done * BVH__BATCH_CHUNK;
+            pool->run(pool->user, k, bvh__batch_task, &b);
+            done += k;
+        }
+        return BVH_SUCCESS;
+    }
     nt = bvh__resolve_threads(threads);
     if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
     if (nt < 1) nt = 1;
@@ -4984,12 +5097,26 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
 BVH_API bvh_result bvh_intersect_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
                                        uint32_t threads) {
     if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__batch_run(tree, rays, hits, NULL, count, threads);
+    return bvh__batch_run(tree, rays, hits, NULL, count, threads, NULL);
 }
 BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
                                       uint32_t threads) {
     if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__batch_run(tree, rays, NULL, occluded, count, threads);
+    return bvh__batch_run(tree, rays, NULL, occluded, count, threads, NULL);
+}
+BVH_API bvh_result bvh_intersect_batch_ex(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
+                                          const bvh_batch_desc *desc) {
+    bvh_batch_desc zero;
+    if (!desc) { memset(&zero, 0, sizeof zero); desc = &zero; }
+    if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__batch_run(tree, rays, hits, NULL, count, desc->threads, &desc->pool);
+}
+BVH_API bvh_result bvh_occluded_batch_ex(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
+                                         const bvh_batch_desc *desc) {
+    bvh_batch_desc zero;
+    if (!desc) { memset(&zero, 0, sizeof zero); desc = &zero; }
+    if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__batch_run(tree, rays, NULL, occluded, count, desc->threads, &desc->pool);
 }
 
 /* ============================================================================================ */

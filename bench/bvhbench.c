@@ -263,20 +263,15 @@ typedef struct bench_cl {
     char device[400];
 } bench_cl;
 
-/* Opens the first device (or $BVH_CL_DEVICE) with cl/trace.cl found from the working directory
-   or next to the program (build/../cl/trace.cl). 0 on success, else a reason in msg. */
-static int bcl_open(bench_cl *b, const char *argv0, char *msg, size_t msglen) {
-    char path[1024], log[4096] = "";
-    const char *slash = strrchr(argv0, '/');
+/* Opens the first device (or $BVH_CL_DEVICE) with the kernel bvh_cl.h holds. 0 on success, else
+   a reason in msg. */
+static int bcl_open(bench_cl *b, char *msg, size_t msglen) {
+    char log[4096] = "";
     bvh_cl_desc d;
     bvh_cl_device_info info;
     bvh_cl_result r;
     memset(b, 0, sizeof *b);
     memset(&d, 0, sizeof d);
-    snprintf(path, sizeof path, "%s", BVH_CL_KERNEL_PATH);
-    if (access(path, R_OK) != 0 && slash)
-        snprintf(path, sizeof path, "%.*s/../%s", (int)(slash - argv0), argv0, BVH_CL_KERNEL_PATH);
-    d.kernel_path = path;
     d.log = log;
     d.log_size = sizeof log;
     if (getenv("BVH_CL_FRAME_RAYS")) d.frame_rays = atoi(getenv("BVH_CL_FRAME_RAYS")); /* 1 or 8: compare */
@@ -2146,7 +2141,7 @@ static int setup(options *o, header_info *h, bench_cl *store, bench_cl **cl) {
     if (o->trace_auto) o->trace_cpu = o->trace_cl = 1;
     *cl = NULL;
     if (!o->trace_cl) snprintf(h->opencl, sizeof h->opencl, "not used (--trace)");
-    else if (bcl_open(store, o->argv0, msg, sizeof msg) == 0) {
+    else if (bcl_open(store, msg, sizeof msg) == 0) {
         *cl = store;
         snprintf(h->opencl, sizeof h->opencl, "%s", store->device);
     } else if (o->trace_auto) {

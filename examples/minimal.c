@@ -10,6 +10,8 @@
 
 #include <stdio.h>
 
+/* main keeps the manual's layout (tests/examples.sh compares the two) */
+/* clang-format off */
 int main(void) {
     float v[] = { 0,0,0,  1,0,0,  0,1,0,    0,0,1,  1,0,1,  0,1,1 };  // two triangles
     bvh_build_desc desc = {0};                   // zero = sensible defaults
@@ -27,3 +29,4 @@ int main(void) {
     bvh_free(&tree);
     return 0;
 }
+/* clang-format on */

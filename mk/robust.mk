@@ -20,7 +20,7 @@ TSAN_FLAGS    = -g -O1 -fsanitize=thread
 FUZZ_FLAGS    = -g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined
 
 ASAN_TESTS = $(patsubst tests/%.c,$(BUILD)/asan/%,$(wildcard tests/test_*.c))
-TSAN_TESTS = $(BUILD)/tsan/test_robust
+TSAN_TESTS = $(BUILD)/tsan/test_robust $(BUILD)/tsan/test_pool
 FUZZ_BIN   = $(BUILD)/fuzz/fuzz_build
 
 .PHONY: asan tsan fuzz robust

@@ -5,7 +5,7 @@
 set -u
 want=${1:-all}
 pkgs_core="build-essential"
-pkgs_test="libcmocka-dev glmark2-data pocl-opencl-icd ocl-icd-opencl-dev opencl-headers libassimp-dev libstb-dev clang libclang-rt-14-dev valgrind cmake pkg-config"
+pkgs_test="libcmocka-dev glmark2-data pocl-opencl-icd ocl-icd-opencl-dev opencl-headers libassimp-dev libstb-dev clang clang-format libclang-rt-14-dev valgrind cmake pkg-config"
 pkgs_demo="libassimp-dev libstb-dev glmark2-data pocl-opencl-icd ocl-icd-opencl-dev opencl-headers"
 pkgs_bench="$pkgs_demo libembree-dev gnuplot-nox"
 case "$want" in

@@ -525,6 +525,9 @@ static void bad_kernel_source(void **state) {
     assert_int_equal(oc_create(&c, NULL, NULL, "no/such/dir/trace.cl", 0, log, sizeof log),
                      BVH_CL_ERROR_KERNEL_NOT_FOUND);
     assert_non_null(strstr(log, "no/such/dir/trace.cl"));
+    /* a kernel file read at run time (the tests run from the repository's root) */
+    assert_int_equal(oc_create(&c, NULL, NULL, "cl/trace.cl", 0, log, sizeof log), BVH_CL_SUCCESS);
+    bvh_cl_destroy(c);
     assert_int_equal(oc_create(&c, NULL, NULL, NULL, 0, NULL, 0), BVH_CL_SUCCESS); /* no log buffer */
     assert_string_equal(bvh_cl_build_log(NULL), "");
     bvh_cl_destroy(c);

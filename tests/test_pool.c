@@ -1,0 +1,358 @@
+/* tests/test_pool.c - a caller's thread pool (bvh_build_desc.pool, bvh_batch_desc.pool) and the
+   build's progress callback (bvh_build_desc.progress).
+
+   Pool: three hooks, one that runs the tasks one after another on the calling thread, one that
+   runs them on its own pthreads in reversed order and one in a shuffled order; for every scene,
+   builder and task count, the tree is byte for byte the internal pool's (tree_diff.h), and the
+   batch calls give the internal pool's hits and flags. Progress: fractions rise from 0 to a
+   single 1 on a completed build; cancelling at the k-th call, for every k a build makes, returns
+   BVH_ERROR_CANCELLED with the tree empty and every block given back (a counting allocator;
+   `make asan` checks the rest); on 200K random triangles the callback comes at least once per
+   BVH__PROGRESS_WORK-ish slice of work and never leaves a long gap. */
+#define BVH_IMPLEMENTATION
+#define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
+#include "bvh.h"
+#include "test_util.h"
+#include "tree_diff.h"
+
+#include <pthread.h>
+#include <time.h>
+
+/* == pools =================================================================================== */
+typedef struct pool_state {
+    int order;        /* 0: serial on the caller; 1: reversed, 2: shuffled, on `workers` pthreads */
+    uint32_t workers;
+    uint32_t runs;    /* calls of run */
+    uint64_t seed;
+} pool_state;
+typedef struct pool_job {
+    bvh_task_fn task;
+    void *arg;
+    const uint32_t *order;
+    uint32_t count, next;
+    pthread_mutex_t mutex;
+} pool_job;
+static void *pool_worker(void *p) {
+    pool_job *j = (pool_job *)p;
+    for (;;) {
+        uint32_t k;
+        pthread_mutex_lock(&j->mutex);
+        k = j->next < j->count ? j->next++ : j->count;
+        pthread_mutex_unlock(&j->mutex);
+        if (k == j->count) return NULL;
+        j->task(j->arg, j->order[k]);
+    }
+}
+static void pool_run(void *user, uint32_t count, bvh_task_fn task, void *arg) {
+    pool_state *s = (pool_state *)user;
+    pthread_t th[8];
+    pool_job j;
+    uint32_t *order, i, w;
+    s->runs++;
+    if (s->order == 0) {
+        for (i = 0; i < count; i++) task(arg, i);
+        return;
+    }
+    order = (uint32_t *)malloc((count ? count : 1) * sizeof *order);
+    assert_non_null(order);
+    for (i = 0; i < count; i++) order[i] = count - 1 - i;
+    if (s->order == 2) {
+        tu_rng r = tu_rng_make(s->seed++);
+        for (i = count; i > 1; i--) {
+            uint32_t k = tu_below(&r, i), t = order[i - 1];
+            order[i - 1] = order[k];
+            order[k] = t;
+        }
+    }
+    j.task = task; j.arg = arg; j.order = order; j.count = count; j.next = 0;
+    pthread_mutex_init(&j.mutex, NULL);
+    for (w = 0; w < s->workers && w < 8; w++) assert_int_equal(pthread_create(&th[w], NULL, pool_worker, &j), 0);
+    while (w-- > 0) pthread_join(th[w], NULL);
+    pthread_mutex_destroy(&j.mutex);
+    free(order);
+}
+static const char *const pool_names[] = {"serial", "reversed", "shuffled"};
+
+/* == a counting allocator ==================================================================== */
+typedef struct count_alloc { long live; } count_alloc;
+static void *ca_alloc(size_t size, void *user) {
+    ((count_alloc *)user)->live++;
+    return malloc(size);
+}
+static void ca_free(void *p, void *user) {
+    ((count_alloc *)user)->live--;
+    free(p);
+}
+
+/* == the pool gives the internal pool's tree ================================================= */
+static void pool_same_tree(void **state) {
+    static const uint32_t tasks[] = {1, 2, 3, 7};
+    int id = tu_state_id(state), b, h;
+    size_t k;
+    tu_scene s;
+    if (!tu_scene_make(id, &s)) skip();
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_builder builder = tu_builder(b);
+        bvh_build_desc d = tu_scene_desc(&s, builder);
+        bvh_tree ref, t;
+        d.threads = 2;
+        assert_int_equal(bvh_build(&ref, &d), BVH_SUCCESS);
+        for (h = 0; h < 3; h++)
+            for (k = 0; k < sizeof tasks / sizeof tasks[0]; k++) {
+                pool_state ps;
+                const char *diff;
+                memset(&ps, 0, sizeof ps);
+                ps.order = h; ps.workers = 3; ps.seed = 7 + k;
+                d.pool.run = pool_run;
+                d.pool.user = &ps;
+                d.threads = tasks[k];
+                assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+                diff = tree_diff(&ref, &t);
+                if (diff)
+                    fail_msg("%s/%s: pool %s with %u tasks: %s differs from the internal pool's", s.name,
+                             bvh_builder_name(builder), pool_names[h], tasks[k], diff);
+                /* the builders that use threads hand their phases to the pool */
+                if (tasks[k] > 1 && s.tri_count >= 64 && builder == BVH_BUILDER_PLOC_PARALLEL && ps.runs == 0)
+                    fail_msg("%s/%s: the pool was never asked to run anything", s.name, bvh_builder_name(builder));
+                bvh_free(&t);
+            }
+        bvh_free(&ref);
+    }
+    tu_scene_free(&s);
+}
+
+/* PLOC over its memory budget (a soup: bvh__fit_budget) and with the SAH top off, on a pool. */
+static void pool_same_tree_options(void **state) {
+    tu_scene s;
+    int v;
+    (void)state;
+    tu_scene_random(&s, 30000, 0x504f4f4cULL);
+    for (v = 0; v < 3; v++) {
+        bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC_PARALLEL);
+        bvh_tree ref, t;
+        pool_state ps;
+        const char *diff;
+        if (v == 1) d.ploc.top = BVH_OFF;
+        if (v == 2) d.ploc.max_bytes_per_prim = 24;
+        d.threads = 3;
+        assert_int_equal(bvh_build(&ref, &d), BVH_SUCCESS);
+        memset(&ps, 0, sizeof ps);
+        ps.order = 2; ps.workers = 4; ps.seed = 99;
+        d.pool.run = pool_run; d.pool.user = &ps;
+        d.threads = 5;
+        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+        diff = tree_diff(&ref, &t);
+        if (diff) fail_msg("variant %d: %s differs", v, diff);
+        bvh_free(&t);
+        bvh_free(&ref);
+    }
+    tu_scene_free(&s);
+}
+
+/* == batch tracing through the pool ========================================================== */
+static void pool_batch_same_hits(void **state) {
+    const size_t count = 5000;
+    tu_scene s;
+    bvh_tree t;
+    bvh_ray *rays = (bvh_ray *)malloc(count * sizeof *rays);
+    bvh_hit *ref = (bvh_hit *)malloc(count * sizeof *ref), *hits = (bvh_hit *)malloc(count * sizeof *hits);
+    uint8_t *oref = (uint8_t *)malloc(count), *occ = (uint8_t *)malloc(count);
+    float *tris;
+    int h;
+    (void)state;
+    assert_true(rays && ref && hits && oref && occ);
+    tu_scene_random(&s, 5000, 0x42415443ULL);
+    tris = tu_scene_tris(&s);
+    tu_make_rays(tris, s.tri_count, 11, rays, count);
+    {
+        bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
+        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+    }
+    assert_int_equal(bvh_intersect_batch(&t, rays, ref, count, 2), BVH_SUCCESS);
+    assert_int_equal(bvh_occluded_batch(&t, rays, oref, count, 2), BVH_SUCCESS);
+    for (h = 0; h < 3; h++) {
+        pool_state ps;
+        bvh_batch_desc bd;
+        memset(&ps, 0, sizeof ps);
+        ps.order = h; ps.workers = 3; ps.seed = 5;
+        memset(&bd, 0, sizeof bd);
+        bd.pool.run = pool_run; bd.pool.user = &ps;
+        memset(hits, 0xab, count * sizeof *hits);
+        memset(occ, 0xab, count);
+        assert_int_equal(bvh_intersect_batch_ex(&t, rays, hits, count, &bd), BVH_SUCCESS);
+        assert_int_equal(bvh_occluded_batch_ex(&t, rays, occ, count, &bd), BVH_SUCCESS);
+        assert_true(ps.runs >= 2);
+        if (memcmp(hits, ref, count * sizeof *hits) != 0) fail_msg("pool %s: other hits", pool_names[h]);
+        if (memcmp(occ, oref, count) != 0) fail_msg("pool %s: other occlusion flags", pool_names[h]);
+    }
+    /* desc NULL: the internal threads */
+    assert_int_equal(bvh_intersect_batch_ex(&t, rays, hits, count, NULL), BVH_SUCCESS);
+    assert_memory_equal(hits, ref, count * sizeof *hits);
+    assert_int_equal(bvh_intersect_batch_ex(&t, rays, NULL, count, NULL), BVH_ERROR_INVALID_ARGUMENT);
+    bvh_free(&t);
+    free(tris);
+    tu_scene_free(&s);
+    free(rays); free(ref); free(hits); free(oref); free(occ);
+}
+
+/* == progress and cancel ===================================================================== */
+typedef struct prog_state {
+    uint32_t calls, cancel_at; /* cancel_at: return nonzero at that call (1-based), 0 never */
+    uint32_t ones;             /* calls with fraction 1 */
+    float last;
+    int rising;                /* every fraction in [0, 1] and >= the one before */
+    double t_last, max_gap;    /* seconds */
+} prog_state;
+static double now_s(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+static int on_progress(void *user, float f) {
+    prog_state *p = (prog_state *)user;
+    double t = now_s();
+    if (p->calls && t - p->t_last > p->max_gap) p->max_gap = t - p->t_last;
+    p->t_last = t;
+    p->calls++;
+    if (!(f >= 0.0f && f <= 1.0f && f >= p->last)) p->rising = 0;
+    p->last = f;
+    if (f == 1.0f) p->ones++;
+    return p->cancel_at && p->calls == p->cancel_at;
+}
+static void prog_init(prog_state *p, uint32_t cancel_at) {
+    memset(p, 0, sizeof *p);
+    p->cancel_at = cancel_at;
+    p->rising = 1;
+    p->t_last = now_s();
+}
+
+/* For every builder, with and without a pool: a completed build reports rising fractions ending
+   in one 1; a cancel at each call k in turn returns BVH_ERROR_CANCELLED, an empty tree and no
+   block left allocated. */
+static void progress_cancel_every_call(void **state) {
+    tu_scene s;
+    int b, pooled;
+    (void)state;
+    tu_scene_random(&s, 40000, 0x43414e43ULL);
+    for (b = 0; b < TU_BUILDER_COUNT; b++)
+        for (pooled = 0; pooled < 2; pooled++) {
+            bvh_builder builder = tu_builder(b);
+            bvh_build_desc d = tu_scene_desc(&s, builder);
+            pool_state ps;
+            prog_state p;
+            count_alloc ca = {0};
+            bvh_tree t;
+            uint32_t total, k, step;
+            memset(&ps, 0, sizeof ps);
+            ps.order = 1; ps.workers = 2;
+            if (pooled) { d.pool.run = pool_run; d.pool.user = &ps; }
+            d.threads = 2;
+            d.progress = on_progress;
+            d.progress_user = &p;
+            d.allocator.alloc = ca_alloc; d.allocator.free = ca_free; d.allocator.user = &ca;
+            prog_init(&p, 0);
+            assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+            if (!p.rising || p.ones != 1 || p.last != 1.0f || p.calls < 3)
+                fail_msg("%s (pool %d): %u calls, rising %d, %u ones, last %g", bvh_builder_name(builder), pooled,
+                         p.calls, p.rising, p.ones, (double)p.last);
+            bvh_free(&t);
+            assert_int_equal(ca.live, 0);
+            total = p.calls;
+            /* every call up to the last before 1 (a cancel at 1 comes too late: the build is done);
+               on long call sequences every step-th and the last ten */
+            step = total > 60 ? total / 40 : 1;
+            for (k = 1; k < total; k += (k + 10 < total ? step : 1)) {
+                bvh_result r;
+                prog_init(&p, k);
+                r = bvh_build(&t, &d);
+                if (r != BVH_ERROR_CANCELLED)
+                    fail_msg("%s (pool %d): cancel at call %u of %u gave %s", bvh_builder_name(builder), pooled, k,
+                             total, bvh_result_string(r));
+                if (p.calls != k) fail_msg("%s: called again (%u times) after the cancel at %u", bvh_builder_name(builder), p.calls, k);
+                assert_null(t.nodes); assert_null(t.prims); assert_null(t.tris); assert_null(t.nodes8);
+                assert_int_equal(t.node_count, 0);
+                if (ca.live != 0) fail_msg("%s (pool %d): cancel at %u leaked %ld blocks", bvh_builder_name(builder), pooled, k, ca.live);
+            }
+            /* a cancel returned with the final 1 is too late: the build stands */
+            prog_init(&p, total);
+            assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+            bvh_free(&t);
+        }
+    tu_scene_free(&s);
+}
+
+/* The empty build and a box build report too; a cancel at the first call stops even those. */
+static void progress_small_builds(void **state) {
+    bvh_build_desc d;
+    bvh_tree t;
+    prog_state p;
+    bvh_aabb boxes[3] = {{{0, 0, 0}, {1, 1, 1}}, {{2, 0, 0}, {3, 1, 1}}, {{0, 2, 0}, {1, 3, 1}}};
+    (void)state;
+    memset(&d, 0, sizeof d);
+    d.progress = on_progress;
+    d.progress_user = &p;
+    prog_init(&p, 0);
+    assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+    assert_true(p.rising && p.ones == 1);
+    d.boxes = boxes;
+    d.box_count = 3;
+    prog_init(&p, 0);
+    assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+    assert_true(p.rising && p.ones == 1 && p.calls >= 3);
+    bvh_free(&t);
+    prog_init(&p, 1);
+    assert_int_equal(bvh_build(&t, &d), BVH_ERROR_CANCELLED);
+    assert_int_equal(t.node_count, 0);
+    assert_string_equal(bvh_result_string(BVH_ERROR_CANCELLED), "the build was cancelled by its progress callback");
+}
+
+/* How often: on 200K random triangles, every builder calls at least once per 65536 primitives
+   of input (counted against the work, not the clock) and, as a loose check on this busy
+   machine, never leaves 250 ms between calls (the figure is printed); not under the sanitizers,
+   which slow some loops tenfold. */
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define POOL_SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define POOL_SANITIZED 1
+#endif
+#endif
+#ifndef POOL_SANITIZED
+#define POOL_SANITIZED 0
+#endif
+static void progress_cadence(void **state) {
+    tu_scene s;
+    int b;
+    (void)state;
+    tu_scene_random(&s, 200000, 0x434144ULL);
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_builder builder = tu_builder(b);
+        bvh_build_desc d = tu_scene_desc(&s, builder);
+        prog_state p;
+        bvh_tree t;
+        double t0 = now_s(), took;
+        d.progress = on_progress;
+        d.progress_user = &p;
+        prog_init(&p, 0);
+        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+        took = now_s() - t0;
+        print_message("%-14s %3u calls in %6.1f ms, longest gap %5.1f ms\n", bvh_builder_name(builder), p.calls,
+                      1e3 * took, 1e3 * p.max_gap);
+        if (p.calls < s.tri_count / 65536 + 3) fail_msg("%s: only %u calls", bvh_builder_name(builder), p.calls);
+        if (!POOL_SANITIZED && p.max_gap > 0.25) fail_msg("%s: %.1f ms between calls", bvh_builder_name(builder), 1e3 * p.max_gap);
+        bvh_free(&t);
+    }
+    tu_scene_free(&s);
+}
+
+int main(void) {
+    const struct CMUnitTest tests[] = {
+        TU_EVERY_SCENE(pool_same_tree),
+        cmocka_unit_test(pool_same_tree_options),
+        cmocka_unit_test(pool_batch_same_hits),
+        cmocka_unit_test(progress_small_builds),
+        cmocka_unit_test(progress_cancel_every_call),
+        cmocka_unit_test(progress_cadence),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

@@ -228,7 +228,8 @@ typedef struct bvh_tri4 {
 
 typedef struct bvh_ray {
     bvh_vec3 origin;
-    float tmin;   /* hits with tmin <= t <= tmax count */
+    float tmin;   /* hits with tmin <= t <= tmax count; a ray leaving a surface: tmin = 0 from
+                     bvh_offset_origin's point, not a tmin > 0 (no epsilon fits every scale) */
     bvh_vec3 dir; /* need not be normalised; t is in units of dir */
     float tmax;
 } bvh_ray;
@@ -406,7 +407,8 @@ BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *out);
    zero direction, tmin > tmax or a non-finite origin hit nothing. Ties in t go to the lowest
    primitive index, so that any builder gives exactly the hits of a brute-force loop. A tree
    built from boxes has no triangles to trace: every ray misses, in these calls and in the batch
-   calls, which also return BVH_ERROR_NO_TRIANGLES so that the mistake is seen. */
+   calls, which also return BVH_ERROR_NO_TRIANGLES so that the mistake is seen (such a tree is
+   traced by bvh_intersect_custom). */
 BVH_API int bvh_intersect(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit);
 /* Any hit in [tmin, tmax]: 1 if the ray is blocked. */
 BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray);
@@ -425,6 +427,59 @@ BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays,
 /* Watertight ray/triangle test (Woop, Benthin & Wald 2013), the one traversal uses. */
 BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const float v1[3],
                                    const float v2[3], bvh_hit *hit);
+
+/* ---- custom primitives ------------------------------------------------------------------- */
+/* A tree built from boxes (desc.boxes) is traced with the caller's own intersection test: the
+   callback is given the ray, a primitive (the caller's index: the box's position in desc.boxes)
+   whose box the ray reaches, and the user pointer. ray->tmax is the closest hit found so far (or
+   the caller's tmax): a hit beyond it cannot win, so the test may stop early. It returns 1 and sets
+   hit->t (and hit->u, hit->v: the caller's to use, e.g. surface coordinates) for a hit with
+   ray->tmin <= t <= ray->tmax, else 0; hit->prim is set by the traversal. A reported t that is
+   outside [tmin, tmax], NaN or infinite is ignored (not a hit). Ties in t go to the lowest
+   primitive index, as for triangles, so that the hits equal a brute-force loop over the
+   primitives with the same callback. On a tree built from triangles the callback decides for each
+   triangle instead of the built-in test (alpha-tested triangles: bvh_intersect_triangle on the
+   caller's vertices, then the caller's own rejection). The callback may be called more than once
+   for one primitive (builders that split references), and from several threads at once in the
+   batch calls; it must not modify the tree. */
+typedef struct bvh_custom_desc {
+    int (*intersect)(const bvh_ray *ray, uint32_t prim, void *user, bvh_hit *hit);
+    void *user; /* passed to intersect as is */
+} bvh_custom_desc;
+/* Closest hit among the tree's primitives by custom->intersect: 1 and *hit filled, or 0 with
+   hit->prim = BVH_INVALID and hit->t = ray->tmax. Rays that bvh_intersect refuses (NaN, zero
+   direction, tmin > tmax) miss; so does every ray when tree, ray, custom or custom->intersect is
+   NULL (the batch calls return BVH_ERROR_INVALID_ARGUMENT for those). */
+BVH_API int bvh_intersect_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
+                                 const bvh_custom_desc *custom);
+/* Any hit in [tmin, tmax] by custom->intersect: 1 if the ray is blocked; stops at the first. */
+BVH_API int bvh_occluded_custom(const bvh_tree *tree, const bvh_ray *ray, const bvh_custom_desc *custom);
+/* The same for count rays on `threads` threads (0 = all online CPUs).
+   SUCCESS; ARGUMENT: tree or custom or custom->intersect NULL, rays or the output NULL with
+   count > 0, a half allocator pair in the tree; OUT_OF_MEMORY: as bvh_intersect_batch. */
+BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits,
+                                              size_t count, uint32_t threads, const bvh_custom_desc *custom);
+BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded,
+                                             size_t count, uint32_t threads, const bvh_custom_desc *custom);
+
+/* ---- secondary rays ------------------------------------------------------------------------ */
+/* A ray that leaves a surface from its computed hit point may hit that surface again (shadow
+   acne): the point is rounded to either side of it. tmin > 0 is no cure at every scale (an
+   epsilon right for a unit scene is too small 1e5 away from the origin and too large at 1e-3).
+   bvh_offset_origin moves p off the surface along n by a few ulps of p's own coordinates, so
+   that it works at any distance from the origin (Waechter & Binder, "A Fast and Robust Method for
+   Avoiding Self-Intersection", Ray Tracing Gems, 2019): n is the geometric normal (unit length)
+   turned to the side the new ray leaves on (-n for a ray going through the surface); use the
+   result as the origin with tmin = 0. p is best computed from the hit's barycentrics
+   (bvh_hit_surface), not as origin + t * dir, whose error grows with t. */
+BVH_API bvh_vec3 bvh_offset_origin(bvh_vec3 p, bvh_vec3 n);
+/* The point of triangle hit->prim of mesh (the triangles given to bvh_build) at the hit's
+   barycentrics, (1 - u - v) v0 + u v1 + v v2, and its unit geometric normal, the normalised
+   (v1 - v0) x (v2 - v0) (zero for a zero-area triangle). Either output may be NULL.
+   SUCCESS; ARGUMENT: mesh or hit NULL, positions NULL, stride below 12, hit->prim >= the triangle
+   count (a miss included); INDEX_OUT_OF_RANGE: an index of the triangle >= vertex_count. */
+BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point,
+                                   bvh_vec3 *normal);
 
 /* The tree's bounds (empty box for an empty tree). */
 BVH_API bvh_aabb bvh_tree_bounds(const bvh_tree *tree);
@@ -4986,6 +5041,217 @@ BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays,
                                       uint32_t threads) {
     if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
     return bvh__batch_run(tree, rays, NULL, occluded, count, threads);
+}
+
+/* ============================================================================================ */
+/* == custom primitives: the binary traversal with a leaf step ================================== */
+/* One loop for every kind of primitive a binary tree can hold: it culls nodes by the best t so
+   far (ray->tmax, which only decreases) and hands each reference of a leaf it reaches to a leaf
+   step, which tests the primitive, keeps the best hit by its own rule and lowers ray->tmax to it.
+   User primitives (a callback) plug in here; the one-mesh triangle path keeps its own loops
+   (bvh__traverse and the 8-wide traversal), which this adds no work to. Visiting order: near
+   child first, as bvh__traverse. */
+/* ============================================================================================ */
+/* Tests primitive `prim` (the caller's index); returns 1 when it took a hit as the new best and
+   set ray->tmax to its t (ties: ray->tmax unchanged). */
+typedef int (*bvh__leaf_step)(void *ctx, bvh_ray *ray, uint32_t prim);
+
+/* Returns 1 if a leaf step took a hit; any: stops at the first. The caller's ray is copied:
+   the steps see it with tmax lowered to the best t. */
+static int bvh__trace_leaves(const bvh_tree *tree, const bvh_ray *ray_in, int any, bvh__leaf_step step, void *ctx) {
+    bvh__rayx rx;
+    bvh_ray ray = *ray_in;
+    uint32_t stack[BVH_MAX_DEPTH + 2], sp = 0;
+    float stack_t[BVH_MAX_DEPTH + 2];
+    const bvh_node *nodes = tree->nodes, *node = nodes;
+    int found = 0;
+    if (!tree->node_count || !bvh__ray_setup(&ray, &rx)) return 0;
+    if (bvh__slab(&rx, node, ray.tmax) == BVH_INF) return 0;
+    for (;;) {
+        if (node->count) {
+            uint32_t k, end = node->index + node->count;
+            for (k = node->index; k < end; k++) {
+                if (!step(ctx, &ray, tree->prims[k])) continue;
+                found = 1;
+                if (any) return 1;
+            }
+        } else {
+            const bvh_node *c0 = &nodes[node->index], *c1 = c0 + 1;
+            float t0 = bvh__slab(&rx, c0, ray.tmax), t1 = bvh__slab(&rx, c1, ray.tmax);
+            if (t0 != BVH_INF || t1 != BVH_INF) {
+                if (t1 < t0) { const bvh_node *tc = c0; float tt = t0; c0 = c1; c1 = tc; t0 = t1; t1 = tt; }
+                node = c0;
+                if (t1 != BVH_INF) {
+                    if (sp == BVH_MAX_DEPTH + 2) return found; /* deeper than the validator allows */
+                    stack_t[sp] = t1;
+                    stack[sp++] = (uint32_t)(c1 - nodes);
+                }
+                continue;
+            }
+        }
+        for (;;) { /* pop the next node still in reach of the current best */
+            if (!sp) return found;
+            --sp;
+            if (stack_t[sp] <= ray.tmax) { node = &nodes[stack[sp]]; break; }
+        }
+    }
+}
+
+typedef struct bvh__custom_ctx {
+    const bvh_custom_desc *custom;
+    bvh_hit best; /* prim BVH_INVALID until a hit is taken */
+} bvh__custom_ctx;
+/* The callback's hit is taken if its t is in [tmin, tmax] (NaN and +inf never are) and, at
+   t == tmax, only from a lower index than the best's: ties go to the lowest index whatever the
+   visiting order. Before any hit, best.prim is BVH_INVALID, above every index. */
+static int bvh__custom_step(void *arg, bvh_ray *ray, uint32_t prim) {
+    bvh__custom_ctx *c = BVH__CAST(bvh__custom_ctx *, arg);
+    bvh_hit h;
+    h.t = ray->tmax;
+    h.u = h.v = 0.0f;
+    h.prim = prim;
+    if (!c->custom->intersect(ray, prim, c->custom->user, &h)) return 0;
+    if (!(h.t >= ray->tmin && h.t <= ray->tmax && h.t < BVH_INF)) return 0;
+    if (h.t == ray->tmax && prim > c->best.prim) return 0;
+    h.prim = prim;
+    c->best = h;
+    ray->tmax = h.t;
+    return 1;
+}
+static int bvh__trace_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any,
+                             const bvh_custom_desc *custom) {
+    bvh__custom_ctx c;
+    int found = 0;
+    c.custom = custom;
+    c.best.t = ray ? ray->tmax : BVH_INF;
+    c.best.u = c.best.v = 0.0f;
+    c.best.prim = BVH_INVALID;
+    if (tree && ray && custom && custom->intersect) found = bvh__trace_leaves(tree, ray, any, bvh__custom_step, &c);
+    if (hit) *hit = c.best;
+    return found;
+}
+BVH_API int bvh_intersect_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
+                                 const bvh_custom_desc *custom) {
+    return bvh__trace_custom(tree, ray, hit, 0, custom);
+}
+BVH_API int bvh_occluded_custom(const bvh_tree *tree, const bvh_ray *ray, const bvh_custom_desc *custom) {
+    return bvh__trace_custom(tree, ray, NULL, 1, custom);
+}
+
+/* The batch calls share bvh__batch's chunking (bvh__batch_take). */
+typedef struct bvh__custom_batch {
+    bvh__batch b;
+    const bvh_custom_desc *custom;
+} bvh__custom_batch;
+static void bvh__custom_batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__custom_batch *cb = BVH__CAST(bvh__custom_batch *, arg);
+    bvh__batch *b = &cb->b;
+    size_t chunk, i, e;
+    (void)tid; (void)nt;
+    while ((chunk = bvh__batch_take(b, team)) < b->count) {
+        e = chunk + BVH__BATCH_CHUNK < b->count ? chunk + BVH__BATCH_CHUNK : b->count;
+        for (i = chunk; i < e; i++) {
+            if (b->hits) bvh__trace_custom(b->tree, &b->rays[i], &b->hits[i], 0, cb->custom);
+            else b->occluded[i] = (uint8_t)bvh__trace_custom(b->tree, &b->rays[i], NULL, 1, cb->custom);
+        }
+    }
+}
+static bvh_result bvh__custom_batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ,
+                                        size_t count, uint32_t threads, const bvh_custom_desc *custom) {
+    bvh__custom_batch cb;
+    uint32_t nt;
+    if (!tree || !custom || !custom->intersect || (count && (!rays || (!hits && !occ))))
+        return BVH_ERROR_INVALID_ARGUMENT;
+    if (!bvh__allocator_paired(&tree->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
+    cb.b.tree = tree; cb.b.rays = rays; cb.b.hits = hits; cb.b.occluded = occ; cb.b.count = count; cb.b.next = 0;
+    cb.custom = custom;
+    nt = bvh__resolve_threads(threads);
+    if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
+    if (nt < 1) nt = 1;
+    return bvh__team_run(&tree->allocator, nt, bvh__custom_batch_fn, &cb);
+}
+BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
+                                              uint32_t threads, const bvh_custom_desc *custom) {
+    if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__custom_batch_run(tree, rays, hits, NULL, count, threads, custom);
+}
+BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded,
+                                             size_t count, uint32_t threads, const bvh_custom_desc *custom) {
+    if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__custom_batch_run(tree, rays, NULL, occluded, count, threads, custom);
+}
+
+/* ============================================================================================ */
+/* == secondary rays: origin offset, hit point and normal ======================================= */
+/* Waechter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection" (Ray Tracing Gems,
+   2019, ch. 6): each coordinate of p moves away from the surface by an integer number of ulps
+   proportional to n's component (BVH__OFFSET_INT ulps for a unit component), which scales with
+   |p| as the rounding error of p does; within BVH__OFFSET_ORIGIN of 0 on an axis, where ulps
+   become tiny while the error stays that of the vertices (of the scene's scale), the move is an
+   absolute BVH__OFFSET_FLOAT * n instead. The constants are the paper's. */
+/* ============================================================================================ */
+#define BVH__OFFSET_ORIGIN (1.0f / 32.0f)
+#define BVH__OFFSET_FLOAT (1.0f / 65536.0f)
+#define BVH__OFFSET_INT 256.0f
+static float bvh__offset1(float p, float n) {
+    uint32_t u;
+    int32_t k;
+    float q;
+    if (!bvh__finite(p) || bvh__nan(n)) return p;
+    n = n > 1.0f ? 1.0f : n < -1.0f ? -1.0f : n; /* a unit normal's rounding, or a longer one */
+    if (fabsf(p) < BVH__OFFSET_ORIGIN) return p + BVH__OFFSET_FLOAT * n;
+    k = (int32_t)(BVH__OFFSET_INT * n); /* |k| <= 256 */
+    /* the bits of a float grow with its magnitude: toward +n on the positive side means more
+       bits, on the negative side fewer (unsigned arithmetic: no signed overflow) */
+    u = bvh__bits(p);
+    u = p < 0.0f ? u - (uint32_t)k : u + (uint32_t)k;
+    memcpy(&q, &u, sizeof q);
+    return bvh__finite(q) ? q : p; /* past FLT_MAX: p itself (no finite float lies farther) */
+}
+BVH_API bvh_vec3 bvh_offset_origin(bvh_vec3 p, bvh_vec3 n) {
+    bvh_vec3 r;
+    r.x = bvh__offset1(p.x, n.x);
+    r.y = bvh__offset1(p.y, n.y);
+    r.z = bvh__offset1(p.z, n.z);
+    return r;
+}
+BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point,
+                                   bvh_vec3 *normal) {
+    float t[9], w, e1[3], e2[3];
+    double nx, ny, nz, l;
+    int k;
+    if (!mesh || !hit || !mesh->positions || (mesh->stride && mesh->stride < 3 * sizeof(float)))
+        return BVH_ERROR_INVALID_ARGUMENT;
+    if (hit->prim >= mesh->triangle_count) return BVH_ERROR_INVALID_ARGUMENT; /* BVH_INVALID too */
+    if ((uintptr_t)mesh->indices % sizeof(uint32_t)) return BVH_ERROR_INVALID_ARGUMENT;
+    if (mesh->indices) {
+        for (k = 0; k < 3; k++)
+            if (mesh->indices[3 * (size_t)hit->prim + k] >= mesh->vertex_count) return BVH_ERROR_INDEX_OUT_OF_RANGE;
+    } else if (3 * (uint64_t)hit->prim + 2 >= mesh->vertex_count) {
+        return BVH_ERROR_INDEX_OUT_OF_RANGE;
+    }
+    bvh__fetch_triangle(mesh, hit->prim, t);
+    if (point) {
+        w = 1.0f - hit->u - hit->v;
+        point->x = w * t[0] + hit->u * t[3] + hit->v * t[6];
+        point->y = w * t[1] + hit->u * t[4] + hit->v * t[7];
+        point->z = w * t[2] + hit->u * t[5] + hit->v * t[8];
+    }
+    if (normal) { /* the cross product in double: no overflow for large, no underflow for tiny triangles */
+        for (k = 0; k < 3; k++) { e1[k] = t[3 + k] - t[k]; e2[k] = t[6 + k] - t[k]; }
+        nx = (double)e1[1] * e2[2] - (double)e1[2] * e2[1];
+        ny = (double)e1[2] * e2[0] - (double)e1[0] * e2[2];
+        nz = (double)e1[0] * e2[1] - (double)e1[1] * e2[0];
+        l = sqrt(nx * nx + ny * ny + nz * nz);
+        if (!(l > 0.0)) { /* zero area (or a NaN vertex): no normal */
+            l = 1.0;
+            nx = ny = nz = 0.0;
+        }
+        normal->x = (float)(nx / l);
+        normal->y = (float)(ny / l);
+        normal->z = (float)(nz / l);
+    }
+    return BVH_SUCCESS;
 }
 
 /* ============================================================================================ */

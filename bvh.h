@@ -481,6 +481,62 @@ BVH_API bvh_vec3 bvh_offset_origin(bvh_vec3 p, bvh_vec3 n);
 BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point,
                                    bvh_vec3 *normal);
 
+/* ---- instances: two-level scenes ------------------------------------------------------------ */
+/* A scene places bottom-level trees (one per mesh, built by bvh_build from triangles, any
+   builder) in the world by instances, under a top-level tree over the instances' world boxes
+   (a box tree, built by bvh_build). Tracing transforms the ray into each instance's space it
+   reaches (origin and direction, not normalised: t stays in world units) and traces the
+   instance's tree there. Rebuild the scene (bvh_scene_build) when instances move; the
+   bottom-level trees are not touched. */
+typedef struct bvh_instance {
+    const bvh_tree *tree; /* bottom level; must stay valid (and unchanged) while the scene is used */
+    float transform[12];  /* object to world, row-major 3x4: world = M * local + (m[3], m[7], m[11]),
+                             M = rows (m[0..2]), (m[4..6]), (m[8..10]); finite and invertible */
+    uint32_t id;          /* the caller's, reported in hits */
+    uint32_t mask;        /* a ray whose mask shares no bit with it skips the instance */
+} bvh_instance;
+typedef struct bvh_scene_desc {
+    const bvh_instance *instances; /* copied: the array may be freed when bvh_scene_build returns */
+    uint32_t instance_count;
+    bvh_builder builder;           /* top level (0 = the default builder) */
+    uint32_t threads;              /* as bvh_build_desc.threads */
+    bvh_allocator allocator;       /* both functions or neither; kept by the scene */
+} bvh_scene_desc;
+typedef struct bvh_scene {
+    bvh_tree top;              /* over the instances' world boxes; prims = instance indices */
+    bvh_instance *instances;   /* instance_count copies of desc.instances */
+    float *inverse;            /* 12 floats per instance: world to object (bvh_ray_transform) */
+    uint32_t instance_count;
+    bvh_allocator allocator;
+} bvh_scene;
+typedef struct bvh_scene_hit {
+    float t, u, v;     /* world t (units of the world ray's dir), barycentrics in the triangle */
+    uint32_t instance; /* index into desc.instances; BVH_INVALID for a miss */
+    uint32_t id;       /* that instance's id */
+    uint32_t prim;     /* the triangle's index in its mesh (the bottom-level build's input) */
+    bvh_vec3 normal;   /* unit geometric normal in world space: (v1 - v0) x (v2 - v0) in object
+                          space, by the inverse transpose of M (zero for a miss) */
+} bvh_scene_hit;
+/* SUCCESS (also for zero instances); ARGUMENT: scene or desc NULL, instances NULL with a count,
+   an instance whose tree is NULL or was built from boxes, a half allocator pair, a builder out
+   of range; GEOMETRY: a transform with a NaN or Inf, or singular (no inverse in float);
+   TOO_MANY_PRIMITIVES: more than 2^30 instances; OUT_OF_MEMORY. On failure *scene is zeroed and
+   nothing is leaked. An instance of an empty tree is never hit. */
+BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc);
+/* Releases what bvh_scene_build allocated (not the bottom-level trees). NULL is ignored. */
+BVH_API void bvh_scene_free(bvh_scene *scene);
+/* Closest hit over all instances whose mask shares a bit with `mask` (~0u: all): 1 and *hit
+   filled, or 0 with hit->instance = BVH_INVALID, hit->t = ray->tmax. Ties in t go to the lowest
+   instance index, then to the lowest triangle index, so the hits equal a brute-force loop over
+   the instances (in order) that traces each with the ray bvh_ray_transform gives. */
+BVH_API int bvh_scene_intersect(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit);
+/* Any hit in [tmin, tmax] over the instances `mask` selects: 1 if the ray is blocked. */
+BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask);
+/* The ray in the space of the 3x4 transform m (row-major, as bvh_instance.transform): origin
+   M o + (m[3], m[7], m[11]), direction M d, not normalised, so that t means the same point in
+   both spaces; tmin and tmax unchanged. Tracing uses it with scene->inverse + 12 * instance. */
+BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]);
+
 /* The tree's bounds (empty box for an empty tree). */
 BVH_API bvh_aabb bvh_tree_bounds(const bvh_tree *tree);
 
@@ -5052,9 +5108,10 @@ BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays,
    (bvh__traverse and the 8-wide traversal), which this adds no work to. Visiting order: near
    child first, as bvh__traverse. */
 /* ============================================================================================ */
-/* Tests primitive `prim` (the caller's index); returns 1 when it took a hit as the new best and
-   set ray->tmax to its t (ties: ray->tmax unchanged). */
-typedef int (*bvh__leaf_step)(void *ctx, bvh_ray *ray, uint32_t prim);
+/* Tests primitive `prim` (the caller's index; `ref`: its reference, tree->prims[ref] == prim);
+   returns 1 when it took a hit as the new best and set ray->tmax to its t (ties: ray->tmax
+   unchanged). */
+typedef int (*bvh__leaf_step)(void *ctx, bvh_ray *ray, uint32_t prim, uint32_t ref);
 
 /* Returns 1 if a leaf step took a hit; any: stops at the first. The caller's ray is copied:
    the steps see it with tmax lowered to the best t. */
@@ -5071,7 +5128,7 @@ static int bvh__trace_leaves(const bvh_tree *tree, const bvh_ray *ray_in, int an
         if (node->count) {
             uint32_t k, end = node->index + node->count;
             for (k = node->index; k < end; k++) {
-                if (!step(ctx, &ray, tree->prims[k])) continue;
+                if (!step(ctx, &ray, tree->prims[k], k)) continue;
                 found = 1;
                 if (any) return 1;
             }
@@ -5104,9 +5161,10 @@ typedef struct bvh__custom_ctx {
 /* The callback's hit is taken if its t is in [tmin, tmax] (NaN and +inf never are) and, at
    t == tmax, only from a lower index than the best's: ties go to the lowest index whatever the
    visiting order. Before any hit, best.prim is BVH_INVALID, above every index. */
-static int bvh__custom_step(void *arg, bvh_ray *ray, uint32_t prim) {
+static int bvh__custom_step(void *arg, bvh_ray *ray, uint32_t prim, uint32_t ref) {
     bvh__custom_ctx *c = BVH__CAST(bvh__custom_ctx *, arg);
     bvh_hit h;
+    (void)ref;
     h.t = ray->tmax;
     h.u = h.v = 0.0f;
     h.prim = prim;
@@ -5252,6 +5310,223 @@ BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit
         normal->z = (float)(nz / l);
     }
     return BVH_SUCCESS;
+}
+
+/* ============================================================================================ */
+/* == instances: two-level scenes ================================================================ */
+/* The top level is a box tree over the instances' world boxes, traced by bvh__trace_leaves with
+   a leaf step that skips instances by mask, transforms the ray into the instance's space and
+   traces the bottom-level tree there with bvh_intersect / bvh_occluded (the 8-wide layout where
+   the tree has one). The best hit keeps the instance, the mesh's triangle and t; the triangle's
+   reference (for the normal) is found once, for the final hit only, by walking the bottom-level
+   tree again with tmax = t: the triangle passed the reach test at t (bvh__tri_reach), so every
+   node that holds it is entered by that ray, and the walk tests no triangle. */
+/* ============================================================================================ */
+BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]) {
+    bvh_ray r = *ray;
+    const bvh_vec3 o = ray->origin, d = ray->dir;
+    r.origin.x = m[0] * o.x + m[1] * o.y + m[2] * o.z + m[3];
+    r.origin.y = m[4] * o.x + m[5] * o.y + m[6] * o.z + m[7];
+    r.origin.z = m[8] * o.x + m[9] * o.y + m[10] * o.z + m[11];
+    r.dir.x = m[0] * d.x + m[1] * d.y + m[2] * d.z;
+    r.dir.y = m[4] * d.x + m[5] * d.y + m[6] * d.z;
+    r.dir.z = m[8] * d.x + m[9] * d.y + m[10] * d.z;
+    return r;
+}
+/* The inverse of a 3x4 affine transform, in double, rounded to float; 0 if m is not finite or
+   singular (a zero determinant, or an inverse that is not finite in float). */
+static int bvh__invert34(const float m[12], float out[12]) {
+    double a[9], inv[9], det, t[3];
+    int i;
+    for (i = 0; i < 12; i++)
+        if (!bvh__finite(m[i])) return 0;
+    for (i = 0; i < 9; i++) a[i] = m[(i / 3) * 4 + i % 3];
+    inv[0] = a[4] * a[8] - a[5] * a[7]; inv[1] = a[2] * a[7] - a[1] * a[8]; inv[2] = a[1] * a[5] - a[2] * a[4];
+    inv[3] = a[5] * a[6] - a[3] * a[8]; inv[4] = a[0] * a[8] - a[2] * a[6]; inv[5] = a[2] * a[3] - a[0] * a[5];
+    inv[6] = a[3] * a[7] - a[4] * a[6]; inv[7] = a[1] * a[6] - a[0] * a[7]; inv[8] = a[0] * a[4] - a[1] * a[3];
+    det = a[0] * inv[0] + a[1] * inv[3] + a[2] * inv[6];
+    if (det == 0.0) return 0;
+    for (i = 0; i < 9; i++) inv[i] /= det;
+    for (i = 0; i < 3; i++) t[i] = -(inv[3 * i] * m[3] + inv[3 * i + 1] * m[7] + inv[3 * i + 2] * m[11]);
+    for (i = 0; i < 12; i++) {
+        double x = i % 4 == 3 ? t[i / 4] : inv[(i / 4) * 3 + i % 4];
+        out[i] = (float)x;
+        if (!bvh__finite(out[i])) return 0;
+    }
+    return 1;
+}
+/* The world box of an instance: the bottom-level root box's corners transformed in double, then
+   widened by 2^-20 of the largest coordinate (and rounded outward): the traversal tests the
+   world ray against it and the float-transformed ray against the tree below, whose roundings
+   differ; the margin keeps every hit of the latter inside the former. */
+static bvh_aabb bvh__instance_box(const bvh_instance *in) {
+    bvh_aabb b = bvh_tree_bounds(in->tree), w;
+    double lo[3] = {DBL_MAX, DBL_MAX, DBL_MAX}, hi[3] = {-DBL_MAX, -DBL_MAX, -DBL_MAX}, pad = 0.0;
+    const float *m = in->transform;
+    int c, i;
+    if (!bvh__nonempty(b)) return b;
+    for (c = 0; c < 8; c++) {
+        double p[3];
+        p[0] = c & 1 ? b.max.x : b.min.x;
+        p[1] = c & 2 ? b.max.y : b.min.y;
+        p[2] = c & 4 ? b.max.z : b.min.z;
+        for (i = 0; i < 3; i++) {
+            double x = (double)m[4 * i] * p[0] + (double)m[4 * i + 1] * p[1] + (double)m[4 * i + 2] * p[2] + m[4 * i + 3];
+            lo[i] = x < lo[i] ? x : lo[i];
+            hi[i] = x > hi[i] ? x : hi[i];
+        }
+    }
+    for (i = 0; i < 3; i++) {
+        pad = fabs(lo[i]) > pad ? fabs(lo[i]) : pad;
+        pad = fabs(hi[i]) > pad ? fabs(hi[i]) : pad;
+    }
+    pad *= 9.5367431640625e-7; /* 2^-20 */
+    for (i = 0; i < 3; i++) {
+        float l = (float)(lo[i] - pad), h = (float)(hi[i] + pad);
+        if ((double)l > lo[i] - pad) l = nextafterf(l, -BVH_INF);
+        if ((double)h < hi[i] + pad) h = nextafterf(h, BVH_INF);
+        bvh__set(&w.min, i, l);
+        bvh__set(&w.max, i, h);
+    }
+    return w;
+}
+BVH_API void bvh_scene_free(bvh_scene *scene) {
+    bvh_allocator al;
+    if (!scene) return;
+    al = scene->allocator;
+    bvh_free(&scene->top);
+    bvh__free(&al, scene->instances);
+    bvh__free(&al, scene->inverse);
+    memset(scene, 0, sizeof *scene);
+    scene->allocator = al;
+}
+BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc) {
+    bvh_build_desc td;
+    bvh_aabb *boxes = NULL;
+    bvh_result r = BVH_SUCCESS;
+    uint32_t i, n;
+    if (!scene) return BVH_ERROR_INVALID_ARGUMENT;
+    memset(scene, 0, sizeof *scene);
+    if (!desc || (desc->instance_count && !desc->instances) || !bvh__allocator_paired(&desc->allocator) ||
+        (unsigned)desc->builder >= BVH_BUILDER_COUNT)
+        return BVH_ERROR_INVALID_ARGUMENT;
+    n = desc->instance_count;
+    if (n > BVH__MAX_PRIMS) return BVH_ERROR_TOO_MANY_PRIMITIVES;
+    for (i = 0; i < n; i++) {
+        const bvh_tree *t = desc->instances[i].tree;
+        if (!t || (t->node_count && !t->tris)) return BVH_ERROR_INVALID_ARGUMENT;
+    }
+    scene->allocator = desc->allocator;
+    scene->instance_count = n;
+    scene->instances = BVH__ALLOC(&scene->allocator, bvh_instance, n ? n : 1);
+    scene->inverse = BVH__ALLOC(&scene->allocator, float, 12 * (size_t)(n ? n : 1));
+    boxes = BVH__ALLOC(&scene->allocator, bvh_aabb, n ? n : 1);
+    if (!scene->instances || !scene->inverse || !boxes) r = BVH_ERROR_OUT_OF_MEMORY;
+    for (i = 0; r == BVH_SUCCESS && i < n; i++) {
+        scene->instances[i] = desc->instances[i];
+        if (!bvh__invert34(desc->instances[i].transform, scene->inverse + 12 * (size_t)i)) r = BVH_ERROR_INVALID_GEOMETRY;
+        else boxes[i] = bvh__instance_box(&desc->instances[i]);
+    }
+    if (r == BVH_SUCCESS) {
+        memset(&td, 0, sizeof td);
+        td.builder = desc->builder;
+        td.boxes = boxes;
+        td.box_count = n;
+        td.threads = desc->threads;
+        td.allocator = desc->allocator;
+        td.skip_invalid = 1; /* the empty box of an instance of an empty tree: left out */
+        r = bvh_build(&scene->top, &td);
+    }
+    bvh__free(&scene->allocator, boxes);
+    if (r != BVH_SUCCESS) bvh_scene_free(scene);
+    return r;
+}
+
+typedef struct bvh__scene_ctx {
+    const bvh_scene *scene;
+    uint32_t mask, any;
+    uint32_t instance; /* the best hit's, BVH_INVALID until one is taken */
+    bvh_hit hit;       /* its hit in the bottom-level tree (t is world t) */
+} bvh__scene_ctx;
+static int bvh__instance_step(void *arg, bvh_ray *ray, uint32_t inst, uint32_t ref) {
+    bvh__scene_ctx *c = BVH__CAST(bvh__scene_ctx *, arg);
+    const bvh_instance *in = &c->scene->instances[inst];
+    bvh_ray local;
+    bvh_hit h;
+    (void)ref;
+    if (!(in->mask & c->mask)) return 0;
+    local = bvh_ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
+    if (c->any) return bvh_occluded(in->tree, &local);
+    if (!bvh_intersect(in->tree, &local, &h)) return 0;
+    if (h.t == ray->tmax && inst > c->instance) return 0; /* ties: the lowest instance */
+    c->instance = inst;
+    c->hit = h;
+    ray->tmax = h.t;
+    return 1;
+}
+/* The find walk's step: the first reference of the triangle. */
+typedef struct bvh__find_ctx { uint32_t prim, ref; } bvh__find_ctx;
+static int bvh__find_step(void *arg, bvh_ray *ray, uint32_t prim, uint32_t ref) {
+    bvh__find_ctx *f = BVH__CAST(bvh__find_ctx *, arg);
+    (void)ray;
+    if (prim != f->prim) return 0;
+    f->ref = ref;
+    return 1;
+}
+/* The world normal of the best hit: M^-T times the object-space normal, normalised. */
+static bvh_vec3 bvh__scene_normal(const bvh_scene *scene, const bvh_ray *ray, const bvh__scene_ctx *c) {
+    const float *inv = scene->inverse + 12 * (size_t)c->instance, *t;
+    const bvh_tree *tree = scene->instances[c->instance].tree;
+    bvh_ray local = bvh_ray_transform(ray, inv);
+    bvh__find_ctx f;
+    double e1[3], e2[3], n[3], w[3], l;
+    bvh_vec3 out = {0.0f, 0.0f, 0.0f};
+    int k;
+    local.tmax = c->hit.t;
+    f.prim = c->hit.prim;
+    f.ref = BVH_INVALID;
+    if (!bvh__trace_leaves(tree, &local, 1, bvh__find_step, &f)) return out;
+    t = tree->tris + 9 * (size_t)f.ref;
+    for (k = 0; k < 3; k++) { e1[k] = (double)t[3 + k] - t[k]; e2[k] = (double)t[6 + k] - t[k]; }
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    for (k = 0; k < 3; k++) w[k] = inv[k] * n[0] + inv[4 + k] * n[1] + inv[8 + k] * n[2];
+    l = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    if (!(l > 0.0)) return out;
+    out.x = (float)(w[0] / l);
+    out.y = (float)(w[1] / l);
+    out.z = (float)(w[2] / l);
+    return out;
+}
+static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int any) {
+    bvh__scene_ctx c;
+    int found = 0;
+    c.scene = scene;
+    c.mask = mask;
+    c.any = (uint32_t)any;
+    c.instance = BVH_INVALID;
+    if (scene && ray && mask) found = bvh__trace_leaves(&scene->top, ray, any, bvh__instance_step, &c);
+    if (!hit) return found;
+    hit->t = ray ? ray->tmax : BVH_INF;
+    hit->u = hit->v = 0.0f;
+    hit->instance = hit->id = hit->prim = BVH_INVALID;
+    hit->normal.x = hit->normal.y = hit->normal.z = 0.0f;
+    if (!found) return 0;
+    hit->t = c.hit.t;
+    hit->u = c.hit.u;
+    hit->v = c.hit.v;
+    hit->instance = c.instance;
+    hit->id = scene->instances[c.instance].id;
+    hit->prim = c.hit.prim;
+    hit->normal = bvh__scene_normal(scene, ray, &c);
+    return 1;
+}
+BVH_API int bvh_scene_intersect(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit) {
+    return bvh__scene_trace(scene, ray, mask, hit, 0);
+}
+BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask) {
+    return bvh__scene_trace(scene, ray, mask, NULL, 1);
 }
 
 /* ============================================================================================ */

@@ -313,11 +313,75 @@ static void scene_errors(void **state) {
     bvh_free(&boxes);
 }
 
+/* An allocator that fails from its k-th call on, and counts what is live. */
+typedef struct failing { int left, live; } failing;
+static void *f_alloc(size_t n, void *user) {
+    failing *f = (failing *)user;
+    void *p;
+    if (f->left-- <= 0) return NULL;
+    p = malloc(n);
+    f->live += p != NULL;
+    return p;
+}
+static void f_free(void *p, void *user) {
+    failing *f = (failing *)user;
+    if (p) f->live--;
+    free(p);
+}
+/* Every allocation of bvh_scene_build failing in turn: OUT_OF_MEMORY, a zeroed scene and
+   nothing leaked, until it has all it needs. */
+static void scene_out_of_memory(void **state) {
+    float v[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    bvh_build_desc d;
+    bvh_tree mesh;
+    bvh_instance inst[40];
+    bvh_scene_desc sd;
+    bvh_scene sc;
+    failing f;
+    int k, i;
+    (void)state;
+    memset(&d, 0, sizeof d);
+    d.triangles.positions = v;
+    d.triangles.vertex_count = 3;
+    d.triangles.triangle_count = 1;
+    assert_int_equal(bvh_build(&mesh, &d), BVH_SUCCESS);
+    memset(inst, 0, sizeof inst);
+    for (i = 0; i < 40; i++) {
+        inst[i].tree = &mesh;
+        inst[i].transform[0] = inst[i].transform[5] = inst[i].transform[10] = 1.0f;
+        inst[i].transform[3] = (float)i;
+        inst[i].mask = ~0u;
+    }
+    memset(&sd, 0, sizeof sd);
+    sd.instances = inst;
+    sd.instance_count = 40;
+    sd.builder = BVH_BUILDER_PLOC;
+    sd.allocator.alloc = f_alloc;
+    sd.allocator.free = f_free;
+    sd.allocator.user = &f;
+    for (k = 0;; k++) {
+        bvh_result r;
+        f.left = k;
+        f.live = 0;
+        r = bvh_scene_build(&sc, &sd);
+        if (r == BVH_SUCCESS) break;
+        assert_int_equal(r, BVH_ERROR_OUT_OF_MEMORY);
+        assert_int_equal(f.live, 0);
+        assert_null(sc.instances);
+        assert_int_equal(sc.top.node_count, 0);
+    }
+    assert_true(k >= 3);
+    bvh_scene_free(&sc);
+    assert_int_equal(f.live, 0);
+    bvh_free(&mesh);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(scenes_exact),
         cmocka_unit_test(masks_select),
         cmocka_unit_test(scene_errors),
+        cmocka_unit_test(scene_out_of_memory),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

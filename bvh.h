@@ -87,6 +87,14 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     unreleased
+            Custom primitives: bvh_intersect_custom, bvh_occluded_custom and their batch calls
+            trace a tree built from boxes with the caller's intersection callback (bvh_custom_desc;
+            ties to the lowest index; a t outside [tmin, tmax] or NaN is ignored). Instances:
+            bvh_scene_build / bvh_scene_intersect / bvh_scene_occluded over bottom-level triangle
+            trees placed by 3x4 transforms, with ids and ray masks (bvh_instance, bvh_scene_hit
+            with the world normal), bvh_ray_transform. Secondary rays: bvh_offset_origin
+            (Waechter & Binder 2019) and bvh_hit_surface (hit point and geometric normal).
      0.6.0  The public surface made regular. Builder-specific options moved into nested structs,
             zero still the default (the same trees): desc.ploc_radius -> desc.ploc.radius,
             desc.ploc_top -> desc.ploc.top, desc.max_bytes_per_prim ->

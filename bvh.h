@@ -515,6 +515,11 @@ typedef struct bvh_scene {
     bvh_instance *instances;   /* instance_count copies of desc.instances */
     float *inverse;            /* 12 floats per instance: world to object (bvh_ray_transform) */
     uint32_t instance_count;
+    uint32_t *mesh;            /* per instance: its tree's number among the distinct trees */
+    size_t *ref_base;          /* per distinct tree: its first entry in ref_of_prim */
+    uint32_t *ref_of_prim;     /* per distinct tree, prim_count entries: a reference of each
+                                  triangle (tree.tris + 9 * ref), for the hit's normal */
+    uint32_t mesh_count;
     bvh_allocator allocator;
 } bvh_scene;
 typedef struct bvh_scene_hit {
@@ -5116,10 +5121,9 @@ BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays,
    (bvh__traverse and the 8-wide traversal), which this adds no work to. Visiting order: near
    child first, as bvh__traverse. */
 /* ============================================================================================ */
-/* Tests primitive `prim` (the caller's index; `ref`: its reference, tree->prims[ref] == prim);
-   returns 1 when it took a hit as the new best and set ray->tmax to its t (ties: ray->tmax
-   unchanged). */
-typedef int (*bvh__leaf_step)(void *ctx, bvh_ray *ray, uint32_t prim, uint32_t ref);
+/* Tests primitive `prim` (the caller's index); returns 1 when it took a hit as the new best and
+   set ray->tmax to its t (ties: ray->tmax unchanged). */
+typedef int (*bvh__leaf_step)(void *ctx, bvh_ray *ray, uint32_t prim);
 
 /* Returns 1 if a leaf step took a hit; any: stops at the first. The caller's ray is copied:
    the steps see it with tmax lowered to the best t. */
@@ -5136,7 +5140,7 @@ static int bvh__trace_leaves(const bvh_tree *tree, const bvh_ray *ray_in, int an
         if (node->count) {
             uint32_t k, end = node->index + node->count;
             for (k = node->index; k < end; k++) {
-                if (!step(ctx, &ray, tree->prims[k], k)) continue;
+                if (!step(ctx, &ray, tree->prims[k])) continue;
                 found = 1;
                 if (any) return 1;
             }
@@ -5169,10 +5173,9 @@ typedef struct bvh__custom_ctx {
 /* The callback's hit is taken if its t is in [tmin, tmax] (NaN and +inf never are) and, at
    t == tmax, only from a lower index than the best's: ties go to the lowest index whatever the
    visiting order. Before any hit, best.prim is BVH_INVALID, above every index. */
-static int bvh__custom_step(void *arg, bvh_ray *ray, uint32_t prim, uint32_t ref) {
+static int bvh__custom_step(void *arg, bvh_ray *ray, uint32_t prim) {
     bvh__custom_ctx *c = BVH__CAST(bvh__custom_ctx *, arg);
     bvh_hit h;
-    (void)ref;
     h.t = ray->tmax;
     h.u = h.v = 0.0f;
     h.prim = prim;
@@ -5325,10 +5328,10 @@ BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit
 /* The top level is a box tree over the instances' world boxes, traced by bvh__trace_leaves with
    a leaf step that skips instances by mask, transforms the ray into the instance's space and
    traces the bottom-level tree there with bvh_intersect / bvh_occluded (the 8-wide layout where
-   the tree has one). The best hit keeps the instance, the mesh's triangle and t; the triangle's
-   reference (for the normal) is found once, for the final hit only, by walking the bottom-level
-   tree again with tmax = t: the triangle passed the reach test at t (bvh__tri_reach), so every
-   node that holds it is entered by that ray, and the walk tests no triangle. */
+   the tree has one). The best hit keeps the instance, the mesh's triangle and t; the normal of
+   the final hit is computed from the tree's copy of the triangle (tree.tris, in reference order),
+   found by a map from triangle to reference that the scene makes once per distinct
+   bottom-level tree (a walk to find it again cost more than the trace on a bunny). */
 /* ============================================================================================ */
 BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]) {
     bvh_ray r = *ray;
@@ -5405,8 +5408,55 @@ BVH_API void bvh_scene_free(bvh_scene *scene) {
     bvh_free(&scene->top);
     bvh__free(&al, scene->instances);
     bvh__free(&al, scene->inverse);
+    bvh__free(&al, scene->mesh);
+    bvh__free(&al, scene->ref_base);
+    bvh__free(&al, scene->ref_of_prim);
     memset(scene, 0, sizeof *scene);
     scene->allocator = al;
+}
+/* Numbers the distinct trees of the instances (an open-addressing table on the pointers: O(n)
+   for any number of instances) and makes each one's triangle-to-reference map. */
+static bvh_result bvh__scene_maps(bvh_scene *sc) {
+    uint32_t n = sc->instance_count, cap = 16, i, m = 0, *slot;
+    const bvh_tree **keys;
+    size_t total = 0, k;
+    bvh_result r = BVH_SUCCESS;
+    while (cap < 2 * (size_t)n) cap *= 2;
+    keys = BVH__ALLOC(&sc->allocator, const bvh_tree *, cap);
+    slot = BVH__ALLOC(&sc->allocator, uint32_t, cap);
+    sc->mesh = BVH__ALLOC(&sc->allocator, uint32_t, n ? n : 1);
+    if (!keys || !slot || !sc->mesh) r = BVH_ERROR_OUT_OF_MEMORY;
+    if (r == BVH_SUCCESS) {
+        for (i = 0; i < cap; i++) keys[i] = NULL;
+        for (i = 0; i < n; i++) {
+            const bvh_tree *t = sc->instances[i].tree;
+            uint32_t h = (uint32_t)(((uint64_t)(uintptr_t)t * 0x9E3779B97F4A7C15ull) >> 40) & (cap - 1);
+            while (keys[h] && keys[h] != t) h = (h + 1) & (cap - 1);
+            if (!keys[h]) { keys[h] = t; slot[h] = m++; }
+            sc->mesh[i] = slot[h];
+        }
+        sc->mesh_count = m;
+        sc->ref_base = BVH__ALLOC(&sc->allocator, size_t, m ? m : 1);
+        if (!sc->ref_base) r = BVH_ERROR_OUT_OF_MEMORY;
+    }
+    if (r == BVH_SUCCESS) {
+        for (i = 0; i < cap; i++)
+            if (keys[i]) sc->ref_base[slot[i]] = keys[i]->prim_count;
+        for (i = 0; i < m; i++) { size_t c = sc->ref_base[i]; sc->ref_base[i] = total; total += c; }
+        sc->ref_of_prim = BVH__ALLOC(&sc->allocator, uint32_t, total ? total : 1);
+        if (!sc->ref_of_prim) r = BVH_ERROR_OUT_OF_MEMORY;
+    }
+    if (r == BVH_SUCCESS)
+        for (i = 0; i < cap; i++) {
+            const bvh_tree *t = keys[i];
+            uint32_t *map;
+            if (!t) continue;
+            map = sc->ref_of_prim + sc->ref_base[slot[i]];
+            for (k = 0; k < t->ref_count; k++) map[t->prims[k]] = (uint32_t)k; /* any reference will do */
+        }
+    bvh__free(&sc->allocator, BVH__CAST(void *, keys));
+    bvh__free(&sc->allocator, slot);
+    return r;
 }
 BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc) {
     bvh_build_desc td;
@@ -5435,6 +5485,7 @@ BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc)
         if (!bvh__invert34(desc->instances[i].transform, scene->inverse + 12 * (size_t)i)) r = BVH_ERROR_INVALID_GEOMETRY;
         else boxes[i] = bvh__instance_box(&desc->instances[i]);
     }
+    if (r == BVH_SUCCESS) r = bvh__scene_maps(scene);
     if (r == BVH_SUCCESS) {
         memset(&td, 0, sizeof td);
         td.builder = desc->builder;
@@ -5456,12 +5507,11 @@ typedef struct bvh__scene_ctx {
     uint32_t instance; /* the best hit's, BVH_INVALID until one is taken */
     bvh_hit hit;       /* its hit in the bottom-level tree (t is world t) */
 } bvh__scene_ctx;
-static int bvh__instance_step(void *arg, bvh_ray *ray, uint32_t inst, uint32_t ref) {
+static int bvh__instance_step(void *arg, bvh_ray *ray, uint32_t inst) {
     bvh__scene_ctx *c = BVH__CAST(bvh__scene_ctx *, arg);
     const bvh_instance *in = &c->scene->instances[inst];
     bvh_ray local;
     bvh_hit h;
-    (void)ref;
     if (!(in->mask & c->mask)) return 0;
     local = bvh_ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
     if (c->any) return bvh_occluded(in->tree, &local);
@@ -5472,29 +5522,15 @@ static int bvh__instance_step(void *arg, bvh_ray *ray, uint32_t inst, uint32_t r
     ray->tmax = h.t;
     return 1;
 }
-/* The find walk's step: the first reference of the triangle. */
-typedef struct bvh__find_ctx { uint32_t prim, ref; } bvh__find_ctx;
-static int bvh__find_step(void *arg, bvh_ray *ray, uint32_t prim, uint32_t ref) {
-    bvh__find_ctx *f = BVH__CAST(bvh__find_ctx *, arg);
-    (void)ray;
-    if (prim != f->prim) return 0;
-    f->ref = ref;
-    return 1;
-}
 /* The world normal of the best hit: M^-T times the object-space normal, normalised. */
-static bvh_vec3 bvh__scene_normal(const bvh_scene *scene, const bvh_ray *ray, const bvh__scene_ctx *c) {
+static bvh_vec3 bvh__scene_normal(const bvh_scene *scene, const bvh__scene_ctx *c) {
     const float *inv = scene->inverse + 12 * (size_t)c->instance, *t;
     const bvh_tree *tree = scene->instances[c->instance].tree;
-    bvh_ray local = bvh_ray_transform(ray, inv);
-    bvh__find_ctx f;
+    uint32_t ref = scene->ref_of_prim[scene->ref_base[scene->mesh[c->instance]] + c->hit.prim];
     double e1[3], e2[3], n[3], w[3], l;
     bvh_vec3 out = {0.0f, 0.0f, 0.0f};
     int k;
-    local.tmax = c->hit.t;
-    f.prim = c->hit.prim;
-    f.ref = BVH_INVALID;
-    if (!bvh__trace_leaves(tree, &local, 1, bvh__find_step, &f)) return out;
-    t = tree->tris + 9 * (size_t)f.ref;
+    t = tree->tris + 9 * (size_t)ref;
     for (k = 0; k < 3; k++) { e1[k] = (double)t[3 + k] - t[k]; e2[k] = (double)t[6 + k] - t[k]; }
     n[0] = e1[1] * e2[2] - e1[2] * e2[1];
     n[1] = e1[2] * e2[0] - e1[0] * e2[2];
@@ -5527,7 +5563,7 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
     hit->instance = c.instance;
     hit->id = scene->instances[c.instance].id;
     hit->prim = c.hit.prim;
-    hit->normal = bvh__scene_normal(scene, ray, &c);
+    hit->normal = bvh__scene_normal(scene, &c);
     return 1;
 }
 BVH_API int bvh_scene_intersect(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit) {

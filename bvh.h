@@ -101,6 +101,14 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     unreleased
+            Custom primitives: bvh_intersect_custom, bvh_occluded_custom and their batch calls
+            trace a tree built from boxes with the caller's intersection callback (bvh_custom_desc;
+            ties to the lowest index; a t outside [tmin, tmax] or NaN is ignored). Instances:
+            bvh_scene_build / bvh_scene_intersect / bvh_scene_occluded over bottom-level triangle
+            trees placed by 3x4 transforms, with ids and ray masks (bvh_instance, bvh_scene_hit
+            with the world normal), bvh_ray_transform. Secondary rays: bvh_offset_origin
+            (Waechter & Binder 2019) and bvh_hit_surface (hit point and geometric normal).
      0.6.0  The public surface made regular. Builder-specific options moved into nested structs,
             zero still the default (the same trees): desc.ploc_radius -> desc.ploc.radius,
             desc.ploc_top -> desc.ploc.top, desc.max_bytes_per_prim ->
@@ -250,7 +258,8 @@ typedef struct bvh_tri4 {
 
 typedef struct bvh_ray {
     bvh_vec3 origin;
-    float tmin;   /* hits with tmin <= t <= tmax count */
+    float tmin;   /* hits with tmin <= t <= tmax count; a ray leaving a surface: tmin = 0 from
+                     bvh_offset_origin's point, not a tmin > 0 (no epsilon fits every scale) */
     bvh_vec3 dir; /* need not be normalised; t is in units of dir */
     float tmax;
 } bvh_ray;
@@ -451,7 +460,8 @@ BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *out);
    zero direction, tmin > tmax or a non-finite origin hit nothing. Ties in t go to the lowest
    primitive index, so that any builder gives exactly the hits of a brute-force loop. A tree
    built from boxes has no triangles to trace: every ray misses, in these calls and in the batch
-   calls, which also return BVH_ERROR_NO_TRIANGLES so that the mistake is seen. */
+   calls, which also return BVH_ERROR_NO_TRIANGLES so that the mistake is seen (such a tree is
+   traced by bvh_intersect_custom). */
 BVH_API int bvh_intersect(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit);
 /* Any hit in [tmin, tmax]: 1 if the ray is blocked. */
 BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray);
@@ -479,6 +489,120 @@ BVH_API bvh_result bvh_occluded_batch_ex(const bvh_tree *tree, const bvh_ray *ra
 /* Watertight ray/triangle test (Woop, Benthin & Wald 2013), the one traversal uses. */
 BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const float v1[3],
                                    const float v2[3], bvh_hit *hit);
+
+/* ---- custom primitives ------------------------------------------------------------------- */
+/* A tree built from boxes (desc.boxes) is traced with the caller's own intersection test: the
+   callback is given the ray, a primitive (the caller's index: the box's position in desc.boxes)
+   whose box the ray reaches, and the user pointer. ray->tmax is the closest hit found so far (or
+   the caller's tmax): a hit beyond it cannot win, so the test may stop early. It returns 1 and sets
+   hit->t (and hit->u, hit->v: the caller's to use, e.g. surface coordinates) for a hit with
+   ray->tmin <= t <= ray->tmax, else 0; hit->prim is set by the traversal. A reported t that is
+   outside [tmin, tmax], NaN or infinite is ignored (not a hit). Ties in t go to the lowest
+   primitive index, as for triangles, so that the hits equal a brute-force loop over the
+   primitives with the same callback. On a tree built from triangles the callback decides for each
+   triangle instead of the built-in test (alpha-tested triangles: bvh_intersect_triangle on the
+   caller's vertices, then the caller's own rejection). The callback may be called more than once
+   for one primitive (builders that split references), and from several threads at once in the
+   batch calls; it must not modify the tree. */
+typedef struct bvh_custom_desc {
+    int (*intersect)(const bvh_ray *ray, uint32_t prim, void *user, bvh_hit *hit);
+    void *user; /* passed to intersect as is */
+} bvh_custom_desc;
+/* Closest hit among the tree's primitives by custom->intersect: 1 and *hit filled, or 0 with
+   hit->prim = BVH_INVALID and hit->t = ray->tmax. Rays that bvh_intersect refuses (NaN, zero
+   direction, tmin > tmax) miss; so does every ray when tree, ray, custom or custom->intersect is
+   NULL (the batch calls return BVH_ERROR_INVALID_ARGUMENT for those). */
+BVH_API int bvh_intersect_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
+                                 const bvh_custom_desc *custom);
+/* Any hit in [tmin, tmax] by custom->intersect: 1 if the ray is blocked; stops at the first. */
+BVH_API int bvh_occluded_custom(const bvh_tree *tree, const bvh_ray *ray, const bvh_custom_desc *custom);
+/* The same for count rays on `threads` threads (0 = all online CPUs).
+   SUCCESS; ARGUMENT: tree or custom or custom->intersect NULL, rays or the output NULL with
+   count > 0, a half allocator pair in the tree; OUT_OF_MEMORY: as bvh_intersect_batch. */
+BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits,
+                                              size_t count, uint32_t threads, const bvh_custom_desc *custom);
+BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded,
+                                             size_t count, uint32_t threads, const bvh_custom_desc *custom);
+
+/* ---- secondary rays ------------------------------------------------------------------------ */
+/* A ray that leaves a surface from its computed hit point may hit that surface again (shadow
+   acne): the point is rounded to either side of it. tmin > 0 is no cure at every scale (an
+   epsilon right for a unit scene is too small 1e5 away from the origin and too large at 1e-3).
+   bvh_offset_origin moves p off the surface along n by a few ulps of p's own coordinates, so
+   that it works at any distance from the origin (Waechter & Binder, "A Fast and Robust Method for
+   Avoiding Self-Intersection", Ray Tracing Gems, 2019): n is the geometric normal (unit length)
+   turned to the side the new ray leaves on (-n for a ray going through the surface); use the
+   result as the origin with tmin = 0. p is best computed from the hit's barycentrics
+   (bvh_hit_surface), not as origin + t * dir, whose error grows with t. */
+BVH_API bvh_vec3 bvh_offset_origin(bvh_vec3 p, bvh_vec3 n);
+/* The point of triangle hit->prim of mesh (the triangles given to bvh_build) at the hit's
+   barycentrics, (1 - u - v) v0 + u v1 + v v2, and its unit geometric normal, the normalised
+   (v1 - v0) x (v2 - v0) (zero for a zero-area triangle). Either output may be NULL.
+   SUCCESS; ARGUMENT: mesh or hit NULL, positions NULL, stride below 12, hit->prim >= the triangle
+   count (a miss included); INDEX_OUT_OF_RANGE: an index of the triangle >= vertex_count. */
+BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point,
+                                   bvh_vec3 *normal);
+
+/* ---- instances: two-level scenes ------------------------------------------------------------ */
+/* A scene places bottom-level trees (one per mesh, built by bvh_build from triangles, any
+   builder) in the world by instances, under a top-level tree over the instances' world boxes
+   (a box tree, built by bvh_build). Tracing transforms the ray into each instance's space it
+   reaches (origin and direction, not normalised: t stays in world units) and traces the
+   instance's tree there. Rebuild the scene (bvh_scene_build) when instances move; the
+   bottom-level trees are not touched. */
+typedef struct bvh_instance {
+    const bvh_tree *tree; /* bottom level; must stay valid (and unchanged) while the scene is used */
+    float transform[12];  /* object to world, row-major 3x4: world = M * local + (m[3], m[7], m[11]),
+                             M = rows (m[0..2]), (m[4..6]), (m[8..10]); finite and invertible */
+    uint32_t id;          /* the caller's, reported in hits */
+    uint32_t mask;        /* a ray whose mask shares no bit with it skips the instance */
+} bvh_instance;
+typedef struct bvh_scene_desc {
+    const bvh_instance *instances; /* copied: the array may be freed when bvh_scene_build returns */
+    uint32_t instance_count;
+    bvh_builder builder;           /* top level (0 = the default builder) */
+    uint32_t threads;              /* as bvh_build_desc.threads */
+    bvh_allocator allocator;       /* both functions or neither; kept by the scene */
+} bvh_scene_desc;
+typedef struct bvh_scene {
+    bvh_tree top;              /* over the instances' world boxes; prims = instance indices */
+    bvh_instance *instances;   /* instance_count copies of desc.instances */
+    float *inverse;            /* 12 floats per instance: world to object (bvh_ray_transform) */
+    uint32_t instance_count;
+    uint32_t *mesh;            /* per instance: its tree's number among the distinct trees */
+    size_t *ref_base;          /* per distinct tree: its first entry in ref_of_prim */
+    uint32_t *ref_of_prim;     /* per distinct tree, prim_count entries: a reference of each
+                                  triangle (tree.tris + 9 * ref), for the hit's normal */
+    uint32_t mesh_count;
+    bvh_allocator allocator;
+} bvh_scene;
+typedef struct bvh_scene_hit {
+    float t, u, v;     /* world t (units of the world ray's dir), barycentrics in the triangle */
+    uint32_t instance; /* index into desc.instances; BVH_INVALID for a miss */
+    uint32_t id;       /* that instance's id */
+    uint32_t prim;     /* the triangle's index in its mesh (the bottom-level build's input) */
+    bvh_vec3 normal;   /* unit geometric normal in world space: (v1 - v0) x (v2 - v0) in object
+                          space, by the inverse transpose of M (zero for a miss) */
+} bvh_scene_hit;
+/* SUCCESS (also for zero instances); ARGUMENT: scene or desc NULL, instances NULL with a count,
+   an instance whose tree is NULL or was built from boxes, a half allocator pair, a builder out
+   of range; GEOMETRY: a transform with a NaN or Inf, or singular (no inverse in float);
+   TOO_MANY_PRIMITIVES: more than 2^30 instances; OUT_OF_MEMORY. On failure *scene is zeroed and
+   nothing is leaked. An instance of an empty tree is never hit. */
+BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc);
+/* Releases what bvh_scene_build allocated (not the bottom-level trees). NULL is ignored. */
+BVH_API void bvh_scene_free(bvh_scene *scene);
+/* Closest hit over all instances whose mask shares a bit with `mask` (~0u: all): 1 and *hit
+   filled, or 0 with hit->instance = BVH_INVALID, hit->t = ray->tmax. Ties in t go to the lowest
+   instance index, then to the lowest triangle index, so the hits equal a brute-force loop over
+   the instances (in order) that traces each with the ray bvh_ray_transform gives. */
+BVH_API int bvh_scene_intersect(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit);
+/* Any hit in [tmin, tmax] over the instances `mask` selects: 1 if the ray is blocked. */
+BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask);
+/* The ray in the space of the 3x4 transform m (row-major, as bvh_instance.transform): origin
+   M o + (m[3], m[7], m[11]), direction M d, not normalised, so that t means the same point in
+   both spaces; tmin and tmax unchanged. Tracing uses it with scene->inverse + 12 * instance. */
+BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]);
 
 /* The tree's bounds (empty box for an empty tree). */
 BVH_API bvh_aabb bvh_tree_bounds(const bvh_tree *tree);
@@ -5117,6 +5241,467 @@ BVH_API bvh_result bvh_occluded_batch_ex(const bvh_tree *tree, const bvh_ray *ra
     if (!desc) { memset(&zero, 0, sizeof zero); desc = &zero; }
     if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
     return bvh__batch_run(tree, rays, NULL, occluded, count, desc->threads, &desc->pool);
+}
+
+/* ============================================================================================ */
+/* == custom primitives: the binary traversal with a leaf step ================================== */
+/* One loop for every kind of primitive a binary tree can hold: it culls nodes by the best t so
+   far (ray->tmax, which only decreases) and hands each reference of a leaf it reaches to a leaf
+   step, which tests the primitive, keeps the best hit by its own rule and lowers ray->tmax to it.
+   User primitives (a callback) plug in here; the one-mesh triangle path keeps its own loops
+   (bvh__traverse and the 8-wide traversal), which this adds no work to. Visiting order: near
+   child first, as bvh__traverse. */
+/* ============================================================================================ */
+/* Tests primitive `prim` (the caller's index); returns 1 when it took a hit as the new best and
+   set ray->tmax to its t (ties: ray->tmax unchanged). */
+typedef int (*bvh__leaf_step)(void *ctx, bvh_ray *ray, uint32_t prim);
+
+/* Returns 1 if a leaf step took a hit; any: stops at the first. The caller's ray is copied:
+   the steps see it with tmax lowered to the best t. */
+static int bvh__trace_leaves(const bvh_tree *tree, const bvh_ray *ray_in, int any, bvh__leaf_step step, void *ctx) {
+    bvh__rayx rx;
+    bvh_ray ray = *ray_in;
+    uint32_t stack[BVH_MAX_DEPTH + 2], sp = 0;
+    float stack_t[BVH_MAX_DEPTH + 2];
+    const bvh_node *nodes = tree->nodes, *node = nodes;
+    int found = 0;
+    if (!tree->node_count || !bvh__ray_setup(&ray, &rx)) return 0;
+    if (bvh__slab(&rx, node, ray.tmax) == BVH_INF) return 0;
+    for (;;) {
+        if (node->count) {
+            uint32_t k, end = node->index + node->count;
+            for (k = node->index; k < end; k++) {
+                if (!step(ctx, &ray, tree->prims[k])) continue;
+                found = 1;
+                if (any) return 1;
+            }
+        } else {
+            const bvh_node *c0 = &nodes[node->index], *c1 = c0 + 1;
+            float t0 = bvh__slab(&rx, c0, ray.tmax), t1 = bvh__slab(&rx, c1, ray.tmax);
+            if (t0 != BVH_INF || t1 != BVH_INF) {
+                if (t1 < t0) { const bvh_node *tc = c0; float tt = t0; c0 = c1; c1 = tc; t0 = t1; t1 = tt; }
+                node = c0;
+                if (t1 != BVH_INF) {
+                    if (sp == BVH_MAX_DEPTH + 2) return found; /* deeper than the validator allows */
+                    stack_t[sp] = t1;
+                    stack[sp++] = (uint32_t)(c1 - nodes);
+                }
+                continue;
+            }
+        }
+        for (;;) { /* pop the next node still in reach of the current best */
+            if (!sp) return found;
+            --sp;
+            if (stack_t[sp] <= ray.tmax) { node = &nodes[stack[sp]]; break; }
+        }
+    }
+}
+
+typedef struct bvh__custom_ctx {
+    const bvh_custom_desc *custom;
+    bvh_hit best; /* prim BVH_INVALID until a hit is taken */
+} bvh__custom_ctx;
+/* The callback's hit is taken if its t is in [tmin, tmax] (NaN and +inf never are) and, at
+   t == tmax, only from a lower index than the best's: ties go to the lowest index whatever the
+   visiting order. Before any hit, best.prim is BVH_INVALID, above every index. */
+static int bvh__custom_step(void *arg, bvh_ray *ray, uint32_t prim) {
+    bvh__custom_ctx *c = BVH__CAST(bvh__custom_ctx *, arg);
+    bvh_hit h;
+    h.t = ray->tmax;
+    h.u = h.v = 0.0f;
+    h.prim = prim;
+    if (!c->custom->intersect(ray, prim, c->custom->user, &h)) return 0;
+    if (!(h.t >= ray->tmin && h.t <= ray->tmax && h.t < BVH_INF)) return 0;
+    if (h.t == ray->tmax && prim > c->best.prim) return 0;
+    h.prim = prim;
+    c->best = h;
+    ray->tmax = h.t;
+    return 1;
+}
+static int bvh__trace_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any,
+                             const bvh_custom_desc *custom) {
+    bvh__custom_ctx c;
+    int found = 0;
+    c.custom = custom;
+    c.best.t = ray ? ray->tmax : BVH_INF;
+    c.best.u = c.best.v = 0.0f;
+    c.best.prim = BVH_INVALID;
+    if (tree && ray && custom && custom->intersect) found = bvh__trace_leaves(tree, ray, any, bvh__custom_step, &c);
+    if (hit) *hit = c.best;
+    return found;
+}
+BVH_API int bvh_intersect_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
+                                 const bvh_custom_desc *custom) {
+    return bvh__trace_custom(tree, ray, hit, 0, custom);
+}
+BVH_API int bvh_occluded_custom(const bvh_tree *tree, const bvh_ray *ray, const bvh_custom_desc *custom) {
+    return bvh__trace_custom(tree, ray, NULL, 1, custom);
+}
+
+/* The batch calls share bvh__batch's chunking (bvh__batch_take). */
+typedef struct bvh__custom_batch {
+    bvh__batch b;
+    const bvh_custom_desc *custom;
+} bvh__custom_batch;
+static void bvh__custom_batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__custom_batch *cb = BVH__CAST(bvh__custom_batch *, arg);
+    bvh__batch *b = &cb->b;
+    size_t chunk, i, e;
+    (void)tid; (void)nt;
+    while ((chunk = bvh__batch_take(b, team)) < b->count) {
+        e = chunk + BVH__BATCH_CHUNK < b->count ? chunk + BVH__BATCH_CHUNK : b->count;
+        for (i = chunk; i < e; i++) {
+            if (b->hits) bvh__trace_custom(b->tree, &b->rays[i], &b->hits[i], 0, cb->custom);
+            else b->occluded[i] = (uint8_t)bvh__trace_custom(b->tree, &b->rays[i], NULL, 1, cb->custom);
+        }
+    }
+}
+static bvh_result bvh__custom_batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ,
+                                        size_t count, uint32_t threads, const bvh_custom_desc *custom) {
+    bvh__custom_batch cb;
+    uint32_t nt;
+    if (!tree || !custom || !custom->intersect || (count && (!rays || (!hits && !occ))))
+        return BVH_ERROR_INVALID_ARGUMENT;
+    if (!bvh__allocator_paired(&tree->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
+    cb.b.tree = tree; cb.b.rays = rays; cb.b.hits = hits; cb.b.occluded = occ; cb.b.count = count; cb.b.next = 0;
+    cb.custom = custom;
+    nt = bvh__resolve_threads(threads);
+    if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
+    if (nt < 1) nt = 1;
+    return bvh__team_run(&tree->allocator, nt, bvh__custom_batch_fn, &cb);
+}
+BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
+                                              uint32_t threads, const bvh_custom_desc *custom) {
+    if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__custom_batch_run(tree, rays, hits, NULL, count, threads, custom);
+}
+BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded,
+                                             size_t count, uint32_t threads, const bvh_custom_desc *custom) {
+    if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__custom_batch_run(tree, rays, NULL, occluded, count, threads, custom);
+}
+
+/* ============================================================================================ */
+/* == secondary rays: origin offset, hit point and normal ======================================= */
+/* Waechter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection" (Ray Tracing Gems,
+   2019, ch. 6): each coordinate of p moves away from the surface by an integer number of ulps
+   proportional to n's component (BVH__OFFSET_INT ulps for a unit component), which scales with
+   |p| as the rounding error of p does; within BVH__OFFSET_ORIGIN of 0 on an axis, where ulps
+   become tiny while the error stays that of the vertices (of the scene's scale), the move is an
+   absolute BVH__OFFSET_FLOAT * n instead. The constants are the paper's. */
+/* ============================================================================================ */
+#define BVH__OFFSET_ORIGIN (1.0f / 32.0f)
+#define BVH__OFFSET_FLOAT (1.0f / 65536.0f)
+#define BVH__OFFSET_INT 256.0f
+static float bvh__offset1(float p, float n) {
+    uint32_t u;
+    int32_t k;
+    float q;
+    if (!bvh__finite(p) || bvh__nan(n)) return p;
+    n = n > 1.0f ? 1.0f : n < -1.0f ? -1.0f : n; /* a unit normal's rounding, or a longer one */
+    if (fabsf(p) < BVH__OFFSET_ORIGIN) return p + BVH__OFFSET_FLOAT * n;
+    k = (int32_t)(BVH__OFFSET_INT * n); /* |k| <= 256 */
+    /* the bits of a float grow with its magnitude: toward +n on the positive side means more
+       bits, on the negative side fewer (unsigned arithmetic: no signed overflow) */
+    u = bvh__bits(p);
+    u = p < 0.0f ? u - (uint32_t)k : u + (uint32_t)k;
+    memcpy(&q, &u, sizeof q);
+    return bvh__finite(q) ? q : p; /* past FLT_MAX: p itself (no finite float lies farther) */
+}
+BVH_API bvh_vec3 bvh_offset_origin(bvh_vec3 p, bvh_vec3 n) {
+    bvh_vec3 r;
+    r.x = bvh__offset1(p.x, n.x);
+    r.y = bvh__offset1(p.y, n.y);
+    r.z = bvh__offset1(p.z, n.z);
+    return r;
+}
+BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point,
+                                   bvh_vec3 *normal) {
+    float t[9], w, e1[3], e2[3];
+    double nx, ny, nz, l;
+    int k;
+    if (!mesh || !hit || !mesh->positions || (mesh->stride && mesh->stride < 3 * sizeof(float)))
+        return BVH_ERROR_INVALID_ARGUMENT;
+    if (hit->prim >= mesh->triangle_count) return BVH_ERROR_INVALID_ARGUMENT; /* BVH_INVALID too */
+    if ((uintptr_t)mesh->indices % sizeof(uint32_t)) return BVH_ERROR_INVALID_ARGUMENT;
+    if (mesh->indices) {
+        for (k = 0; k < 3; k++)
+            if (mesh->indices[3 * (size_t)hit->prim + k] >= mesh->vertex_count) return BVH_ERROR_INDEX_OUT_OF_RANGE;
+    } else if (3 * (uint64_t)hit->prim + 2 >= mesh->vertex_count) {
+        return BVH_ERROR_INDEX_OUT_OF_RANGE;
+    }
+    bvh__fetch_triangle(mesh, hit->prim, t);
+    if (point) {
+        w = 1.0f - hit->u - hit->v;
+        point->x = w * t[0] + hit->u * t[3] + hit->v * t[6];
+        point->y = w * t[1] + hit->u * t[4] + hit->v * t[7];
+        point->z = w * t[2] + hit->u * t[5] + hit->v * t[8];
+    }
+    if (normal) { /* the cross product in double: no overflow for large, no underflow for tiny triangles */
+        for (k = 0; k < 3; k++) { e1[k] = t[3 + k] - t[k]; e2[k] = t[6 + k] - t[k]; }
+        nx = (double)e1[1] * e2[2] - (double)e1[2] * e2[1];
+        ny = (double)e1[2] * e2[0] - (double)e1[0] * e2[2];
+        nz = (double)e1[0] * e2[1] - (double)e1[1] * e2[0];
+        l = sqrt(nx * nx + ny * ny + nz * nz);
+        if (!(l > 0.0)) { /* zero area (or a NaN vertex): no normal */
+            l = 1.0;
+            nx = ny = nz = 0.0;
+        }
+        normal->x = (float)(nx / l);
+        normal->y = (float)(ny / l);
+        normal->z = (float)(nz / l);
+    }
+    return BVH_SUCCESS;
+}
+
+/* ============================================================================================ */
+/* == instances: two-level scenes ================================================================ */
+/* The top level is a box tree over the instances' world boxes, traced by bvh__trace_leaves with
+   a leaf step that skips instances by mask, transforms the ray into the instance's space and
+   traces the bottom-level tree there with bvh_intersect / bvh_occluded (the 8-wide layout where
+   the tree has one). The best hit keeps the instance, the mesh's triangle and t; the normal of
+   the final hit is computed from the tree's copy of the triangle (tree.tris, in reference order),
+   found by a map from triangle to reference that the scene makes once per distinct
+   bottom-level tree (a walk to find it again cost more than the trace on a bunny). */
+/* ============================================================================================ */
+BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]) {
+    bvh_ray r = *ray;
+    const bvh_vec3 o = ray->origin, d = ray->dir;
+    r.origin.x = m[0] * o.x + m[1] * o.y + m[2] * o.z + m[3];
+    r.origin.y = m[4] * o.x + m[5] * o.y + m[6] * o.z + m[7];
+    r.origin.z = m[8] * o.x + m[9] * o.y + m[10] * o.z + m[11];
+    r.dir.x = m[0] * d.x + m[1] * d.y + m[2] * d.z;
+    r.dir.y = m[4] * d.x + m[5] * d.y + m[6] * d.z;
+    r.dir.z = m[8] * d.x + m[9] * d.y + m[10] * d.z;
+    return r;
+}
+/* The inverse of a 3x4 affine transform, in double, rounded to float; 0 if m is not finite or
+   singular (a zero determinant, or an inverse that is not finite in float). */
+static int bvh__invert34(const float m[12], float out[12]) {
+    double a[9], inv[9], det, t[3];
+    int i;
+    for (i = 0; i < 12; i++)
+        if (!bvh__finite(m[i])) return 0;
+    for (i = 0; i < 9; i++) a[i] = m[(i / 3) * 4 + i % 3];
+    inv[0] = a[4] * a[8] - a[5] * a[7]; inv[1] = a[2] * a[7] - a[1] * a[8]; inv[2] = a[1] * a[5] - a[2] * a[4];
+    inv[3] = a[5] * a[6] - a[3] * a[8]; inv[4] = a[0] * a[8] - a[2] * a[6]; inv[5] = a[2] * a[3] - a[0] * a[5];
+    inv[6] = a[3] * a[7] - a[4] * a[6]; inv[7] = a[1] * a[6] - a[0] * a[7]; inv[8] = a[0] * a[4] - a[1] * a[3];
+    det = a[0] * inv[0] + a[1] * inv[3] + a[2] * inv[6];
+    if (det == 0.0) return 0;
+    for (i = 0; i < 9; i++) inv[i] /= det;
+    for (i = 0; i < 3; i++) t[i] = -(inv[3 * i] * m[3] + inv[3 * i + 1] * m[7] + inv[3 * i + 2] * m[11]);
+    for (i = 0; i < 12; i++) {
+        double x = i % 4 == 3 ? t[i / 4] : inv[(i / 4) * 3 + i % 4];
+        out[i] = (float)x;
+        if (!bvh__finite(out[i])) return 0;
+    }
+    return 1;
+}
+/* The world box of an instance: the bottom-level root box's corners transformed in double, then
+   widened by 2^-20 of the largest coordinate (and rounded outward): the traversal tests the
+   world ray against it and the float-transformed ray against the tree below, whose roundings
+   differ; the margin keeps every hit of the latter inside the former. */
+static bvh_aabb bvh__instance_box(const bvh_instance *in) {
+    bvh_aabb b = bvh_tree_bounds(in->tree), w;
+    double lo[3] = {DBL_MAX, DBL_MAX, DBL_MAX}, hi[3] = {-DBL_MAX, -DBL_MAX, -DBL_MAX}, pad = 0.0;
+    const float *m = in->transform;
+    int c, i;
+    if (!bvh__nonempty(b)) return b;
+    for (c = 0; c < 8; c++) {
+        double p[3];
+        p[0] = c & 1 ? b.max.x : b.min.x;
+        p[1] = c & 2 ? b.max.y : b.min.y;
+        p[2] = c & 4 ? b.max.z : b.min.z;
+        for (i = 0; i < 3; i++) {
+            double x = (double)m[4 * i] * p[0] + (double)m[4 * i + 1] * p[1] + (double)m[4 * i + 2] * p[2] + m[4 * i + 3];
+            lo[i] = x < lo[i] ? x : lo[i];
+            hi[i] = x > hi[i] ? x : hi[i];
+        }
+    }
+    for (i = 0; i < 3; i++) {
+        pad = fabs(lo[i]) > pad ? fabs(lo[i]) : pad;
+        pad = fabs(hi[i]) > pad ? fabs(hi[i]) : pad;
+    }
+    pad *= 9.5367431640625e-7; /* 2^-20 */
+    for (i = 0; i < 3; i++) {
+        float l = (float)(lo[i] - pad), h = (float)(hi[i] + pad);
+        if ((double)l > lo[i] - pad) l = nextafterf(l, -BVH_INF);
+        if ((double)h < hi[i] + pad) h = nextafterf(h, BVH_INF);
+        bvh__set(&w.min, i, l);
+        bvh__set(&w.max, i, h);
+    }
+    return w;
+}
+BVH_API void bvh_scene_free(bvh_scene *scene) {
+    bvh_allocator al;
+    if (!scene) return;
+    al = scene->allocator;
+    bvh_free(&scene->top);
+    bvh__free(&al, scene->instances);
+    bvh__free(&al, scene->inverse);
+    bvh__free(&al, scene->mesh);
+    bvh__free(&al, scene->ref_base);
+    bvh__free(&al, scene->ref_of_prim);
+    memset(scene, 0, sizeof *scene);
+    scene->allocator = al;
+}
+/* Numbers the distinct trees of the instances (an open-addressing table on the pointers: O(n)
+   for any number of instances) and makes each one's triangle-to-reference map. */
+static bvh_result bvh__scene_maps(bvh_scene *sc) {
+    uint32_t n = sc->instance_count, cap = 16, i, m = 0, *slot;
+    const bvh_tree **keys;
+    size_t total = 0, k;
+    bvh_result r = BVH_SUCCESS;
+    while (cap < 2 * (size_t)n) cap *= 2;
+    keys = BVH__ALLOC(&sc->allocator, const bvh_tree *, cap);
+    slot = BVH__ALLOC(&sc->allocator, uint32_t, cap);
+    sc->mesh = BVH__ALLOC(&sc->allocator, uint32_t, n ? n : 1);
+    if (!keys || !slot || !sc->mesh) r = BVH_ERROR_OUT_OF_MEMORY;
+    if (r == BVH_SUCCESS) {
+        for (i = 0; i < cap; i++) keys[i] = NULL;
+        for (i = 0; i < n; i++) {
+            const bvh_tree *t = sc->instances[i].tree;
+            uint32_t h = (uint32_t)(((uint64_t)(uintptr_t)t * 0x9E3779B97F4A7C15ull) >> 40) & (cap - 1);
+            while (keys[h] && keys[h] != t) h = (h + 1) & (cap - 1);
+            if (!keys[h]) { keys[h] = t; slot[h] = m++; }
+            sc->mesh[i] = slot[h];
+        }
+        sc->mesh_count = m;
+        sc->ref_base = BVH__ALLOC(&sc->allocator, size_t, m ? m : 1);
+        if (!sc->ref_base) r = BVH_ERROR_OUT_OF_MEMORY;
+    }
+    if (r == BVH_SUCCESS) {
+        for (i = 0; i < cap; i++)
+            if (keys[i]) sc->ref_base[slot[i]] = keys[i]->prim_count;
+        for (i = 0; i < m; i++) { size_t c = sc->ref_base[i]; sc->ref_base[i] = total; total += c; }
+        sc->ref_of_prim = BVH__ALLOC(&sc->allocator, uint32_t, total ? total : 1);
+        if (!sc->ref_of_prim) r = BVH_ERROR_OUT_OF_MEMORY;
+    }
+    if (r == BVH_SUCCESS)
+        for (i = 0; i < cap; i++) {
+            const bvh_tree *t = keys[i];
+            uint32_t *map;
+            if (!t) continue;
+            map = sc->ref_of_prim + sc->ref_base[slot[i]];
+            for (k = 0; k < t->ref_count; k++) map[t->prims[k]] = (uint32_t)k; /* any reference will do */
+        }
+    bvh__free(&sc->allocator, BVH__CAST(void *, keys));
+    bvh__free(&sc->allocator, slot);
+    return r;
+}
+BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc) {
+    bvh_build_desc td;
+    bvh_aabb *boxes = NULL;
+    bvh_result r = BVH_SUCCESS;
+    uint32_t i, n;
+    if (!scene) return BVH_ERROR_INVALID_ARGUMENT;
+    memset(scene, 0, sizeof *scene);
+    if (!desc || (desc->instance_count && !desc->instances) || !bvh__allocator_paired(&desc->allocator) ||
+        (unsigned)desc->builder >= BVH_BUILDER_COUNT)
+        return BVH_ERROR_INVALID_ARGUMENT;
+    n = desc->instance_count;
+    if (n > BVH__MAX_PRIMS) return BVH_ERROR_TOO_MANY_PRIMITIVES;
+    for (i = 0; i < n; i++) {
+        const bvh_tree *t = desc->instances[i].tree;
+        if (!t || (t->node_count && !t->tris)) return BVH_ERROR_INVALID_ARGUMENT;
+    }
+    scene->allocator = desc->allocator;
+    scene->instance_count = n;
+    scene->instances = BVH__ALLOC(&scene->allocator, bvh_instance, n ? n : 1);
+    scene->inverse = BVH__ALLOC(&scene->allocator, float, 12 * (size_t)(n ? n : 1));
+    boxes = BVH__ALLOC(&scene->allocator, bvh_aabb, n ? n : 1);
+    if (!scene->instances || !scene->inverse || !boxes) r = BVH_ERROR_OUT_OF_MEMORY;
+    for (i = 0; r == BVH_SUCCESS && i < n; i++) {
+        scene->instances[i] = desc->instances[i];
+        if (!bvh__invert34(desc->instances[i].transform, scene->inverse + 12 * (size_t)i)) r = BVH_ERROR_INVALID_GEOMETRY;
+        else boxes[i] = bvh__instance_box(&desc->instances[i]);
+    }
+    if (r == BVH_SUCCESS) r = bvh__scene_maps(scene);
+    if (r == BVH_SUCCESS) {
+        memset(&td, 0, sizeof td);
+        td.builder = desc->builder;
+        td.boxes = boxes;
+        td.box_count = n;
+        td.threads = desc->threads;
+        td.allocator = desc->allocator;
+        td.skip_invalid = 1; /* the empty box of an instance of an empty tree: left out */
+        r = bvh_build(&scene->top, &td);
+    }
+    bvh__free(&scene->allocator, boxes);
+    if (r != BVH_SUCCESS) bvh_scene_free(scene);
+    return r;
+}
+
+typedef struct bvh__scene_ctx {
+    const bvh_scene *scene;
+    uint32_t mask, any;
+    uint32_t instance; /* the best hit's, BVH_INVALID until one is taken */
+    bvh_hit hit;       /* its hit in the bottom-level tree (t is world t) */
+} bvh__scene_ctx;
+static int bvh__instance_step(void *arg, bvh_ray *ray, uint32_t inst) {
+    bvh__scene_ctx *c = BVH__CAST(bvh__scene_ctx *, arg);
+    const bvh_instance *in = &c->scene->instances[inst];
+    bvh_ray local;
+    bvh_hit h;
+    if (!(in->mask & c->mask)) return 0;
+    local = bvh_ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
+    if (c->any) return bvh_occluded(in->tree, &local);
+    if (!bvh_intersect(in->tree, &local, &h)) return 0;
+    if (h.t == ray->tmax && inst > c->instance) return 0; /* ties: the lowest instance */
+    c->instance = inst;
+    c->hit = h;
+    ray->tmax = h.t;
+    return 1;
+}
+/* The world normal of the best hit: M^-T times the object-space normal, normalised. */
+static bvh_vec3 bvh__scene_normal(const bvh_scene *scene, const bvh__scene_ctx *c) {
+    const float *inv = scene->inverse + 12 * (size_t)c->instance, *t;
+    const bvh_tree *tree = scene->instances[c->instance].tree;
+    uint32_t ref = scene->ref_of_prim[scene->ref_base[scene->mesh[c->instance]] + c->hit.prim];
+    double e1[3], e2[3], n[3], w[3], l;
+    bvh_vec3 out = {0.0f, 0.0f, 0.0f};
+    int k;
+    t = tree->tris + 9 * (size_t)ref;
+    for (k = 0; k < 3; k++) { e1[k] = (double)t[3 + k] - t[k]; e2[k] = (double)t[6 + k] - t[k]; }
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    for (k = 0; k < 3; k++) w[k] = inv[k] * n[0] + inv[4 + k] * n[1] + inv[8 + k] * n[2];
+    l = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    if (!(l > 0.0)) return out;
+    out.x = (float)(w[0] / l);
+    out.y = (float)(w[1] / l);
+    out.z = (float)(w[2] / l);
+    return out;
+}
+static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int any) {
+    bvh__scene_ctx c;
+    int found = 0;
+    c.scene = scene;
+    c.mask = mask;
+    c.any = (uint32_t)any;
+    c.instance = BVH_INVALID;
+    if (scene && ray && mask) found = bvh__trace_leaves(&scene->top, ray, any, bvh__instance_step, &c);
+    if (!hit) return found;
+    hit->t = ray ? ray->tmax : BVH_INF;
+    hit->u = hit->v = 0.0f;
+    hit->instance = hit->id = hit->prim = BVH_INVALID;
+    hit->normal.x = hit->normal.y = hit->normal.z = 0.0f;
+    if (!found) return 0;
+    hit->t = c.hit.t;
+    hit->u = c.hit.u;
+    hit->v = c.hit.v;
+    hit->instance = c.instance;
+    hit->id = scene->instances[c.instance].id;
+    hit->prim = c.hit.prim;
+    hit->normal = bvh__scene_normal(scene, &c);
+    return 1;
+}
+BVH_API int bvh_scene_intersect(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit) {
+    return bvh__scene_trace(scene, ray, mask, hit, 0);
+}
+BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask) {
+    return bvh__scene_trace(scene, ray, mask, NULL, 1);
 }
 
 /* ============================================================================================ */

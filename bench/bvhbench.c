@@ -4,6 +4,7 @@
    build/bvhbench [--builder all|LIST] [--embree all|none|LIST] [--threads N] [--repeat R]
                   [--size WxH] [--trace cpu|opencl|both|none] [--brute-max N] [--strict]
                   [--paired N] [--ploc-top N|off] [--max-bytes N|off] [--trace-width 2|8]
+                  [--instances N]
                   [--md FILE] [--json FILE|-] [--plots DIR] [--quiet] [SCENE...]
    e.g. build/bvhbench --repeat 2 --size 256x256 gen:random:500 /usr/share/glmark2/models/bunny.obj
         make bench          (the default scenes below, writing out/bench/)
@@ -99,6 +100,7 @@ typedef struct options {
     uint32_t nthreads; /* resolved */
     uint32_t repeat, width, height, brute_max, trace_width, ploc_top, max_bytes;
     uint32_t paired;   /* rounds of interleaved builds against Embree medium (0: none) */
+    uint32_t instances; /* instances of the scene's tree for the top-level rebuild (0: none) */
     int trace_cpu, trace_cl, trace_auto;
     const char *md, *json, *plots, *argv0;
     int quiet, strict;
@@ -155,6 +157,10 @@ typedef struct bench_scene {
     row rows[BENCH_MAX_ROWS];
     int nrows;
     int disagree;
+    /* instances (--instances): bvh_scene_build over that many instances of the default tree (the
+       top-level rebuild), median/min/max ms; the camera rays on 1 thread through a scene of one
+       identity instance and through the tree itself (Mrays/s). NAN: not measured. */
+    double inst_ms, inst_min, inst_max, inst_mrays_1t, one_level_mrays_1t;
 } bench_scene;
 
 /* ============================================================================================ */
@@ -1245,6 +1251,104 @@ static void ratios(bench_scene *s) {
     }
 }
 
+/* ---- instances ------------------------------------------------------------------------------------ */
+/* The camera rays on one thread through the tree, or through a scene when sc is given: ms. */
+static double trace_1t(const run_ctx *c, const bvh_tree *tree, const bvh_scene *sc) {
+    double t0 = scene_now_ms();
+    size_t i;
+    for (i = 0; i < c->npix; i++) {
+        if (sc) {
+            bvh_scene_hit h;
+            bvh_scene_intersect(sc, &c->rays[i], ~0u, &h);
+        } else {
+            bvh_hit h;
+            bvh_intersect(tree, &c->rays[i], &h);
+        }
+    }
+    return scene_now_ms() - t0;
+}
+/* o->instances instances of the scene's default tree on a cube grid one scene diagonal apart,
+   each turned about y (fixed seed): the top-level rebuild is bvh_scene_build over them (the
+   bottom-level tree is built once), timed o->repeat times after a warm-up. Then the instancing
+   overhead: one identity instance against the tree itself, camera rays on one thread. */
+static int run_instances(run_ctx *c, bench_scene *out) {
+    const options *o = c->o;
+    bvh_build_desc desc;
+    bvh_tree tree;
+    bvh_scene sc;
+    bvh_scene_desc sd;
+    bvh_instance *inst;
+    double ms[BENCH_MAX_REPEAT], one[BENCH_TRACE_REPEAT], scn[BENCH_TRACE_REPEAT], lo, hi, med;
+    float diag = sqrtf((c->bounds.max.x - c->bounds.min.x) * (c->bounds.max.x - c->bounds.min.x) +
+                       (c->bounds.max.y - c->bounds.min.y) * (c->bounds.max.y - c->bounds.min.y) +
+                       (c->bounds.max.z - c->bounds.min.z) * (c->bounds.max.z - c->bounds.min.z));
+    uint32_t n = o->instances, side = 1, i, rep, seed = 12345;
+    bvh_result r = BVH_SUCCESS;
+    bvh_camera cam;
+    if (!n) return 0;
+    while (side * side * side < n) side++;
+    progress("%s: %u instances, building the tree", out->name, n);
+    bench_desc(c, BVH_BUILDER_DEFAULT, &desc);
+    if ((r = bvh_build(&tree, &desc)) != BVH_SUCCESS) {
+        say("%s: instances: %s", out->name, bvh_result_string(r));
+        return 1;
+    }
+    inst = (bvh_instance *)calloc(n, sizeof *inst);
+    if (!inst) { bvh_free(&tree); say("%s: out of memory", out->name); return 1; }
+    for (i = 0; i < n; i++) {
+        float a;
+        seed = seed * 1664525u + 1013904223u;
+        a = (float)(seed >> 8) * (6.2831853f / 16777216.0f);
+        inst[i].tree = &tree;
+        inst[i].transform[0] = cosf(a); inst[i].transform[2] = sinf(a);
+        inst[i].transform[5] = 1.0f;
+        inst[i].transform[8] = -sinf(a); inst[i].transform[10] = cosf(a);
+        inst[i].transform[3] = diag * (float)(i % side);
+        inst[i].transform[7] = diag * (float)(i / side % side);
+        inst[i].transform[11] = diag * (float)(i / side / side);
+        inst[i].id = i;
+        inst[i].mask = ~0u;
+    }
+    memset(&sd, 0, sizeof sd);
+    sd.instances = inst;
+    sd.instance_count = n;
+    sd.threads = o->threads;
+    for (rep = 0; rep <= o->repeat; rep++) {
+        double t0;
+        progress("%s: %u instances, top-level build %u/%u%s", out->name, n, rep, o->repeat, rep ? "" : " (warm-up)");
+        t0 = scene_now_ms();
+        r = bvh_scene_build(&sc, &sd);
+        if (rep) ms[rep - 1] = scene_now_ms() - t0;
+        if (r != BVH_SUCCESS) break;
+        bvh_scene_free(&sc);
+    }
+    if (r == BVH_SUCCESS) median_range(ms, o->repeat, &out->inst_ms, &out->inst_min, &out->inst_max);
+    /* one identity instance against the tree */
+    memset(inst, 0, sizeof *inst);
+    inst[0].tree = &tree;
+    inst[0].transform[0] = inst[0].transform[5] = inst[0].transform[10] = 1.0f;
+    inst[0].mask = ~0u;
+    sd.instance_count = 1;
+    if (r == BVH_SUCCESS) r = bvh_scene_build(&sc, &sd);
+    if (r == BVH_SUCCESS) {
+        make_rays(c, bvh_tree_bounds(&tree), &cam);
+        for (rep = 0; rep < BENCH_TRACE_REPEAT; rep++) { /* interleaved: a slow moment hits both */
+            progress("%s: one instance against the tree, %u/%u", out->name, rep + 1, BENCH_TRACE_REPEAT);
+            one[rep] = trace_1t(c, &tree, NULL);
+            scn[rep] = trace_1t(c, &tree, &sc);
+        }
+        median_range(one, BENCH_TRACE_REPEAT, &med, &lo, &hi);
+        out->one_level_mrays_1t = mrays_of(c->npix, med);
+        median_range(scn, BENCH_TRACE_REPEAT, &med, &lo, &hi);
+        out->inst_mrays_1t = mrays_of(c->npix, med);
+        bvh_scene_free(&sc);
+    }
+    free(inst);
+    bvh_free(&tree);
+    if (r != BVH_SUCCESS) say("%s: instances: %s", out->name, bvh_result_string(r));
+    return r != BVH_SUCCESS;
+}
+
 /* Runs every row on one loaded scene; 0 when nothing failed. */
 static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene *out) {
     run_ctx c;
@@ -1252,6 +1356,7 @@ static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene
     uint32_t t;
     memset(&c, 0, sizeof c);
     c.o = o; c.s = s; c.out = out; c.cl = cl;
+    out->inst_ms = out->inst_min = out->inst_max = out->inst_mrays_1t = out->one_level_mrays_1t = NAN;
     c.ref_hits = NAN;
     atomic_init(&c.mem.live, 0);
     atomic_init(&c.mem.peak, 0);
@@ -1304,6 +1409,7 @@ static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene
     }
     ratios(out);
     run_paired(&c, out);
+    failed |= run_instances(&c, out);
 done:
     progress_end();
     free(c.ids);
@@ -1505,6 +1611,15 @@ static void sets_lines(FILE *f, const bench_scene *s, const char *prefix) {
                     BENCH_SET_TOLERANCE, s->rows[i].set_note);
 }
 
+static void instances_line(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
+    if (isnan(s->inst_ms)) return;
+    fprintf(f, "%sinstances: top-level rebuild for %u instances of the default tree: %.2f ms (%.2f..%.2f, %s top, "
+               "%u threads); one instance vs the tree itself, camera rays on 1 thread: %.2f vs %.2f Mrays/s "
+               "(%.3fx)\n",
+            prefix, o->instances, s->inst_ms, s->inst_min, s->inst_max, bvh_builder_name(BVH_BUILDER_PLOC_PARALLEL),
+            o->nthreads, s->inst_mrays_1t, s->one_level_mrays_1t, s->inst_mrays_1t / s->one_level_mrays_1t);
+}
+
 static void print_block(FILE *f, const options *o, const bench_scene *s) {
     char b[220];
     int col, i;
@@ -1535,6 +1650,7 @@ static void print_block(FILE *f, const options *o, const bench_scene *s) {
         else if (s->rows[i].refereed) fprintf(f, "(e) %s\n", s->rows[i].referee_msg);
     sets_lines(f, s, "");
     paired_lines(f, o, s, "");
+    instances_line(f, o, s, "");
 }
 
 /* ---- Markdown --------------------------------------------------------------------------------- */
@@ -1747,6 +1863,11 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
             json_num(f, key, sf->x_p_max, 4);
             if (r->kind == ROW_EMBREE) json_set_num(f, k, "rays_other_answer", sf->other, 0);
         }
+        json_num(f, "instances", o->instances ? (double)o->instances : NAN, 0);
+        json_num(f, "top_rebuild_ms", s->inst_ms, 4);
+        json_num(f, "instance_mrays_1t", s->inst_mrays_1t, 4);
+        json_num(f, "one_level_mrays_1t", s->one_level_mrays_1t, 4);
+        json_num(f, "ratio_instance_mrays_1t", s->inst_mrays_1t / s->one_level_mrays_1t, 4);
         json_num(f, "ratio_sah", r->x_sah, 4);
         json_num(f, "ratio_mrays", r->x_mrays, 4);
         if (r->kind == ROW_EMBREE) {
@@ -1949,6 +2070,9 @@ static void usage(FILE *f) {
             "                   rendering a frame with OpenCL and with the CPU on all threads;\n"
             "                   medians of the rounds' ratios and Mrays/s (robust to a\n"
             "                   shared machine's slow moments; default 0: none)\n"
+            "  --instances N    after the table, the top-level rebuild (bvh_scene_build) for N instances\n"
+            "                   of the default tree, and one instance against the tree on 1 thread\n"
+            "                   (default 10000; 0: none)\n"
             "  --max-bytes N    ploc builders: tree (nodes + indices) at most N bytes per triangle, by\n"
             "                   bigger leaves where needed (0 = the library's default, 40); 'off': the SAH alone\n"
             "  --trace MODE     cpu, opencl, both or none (default: both when OpenCL works, else cpu)\n"
@@ -2019,6 +2143,7 @@ static int parse_args(int argc, char **argv, options *o) {
     parse_builders("all", o);
     parse_embree("all", o);
     o->repeat = 5;
+    o->instances = 10000;
     o->trace_width = 8;
     o->width = o->height = 1024;
     o->brute_max = 20000;
@@ -2049,6 +2174,11 @@ static int parse_args(int argc, char **argv, options *o) {
         } else if (!strcmp(a, "--ploc-top")) {
             if (parse_count_or_off(v, BVH_OFF, &o->ploc_top)) {
                 fprintf(stderr, "bvhbench: --ploc-top wants a divisor (0 = default) or off, not '%s'\n", v ? v : "");
+                return 2;
+            }
+        } else if (!strcmp(a, "--instances")) {
+            if (scene_parse_u32(v, 0, 1u << 24, &o->instances, NULL)) {
+                fprintf(stderr, "bvhbench: --instances wants 0 (none) to 16777216, not '%s'\n", v ? v : "");
                 return 2;
             }
         } else if (!strcmp(a, "--paired")) {

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # tests/examples.sh - the programs a user copies work: build/minimal prints the hit of the manual's
 #   example, and its main is that example line for line (bvh.h's EXAMPLE section); build/boxes
-#   finds, by walking the tree of a box build, the same sphere as brute force for every ray.
+#   finds, tracing a box build with bvh_intersect_custom, the same sphere as brute force for every ray.
 # Usage: tests/examples.sh  (`make test` runs it after building both; BUILD=dir picks another
 #   build directory). Prints one line per failed check and a closing result line; exits 1 on failure.
 set -u

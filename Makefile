@@ -40,7 +40,7 @@ $(BUILD)/%: bench/%.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) $< -o $@ $(EX_LIBS) $(LDLIBS)
 # The programs a user copies build as a user would: strict C11, bvh.h only, no feature macros.
-COPYABLE = $(BUILD)/minimal $(BUILD)/boxes
+COPYABLE = $(BUILD)/minimal $(BUILD)/boxes $(BUILD)/animate
 $(COPYABLE): $(BUILD)/%: examples/%.c bvh.h
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -I. $< -o $@ $(LDLIBS)
@@ -122,7 +122,7 @@ deps-bench:
 	@scripts/deps.sh bench
 
 # tests/exit_codes.sh runs $(BUILD)/render and $(BUILD)/cl_info; tests/examples.sh runs
-# $(BUILD)/minimal and $(BUILD)/boxes. scripts/run-tests.sh prints a line per program and keeps
+# $(BUILD)/minimal, $(BUILD)/boxes and $(BUILD)/animate. scripts/run-tests.sh prints a line per program and keeps
 # every output in $(BUILD)/test-logs/.
 test: deps-test
 	@$(MAKE) --no-print-directory $(TESTS) $(CHECKS) $(BUILD)/render $(BUILD)/cl_info $(COPYABLE)

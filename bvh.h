@@ -1,4 +1,4 @@
-/* bvh.h - v0.5.0 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.6.0 - public domain-style MIT single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -7,7 +7,9 @@
      (Morton-order pairwise aggregation), SAH-guided top-down with mid-point split partitioning,
      PLOC (Meister & Bittner 2018) and PLOC on pthreads. The node layout is a flat array of
      32-byte nodes that cl/trace.cl reads as-is on any OpenCL device; CPU tracing walks an 8-wide
-     copy of it (bvh_node8, made by bvh_build unless desc.trace_width = 2).
+     copy of it (bvh_node8, made by bvh_build unless desc.trace_width = 2). A tree follows moving
+     primitives with bvh_refit (no allocation), and goes to bytes and back with bvh_save and
+     bvh_load (through caller callbacks or a memory buffer; hostile input is refused).
 
    HOW TO INCLUDE
      In exactly ONE .c or .cpp file:
@@ -57,6 +59,7 @@
 
    THREADS
      No global mutable state: any function may be called from several threads on different trees.
+     bvh_refit runs on desc.threads (five short phases, each creating its threads once).
      Parallel builders create their worker threads once per build phase (six per build, eight
      with the 8-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
      memory budget applies), never per iteration; at barriers they spin for up to about half a millisecond before sleeping,
@@ -66,6 +69,12 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.6.0  bvh_refit (moved vertices or boxes; binary boxes, tree.tris and the 8-wide layout in
+            place, the build's grouping kept; parallel; allocates nothing), bvh_save/bvh_load (a
+            versioned, checksummed format through callbacks or memory; the 8-wide layout is
+            remade on load; truncated, damaged and hostile input refused with BVH_ERROR_TRUNCATED,
+            BVH_ERROR_CORRUPT, BVH_ERROR_UNSUPPORTED_FORMAT; BVH_ERROR_IO for a failed write).
+            The nodes8 block also holds a byte per binary node: the grouping refit replays.
      0.5.0  CPU tracing walks an 8-wide copy (bvh_node8, tree.nodes8; AVX2 slab test when the
             CPU has it) whose leaves are SIMD packets of four triangles (bvh_tri4, tree.tri4);
             the watertight triangle test is done in float with a double fallback where an
@@ -94,7 +103,7 @@
 #define BVH_H_INCLUDED
 
 #define BVH_VERSION_MAJOR 0
-#define BVH_VERSION_MINOR 5
+#define BVH_VERSION_MINOR 6
 #define BVH_VERSION_PATCH 0
 
 #include <math.h>
@@ -272,7 +281,8 @@ typedef struct bvh_tree {
                                order, for traversal; NULL for box builds */
     bvh_node8 *nodes8;      /* 8-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
     uint32_t node8_count;
-    bvh_tri4 *tri4;         /* the 8-wide leaves' triangle packets (in nodes8's allocation) */
+    bvh_tri4 *tri4;         /* the 8-wide leaves' triangle packets (in nodes8's allocation, which
+                               also holds, after them, the grouping bvh_refit replays) */
     uint32_t tri4_count;
     uint32_t prim_count;    /* primitives given */
     uint32_t excluded;      /* primitives left out by skip_invalid */
@@ -383,13 +393,13 @@ typedef struct bvh_refit_desc {
    - Errors leave the tree unchanged: BVH_ERROR_INVALID_ARGUMENT (a NULL pointer, a count or kind
      that differs from the tree's, stride < 12), BVH_ERROR_INDEX_OUT_OF_RANGE,
      BVH_ERROR_INVALID_GEOMETRY (NaN or Inf in a vertex of a primitive the tree holds, or an
-     inverted box: the build's policy), BVH_ERROR_OUT_OF_MEMORY (the scratch below). A tree that
-     fails bvh_validate may be refused with BVH_ERROR_INVALID_TREE after part of it was updated.
-   - Memory: no tree array is reallocated. With the 8-wide layout one scratch block of 8 bytes
-     per binary node is taken from the tree's allocator and freed before returning (the areas the
-     build grouped wide nodes by, which the refit replaces); a refit on more than one thread also
-     allocates the thread team's bookkeeping (a few bytes per thread).
-   - Threads: parallel over subtrees; the result does not depend on the thread count. */
+     inverted box: the build's policy). A tree that fails bvh_validate may be refused with
+     BVH_ERROR_INVALID_TREE after part of it was updated.
+   - Memory: nothing is allocated but the thread team's bookkeeping (a few bytes per thread, from
+     the tree's allocator; without it the refit runs on one thread), so it cannot run out of
+     memory. The 8-wide layout keeps, from its build, the role of each binary node in it (a byte
+     per node); the refit replays that grouping rather than regrouping by the new areas.
+   - Threads: desc.threads, parallel over subtrees; the result does not depend on the count. */
 BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc);
 
 /* ---- save and load ------------------------------------------------------------------------ */
@@ -4121,16 +4131,20 @@ typedef struct bvh__wide_plan {
 static void bvh__team_run_always(const bvh_allocator *al, uint32_t want, bvh__team_fn fn, void *arg) {
     if (bvh__team_run(al, want, fn, arg) != BVH_SUCCESS) (void)bvh__team_run(al, 1, fn, arg);
 }
-/* The grouping bvh_refit replays: a byte per binary node (its role) after the packets in nodes8's
-   block. */
+/* What bvh_refit keeps of the build's layout, after the packets in nodes8's block: the role of
+   each binary node (a byte each, bvh__wide_heads), then the plan's top and subtree starts (top,
+   qlen, queue[qlen], size[], psize[]), so that a refit needs neither a scratch nor the plan's
+   counting pass. */
 static uint8_t *bvh__wide_heads(const bvh_tree *tree) {
     return BVH__CAST(uint8_t *, BVH__CAST(void *, tree->tri4 + (tree->tri4_count ? tree->tri4_count : 1)));
 }
-/* The plan of tree's wide layout: by area from sub, the references below each binary node
-   (bvh__wide_sub; the build), or (sub NULL) by the roles the build wrote (bvh_refit). */
-static bvh_result bvh__wide_plan_make(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub, uint8_t *role,
-                                      const bvh_allocator *al, uint32_t threads) {
-    uint32_t i, k, total, ptotal = 0, kids[BVH__W];
+static uint32_t *bvh__wide_kept(const bvh_tree *tree) {
+    return BVH__CAST(uint32_t *, BVH__CAST(void *, bvh__wide_heads(tree) + ((size_t)tree->node_count + 3u) / 4u * 4u));
+}
+static size_t bvh__wide_kept_bytes(uint32_t node_count, const bvh__wide_plan *p) {
+    return ((size_t)node_count + 3u) / 4u * 4u + sizeof(uint32_t) * (2u + (size_t)p->qlen + 2u * (size_t)(p->qlen - p->top));
+}
+static void bvh__wide_plan_init(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub, uint8_t *role) {
     memset(&p->job, 0, sizeof p->job);
     p->job.src.nodes = tree->nodes;
     p->job.src.sub = sub;
@@ -4138,6 +4152,40 @@ static bvh_result bvh__wide_plan_make(bvh__wide_plan *p, const bvh_tree *tree, c
     p->job.src.tris = tree->tris;
     p->job.src.role = role;
     p->job.src.replay = sub == NULL;
+    p->job.size = p->size;
+    p->job.psize = p->psize;
+}
+static void bvh__wide_keep(const bvh_tree *tree, const bvh__wide_plan *p) {
+    uint32_t *k = bvh__wide_kept(tree), n = p->qlen - p->top;
+    k[0] = p->top;
+    k[1] = p->qlen;
+    memcpy(k + 2, p->queue, p->qlen * sizeof(uint32_t));
+    memcpy(k + 2 + p->qlen, p->size, n * sizeof(uint32_t));
+    memcpy(k + 2 + p->qlen + n, p->psize, n * sizeof(uint32_t));
+}
+/* bvh_refit's plan: the kept one, replaying the roles. */
+static void bvh__wide_plan_kept(bvh__wide_plan *p, const bvh_tree *tree, uint32_t threads) {
+    const uint32_t *k = bvh__wide_kept(tree);
+    uint32_t n;
+    bvh__wide_plan_init(p, tree, NULL, bvh__wide_heads(tree));
+    p->top = k[0];
+    p->qlen = k[1];
+    n = p->qlen - p->top;
+    memcpy(p->queue, k + 2, p->qlen * sizeof(uint32_t));
+    memcpy(p->size, k + 2 + p->qlen, n * sizeof(uint32_t));
+    memcpy(p->psize, k + 2 + p->qlen + n, n * sizeof(uint32_t));
+    p->job.heads = p->queue + p->top;
+    p->job.count = n;
+    p->nt = threads < n ? threads : n;
+    p->nodes = tree->node8_count;
+    p->packets = tree->tri4_count;
+}
+/* The plan of tree's wide layout by area from sub, the references below each binary node
+   (bvh__wide_sub): the build's. */
+static bvh_result bvh__wide_plan_make(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub,
+                                      const bvh_allocator *al, uint32_t threads) {
+    uint32_t i, k, total, ptotal = 0, kids[BVH__W];
+    bvh__wide_plan_init(p, tree, sub, NULL);
     p->queue[0] = 0;
     p->qlen = 1;
     p->top = 0;
@@ -4147,8 +4195,6 @@ static bvh_result bvh__wide_plan_make(bvh__wide_plan *p, const bvh_tree *tree, c
             if (!bvh__wide_leaf(&p->job.src, kids[i])) p->queue[p->qlen++] = kids[i];
     }
     p->job.heads = p->queue + p->top;
-    p->job.size = p->size;
-    p->job.psize = p->psize;
     p->job.count = p->qlen - p->top;
     p->nt = threads < p->job.count ? threads : p->job.count;
     if (p->job.count) bvh__team_run_always(al, p->nt, bvh__wide_fn, &p->job);
@@ -4184,6 +4230,7 @@ static void bvh__wide_write(bvh__wide_plan *p, bvh_node8 *nodes8, bvh_tri4 *tri4
 static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32_t threads) {
     bvh__wide_plan *p;
     uint32_t *sub;
+    size_t kept;
     bvh_result r;
     if (!tree->node_count) return BVH_SUCCESS;
     sub = BVH__ALLOC(al, uint32_t, tree->node_count);
@@ -4193,17 +4240,17 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32
         goto done;
     }
     if ((r = bvh__wide_sub(tree->nodes, tree->node_count, sub)) != BVH_SUCCESS) goto done;
-    if ((r = bvh__wide_plan_make(p, tree, sub, NULL, al, threads)) != BVH_SUCCESS) goto done;
-    /* the block's tail holds the roles, written by the write pass */
-    /* one block: the packets follow the nodes, on a cache line as well (256-byte nodes), then the
-       heads (bvh__wide_heads) */
-    if ((size_t)p->packets + 1 > ((size_t)-1 - (size_t)p->nodes * sizeof(bvh_node8) - tree->node_count) / sizeof(bvh_tri4)) {
+    if ((r = bvh__wide_plan_make(p, tree, sub, al, threads)) != BVH_SUCCESS) goto done;
+    /* one block: the packets follow the nodes, on a cache line as well (256-byte nodes), then
+       what bvh_refit keeps (bvh__wide_kept) */
+    kept = bvh__wide_kept_bytes(tree->node_count, p);
+    if ((size_t)p->packets + 1 > ((size_t)-1 - (size_t)p->nodes * sizeof(bvh_node8) - kept) / sizeof(bvh_tri4)) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
     tree->nodes8 = BVH__CAST(bvh_node8 *, bvh__alloc_lines(al, (size_t)p->nodes * sizeof(bvh_node8) +
                                                                    (size_t)(p->packets ? p->packets : 1) * sizeof(bvh_tri4) +
-                                                                   tree->node_count));
+                                                                   kept));
     if (!tree->nodes8) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
@@ -4214,6 +4261,7 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, uint32
     memset(bvh__wide_heads(tree), 0, tree->node_count);
     p->job.src.role = bvh__wide_heads(tree);
     bvh__wide_write(p, tree->nodes8, tree->tri4, al);
+    bvh__wide_keep(tree, p);
 done:
     bvh__free(al, sub);
     bvh__free(al, p);
@@ -5167,8 +5215,7 @@ BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
     for (i = j->ntop; !bad && i-- > 0;) bad += !bvh__refit_node(j, j->top[i]);
     if (bad) return BVH_ERROR_INVALID_TREE;
     if (tree->nodes8) { /* the wide layout as the build grouped it, written over its own arrays */
-        if ((r = bvh__wide_plan_make(&plan, tree, NULL, bvh__wide_heads(tree), &al, nt)) != BVH_SUCCESS) return r;
-        if (plan.nodes != tree->node8_count || plan.packets != tree->tri4_count) return BVH_ERROR_INVALID_TREE;
+        bvh__wide_plan_kept(&plan, tree, nt);
         bvh__wide_write(&plan, tree->nodes8, tree->tri4, &al);
     }
     return BVH_SUCCESS;

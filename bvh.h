@@ -5253,22 +5253,40 @@ typedef char bvh__header_is_64_bytes[sizeof(bvh__file_header) == BVH__FILE_HEADE
 #define BVH__P2 0xC2B2AE3D27D4EB4FULL
 BVH__INLINE uint64_t bvh__rotl64(uint64_t x, int r) { return (x << r) | (x >> (64 - r)); }
 BVH__INLINE uint64_t bvh__round64(uint64_t acc, uint64_t w) { return bvh__rotl64(acc + w * BVH__P2, 31) * BVH__P1; }
-static uint64_t bvh__hash(const void *data, size_t size, uint64_t seed) {
+typedef struct bvh__hasher { uint64_t a, b, c, d; } bvh__hasher;
+static void bvh__hash_init(bvh__hasher *s, uint64_t seed) {
+    s->a = seed + BVH__P1 + BVH__P2;
+    s->b = seed + BVH__P2;
+    s->c = seed;
+    s->d = seed - BVH__P1;
+}
+/* Whole 32-byte blocks; a loader hashes each piece just read, while it is in cache. */
+static void bvh__hash_blocks(bvh__hasher *s, const void *data, size_t size) {
     const unsigned char *p = BVH__CAST(const unsigned char *, data);
-    uint64_t a = seed + BVH__P1 + BVH__P2, b = seed + BVH__P2, c = seed, d = seed - BVH__P1, w[4], h;
+    uint64_t w[4], a = s->a, b = s->b, c = s->c, d = s->d;
     size_t i, n = size / 32;
     for (i = 0; i < n; i++, p += 32) {
         memcpy(w, p, 32);
         a = bvh__round64(a, w[0]); b = bvh__round64(b, w[1]);
         c = bvh__round64(c, w[2]); d = bvh__round64(d, w[3]);
     }
+    s->a = a; s->b = b; s->c = c; s->d = d;
+}
+/* The tail (size % 32 bytes at `tail`) and the total length. */
+static uint64_t bvh__hash_final(bvh__hasher *s, const void *tail, size_t size) {
+    uint64_t w[4], h;
     memset(w, 0, sizeof w);
-    memcpy(w, p, size % 32);
-    a = bvh__round64(a, w[0]); b = bvh__round64(b, w[1]);
-    c = bvh__round64(c, w[2]); d = bvh__round64(d, w[3]);
-    h = bvh__rotl64(a, 1) + bvh__rotl64(b, 7) + bvh__rotl64(c, 12) + bvh__rotl64(d, 18) + (uint64_t)size;
+    if (size % 32) memcpy(w, tail, size % 32);
+    bvh__hash_blocks(s, w, 32);
+    h = bvh__rotl64(s->a, 1) + bvh__rotl64(s->b, 7) + bvh__rotl64(s->c, 12) + bvh__rotl64(s->d, 18) + (uint64_t)size;
     h ^= h >> 33; h *= BVH__P2; h ^= h >> 29; h *= BVH__P1; h ^= h >> 32;
     return h;
+}
+static uint64_t bvh__hash(const void *data, size_t size, uint64_t seed) {
+    bvh__hasher s;
+    bvh__hash_init(&s, seed);
+    bvh__hash_blocks(&s, data, size);
+    return bvh__hash_final(&s, size ? BVH__CAST(const unsigned char *, data) + size / 32 * 32 : NULL, size);
 }
 static uint64_t bvh__payload_check(const bvh_tree *t) {
     uint64_t h = bvh__hash(t->nodes, (size_t)t->node_count * sizeof(bvh_node), 1);
@@ -5346,6 +5364,42 @@ static bvh_result bvh__read_all(bvh__reader *rd, void *out, size_t size) {
     }
     return BVH_SUCCESS;
 }
+/* The payload's values a valid tree cannot hold and the validator does not look at: leaves of more
+   than BVH__MAX_LEAF references, as no builder makes (the 8-wide layout's leaf slots are gathered
+   in buffers of that size), and non-finite triangle coordinates (bvh_build refuses them,
+   traversal assumes none). Checked by bits, without branches. */
+static int bvh__leaves_small(const bvh_node *n, size_t count) {
+    size_t i;
+    uint32_t bad = 0;
+    for (i = 0; i < count; i++) bad |= n[i].count > BVH__MAX_LEAF;
+    return !bad;
+}
+static int bvh__floats_finite(const float *t, size_t n) {
+    size_t i;
+    uint32_t bad = 0;
+    for (i = 0; i < n; i++) bad |= (bvh__bits(t[i]) & 0x7f800000u) == 0x7f800000u;
+    return !bad;
+}
+/* One payload array read in pieces of 256 KiB, each hashed (chained from *check) and checked as
+   `kind` says (1 nodes, 2 triangles) while it is still in cache: one pass over the memory. */
+static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int kind, uint64_t *check, int *bad) {
+    unsigned char *p = BVH__CAST(unsigned char *, out);
+    const size_t piece = (size_t)1 << 18; /* a multiple of 32 bytes, of a node and of a float */
+    bvh__hasher s;
+    size_t done = 0;
+    bvh_result r;
+    bvh__hash_init(&s, *check);
+    while (done < size) {
+        size_t n = size - done < piece ? size - done : piece;
+        if ((r = bvh__read_all(rd, p + done, n)) != BVH_SUCCESS) return r;
+        bvh__hash_blocks(&s, p + done, n / 32 * 32);
+        if (kind == 1) *bad |= !bvh__leaves_small(BVH__CAST(const bvh_node *, BVH__CAST(void *, p + done)), n / sizeof(bvh_node));
+        if (kind == 2) *bad |= !bvh__floats_finite(BVH__CAST(const float *, BVH__CAST(void *, p + done)), n / sizeof(float));
+        done += n;
+    }
+    *check = bvh__hash_final(&s, p + size / 32 * 32, size);
+    return BVH_SUCCESS;
+}
 static uint32_t bvh__bswap32(uint32_t x) {
     return (x >> 24) | ((x >> 8) & 0xff00u) | ((x << 8) & 0xff0000u) | (x << 24);
 }
@@ -5366,7 +5420,7 @@ static bvh_result bvh__check_header(const bvh__file_header *h, const bvh_load_de
        doubling them: its budget is at most 1); a binary tree has fewer nodes than twice its leaves */
     if (h->ref_count < h->prim_count - h->excluded || h->ref_count > 2 * (h->prim_count - h->excluded))
         return BVH_ERROR_CORRUPT;
-    if (h->ref_count == 0 ? h->node_count != 0 : h->node_count == 0 || h->node_count > 2 * h->ref_count - 1)
+    if (h->ref_count == 0 ? h->node_count != 0 : h->node_count == 0 || h->node_count > 2 * (uint64_t)h->ref_count - 1)
         return BVH_ERROR_CORRUPT;
     payload = bvh__payload_bytes(h->node_count, h->ref_count, (h->flags & BVH__FILE_TRIANGLES) != 0);
     if (h->payload_bytes != payload) return BVH_ERROR_CORRUPT;
@@ -5374,25 +5428,12 @@ static bvh_result bvh__check_header(const bvh__file_header *h, const bvh_load_de
     if (d->max_bytes && payload > d->max_bytes) return BVH_ERROR_CORRUPT;
     return BVH_SUCCESS;
 }
-/* The payload's values a valid tree cannot hold and the validator does not look at: non-finite
-   triangle coordinates (bvh_build refuses them, traversal assumes none). */
-static int bvh__tris_finite(const float *t, size_t n) {
-    size_t i;
-    uint32_t bad = 0;
-    for (i = 0; i < n; i++) bad |= (bvh__bits(t[i]) & 0x7f800000u) == 0x7f800000u;
-    return !bad;
-}
-/* Leaves of at most BVH__MAX_LEAF references, as every builder makes (the 8-wide layout's leaf
-   slots are gathered in buffers of that size). */
-static int bvh__leaves_small(const bvh_node *n, uint32_t count) {
-    uint32_t i, bad = 0;
-    for (i = 0; i < count; i++) bad |= n[i].count > BVH__MAX_LEAF;
-    return !bad;
-}
 BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
     bvh__file_header h;
     bvh__reader rd;
     bvh_result r;
+    uint64_t check;
+    int bad = 0;
     if (!tree) return BVH_ERROR_INVALID_ARGUMENT;
     memset(tree, 0, sizeof *tree);
     if (!desc || (!desc->read && !desc->data && desc->size)) return BVH_ERROR_INVALID_ARGUMENT;
@@ -5417,13 +5458,14 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto fail;
     }
-    if ((r = bvh__read_all(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node))) != BVH_SUCCESS) goto fail;
-    if ((r = bvh__read_all(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t))) != BVH_SUCCESS) goto fail;
-    if (tree->tris && (r = bvh__read_all(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float))) != BVH_SUCCESS) goto fail;
+    check = 1; /* bvh__payload_check's chain */
+    if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, &check, &bad)) != BVH_SUCCESS ||
+        (r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 0, &check, &bad)) != BVH_SUCCESS ||
+        (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, &check, &bad)) != BVH_SUCCESS))
+        goto fail;
     tree->node_count = h.node_count;
     tree->ref_count = h.ref_count;
-    if (bvh__payload_check(tree) != h.payload_check || !bvh__leaves_small(tree->nodes, tree->node_count) ||
-        (tree->tris && !bvh__tris_finite(tree->tris, 9 * (size_t)h.ref_count))) {
+    if (check != h.payload_check || bad) {
         r = BVH_ERROR_CORRUPT;
         goto fail;
     }

@@ -51,6 +51,14 @@
    the JSON's diffuse_rays_other_answer / shadow_rays_other_answer), beyond which they disagree.
    A disagreement is reported on stderr, marked "(!)" in the tables, and makes the exit status 3.
 
+   With --refit N, each bvh.h row also runs an animated case: the scene twisted about its vertical
+   axis and waved, a little more each of N frames; per frame bvh_refit of the row's tree and a
+   rebuild by bottom-up (the fastest builder) are timed (medians: refit_ms, rebuild_ms); after the
+   last frame the SAH of the refitted tree and of the row's builder rebuilt on it (refit_sah,
+   rebuild_sah) and the camera rays' Mrays/s on N threads with each (refit_mrays, rebuild_mrays;
+   their hits must agree). With --save-load, bvh_save and bvh_load to and from memory (save_ms,
+   load_ms; the 8-wide layout is remade on load). Both are off by default.
+
    Exit status: 0 ok; 1 an error (a scene, build or output failed); 2 bad command line;
    3 the hits disagree. */
 #define BVH_IMPLEMENTATION

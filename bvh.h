@@ -5203,7 +5203,7 @@ BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
     if (nt > 1 && tree->ref_count / BVH__MIN_PRIMS_PER_THREAD < nt)
         nt = tree->ref_count / BVH__MIN_PRIMS_PER_THREAD > 1 ? tree->ref_count / BVH__MIN_PRIMS_PER_THREAD : 1;
     if ((r = bvh__refit_precheck(tree, desc, nt)) != BVH_SUCCESS) return r;
-    /* everything that can fail is taken before the tree changes */
+    /* a valid tree and input cannot be refused from here on, where the tree starts to change */
     memset(j, 0, sizeof *j);
     j->tree = tree;
     j->tris = tree->tris ? &desc->triangles : NULL;

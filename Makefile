@@ -43,7 +43,7 @@ $(BUILD)/%: bench/%.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) $< -o $@ $(EX_LIBS) $(LDLIBS)
 # The programs a user copies build as a user would: strict C11, bvh.h only, no feature macros.
-COPYABLE = $(BUILD)/minimal $(BUILD)/boxes
+COPYABLE = $(BUILD)/minimal $(BUILD)/boxes $(BUILD)/animate
 $(COPYABLE): $(BUILD)/%: examples/%.c bvh.h
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -I. $< -o $@ $(LDLIBS)
@@ -164,9 +164,9 @@ deps-bench:
 	@scripts/deps.sh bench
 
 # tests/exit_codes.sh runs $(BUILD)/render and $(BUILD)/cl_info; tests/examples.sh runs
-# $(BUILD)/minimal and $(BUILD)/boxes; tests/install.sh installs into $(BUILD)/install-test/ and
-# builds a consumer with pkg-config and CMake. scripts/run-tests.sh prints a line per program and
-# keeps every output in $(BUILD)/test-logs/.
+# $(BUILD)/minimal, $(BUILD)/boxes and $(BUILD)/animate; tests/install.sh installs into
+# $(BUILD)/install-test/ and builds a consumer with pkg-config and CMake. scripts/run-tests.sh
+# prints a line per program and keeps every output in $(BUILD)/test-logs/.
 test: deps-test
 	@$(MAKE) --no-print-directory $(TESTS) $(CHECKS) $(BUILD)/render $(BUILD)/cl_info $(COPYABLE)
 	@BUILD=$(BUILD) scripts/run-tests.sh $(TESTS) $(CHECKS) tests/exit_codes.sh tests/examples.sh tests/install.sh

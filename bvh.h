@@ -7,7 +7,9 @@
      (Morton-order pairwise aggregation), SAH-guided top-down with mid-point split partitioning,
      PLOC (Meister & Bittner 2018) and PLOC on pthreads. The node layout is a flat array of
      32-byte nodes that cl/trace.cl reads as-is on any OpenCL device; CPU tracing walks an 8-wide
-     copy of it (bvh_node8, made by bvh_build unless desc.trace_width = 2).
+     copy of it (bvh_node8, made by bvh_build unless desc.trace_width = 2). A tree follows moving
+     primitives with bvh_refit (no allocation), and goes to bytes and back with bvh_save and
+     bvh_load (through caller callbacks or a memory buffer; hostile input is refused).
 
    HOW TO INCLUDE
      In exactly ONE .c or .cpp file:
@@ -60,6 +62,7 @@
 
    THREADS
      No global mutable state: any function may be called from several threads on different trees.
+     bvh_refit runs on desc.threads (five short phases, each creating its threads once).
      Parallel builders create their worker threads once per build phase (six per build, eight
      with the 8-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
      memory budget applies), never per iteration. At barriers they spin briefly before sleeping,
@@ -120,6 +123,19 @@
             bvh_batch_desc (bvh_intersect_batch_ex, bvh_occluded_batch_ex), the same trees and hits
             as the library's threads; with BVH_NO_THREADS, parallel builds without pthreads.
             Progress and cancel: bvh_build_desc.progress / progress_user, BVH_ERROR_CANCELLED.
+            Custom primitives: bvh_intersect_custom, bvh_occluded_custom and their batch calls
+            trace a tree built from boxes with the caller's intersection callback (bvh_custom_desc;
+            ties to the lowest index; a t outside [tmin, tmax] or NaN is ignored). Instances:
+            bvh_scene_build / bvh_scene_intersect / bvh_scene_occluded over bottom-level triangle
+            trees placed by 3x4 transforms, with ids and ray masks (bvh_instance, bvh_scene_hit
+            with the world normal), bvh_ray_transform. Secondary rays: bvh_offset_origin
+            (Waechter & Binder 2019) and bvh_hit_surface (hit point and geometric normal).
+            bvh_refit (moved vertices or boxes; binary boxes, tree.tris and the 8-wide layout in
+            place, the build's grouping kept; parallel; allocates nothing), bvh_save/bvh_load (a
+            versioned, checksummed format through callbacks or memory; the 8-wide layout is
+            remade on load; truncated, damaged and hostile input refused with BVH_ERROR_TRUNCATED,
+            BVH_ERROR_CORRUPT, BVH_ERROR_UNSUPPORTED_FORMAT; BVH_ERROR_IO for a failed write).
+            The nodes8 block also holds a byte per binary node: the grouping refit replays.
      0.5.0  CPU tracing walks an 8-wide copy (bvh_node8, tree.nodes8; AVX2 slab test when the
             CPU has it) whose leaves are SIMD packets of four triangles (bvh_tri4, tree.tri4);
             the watertight triangle test is done in float with a double fallback where an
@@ -198,6 +214,12 @@ typedef enum bvh_result {
     BVH_ERROR_NO_TRIANGLES,        /* traversal asked of a tree built from boxes only */
     BVH_ERROR_CANCELLED,           /* the build's progress callback asked to stop; nothing
                                       leaked, tree left empty */
+    BVH_ERROR_IO,                  /* bvh_save: the write callback took fewer bytes than given */
+    BVH_ERROR_TRUNCATED,           /* bvh_load: the data ends before the tree does */
+    BVH_ERROR_CORRUPT,             /* bvh_load: not a saved tree, or damaged (magic, checksums,
+                                      sizes out of range, a tree that fails validation) */
+    BVH_ERROR_UNSUPPORTED_FORMAT,  /* bvh_load: a format version this library does not read, or
+                                      a file saved on a machine of the other byte order */
     BVH_RESULT_COUNT
 } bvh_result;
 
@@ -250,7 +272,8 @@ typedef struct bvh_tri4 {
 
 typedef struct bvh_ray {
     bvh_vec3 origin;
-    float tmin;   /* hits with tmin <= t <= tmax count */
+    float tmin;   /* hits with tmin <= t <= tmax count; a ray leaving a surface: tmin = 0 from
+                     bvh_offset_origin's point, not a tmin > 0 (no epsilon fits every scale) */
     bvh_vec3 dir; /* need not be normalised; t is in units of dir */
     float tmax;
 } bvh_ray;
@@ -366,7 +389,8 @@ typedef struct bvh_tree {
                                order, for traversal; NULL for box builds */
     bvh_node8 *nodes8;      /* 8-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
     uint32_t node8_count;
-    bvh_tri4 *tri4;         /* the 8-wide leaves' triangle packets (in nodes8's allocation) */
+    bvh_tri4 *tri4;         /* the 8-wide leaves' triangle packets (in nodes8's allocation, which
+                               also holds, after them, the grouping bvh_refit replays) */
     uint32_t tri4_count;
     uint32_t prim_count;    /* primitives given */
     uint32_t excluded;      /* primitives left out by skip_invalid */
@@ -451,7 +475,8 @@ BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *out);
    zero direction, tmin > tmax or a non-finite origin hit nothing. Ties in t go to the lowest
    primitive index, so that any builder gives exactly the hits of a brute-force loop. A tree
    built from boxes has no triangles to trace: every ray misses, in these calls and in the batch
-   calls, which also return BVH_ERROR_NO_TRIANGLES so that the mistake is seen. */
+   calls, which also return BVH_ERROR_NO_TRIANGLES so that the mistake is seen (such a tree is
+   traced by bvh_intersect_custom). */
 BVH_API int bvh_intersect(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit);
 /* Any hit in [tmin, tmax]: 1 if the ray is blocked. */
 BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray);
@@ -480,6 +505,120 @@ BVH_API bvh_result bvh_occluded_batch_ex(const bvh_tree *tree, const bvh_ray *ra
 BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const float v1[3],
                                    const float v2[3], bvh_hit *hit);
 
+/* ---- custom primitives ------------------------------------------------------------------- */
+/* A tree built from boxes (desc.boxes) is traced with the caller's own intersection test: the
+   callback is given the ray, a primitive (the caller's index: the box's position in desc.boxes)
+   whose box the ray reaches, and the user pointer. ray->tmax is the closest hit found so far (or
+   the caller's tmax): a hit beyond it cannot win, so the test may stop early. It returns 1 and sets
+   hit->t (and hit->u, hit->v: the caller's to use, e.g. surface coordinates) for a hit with
+   ray->tmin <= t <= ray->tmax, else 0; hit->prim is set by the traversal. A reported t that is
+   outside [tmin, tmax], NaN or infinite is ignored (not a hit). Ties in t go to the lowest
+   primitive index, as for triangles, so that the hits equal a brute-force loop over the
+   primitives with the same callback. On a tree built from triangles the callback decides for each
+   triangle instead of the built-in test (alpha-tested triangles: bvh_intersect_triangle on the
+   caller's vertices, then the caller's own rejection). The callback may be called more than once
+   for one primitive (builders that split references), and from several threads at once in the
+   batch calls; it must not modify the tree. */
+typedef struct bvh_custom_desc {
+    int (*intersect)(const bvh_ray *ray, uint32_t prim, void *user, bvh_hit *hit);
+    void *user; /* passed to intersect as is */
+} bvh_custom_desc;
+/* Closest hit among the tree's primitives by custom->intersect: 1 and *hit filled, or 0 with
+   hit->prim = BVH_INVALID and hit->t = ray->tmax. Rays that bvh_intersect refuses (NaN, zero
+   direction, tmin > tmax) miss; so does every ray when tree, ray, custom or custom->intersect is
+   NULL (the batch calls return BVH_ERROR_INVALID_ARGUMENT for those). */
+BVH_API int bvh_intersect_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
+                                 const bvh_custom_desc *custom);
+/* Any hit in [tmin, tmax] by custom->intersect: 1 if the ray is blocked; stops at the first. */
+BVH_API int bvh_occluded_custom(const bvh_tree *tree, const bvh_ray *ray, const bvh_custom_desc *custom);
+/* The same for count rays on `threads` threads (0 = all online CPUs).
+   SUCCESS; ARGUMENT: tree or custom or custom->intersect NULL, rays or the output NULL with
+   count > 0, a half allocator pair in the tree; OUT_OF_MEMORY: as bvh_intersect_batch. */
+BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits,
+                                              size_t count, uint32_t threads, const bvh_custom_desc *custom);
+BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded,
+                                             size_t count, uint32_t threads, const bvh_custom_desc *custom);
+
+/* ---- secondary rays ------------------------------------------------------------------------ */
+/* A ray that leaves a surface from its computed hit point may hit that surface again (shadow
+   acne): the point is rounded to either side of it. tmin > 0 is no cure at every scale (an
+   epsilon right for a unit scene is too small 1e5 away from the origin and too large at 1e-3).
+   bvh_offset_origin moves p off the surface along n by a few ulps of p's own coordinates, so
+   that it works at any distance from the origin (Waechter & Binder, "A Fast and Robust Method for
+   Avoiding Self-Intersection", Ray Tracing Gems, 2019): n is the geometric normal (unit length)
+   turned to the side the new ray leaves on (-n for a ray going through the surface); use the
+   result as the origin with tmin = 0. p is best computed from the hit's barycentrics
+   (bvh_hit_surface), not as origin + t * dir, whose error grows with t. */
+BVH_API bvh_vec3 bvh_offset_origin(bvh_vec3 p, bvh_vec3 n);
+/* The point of triangle hit->prim of mesh (the triangles given to bvh_build) at the hit's
+   barycentrics, (1 - u - v) v0 + u v1 + v v2, and its unit geometric normal, the normalised
+   (v1 - v0) x (v2 - v0) (zero for a zero-area triangle). Either output may be NULL.
+   SUCCESS; ARGUMENT: mesh or hit NULL, positions NULL, stride below 12, hit->prim >= the triangle
+   count (a miss included); INDEX_OUT_OF_RANGE: an index of the triangle >= vertex_count. */
+BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point,
+                                   bvh_vec3 *normal);
+
+/* ---- instances: two-level scenes ------------------------------------------------------------ */
+/* A scene places bottom-level trees (one per mesh, built by bvh_build from triangles, any
+   builder) in the world by instances, under a top-level tree over the instances' world boxes
+   (a box tree, built by bvh_build). Tracing transforms the ray into each instance's space it
+   reaches (origin and direction, not normalised: t stays in world units) and traces the
+   instance's tree there. Rebuild the scene (bvh_scene_build) when instances move; the
+   bottom-level trees are not touched. */
+typedef struct bvh_instance {
+    const bvh_tree *tree; /* bottom level; must stay valid (and unchanged) while the scene is used */
+    float transform[12];  /* object to world, row-major 3x4: world = M * local + (m[3], m[7], m[11]),
+                             M = rows (m[0..2]), (m[4..6]), (m[8..10]); finite and invertible */
+    uint32_t id;          /* the caller's, reported in hits */
+    uint32_t mask;        /* a ray whose mask shares no bit with it skips the instance */
+} bvh_instance;
+typedef struct bvh_scene_desc {
+    const bvh_instance *instances; /* copied: the array may be freed when bvh_scene_build returns */
+    uint32_t instance_count;
+    bvh_builder builder;           /* top level (0 = the default builder) */
+    uint32_t threads;              /* as bvh_build_desc.threads */
+    bvh_allocator allocator;       /* both functions or neither; kept by the scene */
+} bvh_scene_desc;
+typedef struct bvh_scene {
+    bvh_tree top;              /* over the instances' world boxes; prims = instance indices */
+    bvh_instance *instances;   /* instance_count copies of desc.instances */
+    float *inverse;            /* 12 floats per instance: world to object (bvh_ray_transform) */
+    uint32_t instance_count;
+    uint32_t *mesh;            /* per instance: its tree's number among the distinct trees */
+    size_t *ref_base;          /* per distinct tree: its first entry in ref_of_prim */
+    uint32_t *ref_of_prim;     /* per distinct tree, prim_count entries: a reference of each
+                                  triangle (tree.tris + 9 * ref), for the hit's normal */
+    uint32_t mesh_count;
+    bvh_allocator allocator;
+} bvh_scene;
+typedef struct bvh_scene_hit {
+    float t, u, v;     /* world t (units of the world ray's dir), barycentrics in the triangle */
+    uint32_t instance; /* index into desc.instances; BVH_INVALID for a miss */
+    uint32_t id;       /* that instance's id */
+    uint32_t prim;     /* the triangle's index in its mesh (the bottom-level build's input) */
+    bvh_vec3 normal;   /* unit geometric normal in world space: (v1 - v0) x (v2 - v0) in object
+                          space, by the inverse transpose of M (zero for a miss) */
+} bvh_scene_hit;
+/* SUCCESS (also for zero instances); ARGUMENT: scene or desc NULL, instances NULL with a count,
+   an instance whose tree is NULL or was built from boxes, a half allocator pair, a builder out
+   of range; GEOMETRY: a transform with a NaN or Inf, or singular (no inverse in float);
+   TOO_MANY_PRIMITIVES: more than 2^30 instances; OUT_OF_MEMORY. On failure *scene is zeroed and
+   nothing is leaked. An instance of an empty tree is never hit. */
+BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc);
+/* Releases what bvh_scene_build allocated (not the bottom-level trees). NULL is ignored. */
+BVH_API void bvh_scene_free(bvh_scene *scene);
+/* Closest hit over all instances whose mask shares a bit with `mask` (~0u: all): 1 and *hit
+   filled, or 0 with hit->instance = BVH_INVALID, hit->t = ray->tmax. Ties in t go to the lowest
+   instance index, then to the lowest triangle index, so the hits equal a brute-force loop over
+   the instances (in order) that traces each with the ray bvh_ray_transform gives. */
+BVH_API int bvh_scene_intersect(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit);
+/* Any hit in [tmin, tmax] over the instances `mask` selects: 1 if the ray is blocked. */
+BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask);
+/* The ray in the space of the 3x4 transform m (row-major, as bvh_instance.transform): origin
+   M o + (m[3], m[7], m[11]), direction M d, not normalised, so that t means the same point in
+   both spaces; tmin and tmax unchanged. Tracing uses it with scene->inverse + 12 * instance. */
+BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]);
+
 /* The tree's bounds (empty box for an empty tree). */
 BVH_API bvh_aabb bvh_tree_bounds(const bvh_tree *tree);
 
@@ -487,6 +626,68 @@ BVH_API bvh_aabb bvh_tree_bounds(const bvh_tree *tree);
 BVH_API bvh_camera bvh_camera_standard(bvh_aabb bounds, uint32_t width, uint32_t height);
 /* Primary ray through the centre of pixel (x, y), y = 0 at the top; unit direction. */
 BVH_API bvh_ray bvh_camera_ray(const bvh_camera *cam, uint32_t x, uint32_t y);
+
+/* ---- refit -------------------------------------------------------------------------------- */
+/* New positions for the primitives of a built tree: the same triangles (the shape of the build's
+   bvh_build_desc.triangles: triangle_count = tree.prim_count, indices naming the same vertices)
+   with moved vertices, or one new box per primitive of a box tree (box_count = tree.prim_count).
+   The buffers may differ from the build's (and may be freed after the call). */
+typedef struct bvh_refit_desc {
+    bvh_triangles triangles;  /* a triangle tree's new triangles ... */
+    const bvh_aabb *boxes;    /* ... or a box tree's new boxes (then set box_count) */
+    uint32_t box_count;
+    uint32_t threads;         /* 0 = all online CPUs; at most one per 8192 references */
+} bvh_refit_desc;
+/* Refits a built (or loaded) tree to moved primitives, keeping its topology: every binary node
+   box bottom-up, tree.tris, and the 8-wide layout rewritten in place with the grouping the build
+   chose (so its node and packet counts stay). Arrays keep their addresses and sizes; the tree
+   gives the same hits as a brute-force loop over the new triangles. The quality falls as the
+   motion departs from the build's: rebuild when bvh_sah has grown too much.
+   - Split references (sah-midpoint): refitted correctly, each reference's leaf box taking the
+     whole triangle's box (the clipping is not redone): valid and exact, with more overlap.
+   - skip_invalid trees: the excluded primitives stay out (their new positions are not read).
+   - Errors leave the tree unchanged: BVH_ERROR_INVALID_ARGUMENT (a NULL pointer, a count or kind
+     that differs from the tree's, stride < 12), BVH_ERROR_INDEX_OUT_OF_RANGE,
+     BVH_ERROR_INVALID_GEOMETRY (NaN or Inf in a vertex of a primitive the tree holds, or an
+     inverted box: the build's policy). A tree that fails bvh_validate may be refused with
+     BVH_ERROR_INVALID_TREE after part of it was updated.
+   - Memory: nothing is allocated but the thread team's bookkeeping (a few bytes per thread, from
+     the tree's allocator; without it the refit runs on one thread), so it cannot run out of
+     memory. The 8-wide layout keeps, from its build, the role of each binary node in it (a byte
+     per node); the refit replays that grouping rather than regrouping by the new areas.
+   - Threads: desc.threads, parallel over subtrees; the result does not depend on the count. */
+BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc);
+
+/* ---- save and load ------------------------------------------------------------------------ */
+/* A tree as bytes: a 64-byte header (magic "BVH.TREE", format version, byte-order marker,
+   builder, counts, payload size, a header and a payload checksum) then the binary nodes, the
+   references and, for triangle trees, tree.tris, in the saving machine's byte order. The 8-wide
+   layout is not stored: bvh_load makes it again (the format does not change when it does).
+   The callbacks return the number of bytes they moved; fewer than asked ends the call. */
+typedef size_t (*bvh_write_fn)(void *user, const void *data, size_t size);
+typedef size_t (*bvh_read_fn)(void *user, void *data, size_t size);
+/* Writes the tree through `write` (BVH_ERROR_IO if it takes fewer bytes than given). */
+BVH_API bvh_result bvh_save(const bvh_tree *tree, bvh_write_fn write, void *user);
+/* The bytes bvh_save writes for this tree (0 for a NULL tree). */
+BVH_API size_t bvh_save_size(const bvh_tree *tree);
+typedef struct bvh_load_desc {
+    bvh_read_fn read;         /* either a stream ... */
+    void *user;
+    const void *data;         /* ... or a memory buffer of `size` bytes (then read is NULL) */
+    size_t size;
+    size_t max_bytes;         /* refuse a tree whose payload is larger (BVH_ERROR_CORRUPT) before
+                                 allocating it; 0 = no limit but the format's own caps (with a
+                                 memory buffer its size bounds the payload in any case) */
+    uint32_t trace_width;     /* 0 = as the saved tree had it; 8 = make the 8-wide layout; 2 = none */
+    uint32_t threads;         /* for the 8-wide layout: 0 = all online CPUs */
+    bvh_allocator allocator;  /* becomes the tree's, as bvh_build_desc.allocator */
+} bvh_load_desc;
+/* Reads a tree saved by bvh_save. Sizes are checked before anything is allocated; the checksums,
+   then the structure (bvh_validate's checks; a box tree's leaves are not checked against boxes
+   it does not have) are checked before the tree is returned. On failure *tree is zeroed and
+   nothing is leaked. Errors: BVH_ERROR_TRUNCATED, BVH_ERROR_CORRUPT,
+   BVH_ERROR_UNSUPPORTED_FORMAT, BVH_ERROR_OUT_OF_MEMORY, BVH_ERROR_INVALID_ARGUMENT. */
+BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc);
 
 /* AABB helpers */
 BVH_API bvh_aabb bvh_aabb_empty(void);
@@ -692,6 +893,10 @@ BVH_API const char *bvh_result_string(bvh_result r) {
     case BVH_ERROR_INVALID_TREE: return "invalid tree (see the validation report)";
     case BVH_ERROR_NO_TRIANGLES: return "the tree was built from boxes and has no triangles to trace";
     case BVH_ERROR_CANCELLED: return "the build was cancelled by its progress callback";
+    case BVH_ERROR_IO: return "the write callback took fewer bytes than given";
+    case BVH_ERROR_TRUNCATED: return "the saved tree ends early (truncated data)";
+    case BVH_ERROR_CORRUPT: return "not a saved tree, or a damaged one (checksum, sizes or structure)";
+    case BVH_ERROR_UNSUPPORTED_FORMAT: return "a saved tree of another format version or byte order";
     default: return "unknown result code";
     }
 }
@@ -3850,7 +4055,10 @@ done:
     return r;
 }
 
-BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes, bvh_validation *rep) {
+/* bvh_validate; structure_only: without prim_boxes or triangles, the leaves' boxes are not checked
+   against their primitives (bvh_load's check of a box tree, whose boxes it does not have). */
+static bvh_result bvh__validate(const bvh_tree *tree, const bvh_aabb *prim_boxes, int structure_only,
+                                bvh_validation *rep) {
     bvh_allocator al;
     uint8_t *seen = NULL, *used = NULL;
     uint32_t stack[2 * BVH_MAX_DEPTH + 8], sp = 0, i, refs_seen = 0;
@@ -3865,7 +4073,7 @@ BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
         return BVH_SUCCESS;
     }
     if (!tree->nodes || !tree->prims) return bvh__invalid(rep, BVH_INVALID, "node or reference array missing");
-    if (!prim_boxes && !tree->tris) {
+    if (!prim_boxes && !tree->tris && !structure_only) {
         bvh__invalid(rep, BVH_INVALID, "a tree built from boxes is checked against those boxes: prim_boxes is NULL");
         return BVH_ERROR_INVALID_ARGUMENT;
     }
@@ -3899,6 +4107,7 @@ BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
                 if (p >= tree->prim_count) { r = bvh__invalid(rep, ni, "reference to a primitive out of range"); goto done; }
                 if (used[p] && !splits) { r = bvh__invalid(rep, ni, "primitive referenced twice"); goto done; }
                 used[p] = 1;
+                if (!prim_boxes && !tree->tris) continue; /* structure_only */
                 pb = prim_boxes ? prim_boxes[p] : bvh__tri_box(tree->tris + 9 * (size_t)k);
                 if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
                                pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
@@ -3930,6 +4139,9 @@ done:
     bvh__free(&al, seen);
     bvh__free(&al, used);
     return r;
+}
+BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes, bvh_validation *rep) {
+    return bvh__validate(tree, prim_boxes, 0, rep);
 }
 
 /* ============================================================================================ */
@@ -4129,12 +4341,26 @@ typedef struct bvh__wide_src {
     const uint32_t *prims; /* the tree's references (caller ids) and their triangles */
     const float *tris;
     bvh_tri4 *packets;     /* NULL: count only */
+    uint8_t *role;         /* the grouping, a byte per binary node (bvh__wide_heads): written by
+                              the write pass, read back by bvh_refit (replay) */
+    int replay;            /* 0: slots opened by area, sub given (the build); 1: by role, sub NULL,
+                              so that bvh_refit groups moved boxes as the build did (the same
+                              counts and numbering) without a scratch array */
 } bvh__wide_src;
+/* Roles: 0 a node opened inside a wide node (or below a leaf slot), 1 the head of a wide node,
+   2 + r a leaf slot of r references (r = 0 for a binary leaf, whose count says it). */
+#define BVH__ROLE_HEAD 1u
+#define BVH__ROLE_SLOT 2u
 BVH__INLINE int bvh__wide_leaf(const bvh__wide_src *s, uint32_t b) {
+    if (s->replay) return s->role[b] >= BVH__ROLE_SLOT;
     return s->nodes[b].count || s->sub[b] <= BVH__SLOT_REFS;
 }
+BVH__INLINE uint32_t bvh__wide_refs(const bvh__wide_src *s, uint32_t b) {
+    if (s->replay) return s->nodes[b].count ? s->nodes[b].count : s->role[b] - BVH__ROLE_SLOT;
+    return s->sub[b];
+}
 BVH__INLINE uint32_t bvh__wide_packets(const bvh__wide_src *s, uint32_t b) {
-    return (s->sub[b] + BVH__PACKET - 1) / BVH__PACKET;
+    return (bvh__wide_refs(s, b) + BVH__PACKET - 1) / BVH__PACKET;
 }
 /* The packets of leaf slot b: its references in depth-first order, four to a packet. */
 static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4 *out) {
@@ -4166,7 +4392,9 @@ static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4
 /* The slots of interior binary node b (see above; area ties: the first in the list). */
 /* The area by which a slot is opened: -1 for a leaf slot, which stays whole. */
 static float bvh__wide_area(const bvh__wide_src *s, uint32_t b) {
-    return bvh__wide_leaf(s, b) ? -1.0f : bvh_aabb_area(bvh__node_box(&s->nodes[b]));
+    if (bvh__wide_leaf(s, b)) return -1.0f;
+    if (s->replay) return s->role[b] == BVH__ROLE_HEAD ? -1.0f : 1.0f; /* the build opened all others */
+    return bvh_aabb_area(bvh__node_box(&s->nodes[b]));
 }
 static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t out[BVH__W]) {
     uint32_t k = 2, i, best;
@@ -4205,6 +4433,7 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *ou
             }
     }
     if (out) {
+        if (!bvh__wide_leaf(s, b)) s->role[b] = BVH__ROLE_HEAD;
         memset(out, 0, sizeof *out);
         for (i = 0; i < BVH__W; i++)
             for (a = 0; a < 3; a++) {
@@ -4220,6 +4449,7 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *ou
         }
         if (!bvh__wide_leaf(s, kids[i])) continue; /* interior children: the caller sets the index */
         if (out) {
+            s->role[kids[i]] = BVH__CAST(uint8_t, BVH__ROLE_SLOT + (c->count ? 0 : bvh__wide_refs(s, kids[i])));
             out->child[i] = *packet;
             out->count[i] = (uint8_t)bvh__wide_packets(s, kids[i]);
         }
@@ -4299,72 +4529,163 @@ static bvh_result bvh__wide_sub(const bvh_node *nodes, uint32_t count, uint32_t 
     }
     return BVH_SUCCESS;
 }
+/* The wide layout in two passes, so that bvh_refit can run the second alone on the arrays it has:
+   the plan (the breadth-first top and every subtree's node and packet counts, hence the totals)
+   and the write pass into arrays of those sizes. */
+typedef struct bvh__wide_plan {
+    uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], psize[BVH__WIDE_TOP], qlen, top;
+    uint32_t nodes, packets, nt; /* totals; the team's size */
+    const bvh_thread_pool *pool; /* the build's pool (NULL: the library's threads) */
+    bvh__wide_job job;
+} bvh__wide_plan;
+/* A team of want threads, or of one where the team's bookkeeping cannot be allocated (a team
+   fails before it runs anything, so fn runs once either way): for passes that must not fail
+   half-way. */
+static void bvh__team_run_always(const bvh_allocator *al, uint32_t want, bvh__team_fn fn, void *arg) {
+    if (bvh__team_run(al, want, fn, arg) != BVH_SUCCESS) (void)bvh__team_run(al, 1, fn, arg);
+}
+/* The same on the build's pool when there is one (a pool's run cannot fail). */
+static void bvh__wide_run(const bvh__wide_plan *p, const bvh_allocator *al, bvh__wide_job *job) {
+    if (p->pool && p->pool->run) (void)bvh__team_run_on(p->pool, al, p->nt, 0, bvh__wide_fn, job);
+    else bvh__team_run_always(al, p->nt, bvh__wide_fn, job);
+}
+/* What bvh_refit keeps of the build's layout, after the packets in nodes8's block: the role of
+   each binary node (a byte each, bvh__wide_heads), then the plan's top and subtree starts (top,
+   qlen, queue[qlen], size[], psize[]), so that a refit needs neither a scratch nor the plan's
+   counting pass. */
+static uint8_t *bvh__wide_heads(const bvh_tree *tree) {
+    return BVH__CAST(uint8_t *, BVH__CAST(void *, tree->tri4 + (tree->tri4_count ? tree->tri4_count : 1)));
+}
+static uint32_t *bvh__wide_kept(const bvh_tree *tree) {
+    return BVH__CAST(uint32_t *, BVH__CAST(void *, bvh__wide_heads(tree) + ((size_t)tree->node_count + 3u) / 4u * 4u));
+}
+static size_t bvh__wide_kept_bytes(uint32_t node_count, const bvh__wide_plan *p) {
+    return ((size_t)node_count + 3u) / 4u * 4u + sizeof(uint32_t) * (2u + (size_t)p->qlen + 2u * (size_t)(p->qlen - p->top));
+}
+static void bvh__wide_plan_init(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub, uint8_t *role) {
+    memset(&p->job, 0, sizeof p->job);
+    p->job.src.nodes = tree->nodes;
+    p->job.src.sub = sub;
+    p->job.src.prims = tree->prims;
+    p->job.src.tris = tree->tris;
+    p->job.src.role = role;
+    p->job.src.replay = sub == NULL;
+    p->pool = NULL;
+    p->job.size = p->size;
+    p->job.psize = p->psize;
+}
+static void bvh__wide_keep(const bvh_tree *tree, const bvh__wide_plan *p) {
+    uint32_t *k = bvh__wide_kept(tree), n = p->qlen - p->top;
+    k[0] = p->top;
+    k[1] = p->qlen;
+    memcpy(k + 2, p->queue, p->qlen * sizeof(uint32_t));
+    memcpy(k + 2 + p->qlen, p->size, n * sizeof(uint32_t));
+    memcpy(k + 2 + p->qlen + n, p->psize, n * sizeof(uint32_t));
+}
+/* bvh_refit's plan: the kept one, replaying the roles. */
+static void bvh__wide_plan_kept(bvh__wide_plan *p, const bvh_tree *tree, uint32_t threads) {
+    const uint32_t *k = bvh__wide_kept(tree);
+    uint32_t n;
+    bvh__wide_plan_init(p, tree, NULL, bvh__wide_heads(tree));
+    p->top = k[0];
+    p->qlen = k[1];
+    n = p->qlen - p->top;
+    memcpy(p->queue, k + 2, p->qlen * sizeof(uint32_t));
+    memcpy(p->size, k + 2 + p->qlen, n * sizeof(uint32_t));
+    memcpy(p->psize, k + 2 + p->qlen + n, n * sizeof(uint32_t));
+    p->job.heads = p->queue + p->top;
+    p->job.count = n;
+    p->nt = threads < n ? threads : n;
+    p->nodes = tree->node8_count;
+    p->packets = tree->tri4_count;
+}
+/* The plan of tree's wide layout by area from sub, the references below each binary node
+   (bvh__wide_sub): the build's. */
+static bvh_result bvh__wide_plan_make(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub,
+                                      const bvh_allocator *al, const bvh_thread_pool *pool, uint32_t threads) {
+    uint32_t i, k, total, ptotal = 0, kids[BVH__W];
+    bvh__wide_plan_init(p, tree, sub, NULL);
+    p->pool = pool;
+    p->queue[0] = 0;
+    p->qlen = 1;
+    p->top = 0;
+    while (p->top < p->qlen && p->qlen - p->top < BVH__WIDE_SUBTREES && p->qlen + BVH__W <= BVH__WIDE_TOP) { /* breadth-first top */
+        k = bvh__wide_node(&p->job.src, p->queue[p->top++], NULL, kids, &ptotal);
+        for (i = 0; i < k; i++)
+            if (!bvh__wide_leaf(&p->job.src, kids[i])) p->queue[p->qlen++] = kids[i];
+    }
+    p->job.heads = p->queue + p->top;
+    p->job.count = p->qlen - p->top;
+    p->nt = threads < p->job.count ? threads : p->job.count;
+    if (p->job.count) bvh__wide_run(p, al, &p->job);
+    for (i = 0, total = p->top; i < p->job.count; i++) {
+        uint32_t s = p->size[i], c = p->psize[i];
+        if (!s || s > 0xffffffffu - total || c > 0xffffffffu - ptotal) return BVH_ERROR_INVALID_TREE;
+        p->size[i] = total;
+        total += s;
+        p->psize[i] = ptotal;
+        ptotal += c;
+    }
+    p->nodes = total;
+    p->packets = ptotal;
+    return BVH_SUCCESS;
+}
+/* The write pass of a plan into nodes8 (p->nodes nodes) and tri4 (p->packets packets). */
+static void bvh__wide_write(bvh__wide_plan *p, bvh_node8 *nodes8, bvh_tri4 *tri4, const bvh_allocator *al) {
+    uint32_t i, k, pos, ptotal = 0, kids[BVH__W];
+    p->job.src.packets = tri4;
+    for (i = 0, pos = 1; i < p->top; i++) { /* the top, numbered in the order of the queue */
+        bvh_node8 *n = &nodes8[i];
+        uint32_t j;
+        k = bvh__wide_node(&p->job.src, p->queue[i], n, kids, &ptotal);
+        for (j = 0; j < k; j++)
+            if (!bvh__wide_leaf(&p->job.src, kids[j])) {
+                n->child[j] = pos < p->top ? pos : p->size[pos - p->top];
+                pos++;
+            }
+    }
+    p->job.out = nodes8;
+    if (p->job.count) bvh__wide_run(p, al, &p->job);
+}
 static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, const bvh_thread_pool *pool,
                                  uint32_t threads) {
-    uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], psize[BVH__WIDE_TOP], qlen = 1, top = 0;
-    uint32_t i, k, pos, total, ptotal = 0, nt, kids[BVH__W], *sub;
-    bvh__wide_job job;
+    bvh__wide_plan *p;
+    uint32_t *sub;
+    size_t kept;
     bvh_result r;
     if (!tree->node_count) return BVH_SUCCESS;
-    if (!(sub = BVH__ALLOC(al, uint32_t, tree->node_count))) return BVH_ERROR_OUT_OF_MEMORY;
-    if ((r = bvh__wide_sub(tree->nodes, tree->node_count, sub)) != BVH_SUCCESS) goto done;
-    memset(&job, 0, sizeof job);
-    job.src.nodes = tree->nodes;
-    job.src.sub = sub;
-    job.src.prims = tree->prims;
-    job.src.tris = tree->tris;
-    queue[0] = 0;
-    while (top < qlen && qlen - top < BVH__WIDE_SUBTREES && qlen + BVH__W <= BVH__WIDE_TOP) { /* breadth-first top */
-        k = bvh__wide_node(&job.src, queue[top++], NULL, kids, &ptotal);
-        for (i = 0; i < k; i++)
-            if (!bvh__wide_leaf(&job.src, kids[i])) queue[qlen++] = kids[i];
-    }
-    job.heads = queue + top;
-    job.size = size;
-    job.psize = psize;
-    job.count = qlen - top;
-    nt = threads < job.count ? threads : job.count;
-    if (job.count && (r = bvh__team_run_on(pool, al, nt, 0, bvh__wide_fn, &job)) != BVH_SUCCESS) goto done;
-    for (i = 0, total = top; i < job.count; i++) {
-        uint32_t s = size[i], p = psize[i];
-        if (!s || s > 0xffffffffu - total || p > 0xffffffffu - ptotal) {
-            r = BVH_ERROR_INVALID_TREE;
-            goto done;
-        }
-        size[i] = total;
-        total += s;
-        psize[i] = ptotal;
-        ptotal += p;
-    }
-    /* one block: the packets follow the nodes, on a cache line as well (256-byte nodes) */
-    if ((size_t)ptotal + 1 > ((size_t)-1 - (size_t)total * sizeof(bvh_node8)) / sizeof(bvh_tri4)) {
+    sub = BVH__ALLOC(al, uint32_t, tree->node_count);
+    p = BVH__ALLOC(al, bvh__wide_plan, 1); /* 12 KiB: off the stack */
+    if (!sub || !p) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
-    tree->nodes8 = BVH__CAST(bvh_node8 *, bvh__alloc_lines(al, (size_t)total * sizeof(bvh_node8) +
-                                                                   (size_t)(ptotal ? ptotal : 1) * sizeof(bvh_tri4)));
-    tree->tri4 = tree->nodes8 ? BVH__CAST(bvh_tri4 *, BVH__CAST(void *, tree->nodes8 + total)) : NULL;
+    if ((r = bvh__wide_sub(tree->nodes, tree->node_count, sub)) != BVH_SUCCESS) goto done;
+    if ((r = bvh__wide_plan_make(p, tree, sub, al, pool, threads)) != BVH_SUCCESS) goto done;
+    /* one block: the packets follow the nodes, on a cache line as well (256-byte nodes), then
+       what bvh_refit keeps (bvh__wide_kept) */
+    kept = bvh__wide_kept_bytes(tree->node_count, p);
+    if ((size_t)p->packets + 1 > ((size_t)-1 - (size_t)p->nodes * sizeof(bvh_node8) - kept) / sizeof(bvh_tri4)) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    tree->nodes8 = BVH__CAST(bvh_node8 *, bvh__alloc_lines(al, (size_t)p->nodes * sizeof(bvh_node8) +
+                                                                   (size_t)(p->packets ? p->packets : 1) * sizeof(bvh_tri4) +
+                                                                   kept));
     if (!tree->nodes8) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
-    tree->node8_count = total;
-    tree->tri4_count = ptotal;
-    job.src.packets = tree->tri4;
-    for (i = 0, pos = 1, ptotal = 0; i < top; i++) { /* the top, numbered in the order of the queue */
-        bvh_node8 *n = &tree->nodes8[i];
-        uint32_t j;
-        k = bvh__wide_node(&job.src, queue[i], n, kids, &ptotal);
-        for (j = 0; j < k; j++)
-            if (!bvh__wide_leaf(&job.src, kids[j])) {
-                n->child[j] = pos < top ? pos : size[pos - top];
-                pos++;
-            }
-    }
-    job.out = tree->nodes8;
-    r = job.count ? bvh__team_run_on(pool, al, nt, 0, bvh__wide_fn, &job) : BVH_SUCCESS;
+    tree->tri4 = BVH__CAST(bvh_tri4 *, BVH__CAST(void *, tree->nodes8 + p->nodes));
+    tree->node8_count = p->nodes;
+    tree->tri4_count = p->packets;
+    memset(bvh__wide_heads(tree), 0, tree->node_count);
+    p->job.src.role = bvh__wide_heads(tree);
+    bvh__wide_write(p, tree->nodes8, tree->tri4, al);
+    bvh__wide_keep(tree, p);
 done:
     bvh__free(al, sub);
+    bvh__free(al, p);
     return r;
 }
 
@@ -5117,6 +5438,977 @@ BVH_API bvh_result bvh_occluded_batch_ex(const bvh_tree *tree, const bvh_ray *ra
     if (!desc) { memset(&zero, 0, sizeof zero); desc = &zero; }
     if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
     return bvh__batch_run(tree, rays, NULL, occluded, count, desc->threads, &desc->pool);
+}
+
+/* ============================================================================================ */
+/* == custom primitives: the binary traversal with a leaf step ================================== */
+/* One loop for every kind of primitive a binary tree can hold: it culls nodes by the best t so
+   far (ray->tmax, which only decreases) and hands each reference of a leaf it reaches to a leaf
+   step, which tests the primitive, keeps the best hit by its own rule and lowers ray->tmax to it.
+   User primitives (a callback) plug in here; the one-mesh triangle path keeps its own loops
+   (bvh__traverse and the 8-wide traversal), which this adds no work to. Visiting order: near
+   child first, as bvh__traverse. */
+/* ============================================================================================ */
+/* Tests primitive `prim` (the caller's index); returns 1 when it took a hit as the new best and
+   set ray->tmax to its t (ties: ray->tmax unchanged). */
+typedef int (*bvh__leaf_step)(void *ctx, bvh_ray *ray, uint32_t prim);
+
+/* Returns 1 if a leaf step took a hit; any: stops at the first. The caller's ray is copied:
+   the steps see it with tmax lowered to the best t. */
+static int bvh__trace_leaves(const bvh_tree *tree, const bvh_ray *ray_in, int any, bvh__leaf_step step, void *ctx) {
+    bvh__rayx rx;
+    bvh_ray ray = *ray_in;
+    uint32_t stack[BVH_MAX_DEPTH + 2], sp = 0;
+    float stack_t[BVH_MAX_DEPTH + 2];
+    const bvh_node *nodes = tree->nodes, *node = nodes;
+    int found = 0;
+    if (!tree->node_count || !bvh__ray_setup(&ray, &rx)) return 0;
+    if (bvh__slab(&rx, node, ray.tmax) == BVH_INF) return 0;
+    for (;;) {
+        if (node->count) {
+            uint32_t k, end = node->index + node->count;
+            for (k = node->index; k < end; k++) {
+                if (!step(ctx, &ray, tree->prims[k])) continue;
+                found = 1;
+                if (any) return 1;
+            }
+        } else {
+            const bvh_node *c0 = &nodes[node->index], *c1 = c0 + 1;
+            float t0 = bvh__slab(&rx, c0, ray.tmax), t1 = bvh__slab(&rx, c1, ray.tmax);
+            if (t0 != BVH_INF || t1 != BVH_INF) {
+                if (t1 < t0) { const bvh_node *tc = c0; float tt = t0; c0 = c1; c1 = tc; t0 = t1; t1 = tt; }
+                node = c0;
+                if (t1 != BVH_INF) {
+                    if (sp == BVH_MAX_DEPTH + 2) return found; /* deeper than the validator allows */
+                    stack_t[sp] = t1;
+                    stack[sp++] = (uint32_t)(c1 - nodes);
+                }
+                continue;
+            }
+        }
+        for (;;) { /* pop the next node still in reach of the current best */
+            if (!sp) return found;
+            --sp;
+            if (stack_t[sp] <= ray.tmax) { node = &nodes[stack[sp]]; break; }
+        }
+    }
+}
+
+typedef struct bvh__custom_ctx {
+    const bvh_custom_desc *custom;
+    bvh_hit best; /* prim BVH_INVALID until a hit is taken */
+} bvh__custom_ctx;
+/* The callback's hit is taken if its t is in [tmin, tmax] (NaN and +inf never are) and, at
+   t == tmax, only from a lower index than the best's: ties go to the lowest index whatever the
+   visiting order. Before any hit, best.prim is BVH_INVALID, above every index. */
+static int bvh__custom_step(void *arg, bvh_ray *ray, uint32_t prim) {
+    bvh__custom_ctx *c = BVH__CAST(bvh__custom_ctx *, arg);
+    bvh_hit h;
+    h.t = ray->tmax;
+    h.u = h.v = 0.0f;
+    h.prim = prim;
+    if (!c->custom->intersect(ray, prim, c->custom->user, &h)) return 0;
+    if (!(h.t >= ray->tmin && h.t <= ray->tmax && h.t < BVH_INF)) return 0;
+    if (h.t == ray->tmax && prim > c->best.prim) return 0;
+    h.prim = prim;
+    c->best = h;
+    ray->tmax = h.t;
+    return 1;
+}
+static int bvh__trace_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any,
+                             const bvh_custom_desc *custom) {
+    bvh__custom_ctx c;
+    int found = 0;
+    c.custom = custom;
+    c.best.t = ray ? ray->tmax : BVH_INF;
+    c.best.u = c.best.v = 0.0f;
+    c.best.prim = BVH_INVALID;
+    if (tree && ray && custom && custom->intersect) found = bvh__trace_leaves(tree, ray, any, bvh__custom_step, &c);
+    if (hit) *hit = c.best;
+    return found;
+}
+BVH_API int bvh_intersect_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
+                                 const bvh_custom_desc *custom) {
+    return bvh__trace_custom(tree, ray, hit, 0, custom);
+}
+BVH_API int bvh_occluded_custom(const bvh_tree *tree, const bvh_ray *ray, const bvh_custom_desc *custom) {
+    return bvh__trace_custom(tree, ray, NULL, 1, custom);
+}
+
+/* The batch calls share bvh__batch's chunking (bvh__batch_take). */
+typedef struct bvh__custom_batch {
+    bvh__batch b;
+    const bvh_custom_desc *custom;
+} bvh__custom_batch;
+static void bvh__custom_batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__custom_batch *cb = BVH__CAST(bvh__custom_batch *, arg);
+    bvh__batch *b = &cb->b;
+    size_t chunk, i, e;
+    (void)tid; (void)nt;
+    while ((chunk = bvh__batch_take(b, team)) < b->count) {
+        e = chunk + BVH__BATCH_CHUNK < b->count ? chunk + BVH__BATCH_CHUNK : b->count;
+        for (i = chunk; i < e; i++) {
+            if (b->hits) bvh__trace_custom(b->tree, &b->rays[i], &b->hits[i], 0, cb->custom);
+            else b->occluded[i] = (uint8_t)bvh__trace_custom(b->tree, &b->rays[i], NULL, 1, cb->custom);
+        }
+    }
+}
+static bvh_result bvh__custom_batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ,
+                                        size_t count, uint32_t threads, const bvh_custom_desc *custom) {
+    bvh__custom_batch cb;
+    uint32_t nt;
+    if (!tree || !custom || !custom->intersect || (count && (!rays || (!hits && !occ))))
+        return BVH_ERROR_INVALID_ARGUMENT;
+    if (!bvh__allocator_paired(&tree->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
+    cb.b.tree = tree; cb.b.rays = rays; cb.b.hits = hits; cb.b.occluded = occ; cb.b.count = count; cb.b.next = 0;
+    cb.custom = custom;
+    nt = bvh__resolve_threads(threads);
+    if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
+    if (nt < 1) nt = 1;
+    return bvh__team_run(&tree->allocator, nt, bvh__custom_batch_fn, &cb);
+}
+BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
+                                              uint32_t threads, const bvh_custom_desc *custom) {
+    if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__custom_batch_run(tree, rays, hits, NULL, count, threads, custom);
+}
+BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded,
+                                             size_t count, uint32_t threads, const bvh_custom_desc *custom) {
+    if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__custom_batch_run(tree, rays, NULL, occluded, count, threads, custom);
+}
+
+/* ============================================================================================ */
+/* == secondary rays: origin offset, hit point and normal ======================================= */
+/* Waechter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection" (Ray Tracing Gems,
+   2019, ch. 6): each coordinate of p moves away from the surface by an integer number of ulps
+   proportional to n's component (BVH__OFFSET_INT ulps for a unit component), which scales with
+   |p| as the rounding error of p does; within BVH__OFFSET_ORIGIN of 0 on an axis, where ulps
+   become tiny while the error stays that of the vertices (of the scene's scale), the move is an
+   absolute BVH__OFFSET_FLOAT * n instead. The constants are the paper's. */
+/* ============================================================================================ */
+#define BVH__OFFSET_ORIGIN (1.0f / 32.0f)
+#define BVH__OFFSET_FLOAT (1.0f / 65536.0f)
+#define BVH__OFFSET_INT 256.0f
+static float bvh__offset1(float p, float n) {
+    uint32_t u;
+    int32_t k;
+    float q;
+    if (!bvh__finite(p) || bvh__nan(n)) return p;
+    n = n > 1.0f ? 1.0f : n < -1.0f ? -1.0f : n; /* a unit normal's rounding, or a longer one */
+    if (fabsf(p) < BVH__OFFSET_ORIGIN) return p + BVH__OFFSET_FLOAT * n;
+    k = (int32_t)(BVH__OFFSET_INT * n); /* |k| <= 256 */
+    /* the bits of a float grow with its magnitude: toward +n on the positive side means more
+       bits, on the negative side fewer (unsigned arithmetic: no signed overflow) */
+    u = bvh__bits(p);
+    u = p < 0.0f ? u - (uint32_t)k : u + (uint32_t)k;
+    memcpy(&q, &u, sizeof q);
+    return bvh__finite(q) ? q : p; /* past FLT_MAX: p itself (no finite float lies farther) */
+}
+BVH_API bvh_vec3 bvh_offset_origin(bvh_vec3 p, bvh_vec3 n) {
+    bvh_vec3 r;
+    r.x = bvh__offset1(p.x, n.x);
+    r.y = bvh__offset1(p.y, n.y);
+    r.z = bvh__offset1(p.z, n.z);
+    return r;
+}
+BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point,
+                                   bvh_vec3 *normal) {
+    float t[9], w, e1[3], e2[3];
+    double nx, ny, nz, l;
+    int k;
+    if (!mesh || !hit || !mesh->positions || (mesh->stride && mesh->stride < 3 * sizeof(float)))
+        return BVH_ERROR_INVALID_ARGUMENT;
+    if (hit->prim >= mesh->triangle_count) return BVH_ERROR_INVALID_ARGUMENT; /* BVH_INVALID too */
+    if ((uintptr_t)mesh->indices % sizeof(uint32_t)) return BVH_ERROR_INVALID_ARGUMENT;
+    if (mesh->indices) {
+        for (k = 0; k < 3; k++)
+            if (mesh->indices[3 * (size_t)hit->prim + k] >= mesh->vertex_count) return BVH_ERROR_INDEX_OUT_OF_RANGE;
+    } else if (3 * (uint64_t)hit->prim + 2 >= mesh->vertex_count) {
+        return BVH_ERROR_INDEX_OUT_OF_RANGE;
+    }
+    bvh__fetch_triangle(mesh, hit->prim, t);
+    if (point) {
+        w = 1.0f - hit->u - hit->v;
+        point->x = w * t[0] + hit->u * t[3] + hit->v * t[6];
+        point->y = w * t[1] + hit->u * t[4] + hit->v * t[7];
+        point->z = w * t[2] + hit->u * t[5] + hit->v * t[8];
+    }
+    if (normal) { /* the cross product in double: no overflow for large, no underflow for tiny triangles */
+        for (k = 0; k < 3; k++) { e1[k] = t[3 + k] - t[k]; e2[k] = t[6 + k] - t[k]; }
+        nx = (double)e1[1] * e2[2] - (double)e1[2] * e2[1];
+        ny = (double)e1[2] * e2[0] - (double)e1[0] * e2[2];
+        nz = (double)e1[0] * e2[1] - (double)e1[1] * e2[0];
+        l = sqrt(nx * nx + ny * ny + nz * nz);
+        if (!(l > 0.0)) { /* zero area (or a NaN vertex): no normal */
+            l = 1.0;
+            nx = ny = nz = 0.0;
+        }
+        normal->x = (float)(nx / l);
+        normal->y = (float)(ny / l);
+        normal->z = (float)(nz / l);
+    }
+    return BVH_SUCCESS;
+}
+
+/* ============================================================================================ */
+/* == instances: two-level scenes ================================================================ */
+/* The top level is a box tree over the instances' world boxes, traced by bvh__trace_leaves with
+   a leaf step that skips instances by mask, transforms the ray into the instance's space and
+   traces the bottom-level tree there with bvh_intersect / bvh_occluded (the 8-wide layout where
+   the tree has one). The best hit keeps the instance, the mesh's triangle and t; the normal of
+   the final hit is computed from the tree's copy of the triangle (tree.tris, in reference order),
+   found by a map from triangle to reference that the scene makes once per distinct
+   bottom-level tree (a walk to find it again cost more than the trace on a bunny). */
+/* ============================================================================================ */
+BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]) {
+    bvh_ray r = *ray;
+    const bvh_vec3 o = ray->origin, d = ray->dir;
+    r.origin.x = m[0] * o.x + m[1] * o.y + m[2] * o.z + m[3];
+    r.origin.y = m[4] * o.x + m[5] * o.y + m[6] * o.z + m[7];
+    r.origin.z = m[8] * o.x + m[9] * o.y + m[10] * o.z + m[11];
+    r.dir.x = m[0] * d.x + m[1] * d.y + m[2] * d.z;
+    r.dir.y = m[4] * d.x + m[5] * d.y + m[6] * d.z;
+    r.dir.z = m[8] * d.x + m[9] * d.y + m[10] * d.z;
+    return r;
+}
+/* The inverse of a 3x4 affine transform, in double, rounded to float; 0 if m is not finite or
+   singular (a zero determinant, or an inverse that is not finite in float). */
+static int bvh__invert34(const float m[12], float out[12]) {
+    double a[9], inv[9], det, t[3];
+    int i;
+    for (i = 0; i < 12; i++)
+        if (!bvh__finite(m[i])) return 0;
+    for (i = 0; i < 9; i++) a[i] = m[(i / 3) * 4 + i % 3];
+    inv[0] = a[4] * a[8] - a[5] * a[7]; inv[1] = a[2] * a[7] - a[1] * a[8]; inv[2] = a[1] * a[5] - a[2] * a[4];
+    inv[3] = a[5] * a[6] - a[3] * a[8]; inv[4] = a[0] * a[8] - a[2] * a[6]; inv[5] = a[2] * a[3] - a[0] * a[5];
+    inv[6] = a[3] * a[7] - a[4] * a[6]; inv[7] = a[1] * a[6] - a[0] * a[7]; inv[8] = a[0] * a[4] - a[1] * a[3];
+    det = a[0] * inv[0] + a[1] * inv[3] + a[2] * inv[6];
+    if (det == 0.0) return 0;
+    for (i = 0; i < 9; i++) inv[i] /= det;
+    for (i = 0; i < 3; i++) t[i] = -(inv[3 * i] * m[3] + inv[3 * i + 1] * m[7] + inv[3 * i + 2] * m[11]);
+    for (i = 0; i < 12; i++) {
+        double x = i % 4 == 3 ? t[i / 4] : inv[(i / 4) * 3 + i % 4];
+        out[i] = (float)x;
+        if (!bvh__finite(out[i])) return 0;
+    }
+    return 1;
+}
+/* The world box of an instance: the bottom-level root box's corners transformed in double, then
+   widened by 2^-20 of the largest coordinate (and rounded outward): the traversal tests the
+   world ray against it and the float-transformed ray against the tree below, whose roundings
+   differ; the margin keeps every hit of the latter inside the former. */
+static bvh_aabb bvh__instance_box(const bvh_instance *in) {
+    bvh_aabb b = bvh_tree_bounds(in->tree), w;
+    double lo[3] = {DBL_MAX, DBL_MAX, DBL_MAX}, hi[3] = {-DBL_MAX, -DBL_MAX, -DBL_MAX}, pad = 0.0;
+    const float *m = in->transform;
+    int c, i;
+    if (!bvh__nonempty(b)) return b;
+    for (c = 0; c < 8; c++) {
+        double p[3];
+        p[0] = c & 1 ? b.max.x : b.min.x;
+        p[1] = c & 2 ? b.max.y : b.min.y;
+        p[2] = c & 4 ? b.max.z : b.min.z;
+        for (i = 0; i < 3; i++) {
+            double x = (double)m[4 * i] * p[0] + (double)m[4 * i + 1] * p[1] + (double)m[4 * i + 2] * p[2] + m[4 * i + 3];
+            lo[i] = x < lo[i] ? x : lo[i];
+            hi[i] = x > hi[i] ? x : hi[i];
+        }
+    }
+    for (i = 0; i < 3; i++) {
+        pad = fabs(lo[i]) > pad ? fabs(lo[i]) : pad;
+        pad = fabs(hi[i]) > pad ? fabs(hi[i]) : pad;
+    }
+    pad *= 9.5367431640625e-7; /* 2^-20 */
+    for (i = 0; i < 3; i++) {
+        float l = (float)(lo[i] - pad), h = (float)(hi[i] + pad);
+        if ((double)l > lo[i] - pad) l = nextafterf(l, -BVH_INF);
+        if ((double)h < hi[i] + pad) h = nextafterf(h, BVH_INF);
+        bvh__set(&w.min, i, l);
+        bvh__set(&w.max, i, h);
+    }
+    return w;
+}
+BVH_API void bvh_scene_free(bvh_scene *scene) {
+    bvh_allocator al;
+    if (!scene) return;
+    al = scene->allocator;
+    bvh_free(&scene->top);
+    bvh__free(&al, scene->instances);
+    bvh__free(&al, scene->inverse);
+    bvh__free(&al, scene->mesh);
+    bvh__free(&al, scene->ref_base);
+    bvh__free(&al, scene->ref_of_prim);
+    memset(scene, 0, sizeof *scene);
+    scene->allocator = al;
+}
+/* Numbers the distinct trees of the instances (an open-addressing table on the pointers: O(n)
+   for any number of instances) and makes each one's triangle-to-reference map. */
+static bvh_result bvh__scene_maps(bvh_scene *sc) {
+    uint32_t n = sc->instance_count, cap = 16, i, m = 0, *slot;
+    const bvh_tree **keys;
+    size_t total = 0, k;
+    bvh_result r = BVH_SUCCESS;
+    while (cap < 2 * (size_t)n) cap *= 2;
+    keys = BVH__ALLOC(&sc->allocator, const bvh_tree *, cap);
+    slot = BVH__ALLOC(&sc->allocator, uint32_t, cap);
+    sc->mesh = BVH__ALLOC(&sc->allocator, uint32_t, n ? n : 1);
+    if (!keys || !slot || !sc->mesh) r = BVH_ERROR_OUT_OF_MEMORY;
+    if (r == BVH_SUCCESS) {
+        for (i = 0; i < cap; i++) keys[i] = NULL;
+        for (i = 0; i < n; i++) {
+            const bvh_tree *t = sc->instances[i].tree;
+            uint32_t h = (uint32_t)(((uint64_t)(uintptr_t)t * 0x9E3779B97F4A7C15ull) >> 40) & (cap - 1);
+            while (keys[h] && keys[h] != t) h = (h + 1) & (cap - 1);
+            if (!keys[h]) { keys[h] = t; slot[h] = m++; }
+            sc->mesh[i] = slot[h];
+        }
+        sc->mesh_count = m;
+        sc->ref_base = BVH__ALLOC(&sc->allocator, size_t, m ? m : 1);
+        if (!sc->ref_base) r = BVH_ERROR_OUT_OF_MEMORY;
+    }
+    if (r == BVH_SUCCESS) {
+        for (i = 0; i < cap; i++)
+            if (keys[i]) sc->ref_base[slot[i]] = keys[i]->prim_count;
+        for (i = 0; i < m; i++) { size_t c = sc->ref_base[i]; sc->ref_base[i] = total; total += c; }
+        sc->ref_of_prim = BVH__ALLOC(&sc->allocator, uint32_t, total ? total : 1);
+        if (!sc->ref_of_prim) r = BVH_ERROR_OUT_OF_MEMORY;
+    }
+    if (r == BVH_SUCCESS)
+        for (i = 0; i < cap; i++) {
+            const bvh_tree *t = keys[i];
+            uint32_t *map;
+            if (!t) continue;
+            map = sc->ref_of_prim + sc->ref_base[slot[i]];
+            for (k = 0; k < t->ref_count; k++) map[t->prims[k]] = (uint32_t)k; /* any reference will do */
+        }
+    bvh__free(&sc->allocator, BVH__CAST(void *, keys));
+    bvh__free(&sc->allocator, slot);
+    return r;
+}
+BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc) {
+    bvh_build_desc td;
+    bvh_aabb *boxes = NULL;
+    bvh_result r = BVH_SUCCESS;
+    uint32_t i, n;
+    if (!scene) return BVH_ERROR_INVALID_ARGUMENT;
+    memset(scene, 0, sizeof *scene);
+    if (!desc || (desc->instance_count && !desc->instances) || !bvh__allocator_paired(&desc->allocator) ||
+        (unsigned)desc->builder >= BVH_BUILDER_COUNT)
+        return BVH_ERROR_INVALID_ARGUMENT;
+    n = desc->instance_count;
+    if (n > BVH__MAX_PRIMS) return BVH_ERROR_TOO_MANY_PRIMITIVES;
+    for (i = 0; i < n; i++) {
+        const bvh_tree *t = desc->instances[i].tree;
+        if (!t || (t->node_count && !t->tris)) return BVH_ERROR_INVALID_ARGUMENT;
+    }
+    scene->allocator = desc->allocator;
+    scene->instance_count = n;
+    scene->instances = BVH__ALLOC(&scene->allocator, bvh_instance, n ? n : 1);
+    scene->inverse = BVH__ALLOC(&scene->allocator, float, 12 * (size_t)(n ? n : 1));
+    boxes = BVH__ALLOC(&scene->allocator, bvh_aabb, n ? n : 1);
+    if (!scene->instances || !scene->inverse || !boxes) r = BVH_ERROR_OUT_OF_MEMORY;
+    for (i = 0; r == BVH_SUCCESS && i < n; i++) {
+        scene->instances[i] = desc->instances[i];
+        if (!bvh__invert34(desc->instances[i].transform, scene->inverse + 12 * (size_t)i)) r = BVH_ERROR_INVALID_GEOMETRY;
+        else boxes[i] = bvh__instance_box(&desc->instances[i]);
+    }
+    if (r == BVH_SUCCESS) r = bvh__scene_maps(scene);
+    if (r == BVH_SUCCESS) {
+        memset(&td, 0, sizeof td);
+        td.builder = desc->builder;
+        td.boxes = boxes;
+        td.box_count = n;
+        td.threads = desc->threads;
+        td.allocator = desc->allocator;
+        td.skip_invalid = 1; /* the empty box of an instance of an empty tree: left out */
+        r = bvh_build(&scene->top, &td);
+    }
+    bvh__free(&scene->allocator, boxes);
+    if (r != BVH_SUCCESS) bvh_scene_free(scene);
+    return r;
+}
+
+typedef struct bvh__scene_ctx {
+    const bvh_scene *scene;
+    uint32_t mask, any;
+    uint32_t instance; /* the best hit's, BVH_INVALID until one is taken */
+    bvh_hit hit;       /* its hit in the bottom-level tree (t is world t) */
+} bvh__scene_ctx;
+static int bvh__instance_step(void *arg, bvh_ray *ray, uint32_t inst) {
+    bvh__scene_ctx *c = BVH__CAST(bvh__scene_ctx *, arg);
+    const bvh_instance *in = &c->scene->instances[inst];
+    bvh_ray local;
+    bvh_hit h;
+    if (!(in->mask & c->mask)) return 0;
+    local = bvh_ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
+    if (c->any) return bvh_occluded(in->tree, &local);
+    if (!bvh_intersect(in->tree, &local, &h)) return 0;
+    if (h.t == ray->tmax && inst > c->instance) return 0; /* ties: the lowest instance */
+    c->instance = inst;
+    c->hit = h;
+    ray->tmax = h.t;
+    return 1;
+}
+/* The world normal of the best hit: M^-T times the object-space normal, normalised. */
+static bvh_vec3 bvh__scene_normal(const bvh_scene *scene, const bvh__scene_ctx *c) {
+    const float *inv = scene->inverse + 12 * (size_t)c->instance, *t;
+    const bvh_tree *tree = scene->instances[c->instance].tree;
+    uint32_t ref = scene->ref_of_prim[scene->ref_base[scene->mesh[c->instance]] + c->hit.prim];
+    double e1[3], e2[3], n[3], w[3], l;
+    bvh_vec3 out = {0.0f, 0.0f, 0.0f};
+    int k;
+    t = tree->tris + 9 * (size_t)ref;
+    for (k = 0; k < 3; k++) { e1[k] = (double)t[3 + k] - t[k]; e2[k] = (double)t[6 + k] - t[k]; }
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    for (k = 0; k < 3; k++) w[k] = inv[k] * n[0] + inv[4 + k] * n[1] + inv[8 + k] * n[2];
+    l = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    if (!(l > 0.0)) return out;
+    out.x = (float)(w[0] / l);
+    out.y = (float)(w[1] / l);
+    out.z = (float)(w[2] / l);
+    return out;
+}
+static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int any) {
+    bvh__scene_ctx c;
+    int found = 0;
+    c.scene = scene;
+    c.mask = mask;
+    c.any = (uint32_t)any;
+    c.instance = BVH_INVALID;
+    if (scene && ray && mask) found = bvh__trace_leaves(&scene->top, ray, any, bvh__instance_step, &c);
+    if (!hit) return found;
+    hit->t = ray ? ray->tmax : BVH_INF;
+    hit->u = hit->v = 0.0f;
+    hit->instance = hit->id = hit->prim = BVH_INVALID;
+    hit->normal.x = hit->normal.y = hit->normal.z = 0.0f;
+    if (!found) return 0;
+    hit->t = c.hit.t;
+    hit->u = c.hit.u;
+    hit->v = c.hit.v;
+    hit->instance = c.instance;
+    hit->id = scene->instances[c.instance].id;
+    hit->prim = c.hit.prim;
+    hit->normal = bvh__scene_normal(scene, &c);
+    return 1;
+}
+BVH_API int bvh_scene_intersect(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit) {
+    return bvh__scene_trace(scene, ray, mask, hit, 0);
+}
+BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask) {
+    return bvh__scene_trace(scene, ray, mask, NULL, 1);
+}
+
+/* ============================================================================================ */
+/* == refit ===================================================================================== */
+/* The topology stays; the boxes follow the primitives. Binary boxes bottom-up over subtrees taken
+   in parallel (each in post-order from its head; the few nodes above the heads last, on one
+   thread), the triangle copy fetched leaf by leaf in the same walk, then the 8-wide layout's
+   write pass run again on its own arrays. Every box is a min/max of the same inputs, so the
+   result does not depend on the thread count or the order. */
+/* ============================================================================================ */
+#define BVH__REFIT_HEADS 256u /* subtrees the threads share (a PLOC tree's vary a lot in size) */
+typedef struct bvh__refit {
+    bvh_tree *tree;
+    const bvh_triangles *tris; /* the new triangles, or */
+    const bvh_aabb *boxes;     /* the new boxes */
+    uint32_t heads[BVH__REFIT_HEADS], top[BVH__REFIT_HEADS], nheads, ntop;
+    uint32_t bad[BVH__MAX_THREADS]; /* per thread: the precheck's failures; the walk's broken nodes */
+} bvh__refit;
+
+/* Node b from its children (interior) or its primitives (leaf); 0 if the tree is broken there. */
+BVH__INLINE int bvh__refit_node(const bvh__refit *j, uint32_t b) {
+    bvh_tree *t = j->tree;
+    bvh_node *n = &t->nodes[b];
+    bvh_aabb box = bvh__empty();
+    uint32_t k;
+    if (n->count) {
+        if (n->index > t->ref_count || n->count > t->ref_count - n->index) return 0;
+        for (k = n->index; k < n->index + n->count; k++) {
+            uint32_t p = t->prims[k];
+            if (p >= t->prim_count) return 0;
+            if (j->tris) {
+                box = bvh__merge(box, bvh__tri_box(t->tris + 9 * (size_t)k)); /* bvh__refit_tris_fn's */
+            } else {
+                box = bvh__merge(box, j->boxes[p]);
+            }
+        }
+    } else {
+        box = bvh__merge(bvh__node_box(&t->nodes[n->index]), bvh__node_box(&t->nodes[n->index + 1]));
+    }
+    bvh__set_box(n, box);
+    return 1;
+}
+/* The subtree of head h in post-order (children before their parent). Child indices must lie
+   after their parent and inside the array, so every path ends; 0 if the tree is broken. */
+static int bvh__refit_subtree(const bvh__refit *j, uint32_t h) {
+    uint32_t node[2 * BVH_MAX_DEPTH + 4], sp = 0;
+    uint8_t open[2 * BVH_MAX_DEPTH + 4];
+    const bvh_node *nodes = j->tree->nodes;
+    node[sp] = h;
+    open[sp++] = 0;
+    while (sp) {
+        uint32_t b = node[sp - 1];
+        const bvh_node *n = &nodes[b];
+        if (n->count || open[sp - 1]) {
+            if (!bvh__refit_node(j, b)) return 0;
+            sp--;
+            continue;
+        }
+        if (n->index <= b || n->index >= j->tree->node_count - 1 || sp + 2 > 2 * BVH_MAX_DEPTH + 4) return 0;
+        open[sp - 1] = 1;
+        node[sp] = n->index + 1; open[sp++] = 0;
+        node[sp] = n->index; open[sp++] = 0;
+    }
+    return 1;
+}
+/* The new triangles into tree.tris, in reference order; the references are in tree order, the
+   triangles in the caller's: as bvh__back_fn, ask ahead for the indices of the 16th triangle on
+   and for the vertices of the 8th (a 1M-triangle refit spent most of its time waiting for them). */
+static void bvh__refit_tris_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__refit *j = BVH__CAST(bvh__refit *, arg);
+    const bvh_triangles *t = j->tris;
+    const uint32_t *prims = j->tree->prims, n = j->tree->prim_count;
+    uint32_t bad = 0;
+    size_t b, e, i;
+    (void)team;
+    bvh__range(j->tree->ref_count, tid, nt, &b, &e);
+    for (i = b; i < e; i++) {
+        if (i + 16 < e && prims[i + 16] < n) {
+            uint32_t id = prims[i + 16];
+            if (t->indices) {
+                BVH__PREFETCH(&t->indices[3 * (size_t)id]);
+            } else {
+                BVH__PREFETCH(bvh__vertex(t, 3 * id));
+                BVH__PREFETCH(bvh__vertex(t, 3 * id + 2));
+            }
+        }
+        if (t->indices && i + 8 < e && prims[i + 8] < n) {
+            const uint32_t *ix = &t->indices[3 * (size_t)prims[i + 8]];
+            BVH__PREFETCH(bvh__vertex(t, ix[0])); BVH__PREFETCH(bvh__vertex(t, ix[1])); BVH__PREFETCH(bvh__vertex(t, ix[2]));
+        }
+        if (prims[i] < n) bvh__fetch_triangle(t, prims[i], j->tree->tris + 9 * i);
+        else bad++;
+    }
+    j->bad[tid] += bad;
+}
+static void bvh__refit_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__refit *j = BVH__CAST(bvh__refit *, arg);
+    uint32_t i;
+    (void)team;
+    for (i = tid; i < j->nheads; i += nt)
+        if (!bvh__refit_subtree(j, j->heads[i])) j->bad[tid]++;
+}
+/* The heads: from the root, each interior head is replaced by its two children, round after
+   round, until there are BVH__REFIT_HEADS or only leaves. The replaced nodes (top[], in the order
+   replaced: parents before children) are refitted after the heads, last to first. */
+static int bvh__refit_heads(bvh__refit *j) {
+    const bvh_node *nodes = j->tree->nodes;
+    uint32_t i = 0, grew = 0;
+    j->heads[0] = 0;
+    j->nheads = 1;
+    j->ntop = 0;
+    while (j->nheads < BVH__REFIT_HEADS) {
+        uint32_t b = j->heads[i];
+        if (!nodes[b].count) {
+            if (nodes[b].index <= b || nodes[b].index >= j->tree->node_count - 1) return 0;
+            j->top[j->ntop++] = b;
+            j->heads[i] = nodes[b].index;
+            j->heads[j->nheads++] = nodes[b].index + 1;
+            grew = 1;
+        }
+        if (++i == j->nheads) { /* a round done */
+            if (!grew) break;
+            i = grew = 0;
+        }
+    }
+    return 1;
+}
+
+/* The precheck, before anything changes: indices in range, and every vertex (every box) finite. A
+   non-finite one is looked up again by primitive below: it matters only if the tree holds it. */
+typedef struct bvh__refit_check {
+    const bvh_refit_desc *d;
+    uint32_t vertices, bad_index[BVH__MAX_THREADS], bad_value[BVH__MAX_THREADS];
+} bvh__refit_check;
+static int bvh__box_ok(const bvh_aabb *b) {
+    return bvh__finite3(&b->min.x) && bvh__finite3(&b->max.x) && b->min.x <= b->max.x && b->min.y <= b->max.y &&
+           b->min.z <= b->max.z;
+}
+static void bvh__refit_check_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__refit_check *c = BVH__CAST(bvh__refit_check *, arg);
+    const bvh_refit_desc *d = c->d;
+    uint32_t bad_index = 0, bad_value = 0;
+    size_t b, e, i;
+    (void)team;
+    if (d->boxes) {
+        bvh__range(d->box_count, tid, nt, &b, &e);
+        for (i = b; i < e; i++) bad_value += !bvh__box_ok(&d->boxes[i]);
+    } else {
+        if (d->triangles.indices) {
+            bvh__range(3 * (size_t)d->triangles.triangle_count, tid, nt, &b, &e);
+            for (i = b; i < e; i++) bad_index += d->triangles.indices[i] >= d->triangles.vertex_count;
+        }
+        bvh__range(c->vertices, tid, nt, &b, &e);
+        if (d->triangles.stride == 0 || d->triangles.stride == 3 * sizeof(float)) {
+            /* packed: the floats in blocks, by their bits, without branches (a vector loop) */
+            const char *p = BVH__CAST(const char *, BVH__CAST(const void *, d->triangles.positions));
+            size_t f = 3 * b, fe = 3 * e;
+            uint32_t any = 0, w[64], k;
+            for (; f < fe; f += 64) {
+                uint32_t m = (uint32_t)(fe - f < 64 ? fe - f : 64);
+                memcpy(w, p + f * sizeof(float), m * sizeof(float));
+                for (k = 0; k < m; k++) any |= (w[k] & 0x7f800000u) == 0x7f800000u;
+            }
+            bad_value += any;
+        } else {
+            for (i = b; i < e; i++) {
+                float v[3];
+                memcpy(v, bvh__vertex(&d->triangles, (uint32_t)i), sizeof v);
+                bad_value += !bvh__finite3(v);
+            }
+        }
+    }
+    c->bad_index[tid] = bad_index;
+    c->bad_value[tid] = bad_value;
+}
+static bvh_result bvh__refit_precheck(const bvh_tree *tree, const bvh_refit_desc *d, uint32_t nt) {
+    bvh__refit_check c;
+    uint32_t i, bad_index = 0, bad_value = 0;
+    memset(&c, 0, sizeof c);
+    c.d = d;
+    c.vertices = d->triangles.indices ? d->triangles.vertex_count : 3 * d->triangles.triangle_count;
+    bvh__team_run_always(&tree->allocator, nt, bvh__refit_check_fn, &c);
+    for (i = 0; i < nt; i++) {
+        bad_index += c.bad_index[i];
+        bad_value += c.bad_value[i];
+    }
+    if (bad_index) return BVH_ERROR_INDEX_OUT_OF_RANGE;
+    for (i = 0; bad_value && i < tree->ref_count; i++) { /* rare: do the primitives of the tree use it? */
+        uint32_t p = tree->prims[i];
+        if (p >= tree->prim_count) return BVH_ERROR_INVALID_TREE;
+        if (d->boxes) {
+            if (!bvh__box_ok(&d->boxes[p])) return BVH_ERROR_INVALID_GEOMETRY;
+        } else {
+            float t[9];
+            bvh__fetch_triangle(&d->triangles, p, t);
+            if (!bvh__finite3(t) || !bvh__finite3(t + 3) || !bvh__finite3(t + 6)) return BVH_ERROR_INVALID_GEOMETRY;
+        }
+    }
+    return BVH_SUCCESS;
+}
+static bvh_result bvh__refit_check_desc(const bvh_tree *tree, const bvh_refit_desc *d) {
+    const bvh_triangles *t = &d->triangles;
+    if (!tree->node_count) return BVH_SUCCESS; /* nothing to move */
+    if (!tree->nodes || !tree->prims) return BVH_ERROR_INVALID_TREE;
+    if (tree->tris) { /* a triangle tree wants triangles, the same number */
+        if (d->boxes || d->box_count || t->triangle_count != tree->prim_count || !t->positions)
+            return BVH_ERROR_INVALID_ARGUMENT;
+        if (t->stride != 0 && t->stride < 3 * sizeof(float)) return BVH_ERROR_INVALID_ARGUMENT;
+        if ((uintptr_t)t->indices % sizeof(uint32_t)) return BVH_ERROR_INVALID_ARGUMENT;
+        if (!t->indices && (uint64_t)t->vertex_count < 3 * (uint64_t)t->triangle_count) return BVH_ERROR_INDEX_OUT_OF_RANGE;
+        return BVH_SUCCESS;
+    }
+    if (t->triangle_count || !d->boxes || d->box_count != tree->prim_count) return BVH_ERROR_INVALID_ARGUMENT;
+    return BVH_SUCCESS;
+}
+BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
+    bvh__refit job, *j = &job; /* a few KiB on the stack: a refit allocates nothing */
+    bvh__wide_plan plan;
+    bvh_allocator al;
+    bvh_result r;
+    uint32_t nt, i, bad = 0;
+    if (!tree || !desc) return BVH_ERROR_INVALID_ARGUMENT;
+    if ((r = bvh__refit_check_desc(tree, desc)) != BVH_SUCCESS || !tree->node_count) return r;
+    al = tree->allocator;
+    nt = bvh__resolve_threads(desc->threads);
+    if (nt > 1 && tree->ref_count / BVH__MIN_PRIMS_PER_THREAD < nt)
+        nt = tree->ref_count / BVH__MIN_PRIMS_PER_THREAD > 1 ? tree->ref_count / BVH__MIN_PRIMS_PER_THREAD : 1;
+    if ((r = bvh__refit_precheck(tree, desc, nt)) != BVH_SUCCESS) return r;
+    /* a valid tree and input cannot be refused from here on, where the tree starts to change */
+    memset(j, 0, sizeof *j);
+    j->tree = tree;
+    j->tris = tree->tris ? &desc->triangles : NULL;
+    j->boxes = tree->tris ? NULL : desc->boxes;
+    if (!bvh__refit_heads(j)) return BVH_ERROR_INVALID_TREE;
+    if (j->tris) bvh__team_run_always(&al, nt, bvh__refit_tris_fn, j);
+    bvh__team_run_always(&al, nt < j->nheads ? nt : j->nheads, bvh__refit_fn, j);
+    for (i = 0; i < BVH__MAX_THREADS; i++) bad += j->bad[i];
+    for (i = j->ntop; !bad && i-- > 0;) bad += !bvh__refit_node(j, j->top[i]);
+    if (bad) return BVH_ERROR_INVALID_TREE;
+    if (tree->nodes8) { /* the wide layout as the build grouped it, written over its own arrays */
+        bvh__wide_plan_kept(&plan, tree, nt);
+        bvh__wide_write(&plan, tree->nodes8, tree->tri4, &al);
+    }
+    return BVH_SUCCESS;
+}
+
+/* ============================================================================================ */
+/* == save and load ============================================================================== */
+/* The format (version 1): a 64-byte header of 32- and 64-bit fields in the saving machine's byte
+   order, then the payload: nodes, references, and tree.tris for a triangle tree, as they lie in
+   memory. A reader checks the byte-order marker, the header's checksum, then every size against
+   the others and against caps before it allocates, then the payload's checksum, then the tree's
+   structure, so that no input makes it read or allocate out of bounds. */
+/* ============================================================================================ */
+#define BVH__FILE_VERSION 1u
+#define BVH__FILE_ENDIAN 0x01020304u
+#define BVH__FILE_HEADER 64u
+#define BVH__FILE_TRIANGLES 1u /* flags: tree.tris follows the references */
+#define BVH__FILE_WIDE 2u      /* flags: the saved tree had the 8-wide layout */
+typedef char bvh__node_is_32_bytes[sizeof(bvh_node) == 32 ? 1 : -1];
+static const char bvh__file_magic[8] = {'B', 'V', 'H', '.', 'T', 'R', 'E', 'E'};
+typedef struct bvh__file_header {
+    char magic[8];
+    uint32_t version, endian, header_bytes, flags;
+    uint32_t builder, node_count, ref_count, prim_count, excluded;
+    uint32_t header_check;  /* bvh__hash of the header with this field 0, low 32 bits */
+    uint64_t payload_bytes;
+    uint64_t payload_check; /* bvh__hash of nodes, references and triangles, chained */
+} bvh__file_header;
+typedef char bvh__header_is_64_bytes[sizeof(bvh__file_header) == BVH__FILE_HEADER ? 1 : -1];
+
+/* A 64-bit checksum at memory speed (about 8 bytes a cycle): four independent lanes of xxHash64's
+   round (Collet) over 32-byte blocks, the tail zero-padded, the length mixed in. Not
+   cryptographic: it finds damage, not forgery (the structure checks stop hostile input). */
+#define BVH__P1 0x9E3779B185EBCA87ULL
+#define BVH__P2 0xC2B2AE3D27D4EB4FULL
+BVH__INLINE uint64_t bvh__rotl64(uint64_t x, int r) { return (x << r) | (x >> (64 - r)); }
+BVH__INLINE uint64_t bvh__round64(uint64_t acc, uint64_t w) { return bvh__rotl64(acc + w * BVH__P2, 31) * BVH__P1; }
+typedef struct bvh__hasher { uint64_t a, b, c, d; } bvh__hasher;
+static void bvh__hash_init(bvh__hasher *s, uint64_t seed) {
+    s->a = seed + BVH__P1 + BVH__P2;
+    s->b = seed + BVH__P2;
+    s->c = seed;
+    s->d = seed - BVH__P1;
+}
+/* Whole 32-byte blocks; a loader hashes each piece just read, while it is in cache. */
+static void bvh__hash_blocks(bvh__hasher *s, const void *data, size_t size) {
+    const unsigned char *p = BVH__CAST(const unsigned char *, data);
+    uint64_t w[4], a = s->a, b = s->b, c = s->c, d = s->d;
+    size_t i, n = size / 32;
+    for (i = 0; i < n; i++, p += 32) {
+        memcpy(w, p, 32);
+        a = bvh__round64(a, w[0]); b = bvh__round64(b, w[1]);
+        c = bvh__round64(c, w[2]); d = bvh__round64(d, w[3]);
+    }
+    s->a = a; s->b = b; s->c = c; s->d = d;
+}
+/* The tail (size % 32 bytes at `tail`) and the total length. */
+static uint64_t bvh__hash_final(bvh__hasher *s, const void *tail, size_t size) {
+    uint64_t w[4], h;
+    memset(w, 0, sizeof w);
+    if (size % 32) memcpy(w, tail, size % 32);
+    bvh__hash_blocks(s, w, 32);
+    h = bvh__rotl64(s->a, 1) + bvh__rotl64(s->b, 7) + bvh__rotl64(s->c, 12) + bvh__rotl64(s->d, 18) + (uint64_t)size;
+    h ^= h >> 33; h *= BVH__P2; h ^= h >> 29; h *= BVH__P1; h ^= h >> 32;
+    return h;
+}
+static uint64_t bvh__hash(const void *data, size_t size, uint64_t seed) {
+    bvh__hasher s;
+    bvh__hash_init(&s, seed);
+    bvh__hash_blocks(&s, data, size);
+    return bvh__hash_final(&s, size ? BVH__CAST(const unsigned char *, data) + size / 32 * 32 : NULL, size);
+}
+static uint64_t bvh__payload_check(const bvh_tree *t) {
+    uint64_t h = bvh__hash(t->nodes, (size_t)t->node_count * sizeof(bvh_node), 1);
+    h = bvh__hash(t->prims, (size_t)t->ref_count * sizeof(uint32_t), h);
+    return t->tris ? bvh__hash(t->tris, (size_t)t->ref_count * 9 * sizeof(float), h) : h;
+}
+static uint32_t bvh__header_check(bvh__file_header h) {
+    h.header_check = 0;
+    return (uint32_t)bvh__hash(&h, sizeof h, 0x42);
+}
+/* Payload bytes of a tree of these counts, or 0 where they overflow. */
+static uint64_t bvh__payload_bytes(uint32_t nodes, uint32_t refs, int tris) {
+    return (uint64_t)nodes * sizeof(bvh_node) + (uint64_t)refs * sizeof(uint32_t) +
+           (tris ? (uint64_t)refs * 9 * sizeof(float) : 0);
+}
+BVH_API size_t bvh_save_size(const bvh_tree *tree) {
+    if (!tree) return 0;
+    return BVH__FILE_HEADER + (size_t)bvh__payload_bytes(tree->node_count, tree->ref_count, tree->tris != NULL);
+}
+/* Large arrays go out in pieces of 64 MiB at most: a callback may take a 32-bit length. */
+static bvh_result bvh__write_all(bvh_write_fn write, void *user, const void *data, size_t size) {
+    const char *p = BVH__CAST(const char *, data);
+    while (size) {
+        size_t n = size < ((size_t)1 << 26) ? size : ((size_t)1 << 26);
+        if (write(user, p, n) != n) return BVH_ERROR_IO;
+        p += n;
+        size -= n;
+    }
+    return BVH_SUCCESS;
+}
+BVH_API bvh_result bvh_save(const bvh_tree *tree, bvh_write_fn write, void *user) {
+    bvh__file_header h;
+    bvh_result r;
+    if (!tree || !write) return BVH_ERROR_INVALID_ARGUMENT;
+    if (tree->node_count && (!tree->nodes || !tree->prims)) return BVH_ERROR_INVALID_TREE;
+    memset(&h, 0, sizeof h);
+    memcpy(h.magic, bvh__file_magic, sizeof h.magic);
+    h.version = BVH__FILE_VERSION;
+    h.endian = BVH__FILE_ENDIAN;
+    h.header_bytes = BVH__FILE_HEADER;
+    h.flags = (tree->tris ? BVH__FILE_TRIANGLES : 0u) | (tree->nodes8 ? BVH__FILE_WIDE : 0u);
+    h.builder = (uint32_t)tree->builder;
+    h.node_count = tree->node_count;
+    h.ref_count = tree->ref_count;
+    h.prim_count = tree->prim_count;
+    h.excluded = tree->excluded;
+    h.payload_bytes = bvh__payload_bytes(tree->node_count, tree->ref_count, tree->tris != NULL);
+    h.payload_check = bvh__payload_check(tree);
+    h.header_check = bvh__header_check(h);
+    if ((r = bvh__write_all(write, user, &h, sizeof h)) != BVH_SUCCESS) return r;
+    if ((r = bvh__write_all(write, user, tree->nodes, (size_t)tree->node_count * sizeof(bvh_node))) != BVH_SUCCESS) return r;
+    if ((r = bvh__write_all(write, user, tree->prims, (size_t)tree->ref_count * sizeof(uint32_t))) != BVH_SUCCESS) return r;
+    if (tree->tris) r = bvh__write_all(write, user, tree->tris, (size_t)tree->ref_count * 9 * sizeof(float));
+    return r;
+}
+
+/* The load source: a callback, or a memory buffer read through a cursor. */
+typedef struct bvh__reader {
+    const bvh_load_desc *d;
+    size_t pos;
+} bvh__reader;
+static bvh_result bvh__read_all(bvh__reader *rd, void *out, size_t size) {
+    char *p = BVH__CAST(char *, out);
+    if (!rd->d->read) {
+        if (size > rd->d->size - rd->pos) return BVH_ERROR_TRUNCATED;
+        if (size) memcpy(out, BVH__CAST(const char *, rd->d->data) + rd->pos, size);
+        rd->pos += size;
+        return BVH_SUCCESS;
+    }
+    while (size) {
+        size_t n = size < ((size_t)1 << 26) ? size : ((size_t)1 << 26);
+        if (rd->d->read(rd->d->user, p, n) != n) return BVH_ERROR_TRUNCATED;
+        p += n;
+        size -= n;
+    }
+    return BVH_SUCCESS;
+}
+/* The payload's values a valid tree cannot hold and the validator does not look at: leaves of more
+   than BVH__MAX_LEAF references, as no builder makes (the 8-wide layout's leaf slots are gathered
+   in buffers of that size), and non-finite triangle coordinates (bvh_build refuses them,
+   traversal assumes none). Checked by bits, without branches. */
+static int bvh__leaves_small(const bvh_node *n, size_t count) {
+    size_t i;
+    uint32_t bad = 0;
+    for (i = 0; i < count; i++) bad |= n[i].count > BVH__MAX_LEAF;
+    return !bad;
+}
+static int bvh__floats_finite(const float *t, size_t n) {
+    size_t i;
+    uint32_t bad = 0;
+    for (i = 0; i < n; i++) bad |= (bvh__bits(t[i]) & 0x7f800000u) == 0x7f800000u;
+    return !bad;
+}
+/* One payload array read in pieces of 256 KiB, each hashed (chained from *check) and checked as
+   `kind` says (1 nodes, 2 triangles) while it is still in cache: one pass over the memory. */
+static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int kind, uint64_t *check, int *bad) {
+    unsigned char *p = BVH__CAST(unsigned char *, out);
+    const size_t piece = (size_t)1 << 18; /* a multiple of 32 bytes, of a node and of a float */
+    bvh__hasher s;
+    size_t done = 0;
+    bvh_result r;
+    bvh__hash_init(&s, *check);
+    while (done < size) {
+        size_t n = size - done < piece ? size - done : piece;
+        if ((r = bvh__read_all(rd, p + done, n)) != BVH_SUCCESS) return r;
+        bvh__hash_blocks(&s, p + done, n / 32 * 32);
+        if (kind == 1) *bad |= !bvh__leaves_small(BVH__CAST(const bvh_node *, BVH__CAST(void *, p + done)), n / sizeof(bvh_node));
+        if (kind == 2) *bad |= !bvh__floats_finite(BVH__CAST(const float *, BVH__CAST(void *, p + done)), n / sizeof(float));
+        done += n;
+    }
+    *check = bvh__hash_final(&s, p + size / 32 * 32, size);
+    return BVH_SUCCESS;
+}
+static uint32_t bvh__bswap32(uint32_t x) {
+    return (x >> 24) | ((x >> 8) & 0xff00u) | ((x << 8) & 0xff0000u) | (x << 24);
+}
+/* The header's checks, before any allocation: what it says must be a tree bvh_build could make. */
+static bvh_result bvh__check_header(const bvh__file_header *h, const bvh_load_desc *d) {
+    uint64_t payload;
+    if (memcmp(h->magic, bvh__file_magic, sizeof h->magic) != 0) return BVH_ERROR_CORRUPT;
+    if (h->endian != BVH__FILE_ENDIAN)
+        return bvh__bswap32(h->endian) == BVH__FILE_ENDIAN ? BVH_ERROR_UNSUPPORTED_FORMAT : BVH_ERROR_CORRUPT;
+    if (h->header_check != bvh__header_check(*h)) return BVH_ERROR_CORRUPT;
+    if (h->version != BVH__FILE_VERSION) return BVH_ERROR_UNSUPPORTED_FORMAT;
+    if (h->header_bytes != BVH__FILE_HEADER || (h->flags & ~(BVH__FILE_TRIANGLES | BVH__FILE_WIDE)) ||
+        ((h->flags & BVH__FILE_WIDE) && !(h->flags & BVH__FILE_TRIANGLES)))
+        return BVH_ERROR_CORRUPT;
+    if (h->builder == BVH_BUILDER_DEFAULT || h->builder >= BVH_BUILDER_COUNT) return BVH_ERROR_CORRUPT;
+    if (h->prim_count > BVH__MAX_PRIMS || h->excluded > h->prim_count) return BVH_ERROR_CORRUPT;
+    /* every primitive kept is referenced; only a splitting builder references one twice (at most
+       doubling them: its budget is at most 1); a binary tree has fewer nodes than twice its leaves */
+    if (h->ref_count < h->prim_count - h->excluded || h->ref_count > 2 * (h->prim_count - h->excluded))
+        return BVH_ERROR_CORRUPT;
+    if (h->ref_count == 0 ? h->node_count != 0 : h->node_count == 0 || h->node_count > 2 * (uint64_t)h->ref_count - 1)
+        return BVH_ERROR_CORRUPT;
+    payload = bvh__payload_bytes(h->node_count, h->ref_count, (h->flags & BVH__FILE_TRIANGLES) != 0);
+    if (h->payload_bytes != payload) return BVH_ERROR_CORRUPT;
+    if (payload > (uint64_t)((size_t)-1 / 2)) return BVH_ERROR_OUT_OF_MEMORY;
+    if (d->max_bytes && payload > d->max_bytes) return BVH_ERROR_CORRUPT;
+    return BVH_SUCCESS;
+}
+BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
+    bvh__file_header h;
+    bvh__reader rd;
+    bvh_result r;
+    uint64_t check;
+    int bad = 0;
+    if (!tree) return BVH_ERROR_INVALID_ARGUMENT;
+    memset(tree, 0, sizeof *tree);
+    if (!desc || (!desc->read && !desc->data && desc->size)) return BVH_ERROR_INVALID_ARGUMENT;
+    if (desc->trace_width != 0 && desc->trace_width != 2 && desc->trace_width != 8) return BVH_ERROR_INVALID_ARGUMENT;
+    if (!desc->allocator.alloc != !desc->allocator.free) return BVH_ERROR_INVALID_ARGUMENT;
+    if ((r = bvh__allocator_ok(&desc->allocator)) != BVH_SUCCESS) return r;
+    tree->allocator = desc->allocator;
+    rd.d = desc;
+    rd.pos = 0;
+    if ((r = bvh__read_all(&rd, &h, sizeof h)) != BVH_SUCCESS) return r;
+    if ((r = bvh__check_header(&h, desc)) != BVH_SUCCESS) return r;
+    /* a memory buffer bounds the payload before anything is allocated */
+    if (!desc->read && h.payload_bytes > (uint64_t)(desc->size - rd.pos)) return BVH_ERROR_TRUNCATED;
+    tree->builder = BVH__CAST(bvh_builder, h.builder);
+    tree->prim_count = h.prim_count;
+    tree->excluded = h.excluded;
+    if (!h.node_count) return BVH_SUCCESS;
+    tree->nodes = BVH__ALLOC(&tree->allocator, bvh_node, h.node_count);
+    tree->prims = BVH__ALLOC(&tree->allocator, uint32_t, h.ref_count);
+    if (h.flags & BVH__FILE_TRIANGLES) tree->tris = BVH__ALLOC(&tree->allocator, float, 9 * (size_t)h.ref_count);
+    if (!tree->nodes || !tree->prims || (!tree->tris && (h.flags & BVH__FILE_TRIANGLES))) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto fail;
+    }
+    check = 1; /* bvh__payload_check's chain */
+    if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, &check, &bad)) != BVH_SUCCESS ||
+        (r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 0, &check, &bad)) != BVH_SUCCESS ||
+        (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, &check, &bad)) != BVH_SUCCESS))
+        goto fail;
+    tree->node_count = h.node_count;
+    tree->ref_count = h.ref_count;
+    if (check != h.payload_check || bad) {
+        r = BVH_ERROR_CORRUPT;
+        goto fail;
+    }
+    if ((r = bvh__validate(tree, NULL, 1, NULL)) != BVH_SUCCESS) {
+        if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT;
+        goto fail;
+    }
+    if (tree->tris && (desc->trace_width == 8 || (desc->trace_width == 0 && (h.flags & BVH__FILE_WIDE)))) {
+        uint32_t nt = bvh__resolve_threads(desc->threads);
+        if ((r = bvh__make_wide(tree, &tree->allocator, NULL, nt)) != BVH_SUCCESS) {
+            if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT; /* children before their parent */
+            goto fail;
+        }
+    }
+    return BVH_SUCCESS;
+fail:
+    bvh_free(tree);
+    tree->builder = BVH_BUILDER_DEFAULT;
+    return r;
 }
 
 /* ============================================================================================ */

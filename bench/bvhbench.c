@@ -4,6 +4,7 @@
    build/bvhbench [--builder all|LIST] [--embree all|none|LIST] [--threads N] [--repeat R]
                   [--size WxH] [--trace cpu|opencl|both|none] [--brute-max N] [--strict]
                   [--paired N] [--ploc-top N|off] [--max-bytes N|off] [--trace-width 2|8]
+                  [--instances N] [--refit N] [--save-load]
                   [--md FILE] [--json FILE|-] [--plots DIR] [--quiet] [SCENE...]
    e.g. build/bvhbench --repeat 2 --size 256x256 gen:random:500 /usr/share/glmark2/models/bunny.obj
         make bench          (the default scenes below, writing out/bench/)
@@ -49,6 +50,14 @@
    bvh.h's on at most 1e-3 of a set's rays (grazing rays: noted "(e)" under the table, counted in
    the JSON's diffuse_rays_other_answer / shadow_rays_other_answer), beyond which they disagree.
    A disagreement is reported on stderr, marked "(!)" in the tables, and makes the exit status 3.
+
+   With --refit N, each bvh.h row also runs an animated case: the scene twisted about its vertical
+   axis and waved, a little more each of N frames; per frame bvh_refit of the row's tree and a
+   rebuild by bottom-up (the fastest builder) are timed (medians: refit_ms, rebuild_ms); after the
+   last frame the SAH of the refitted tree and of the row's builder rebuilt on it (refit_sah,
+   rebuild_sah) and the camera rays' Mrays/s on N threads with each (refit_mrays, rebuild_mrays;
+   their hits must agree). With --save-load, bvh_save and bvh_load to and from memory (save_ms,
+   load_ms; the 8-wide layout is remade on load). Both are off by default.
 
    Exit status: 0 ok; 1 an error (a scene, build or output failed); 2 bad command line;
    3 the hits disagree. */
@@ -99,6 +108,9 @@ typedef struct options {
     uint32_t nthreads; /* resolved */
     uint32_t repeat, width, height, brute_max, trace_width, ploc_top, max_bytes;
     uint32_t paired;   /* rounds of interleaved builds against Embree medium (0: none) */
+    uint32_t instances; /* instances of the scene's tree for the top-level rebuild (0: none) */
+    uint32_t refit;    /* frames of the animated case (--refit; 0: none) */
+    int save_load;     /* --save-load: time bvh_save and bvh_load of every tree */
     int trace_cpu, trace_cl, trace_auto;
     const char *md, *json, *plots, *argv0;
     int quiet, strict;
@@ -141,6 +153,12 @@ typedef struct row {
     char set_note[320];                       /* Embree: its answers on the sets, where they differ */
     double emb_bvh_ms, emb_prim_diff;         /* Embree: rtcBuildBVH time; pixels whose triangle
                                                  differs from bvh.h's */
+    double refit_ms, rebuild_ms;              /* --refit: median per-frame bvh_refit of this tree,
+                                                 and rebuild by the fastest builder (bottom-up) */
+    double refit_sah, rebuild_sah;            /* the last frame: SAH of the refitted tree, and of
+                                                 this builder's tree rebuilt on it */
+    double refit_mrays, rebuild_mrays;        /* camera rays of the last frame on N threads */
+    double save_ms, load_ms;                  /* --save-load: to and from memory (median of 3) */
     const char *frame_tracer;
     int disagree;                             /* (!): the hits disagree */
     char disagree_msg[320];
@@ -155,6 +173,10 @@ typedef struct bench_scene {
     row rows[BENCH_MAX_ROWS];
     int nrows;
     int disagree;
+    /* instances (--instances): bvh_scene_build over that many instances of the default tree (the
+       top-level rebuild), median/min/max ms; the camera rays on 1 thread through a scene of one
+       identity instance and through the tree itself (Mrays/s). NAN: not measured. */
+    double inst_ms, inst_min, inst_max, inst_mrays_1t, one_level_mrays_1t;
 } bench_scene;
 
 /* ============================================================================================ */
@@ -210,6 +232,8 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->x_pair = r->x_pair_min = r->x_pair_max = r->pair_ms = NAN;
     r->x_ptrace = r->x_ptrace_min = r->x_ptrace_max = NAN;
     r->x_pcl = r->x_pcl_min = r->x_pcl_max = r->p_mrays = NAN;
+    r->refit_ms = r->rebuild_ms = r->refit_sah = r->rebuild_sah = r->refit_mrays = r->rebuild_mrays = NAN;
+    r->save_ms = r->load_ms = NAN;
     for (k = 0; k < SET_COUNT; k++) {
         set_figs *f = &r->set[k];
         f->rays = f->count = f->t_sum = f->ms_1t = f->mrays_1t = f->ms_mt = f->mrays_mt = NAN;
@@ -772,11 +796,152 @@ fail:
     snprintf(r->note, sizeof r->note, "failed: tracing: %s", bvh_result_string(res));
 }
 
+/* --save-load: bvh_save into a buffer of bvh_save_size bytes and bvh_load from it (the 8-wide
+   layout made again on N threads), 3 times each; the median times. The loaded tree must be the
+   saved one. */
+typedef struct mem_writer { unsigned char *p; } mem_writer;
+static size_t mem_write(void *user, const void *data, size_t size) {
+    mem_writer *w = (mem_writer *)user;
+    memcpy(w->p, data, size);
+    w->p += size;
+    return size;
+}
+static void save_load(run_ctx *c, row *r, const bvh_tree *tree) {
+    size_t size = bvh_save_size(tree);
+    unsigned char *buf = (unsigned char *)malloc(size);
+    double save[3], load[3];
+    int k;
+    bvh_result res = buf ? BVH_SUCCESS : BVH_ERROR_OUT_OF_MEMORY;
+    for (k = 0; k < 3 && res == BVH_SUCCESS; k++) {
+        mem_writer w = {buf};
+        bvh_load_desc ld;
+        bvh_tree t;
+        double t0;
+        progress("%s: %s, save and load %d/3", c->out->name, r->name, k + 1);
+        t0 = scene_now_ms();
+        res = bvh_save(tree, mem_write, &w);
+        save[k] = scene_now_ms() - t0;
+        if (res != BVH_SUCCESS) break;
+        memset(&ld, 0, sizeof ld);
+        ld.data = buf;
+        ld.size = size;
+        ld.threads = c->o->threads;
+        t0 = scene_now_ms();
+        res = bvh_load(&t, &ld);
+        load[k] = scene_now_ms() - t0;
+        if (res == BVH_SUCCESS && (t.node_count != tree->node_count || t.node8_count != tree->node8_count ||
+                                   memcmp(t.nodes, tree->nodes, (size_t)t.node_count * sizeof(bvh_node))))
+            flag(c, r, "the loaded tree differs from the saved one");
+        bvh_free(&t);
+    }
+    free(buf);
+    if (res != BVH_SUCCESS) {
+        r->state = ROW_FAILED;
+        snprintf(r->note, sizeof r->note, "failed: save and load: %s", bvh_result_string(res));
+        return;
+    }
+    r->save_ms = scene_median(save, 3);
+    r->load_ms = scene_median(load, 3);
+}
+
+/* --refit N: the scene twisted about its vertical axis through the centre, a little more each
+   frame (frame f of N: f / N * 0.6 radians at the top and bottom), and waved vertically
+   (deterministic). Each frame: bvh_refit of this row's tree, and a rebuild by bottom-up, the
+   fastest builder, both timed. After the last: the SAH of the refitted tree and of this
+   builder's tree rebuilt on that frame, and the camera rays over the moved scene traced on N
+   threads with each (the two frames must agree). */
+static void deform(const scene *s, float *out, double amount) {
+    bvh_aabb b = scene_bounds(s);
+    double cx = 0.5 * ((double)b.min.x + b.max.x), cy = 0.5 * ((double)b.min.y + b.max.y);
+    double cz = 0.5 * ((double)b.min.z + b.max.z), hy = 0.5 * ((double)b.max.y - b.min.y);
+    double hx = 0.5 * ((double)b.max.x - b.min.x);
+    size_t i, n = 3 * (size_t)s->triangles;
+    for (i = 0; i < n; i++) {
+        const float *p = s->v + 3 * i;
+        float *q = out + 3 * i;
+        double ny = hy > 0 ? (p[1] - cy) / hy : 0, nx = hx > 0 ? (p[0] - cx) / hx : 0;
+        double a = amount * ny, x = p[0] - cx, z = p[2] - cz;
+        q[0] = (float)(cx + cos(a) * x - sin(a) * z);
+        q[1] = (float)(p[1] + 0.1 * amount * hy * sin(3.0 * nx));
+        q[2] = (float)(cz + sin(a) * x + cos(a) * z);
+    }
+}
+static void animate(run_ctx *c, row *r, bvh_tree *tree) {
+    const options *o = c->o;
+    float *moved = (float *)malloc(9 * sizeof(float) * (size_t)(c->s->triangles ? c->s->triangles : 1));
+    double refit[BENCH_MAX_REPEAT], rebuild[BENCH_MAX_REPEAT], ms;
+    bvh_build_desc desc;
+    bvh_refit_desc rd;
+    bvh_tree fresh;
+    bvh_camera cam;
+    bvh_hit *hits = (bvh_hit *)malloc(c->npix * sizeof *hits);
+    bvh_result res = moved && hits ? BVH_SUCCESS : BVH_ERROR_OUT_OF_MEMORY;
+    uint32_t f;
+    size_t i;
+    memset(&fresh, 0, sizeof fresh);
+    memset(&rd, 0, sizeof rd);
+    rd.triangles.positions = moved;
+    rd.triangles.vertex_count = 3 * c->s->triangles;
+    rd.triangles.triangle_count = c->s->triangles;
+    rd.threads = o->threads;
+    for (f = 1; f <= o->refit && res == BVH_SUCCESS; f++) {
+        double t0;
+        progress("%s: %s, refit frame %u/%u", c->out->name, r->name, f, o->refit);
+        deform(c->s, moved, 0.6 * f / o->refit);
+        t0 = scene_now_ms();
+        res = bvh_refit(tree, &rd);
+        refit[f - 1] = scene_now_ms() - t0;
+        if (res != BVH_SUCCESS) break;
+        bench_desc(c, BVH_BUILDER_BOTTOM_UP, &desc);
+        desc.triangles.positions = moved;
+        t0 = scene_now_ms();
+        res = bvh_build(&fresh, &desc);
+        rebuild[f - 1] = scene_now_ms() - t0;
+        bvh_free(&fresh);
+    }
+    if (res == BVH_SUCCESS) {
+        bench_desc(c, r->builder, &desc);
+        desc.triangles.positions = moved;
+        res = bvh_build(&fresh, &desc);
+    }
+    if (res == BVH_SUCCESS && (res = bvh_validate(tree, NULL, NULL)) == BVH_SUCCESS &&
+        (res = bvh_sah(tree, NULL, &r->refit_sah)) == BVH_SUCCESS && (res = bvh_sah(&fresh, NULL, &r->rebuild_sah)) == BVH_SUCCESS &&
+        o->trace_cpu) {
+        progress("%s: %s, trace after refit and after rebuild", c->out->name, r->name);
+        make_rays(c, bvh_tree_bounds(tree), &cam);
+        if ((res = trace_median(c, tree, o->nthreads, &ms)) == BVH_SUCCESS) {
+            r->refit_mrays = mrays_of(c->npix, ms);
+            memcpy(hits, c->hits, c->npix * sizeof *hits);
+            if ((res = trace_median(c, &fresh, o->nthreads, &ms)) == BVH_SUCCESS) r->rebuild_mrays = mrays_of(c->npix, ms);
+            for (i = 0; res == BVH_SUCCESS && i < c->npix; i++)
+                if (hits[i].prim != c->hits[i].prim || memcmp(&hits[i].t, &c->hits[i].t, sizeof hits[i].t)) {
+                    flag(c, r, "pixel %zu: the refitted tree hits triangle %u, the rebuilt one %u", i, hits[i].prim,
+                         c->hits[i].prim);
+                    break;
+                }
+        }
+        make_rays(c, c->bounds, &cam); /* the scene's own rays again, for the rows and rounds after */
+    }
+    bvh_free(&fresh);
+    free(moved);
+    free(hits);
+    if (res != BVH_SUCCESS) {
+        r->state = ROW_FAILED;
+        snprintf(r->note, sizeof r->note, "failed: refit: %s", bvh_result_string(res));
+        return;
+    }
+    r->refit_ms = scene_median(refit, o->refit);
+    r->rebuild_ms = scene_median(rebuild, o->refit);
+}
+
 static void run_builder(run_ctx *c, row *r) {
     bvh_tree tree;
     memset(&tree, 0, sizeof tree);
-    if (!build_repeated(c, r, &tree) && !tree_figures(r, &tree) && (c->o->trace_cpu || c->cl))
-        trace_tree(c, r, &tree);
+    if (!build_repeated(c, r, &tree) && !tree_figures(r, &tree)) {
+        if (c->o->trace_cpu || c->cl) trace_tree(c, r, &tree);
+        if (c->o->save_load && r->state == ROW_OK) save_load(c, r, &tree);
+        if (c->o->refit && r->state == ROW_OK) animate(c, r, &tree);
+    }
     bvh_free(&tree);
 }
 
@@ -1245,6 +1410,104 @@ static void ratios(bench_scene *s) {
     }
 }
 
+/* ---- instances ------------------------------------------------------------------------------------ */
+/* The camera rays on one thread through the tree, or through a scene when sc is given: ms. */
+static double trace_1t(const run_ctx *c, const bvh_tree *tree, const bvh_scene *sc) {
+    double t0 = scene_now_ms();
+    size_t i;
+    for (i = 0; i < c->npix; i++) {
+        if (sc) {
+            bvh_scene_hit h;
+            bvh_scene_intersect(sc, &c->rays[i], ~0u, &h);
+        } else {
+            bvh_hit h;
+            bvh_intersect(tree, &c->rays[i], &h);
+        }
+    }
+    return scene_now_ms() - t0;
+}
+/* o->instances instances of the scene's default tree on a cube grid one scene diagonal apart,
+   each turned about y (fixed seed): the top-level rebuild is bvh_scene_build over them (the
+   bottom-level tree is built once), timed o->repeat times after a warm-up. Then the instancing
+   overhead: one identity instance against the tree itself, camera rays on one thread. */
+static int run_instances(run_ctx *c, bench_scene *out) {
+    const options *o = c->o;
+    bvh_build_desc desc;
+    bvh_tree tree;
+    bvh_scene sc;
+    bvh_scene_desc sd;
+    bvh_instance *inst;
+    double ms[BENCH_MAX_REPEAT], one[BENCH_TRACE_REPEAT], scn[BENCH_TRACE_REPEAT], lo, hi, med;
+    float diag = sqrtf((c->bounds.max.x - c->bounds.min.x) * (c->bounds.max.x - c->bounds.min.x) +
+                       (c->bounds.max.y - c->bounds.min.y) * (c->bounds.max.y - c->bounds.min.y) +
+                       (c->bounds.max.z - c->bounds.min.z) * (c->bounds.max.z - c->bounds.min.z));
+    uint32_t n = o->instances, side = 1, i, rep, seed = 12345;
+    bvh_result r = BVH_SUCCESS;
+    bvh_camera cam;
+    if (!n) return 0;
+    while (side * side * side < n) side++;
+    progress("%s: %u instances, building the tree", out->name, n);
+    bench_desc(c, BVH_BUILDER_DEFAULT, &desc);
+    if ((r = bvh_build(&tree, &desc)) != BVH_SUCCESS) {
+        say("%s: instances: %s", out->name, bvh_result_string(r));
+        return 1;
+    }
+    inst = (bvh_instance *)calloc(n, sizeof *inst);
+    if (!inst) { bvh_free(&tree); say("%s: out of memory", out->name); return 1; }
+    for (i = 0; i < n; i++) {
+        float a;
+        seed = seed * 1664525u + 1013904223u;
+        a = (float)(seed >> 8) * (6.2831853f / 16777216.0f);
+        inst[i].tree = &tree;
+        inst[i].transform[0] = cosf(a); inst[i].transform[2] = sinf(a);
+        inst[i].transform[5] = 1.0f;
+        inst[i].transform[8] = -sinf(a); inst[i].transform[10] = cosf(a);
+        inst[i].transform[3] = diag * (float)(i % side);
+        inst[i].transform[7] = diag * (float)(i / side % side);
+        inst[i].transform[11] = diag * (float)(i / side / side);
+        inst[i].id = i;
+        inst[i].mask = ~0u;
+    }
+    memset(&sd, 0, sizeof sd);
+    sd.instances = inst;
+    sd.instance_count = n;
+    sd.threads = o->threads;
+    for (rep = 0; rep <= o->repeat; rep++) {
+        double t0;
+        progress("%s: %u instances, top-level build %u/%u%s", out->name, n, rep, o->repeat, rep ? "" : " (warm-up)");
+        t0 = scene_now_ms();
+        r = bvh_scene_build(&sc, &sd);
+        if (rep) ms[rep - 1] = scene_now_ms() - t0;
+        if (r != BVH_SUCCESS) break;
+        bvh_scene_free(&sc);
+    }
+    if (r == BVH_SUCCESS) median_range(ms, o->repeat, &out->inst_ms, &out->inst_min, &out->inst_max);
+    /* one identity instance against the tree */
+    memset(inst, 0, sizeof *inst);
+    inst[0].tree = &tree;
+    inst[0].transform[0] = inst[0].transform[5] = inst[0].transform[10] = 1.0f;
+    inst[0].mask = ~0u;
+    sd.instance_count = 1;
+    if (r == BVH_SUCCESS) r = bvh_scene_build(&sc, &sd);
+    if (r == BVH_SUCCESS) {
+        make_rays(c, bvh_tree_bounds(&tree), &cam);
+        for (rep = 0; rep < BENCH_TRACE_REPEAT; rep++) { /* interleaved: a slow moment hits both */
+            progress("%s: one instance against the tree, %u/%u", out->name, rep + 1, BENCH_TRACE_REPEAT);
+            one[rep] = trace_1t(c, &tree, NULL);
+            scn[rep] = trace_1t(c, &tree, &sc);
+        }
+        median_range(one, BENCH_TRACE_REPEAT, &med, &lo, &hi);
+        out->one_level_mrays_1t = mrays_of(c->npix, med);
+        median_range(scn, BENCH_TRACE_REPEAT, &med, &lo, &hi);
+        out->inst_mrays_1t = mrays_of(c->npix, med);
+        bvh_scene_free(&sc);
+    }
+    free(inst);
+    bvh_free(&tree);
+    if (r != BVH_SUCCESS) say("%s: instances: %s", out->name, bvh_result_string(r));
+    return r != BVH_SUCCESS;
+}
+
 /* Runs every row on one loaded scene; 0 when nothing failed. */
 static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene *out) {
     run_ctx c;
@@ -1252,6 +1515,7 @@ static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene
     uint32_t t;
     memset(&c, 0, sizeof c);
     c.o = o; c.s = s; c.out = out; c.cl = cl;
+    out->inst_ms = out->inst_min = out->inst_max = out->inst_mrays_1t = out->one_level_mrays_1t = NAN;
     c.ref_hits = NAN;
     atomic_init(&c.mem.live, 0);
     atomic_init(&c.mem.peak, 0);
@@ -1304,6 +1568,7 @@ static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene
     }
     ratios(out);
     run_paired(&c, out);
+    failed |= run_instances(&c, out);
 done:
     progress_end();
     free(c.ids);
@@ -1505,6 +1770,36 @@ static void sets_lines(FILE *f, const bench_scene *s, const char *prefix) {
                     BENCH_SET_TOLERANCE, s->rows[i].set_note);
 }
 
+static void instances_line(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
+    if (isnan(s->inst_ms)) return;
+    fprintf(f, "%sinstances: top-level rebuild for %u instances of the default tree: %.2f ms (%.2f..%.2f, %s top, "
+               "%u threads); one instance vs the tree itself, camera rays on 1 thread: %.2f vs %.2f Mrays/s "
+               "(%.3fx)\n",
+            prefix, o->instances, s->inst_ms, s->inst_min, s->inst_max, bvh_builder_name(BVH_BUILDER_PLOC_PARALLEL),
+            o->nthreads, s->inst_mrays_1t, s->one_level_mrays_1t, s->inst_mrays_1t / s->one_level_mrays_1t);
+}
+/* --refit and --save-load: a line per bvh.h row. */
+static void anim_lines(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
+    int i;
+    if (o->refit)
+        fprintf(f, "%sanimated (--refit %u: a twist and a wave, %u threads): per-frame refit ms, rebuild ms (bottom-up), "
+                   "SAH refitted / rebuilt by the builder at the last frame, Mrays/s after refit / after rebuild\n",
+                prefix, o->refit, o->nthreads);
+    for (i = 0; o->refit && i < s->nrows; i++) {
+        const row *r = &s->rows[i];
+        if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
+        fprintf(f, "%s  %-14s refit %8.2f ms  rebuild %8.2f ms (%5.1fx)  SAH %8.2f / %8.2f (%+.1f%%)  Mrays/s %7.2f / %7.2f\n",
+                prefix, r->name, r->refit_ms, r->rebuild_ms, r->rebuild_ms / r->refit_ms, r->refit_sah, r->rebuild_sah,
+                100.0 * (r->refit_sah / r->rebuild_sah - 1.0), r->refit_mrays, r->rebuild_mrays);
+    }
+    if (o->save_load) fprintf(f, "%ssave and load (--save-load, memory, 8-wide layout made on load): ms\n", prefix);
+    for (i = 0; o->save_load && i < s->nrows; i++) {
+        const row *r = &s->rows[i];
+        if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
+        fprintf(f, "%s  %-14s save %8.2f  load %8.2f  (build %8.2f)\n", prefix, r->name, r->save_ms, r->load_ms, r->build_ms);
+    }
+}
+
 static void print_block(FILE *f, const options *o, const bench_scene *s) {
     char b[220];
     int col, i;
@@ -1534,7 +1829,9 @@ static void print_block(FILE *f, const options *o, const bench_scene *s) {
         if (s->rows[i].disagree) fprintf(f, "(!) HITS DISAGREE: %s\n", s->rows[i].disagree_msg);
         else if (s->rows[i].refereed) fprintf(f, "(e) %s\n", s->rows[i].referee_msg);
     sets_lines(f, s, "");
+    anim_lines(f, o, s, "");
     paired_lines(f, o, s, "");
+    instances_line(f, o, s, "");
 }
 
 /* ---- Markdown --------------------------------------------------------------------------------- */
@@ -1747,6 +2044,19 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
             json_num(f, key, sf->x_p_max, 4);
             if (r->kind == ROW_EMBREE) json_set_num(f, k, "rays_other_answer", sf->other, 0);
         }
+        json_num(f, "instances", o->instances ? (double)o->instances : NAN, 0);
+        json_num(f, "top_rebuild_ms", s->inst_ms, 4);
+        json_num(f, "instance_mrays_1t", s->inst_mrays_1t, 4);
+        json_num(f, "one_level_mrays_1t", s->one_level_mrays_1t, 4);
+        json_num(f, "ratio_instance_mrays_1t", s->inst_mrays_1t / s->one_level_mrays_1t, 4);
+        json_num(f, "refit_ms", r->refit_ms, 4);
+        json_num(f, "rebuild_ms", r->rebuild_ms, 4);
+        json_num(f, "refit_sah", r->refit_sah, 6);
+        json_num(f, "rebuild_sah", r->rebuild_sah, 6);
+        json_num(f, "refit_mrays", r->refit_mrays, 4);
+        json_num(f, "rebuild_mrays", r->rebuild_mrays, 4);
+        json_num(f, "save_ms", r->save_ms, 4);
+        json_num(f, "load_ms", r->load_ms, 4);
         json_num(f, "ratio_sah", r->x_sah, 4);
         json_num(f, "ratio_mrays", r->x_mrays, 4);
         if (r->kind == ROW_EMBREE) {
@@ -1949,10 +2259,17 @@ static void usage(FILE *f) {
             "                   rendering a frame with OpenCL and with the CPU on all threads;\n"
             "                   medians of the rounds' ratios and Mrays/s (robust to a\n"
             "                   shared machine's slow moments; default 0: none)\n"
+            "  --instances N    after the table, the top-level rebuild (bvh_scene_build) for N instances\n"
+            "                   of the default tree, and one instance against the tree on 1 thread\n"
+            "                   (default 10000; 0: none)\n"
             "  --max-bytes N    ploc builders: tree (nodes + indices) at most N bytes per triangle, by\n"
             "                   bigger leaves where needed (0 = the library's default, 40); 'off': the SAH alone\n"
             "  --trace MODE     cpu, opencl, both or none (default: both when OpenCL works, else cpu)\n"
             "  --brute-max N    brute force only up to N triangles (default 20000) and %.0e tests\n"
+            "  --refit N        animated case: N frames of a twisting, waving scene; per frame bvh_refit\n"
+            "                   of each tree and a bottom-up rebuild (ms), then SAH and Mrays/s of the\n"
+            "                   refitted tree against this builder's rebuild (default 0: none)\n"
+            "  --save-load      time bvh_save and bvh_load (from memory, the 8-wide layout remade)\n"
             "  --md FILE        Markdown tables, best value per column and scene in bold\n"
             "  --json FILE      one JSON object per line and row ('-': stdout; the table goes to stderr)\n"
             "  --plots DIR      plot data (*.dat) and, with gnuplot, PNG plots (bench/plot.sh)\n"
@@ -2019,16 +2336,19 @@ static int parse_args(int argc, char **argv, options *o) {
     parse_builders("all", o);
     parse_embree("all", o);
     o->repeat = 5;
+    o->instances = 10000;
     o->trace_width = 8;
     o->width = o->height = 1024;
     o->brute_max = 20000;
     o->trace_auto = 1;
     for (i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-        int takes = a[0] == '-' && a[1] == '-' && strcmp(a, "--quiet") && strcmp(a, "--strict") && strcmp(a, "--help");
+        int takes = a[0] == '-' && a[1] == '-' && strcmp(a, "--quiet") && strcmp(a, "--strict") && strcmp(a, "--help") &&
+                    strcmp(a, "--save-load");
         if (!strcmp(a, "--help") || !strcmp(a, "-h")) { usage(stdout); return 1; }
         if (takes && !v) { fprintf(stderr, "bvhbench: %s needs a value (see --help)\n", a); return 2; }
         if (!strcmp(a, "--quiet")) o->quiet = 1;
+        else if (!strcmp(a, "--save-load")) o->save_load = 1;
         else if (!strcmp(a, "--strict")) o->strict = 1;
         else if (!strcmp(a, "--builder")) {
             if (parse_builders(v, o)) {
@@ -2051,9 +2371,19 @@ static int parse_args(int argc, char **argv, options *o) {
                 fprintf(stderr, "bvhbench: --ploc-top wants a divisor (0 = default) or off, not '%s'\n", v ? v : "");
                 return 2;
             }
+        } else if (!strcmp(a, "--instances")) {
+            if (scene_parse_u32(v, 0, 1u << 24, &o->instances, NULL)) {
+                fprintf(stderr, "bvhbench: --instances wants 0 (none) to 16777216, not '%s'\n", v ? v : "");
+                return 2;
+            }
         } else if (!strcmp(a, "--paired")) {
             if (scene_parse_u32(v, 0, 1000, &o->paired, NULL)) {
                 fprintf(stderr, "bvhbench: --paired wants 0 to 1000 rounds, not '%s'\n", v ? v : "");
+                return 2;
+            }
+        } else if (!strcmp(a, "--refit")) {
+            if (scene_parse_u32(v, 0, BENCH_MAX_REPEAT, &o->refit, NULL)) {
+                fprintf(stderr, "bvhbench: --refit wants 0 to %d frames, not '%s'\n", BENCH_MAX_REPEAT, v);
                 return 2;
             }
         } else if (!strcmp(a, "--max-bytes")) {

@@ -1,11 +1,10 @@
-/* boxes.c - a BVH over custom primitives (spheres), built from their boxes and walked by hand.
+/* boxes.c - a BVH over custom primitives (spheres), built from their boxes, traced with a callback.
 
-   bvh_build takes any primitive as a bounding box (desc.boxes, desc.box_count). bvh_intersect
-   only knows triangles (on a box tree it misses, and the batch calls return
-   BVH_ERROR_NO_TRIANGLES), so this program walks tree.nodes itself: an interior node
-   (count == 0) has its children at nodes[index] and nodes[index + 1]; a leaf (count > 0) holds
-   the spheres tree.prims[index .. index + count - 1]. Every ray's closest sphere is checked
-   against a brute-force loop over all spheres.
+   bvh_build takes any primitive as a bounding box (desc.boxes, desc.box_count).
+   bvh_intersect_custom traces such a tree: it calls the caller's test (bvh_custom_desc) for each
+   primitive whose box the ray reaches, with the ray's tmax lowered to the closest hit so far, and
+   keeps the closest hit (ties to the lowest index). Every ray's closest sphere is checked against
+   a brute-force loop over all spheres with the same test.
 
    Build and run (from the repository root; `make test` does both):
        cc -std=c11 -O2 -I. examples/boxes.c -o build/boxes -lm -lpthread
@@ -32,56 +31,34 @@ static float rand01(uint32_t *state) { /* xorshift32: the same scene on every ma
     return (float)(*state >> 8) * (1.0f / 16777216.0f);
 }
 
-/* The nearest t in [ray->tmin, *t_best) where the ray meets the sphere; a tie goes to the lower
-   index, so that any visiting order picks the same sphere. */
-static void hit_sphere(const bvh_ray *ray, const sphere *s, uint32_t i, float *t_best, uint32_t *best) {
+/* The custom primitive's test (bvh_custom_desc.intersect): the nearest t in
+   [ray->tmin, ray->tmax] where the ray meets sphere i. ray->tmax is the closest hit so far, so
+   farther roots are not reported. */
+static int hit_sphere(const bvh_ray *ray, uint32_t i, void *user, bvh_hit *hit) {
+    const sphere *s = (const sphere *)user + i;
     bvh_vec3 oc = {ray->origin.x - s->c.x, ray->origin.y - s->c.y, ray->origin.z - s->c.z};
     float a = ray->dir.x * ray->dir.x + ray->dir.y * ray->dir.y + ray->dir.z * ray->dir.z;
     float b = oc.x * ray->dir.x + oc.y * ray->dir.y + oc.z * ray->dir.z;
     float c = oc.x * oc.x + oc.y * oc.y + oc.z * oc.z - s->r * s->r;
     float disc = b * b - a * c, t;
-    if (disc < 0.0f) return;
+    if (disc < 0.0f) return 0;
     t = (-b - sqrtf(disc)) / a;
     if (t < ray->tmin) t = (-b + sqrtf(disc)) / a; /* the origin is inside the sphere */
-    if (t < ray->tmin || t > ray->tmax || t > *t_best || (t == *t_best && i > *best)) return;
-    *t_best = t;
-    *best = i;
+    if (t < ray->tmin || t > ray->tmax) return 0;
+    hit->t = t;
+    return 1;
 }
 
-/* Slab test: does the ray enter the box before t_best? */
-static int hit_box(const bvh_ray *ray, const bvh_vec3 *inv, const bvh_node *n, float t_best) {
-    float tx0 = (n->min.x - ray->origin.x) * inv->x, tx1 = (n->max.x - ray->origin.x) * inv->x;
-    float ty0 = (n->min.y - ray->origin.y) * inv->y, ty1 = (n->max.y - ray->origin.y) * inv->y;
-    float tz0 = (n->min.z - ray->origin.z) * inv->z, tz1 = (n->max.z - ray->origin.z) * inv->z;
-    float lo = fmaxf(fmaxf(fminf(tx0, tx1), fminf(ty0, ty1)), fmaxf(fminf(tz0, tz1), ray->tmin));
-    float hi = fminf(fminf(fmaxf(tx0, tx1), fmaxf(ty0, ty1)), fminf(fmaxf(tz0, tz1), t_best));
-    return lo <= hi;
-}
-
-/* The closest sphere along the ray (BVH_INVALID: none), walking the tree depth first. */
-static uint32_t trace(const bvh_tree *tree, const sphere *s, const bvh_ray *ray) {
-    bvh_vec3 inv = {1.0f / ray->dir.x, 1.0f / ray->dir.y, 1.0f / ray->dir.z};
-    uint32_t stack[2 * BVH_MAX_DEPTH], sp = 0, best = BVH_INVALID, k;
-    float t_best = BVH_INF;
-    if (tree->node_count) stack[sp++] = 0;
-    while (sp) {
-        const bvh_node *n = &tree->nodes[stack[--sp]];
-        if (!hit_box(ray, &inv, n, t_best)) continue;
-        if (n->count == 0) {
-            stack[sp++] = n->index;
-            stack[sp++] = n->index + 1;
-            continue;
-        }
-        for (k = n->index; k < n->index + n->count; k++)
-            hit_sphere(ray, &s[tree->prims[k]], tree->prims[k], &t_best, &best);
-    }
-    return best;
-}
-
+/* Every sphere in turn with the same test; a tie in t goes to the lower index, as in the tree. */
 static uint32_t brute_force(const sphere *s, uint32_t count, const bvh_ray *ray) {
     uint32_t best = BVH_INVALID, i;
-    float t_best = BVH_INF;
-    for (i = 0; i < count; i++) hit_sphere(ray, &s[i], i, &t_best, &best);
+    bvh_ray r = *ray;
+    bvh_hit h;
+    for (i = 0; i < count; i++)
+        if (hit_sphere(&r, i, (void *)s, &h) && (h.t < r.tmax || best == BVH_INVALID)) {
+            r.tmax = h.t;
+            best = i;
+        }
     return best;
 }
 
@@ -90,6 +67,7 @@ int main(void) {
     static bvh_aabb boxes[SPHERES];
     uint32_t seed = 12345, i, agree = 0, hits = 0;
     bvh_build_desc desc = {0};
+    bvh_custom_desc spheres = {hit_sphere, s}; /* the test and its user pointer */
     bvh_tree tree;
     bvh_result r;
     for (i = 0; i < SPHERES; i++) { /* spheres in the unit cube; each box holds its sphere */
@@ -109,8 +87,10 @@ int main(void) {
     for (i = 0; i < RAYS; i++) { /* from the plane z = -1 toward a point of the cube */
         bvh_vec3 o = {3.0f * rand01(&seed) - 1.0f, 3.0f * rand01(&seed) - 1.0f, -1.0f};
         bvh_ray ray = {o, 0.0f, {rand01(&seed) - o.x, rand01(&seed) - o.y, rand01(&seed) - o.z}, BVH_INF};
-        uint32_t a = trace(&tree, s, &ray), b = brute_force(s, SPHERES, &ray);
-        agree += a == b;
+        bvh_hit hit;
+        uint32_t b = brute_force(s, SPHERES, &ray);
+        bvh_intersect_custom(&tree, &ray, &hit, &spheres);
+        agree += hit.prim == b;
         hits += b != BVH_INVALID;
     }
     printf("boxes: %u spheres, %u nodes, %u rays (%u hit a sphere): %u agree with brute force\n", SPHERES,

@@ -5,7 +5,9 @@
 #   make tsan      the parallel builder and batch tracing tests (test_robust: test_threads_*,
 #                  2..8 threads) under TSan (build/tsan/)
 #   make fuzz      tests/fuzz_build.c under libFuzzer + ASan + UBSan (build/fuzz/): replays every
-#                  input of tests/fuzz/, then fuzzes FUZZ_SECONDS (default 120) over a copy of it.
+#                  input of tests/fuzz/, then fuzzes FUZZ_SECONDS (default 120) over a copy of it;
+#                  then tests/fuzz_load.c (bvh_load) the same way over tests/fuzz/load/
+#                  (build/fuzz-load/, FUZZ_LOAD_SECONDS, default 60; its seeds: see the file).
 #                  A failure leaves its reproducer in build/fuzz/ (crash-*, leak-*, timeout-*);
 #                  once fixed, add it to tests/fuzz/ under a descriptive name. Seeds:
 #                  scripts/fuzz-seeds.py regenerates the seed-* files.
@@ -14,6 +16,7 @@
 SAN_CC       ?= $(if $(shell command -v clang 2>/dev/null),clang,$(CC))
 FUZZ_CC      ?= clang
 FUZZ_SECONDS ?= 120
+FUZZ_LOAD_SECONDS ?= 60
 SAN_WARN      = -Wall -Wextra -Wpedantic
 ASAN_FLAGS    = -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=undefined
 TSAN_FLAGS    = -g -O1 -fsanitize=thread
@@ -22,6 +25,7 @@ FUZZ_FLAGS    = -g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover
 ASAN_TESTS = $(patsubst tests/%.c,$(BUILD)/asan/%,$(wildcard tests/test_*.c))
 TSAN_TESTS = $(BUILD)/tsan/test_robust $(BUILD)/tsan/test_pool
 FUZZ_BIN   = $(BUILD)/fuzz/fuzz_build
+FUZZ_LOAD_BIN = $(BUILD)/fuzz/fuzz_load
 
 .PHONY: asan tsan fuzz robust
 
@@ -36,6 +40,9 @@ $(BUILD)/tsan/%: tests/%.c $(HEADERS)
 $(FUZZ_BIN): tests/fuzz_build.c bvh.h
 	@mkdir -p $(dir $@)
 	$(FUZZ_CC) $(STD) $(SAN_WARN) $(FUZZ_FLAGS) -D_GNU_SOURCE -I. $< -o $@ -lm -lpthread
+$(FUZZ_LOAD_BIN): tests/fuzz_load.c bvh.h tests/tree_diff.h
+	@mkdir -p $(dir $@)
+	$(FUZZ_CC) $(STD) $(SAN_WARN) $(FUZZ_FLAGS) -D_GNU_SOURCE -I. $< -o $@ -lm -lpthread
 
 asan: deps-test
 	@$(MAKE) --no-print-directory $(ASAN_TESTS)
@@ -46,8 +53,9 @@ tsan: deps-test
 	@scripts/sanitize.sh tsan $(TSAN_TESTS)
 
 fuzz: deps-test
-	@$(MAKE) --no-print-directory $(FUZZ_BIN)
-	@scripts/sanitize.sh fuzz $(FUZZ_BIN) tests/fuzz $(BUILD)/fuzz $(FUZZ_SECONDS)
+	@$(MAKE) --no-print-directory $(FUZZ_BIN) $(FUZZ_LOAD_BIN)
+	@rc=0; scripts/sanitize.sh fuzz $(FUZZ_BIN) tests/fuzz $(BUILD)/fuzz $(FUZZ_SECONDS) || rc=1; \
+	scripts/sanitize.sh fuzz $(FUZZ_LOAD_BIN) tests/fuzz/load $(BUILD)/fuzz-load $(FUZZ_LOAD_SECONDS) || rc=1; exit $$rc
 
 # Each part runs even if an earlier one failed; the target fails if any did.
 robust:

@@ -53,7 +53,8 @@ tsan)
   ;;
 fuzz)
   bin=$1 seeds=$2 dir=$3 secs=$4
-  echo "== replaying $(ls "$seeds" | wc -l) inputs of $seeds"
+  mkdir -p "$dir"
+  echo "== replaying $(find "$seeds" -maxdepth 1 -type f | wc -l) inputs of $seeds"
   bad=""
   for f in "$seeds"/*; do
     [ -f "$f" ] || continue
@@ -69,7 +70,7 @@ fuzz)
   fi
   rm -rf "$dir/corpus"
   mkdir -p "$dir/corpus"
-  cp "$seeds"/* "$dir/corpus/"
+  find "$seeds" -maxdepth 1 -type f -exec cp {} "$dir/corpus/" \;  # files only: tests/fuzz/load/ is another target's
   echo "== fuzzing for ${secs}s: $bin $dir/corpus"
   "$bin" -max_len=4096 -timeout=10 -max_total_time="$secs" -print_final_stats=1 \
          -artifact_prefix="$dir/" "$dir/corpus" >"$dir/fuzz.log" 2>&1

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # tests/examples.sh - the programs a user copies work: build/minimal prints the hit of the manual's
 #   example, and its main is that example line for line (bvh.h's EXAMPLE section); build/boxes
-#   finds, by walking the tree of a box build, the same sphere as brute force for every ray.
+#   finds, tracing a box build with bvh_intersect_custom, the same sphere as brute force for every ray;
+#   build/animate refits a waving sheet, saves the tree to a file and loads it back.
 # Usage: tests/examples.sh  (`make test` runs it after building both; BUILD=dir picks another
 #   build directory). Prints one line per failed check and a closing result line; exits 1 on failure.
 set -u
@@ -33,6 +34,16 @@ checks=$((checks + 1))
 out=$("$build/boxes" 2>&1)
 rc=$?
 [ "$rc" = 0 ] || fail "$build/boxes: exit status $rc, printed: $out"
+
+# animate: refits over 30 frames, saves the tree to a file, loads it back with the same hit
+checks=$((checks + 1))
+tmp=$(mktemp -d)
+out=$("$build/animate" "$tmp/tree.bvh" 2>&1)
+rc=$?
+if [ "$rc" != 0 ] || ! grep -q '(the same)$' <<<"$out" || [ ! -s "$tmp/tree.bvh" ]; then
+  fail "$build/animate: exit status $rc, printed: $out"
+fi
+rm -rf "$tmp"
 
 echo "examples: $((checks - failed)) of $checks checks passed"
 [ "$failed" = 0 ]

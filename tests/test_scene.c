@@ -1,0 +1,387 @@
+/* tests/test_scene.c - two-level scenes: instances of bottom-level trees under a top-level tree.
+
+   Several meshes placed by instances (rotations, non-uniform scales, a mirror, a shear, far
+   translations, an exact duplicate for ties, an instance of an empty tree): for every builder as
+   bottom level and as top level, bvh_scene_intersect equals a brute force that walks the instances
+   in order, transforms the ray into each (bvh_ray_transform with the scene's inverse, as the
+   traversal does) and tests every triangle (same instance, triangle, id and bits of t, u, v;
+   the normal within rounding of the one computed here); bvh_scene_occluded equals "a hit
+   exists"; ray masks skip instances. Bad input gets its code. */
+#define BVH_IMPLEMENTATION
+#include "bvh.h"
+#include "test_util.h"
+
+#define MESHES 3
+#define INSTANCES 24
+#define SCENE_RAYS 3000
+
+typedef struct world {
+    tu_scene mesh[MESHES];
+    float *tris[MESHES];
+    bvh_instance inst[INSTANCES]; /* tree pointers filled per bottom-level builder */
+    uint32_t mesh_of[INSTANCES];
+} world;
+
+/* Rotation about a random axis (Rodrigues) times a diagonal scale, then a translation. */
+static void make_transform(tu_rng *r, float m[12], float spread) {
+    bvh_vec3 a = tu_sphere_dir(r);
+    float l = sqrtf(a.x * a.x + a.y * a.y + a.z * a.z), th = tu_range(r, 0.0f, 6.2831853f);
+    float c = cosf(th), s = sinf(th), C = 1.0f - c, x, y, z;
+    float sc[3] = {tu_range(r, 0.5f, 2.0f), tu_range(r, 0.5f, 2.0f), tu_range(r, 0.5f, 2.0f)};
+    float R[9];
+    int i, j;
+    x = a.x / l; y = a.y / l; z = a.z / l;
+    R[0] = c + x * x * C; R[1] = x * y * C - z * s; R[2] = x * z * C + y * s;
+    R[3] = y * x * C + z * s; R[4] = c + y * y * C; R[5] = y * z * C - x * s;
+    R[6] = z * x * C - y * s; R[7] = z * y * C + x * s; R[8] = c + z * z * C;
+    for (i = 0; i < 3; i++)
+        for (j = 0; j < 3; j++) m[4 * i + j] = R[3 * i + j] * sc[j];
+    m[3] = tu_range(r, -spread, spread); m[7] = tu_range(r, -spread, spread); m[11] = tu_range(r, -spread, spread);
+}
+
+static void world_make(world *w) {
+    tu_rng r = tu_rng_make(0x5343454e45ULL);
+    uint32_t i;
+    tu_scene_random(&w->mesh[0], 1200, 0x4d455348ULL);
+    tu_scene_few(&w->mesh[1], 3);
+    tu_scene_strided32(&w->mesh[2]); /* a height field, indexed, 32-byte vertices */
+    for (i = 0; i < MESHES; i++) w->tris[i] = tu_scene_tris(&w->mesh[i]);
+    memset(w->inst, 0, sizeof w->inst);
+    for (i = 0; i < INSTANCES; i++) {
+        w->mesh_of[i] = i % MESHES;
+        make_transform(&r, w->inst[i].transform, 30.0f);
+        w->inst[i].id = 1000 + i;
+        w->inst[i].mask = 1u << (i % 4);
+    }
+    /* a mirror, a shear, a far translation (the whole scene is still traced from its own rays) */
+    w->inst[3].transform[0] = -w->inst[3].transform[0];
+    w->inst[3].transform[4] = -w->inst[3].transform[4];
+    w->inst[3].transform[8] = -w->inst[3].transform[8];
+    w->inst[4].transform[1] += 0.7f;
+    w->inst[5].transform[3] += 1e4f;
+    /* instance 7 is instance 1 again (same mesh, same transform): every hit on it ties */
+    w->inst[7] = w->inst[1];
+    w->mesh_of[7] = w->mesh_of[1];
+    w->inst[7].id = 1007;
+    w->inst[7].mask = 1u << 3;
+}
+static void world_free(world *w) {
+    uint32_t i;
+    for (i = 0; i < MESHES; i++) {
+        free(w->tris[i]);
+        tu_scene_free(&w->mesh[i]);
+    }
+}
+
+/* The brute force: instances in order, the ray transformed as the traversal does, every
+   triangle; a strictly smaller t replaces (ties: lowest instance, then lowest triangle). */
+static int brute(const world *w, const bvh_scene *sc, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *best) {
+    bvh_ray r = *ray;
+    uint32_t i;
+    best->instance = best->prim = best->id = BVH_INVALID;
+    best->t = ray->tmax;
+    for (i = 0; i < INSTANCES; i++) {
+        bvh_ray local;
+        bvh_hit h;
+        if (!(w->inst[i].mask & mask) || !w->inst[i].tree->node_count) continue;
+        local = bvh_ray_transform(&r, sc->inverse + 12 * (size_t)i);
+        if (!tu_brute(w->tris[w->mesh_of[i]], w->mesh[w->mesh_of[i]].tri_count, &local, &h)) continue;
+        if (best->instance != BVH_INVALID && !(h.t < r.tmax)) continue;
+        best->t = h.t; best->u = h.u; best->v = h.v; best->prim = h.prim;
+        best->instance = i; best->id = w->inst[i].id;
+        r.tmax = h.t;
+    }
+    return best->instance != BVH_INVALID;
+}
+/* The world normal computed here: object normal in double by the inverse transpose. */
+static bvh_vec3 expected_normal(const world *w, const bvh_scene *sc, const bvh_scene_hit *h) {
+    const float *t = w->tris[w->mesh_of[h->instance]] + 9 * (size_t)h->prim, *inv = sc->inverse + 12 * (size_t)h->instance;
+    double e1[3], e2[3], n[3], o[3], l;
+    int k;
+    for (k = 0; k < 3; k++) { e1[k] = (double)t[3 + k] - t[k]; e2[k] = (double)t[6 + k] - t[k]; }
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1]; n[1] = e1[2] * e2[0] - e1[0] * e2[2]; n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    for (k = 0; k < 3; k++) o[k] = inv[k] * n[0] + inv[4 + k] * n[1] + inv[8 + k] * n[2];
+    l = sqrt(o[0] * o[0] + o[1] * o[1] + o[2] * o[2]);
+    return tu_v3((float)(o[0] / l), (float)(o[1] / l), (float)(o[2] / l));
+}
+
+static void make_world_rays(const world *w, const bvh_scene *sc, bvh_ray *rays, uint32_t *masks, size_t count) {
+    tu_rng r = tu_rng_make(0x57524159ULL);
+    bvh_aabb b;
+    size_t i;
+    (void)sc;
+    b.min = tu_v3(-35, -35, -35); /* where the instances are (but the far one) */
+    b.max = tu_v3(35, 35, 35);
+    for (i = 0; i < count; i++) {
+        const bvh_instance *in = &w->inst[tu_below(&r, INSTANCES)];
+        bvh_vec3 target = tu_v3(in->transform[3], in->transform[7], in->transform[11]);
+        rays[i].origin = tu_point_in(&r, b, 0.1f);
+        rays[i].tmin = 0.0f;
+        rays[i].tmax = BVH_INF;
+        switch (i % 4) {
+        case 0: rays[i].dir = tu_sphere_dir(&r); break;
+        case 1: rays[i].dir = tu_sub(target, rays[i].origin); break; /* at an instance's origin */
+        case 2: rays[i].dir = tu_axis_dir(&r, (int)tu_below(&r, 3)); break;
+        default:
+            rays[i].dir = tu_sub(target, rays[i].origin);
+            rays[i].tmax = tu_range(&r, 0.5f, 1.2f);
+            break;
+        }
+        masks[i] = i % 3 == 0 ? ~0u : i % 3 == 1 ? (1u << tu_below(&r, 4)) : tu_u32(&r);
+    }
+}
+
+static void scenes_exact(void **state) {
+    static world w;
+    static bvh_ray rays[SCENE_RAYS];
+    static uint32_t masks[SCENE_RAYS];
+    static bvh_scene_hit want[SCENE_RAYS];
+    bvh_tree bottom[MESHES], empty;
+    bvh_scene sc;
+    bvh_scene_desc sd;
+    size_t i, hits = 0, ties = 0;
+    int pass;
+    (void)state;
+    world_make(&w);
+    memset(&empty, 0, sizeof empty);
+    memset(&sd, 0, sizeof sd);
+    sd.instances = w.inst;
+    sd.instance_count = INSTANCES;
+    /* pass p < TU_BUILDER_COUNT: builder p at the bottom, the default on top; then the default at
+       the bottom and each builder on top */
+    for (pass = 0; pass < 2 * TU_BUILDER_COUNT; pass++) {
+        bvh_builder bb = pass < TU_BUILDER_COUNT ? tu_builder(pass) : BVH_BUILDER_DEFAULT;
+        bvh_builder tb = pass < TU_BUILDER_COUNT ? BVH_BUILDER_DEFAULT : tu_builder(pass - TU_BUILDER_COUNT);
+        size_t bad = 0;
+        uint32_t m;
+        for (m = 0; m < MESHES; m++) {
+            bvh_build_desc d = tu_scene_desc(&w.mesh[m], bb);
+            if (pass == 1) d.trace_width = 2; /* one bottom level without the 8-wide copy */
+            assert_int_equal(bvh_build(&bottom[m], &d), BVH_SUCCESS);
+        }
+        for (i = 0; i < INSTANCES; i++) w.inst[i].tree = &bottom[w.mesh_of[i]];
+        w.inst[11].tree = &empty; /* never hit */
+        sd.builder = tb;
+        assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+        if (pass == 0) { /* the oracle depends on the transforms only: once */
+            make_world_rays(&w, &sc, rays, masks, SCENE_RAYS);
+            for (i = 0; i < SCENE_RAYS; i++) {
+                hits += (size_t)brute(&w, &sc, &rays[i], masks[i], &want[i]);
+                ties += want[i].instance == 1;
+            }
+            print_message("%zu of %d rays hit, %zu on an instance that has a twin\n", hits, SCENE_RAYS, ties);
+            assert_true(hits > SCENE_RAYS / 8 && ties > 0);
+        }
+        for (i = 0; i < SCENE_RAYS; i++) {
+            bvh_scene_hit h;
+            int found = bvh_scene_intersect(&sc, &rays[i], masks[i], &h), occ = bvh_scene_occluded(&sc, &rays[i], masks[i]);
+            int ok = found == (want[i].instance != BVH_INVALID) && occ == found && h.instance == want[i].instance &&
+                     h.prim == want[i].prim && h.id == want[i].id;
+            if (ok && found) {
+                bvh_vec3 n = expected_normal(&w, &sc, &h);
+                ok = tu_fbits(h.t) == tu_fbits(want[i].t) && tu_fbits(h.u) == tu_fbits(want[i].u) &&
+                     tu_fbits(h.v) == tu_fbits(want[i].v) && fabsf(n.x - h.normal.x) < 1e-5f &&
+                     fabsf(n.y - h.normal.y) < 1e-5f && fabsf(n.z - h.normal.z) < 1e-5f;
+            }
+            if (ok) continue;
+            if (bad++ < 4) {
+                print_error("bottom %s top %s ray %zu mask %x: found %d occluded %d; instance %u/%u prim %u/%u t %a/%a\n",
+                            bvh_builder_name(bb), bvh_builder_name(tb), i, masks[i], found, occ, h.instance,
+                            want[i].instance, h.prim, want[i].prim, (double)h.t, (double)want[i].t);
+                tu_print_ray(&rays[i]);
+            }
+        }
+        if (bad) fail_msg("bottom %s, top %s: %zu rays differ", bvh_builder_name(bb), bvh_builder_name(tb), bad);
+        bvh_scene_free(&sc);
+        for (m = 0; m < MESHES; m++) bvh_free(&bottom[m]);
+    }
+    world_free(&w);
+}
+
+/* Masks: with all bits a ray sees what a scene of only its instances shows; mask 0 sees nothing. */
+static void masks_select(void **state) {
+    float v[9] = {-1, -1, 0, 1, -1, 0, 0, 1, 0};
+    bvh_build_desc d;
+    bvh_tree mesh;
+    bvh_instance inst[2];
+    bvh_scene_desc sd;
+    bvh_scene sc;
+    bvh_scene_hit h;
+    bvh_ray ray = {{0, 0, -10}, 0.0f, {0, 0, 1}, BVH_INF};
+    (void)state;
+    memset(&d, 0, sizeof d);
+    d.triangles.positions = v;
+    d.triangles.vertex_count = 3;
+    d.triangles.triangle_count = 1;
+    assert_int_equal(bvh_build(&mesh, &d), BVH_SUCCESS);
+    memset(inst, 0, sizeof inst);
+    inst[0].tree = inst[1].tree = &mesh;
+    inst[0].transform[0] = inst[0].transform[5] = inst[0].transform[10] = 1.0f; /* at z = 0 */
+    inst[1] = inst[0];
+    inst[1].transform[11] = 5.0f; /* at z = 5, behind */
+    inst[0].mask = 1; inst[0].id = 10;
+    inst[1].mask = 2; inst[1].id = 20;
+    memset(&sd, 0, sizeof sd);
+    sd.instances = inst;
+    sd.instance_count = 2;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+    assert_int_equal(bvh_scene_intersect(&sc, &ray, ~0u, &h), 1);
+    assert_int_equal(h.id, 10);
+    assert_true(h.t == 10.0f && h.normal.z == 1.0f);
+    assert_int_equal(bvh_scene_intersect(&sc, &ray, 2, &h), 1);
+    assert_int_equal(h.id, 20);
+    assert_int_equal(h.instance, 1);
+    assert_true(h.t == 15.0f);
+    assert_int_equal(bvh_scene_intersect(&sc, &ray, 4, &h), 0);
+    assert_int_equal(h.instance, BVH_INVALID);
+    assert_int_equal(bvh_scene_intersect(&sc, &ray, 0, &h), 0);
+    assert_int_equal(bvh_scene_occluded(&sc, &ray, 2), 1);
+    assert_int_equal(bvh_scene_occluded(&sc, &ray, 8), 0);
+    ray.tmax = 12.0f;
+    assert_int_equal(bvh_scene_occluded(&sc, &ray, 2), 0);
+    bvh_scene_free(&sc);
+    bvh_free(&mesh);
+}
+
+static void my_free(void *p, void *user) { (void)user; free(p); }
+static void scene_errors(void **state) {
+    float v[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    bvh_aabb box = {{0, 0, 0}, {1, 1, 1}};
+    bvh_build_desc d;
+    bvh_tree mesh, boxes;
+    bvh_instance inst;
+    bvh_scene_desc sd;
+    bvh_scene sc;
+    bvh_ray ray = {{0.2f, 0.2f, -1}, 0.0f, {0, 0, 1}, BVH_INF};
+    (void)state;
+    memset(&d, 0, sizeof d);
+    d.triangles.positions = v;
+    d.triangles.vertex_count = 3;
+    d.triangles.triangle_count = 1;
+    assert_int_equal(bvh_build(&mesh, &d), BVH_SUCCESS);
+    memset(&d, 0, sizeof d);
+    d.boxes = &box;
+    d.box_count = 1;
+    assert_int_equal(bvh_build(&boxes, &d), BVH_SUCCESS);
+    memset(&inst, 0, sizeof inst);
+    inst.tree = &mesh;
+    inst.transform[0] = inst.transform[5] = inst.transform[10] = 1.0f;
+    inst.mask = ~0u;
+    memset(&sd, 0, sizeof sd);
+    sd.instances = &inst;
+    sd.instance_count = 1;
+    assert_int_equal(bvh_scene_build(NULL, &sd), BVH_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_scene_build(&sc, NULL), BVH_ERROR_INVALID_ARGUMENT);
+    sd.instances = NULL;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_ARGUMENT);
+    sd.instances = &inst;
+    sd.builder = BVH_BUILDER_COUNT;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_ARGUMENT);
+    sd.builder = BVH_BUILDER_DEFAULT;
+    sd.allocator.free = my_free;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_ARGUMENT);
+    sd.allocator.free = NULL;
+    inst.tree = NULL;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_ARGUMENT);
+    inst.tree = &boxes; /* box trees need a callback: not an instance's tree */
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_ARGUMENT);
+    inst.tree = &mesh;
+    inst.transform[10] = 0.0f; /* singular */
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_GEOMETRY);
+    assert_null(sc.instances);
+    inst.transform[10] = NAN;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_GEOMETRY);
+    inst.transform[10] = 1.0f;
+    inst.transform[3] = BVH_INF;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_GEOMETRY);
+    inst.transform[3] = 0.0f;
+    inst.transform[0] = inst.transform[5] = inst.transform[10] = 1e-39f; /* the inverse overflows */
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_GEOMETRY);
+    inst.transform[0] = inst.transform[5] = inst.transform[10] = 1.0f;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+    assert_int_equal(bvh_scene_intersect(&sc, &ray, ~0u, NULL), 1);
+    assert_int_equal(bvh_scene_intersect(NULL, &ray, ~0u, NULL), 0);
+    assert_int_equal(bvh_scene_intersect(&sc, NULL, ~0u, NULL), 0);
+    bvh_scene_free(&sc);
+    bvh_scene_free(NULL);
+    /* zero instances: an empty scene that every ray misses */
+    sd.instance_count = 0;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+    assert_int_equal(bvh_scene_intersect(&sc, &ray, ~0u, NULL), 0);
+    bvh_scene_free(&sc);
+    bvh_free(&mesh);
+    bvh_free(&boxes);
+}
+
+/* An allocator that fails from its k-th call on, and counts what is live. */
+typedef struct failing { int left, live; } failing;
+static void *f_alloc(size_t n, void *user) {
+    failing *f = (failing *)user;
+    void *p;
+    if (f->left-- <= 0) return NULL;
+    p = malloc(n);
+    f->live += p != NULL;
+    return p;
+}
+static void f_free(void *p, void *user) {
+    failing *f = (failing *)user;
+    if (p) f->live--;
+    free(p);
+}
+/* Every allocation of bvh_scene_build failing in turn: OUT_OF_MEMORY, a zeroed scene and
+   nothing leaked, until it has all it needs. */
+static void scene_out_of_memory(void **state) {
+    float v[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    bvh_build_desc d;
+    bvh_tree mesh;
+    bvh_instance inst[40];
+    bvh_scene_desc sd;
+    bvh_scene sc;
+    failing f;
+    int k, i;
+    (void)state;
+    memset(&d, 0, sizeof d);
+    d.triangles.positions = v;
+    d.triangles.vertex_count = 3;
+    d.triangles.triangle_count = 1;
+    assert_int_equal(bvh_build(&mesh, &d), BVH_SUCCESS);
+    memset(inst, 0, sizeof inst);
+    for (i = 0; i < 40; i++) {
+        inst[i].tree = &mesh;
+        inst[i].transform[0] = inst[i].transform[5] = inst[i].transform[10] = 1.0f;
+        inst[i].transform[3] = (float)i;
+        inst[i].mask = ~0u;
+    }
+    memset(&sd, 0, sizeof sd);
+    sd.instances = inst;
+    sd.instance_count = 40;
+    sd.builder = BVH_BUILDER_PLOC;
+    sd.allocator.alloc = f_alloc;
+    sd.allocator.free = f_free;
+    sd.allocator.user = &f;
+    for (k = 0;; k++) {
+        bvh_result r;
+        f.left = k;
+        f.live = 0;
+        r = bvh_scene_build(&sc, &sd);
+        if (r == BVH_SUCCESS) break;
+        assert_int_equal(r, BVH_ERROR_OUT_OF_MEMORY);
+        assert_int_equal(f.live, 0);
+        assert_null(sc.instances);
+        assert_int_equal(sc.top.node_count, 0);
+    }
+    assert_true(k >= 3);
+    bvh_scene_free(&sc);
+    assert_int_equal(f.live, 0);
+    bvh_free(&mesh);
+}
+
+int main(void) {
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(scenes_exact),
+        cmocka_unit_test(masks_select),
+        cmocka_unit_test(scene_errors),
+        cmocka_unit_test(scene_out_of_memory),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

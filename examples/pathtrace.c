@@ -1,8 +1,8 @@
 /* pathtrace.c - a small path tracer on bvh.h: instances of per-mesh trees, spheres as custom
    primitives, diffuse bounces, a sun with shadow rays and a sky, on all CPUs.
 
-   build/pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N]
-   e.g. build/pathtrace /work/shared/scenes/sponza.glb --size 512x512 --spp 4 --out sponza.png
+   build/pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N] [--inside]
+   e.g. build/pathtrace sponza.glb --inside --size 512x512 --spp 4 --out sponza.png
         build/pathtrace                       (the built-in scene: boxes on a ground quad)
 
    The scene keeps the file's structure: one bottom-level tree per mesh (assimp's aiMesh), built
@@ -138,7 +138,7 @@ static int load_builtin(world *w, char *err, size_t errlen) {
     if (add_instance(w, 0, m)) return snprintf(err, errlen, "out of memory"), 1;
     for (k = 0; k < 7; k++) { /* a ring of boxes, each turned and sized differently */
         float a = 2 * PI * (float)k / 7, s = 1.0f + 0.3f * (float)(k % 3);
-        place(m, a * 1.7f, s, s * (1.0f + (float)(k % 2)), s, 3.5f * cosf(a), 0, 3.5f * sinf(a));
+        place(m, a * 1.7f, s, s * (1.0f + (float)(k % 2)), s, 4.5f * cosf(a), 0, 4.5f * sinf(a));
         if (add_instance(w, 1, m)) return snprintf(err, errlen, "out of memory"), 1;
     }
     return 0;
@@ -228,17 +228,21 @@ static int hit_sphere(const bvh_ray *ray, uint32_t i, void *user, bvh_hit *hit) 
     return 1;
 }
 
-/* Three spheres on the floor of the scene, sized by its bounds, in a tree built from boxes. */
+/* Three spheres near the centre of the scene's box b, sized by it, in a tree built from boxes.
+   They rest on the floor: whatever a ray cast down from the centre meets first (else b's bottom). */
 static bvh_result add_spheres(world *w, bvh_aabb b) {
     bvh_vec3 c = bvh_aabb_centroid(b), d = sub(b.max, b.min);
     float r = 0.025f * sqrtf(dot(d, d));
     bvh_aabb boxes[SPHERES];
     bvh_build_desc desc = {0};
+    bvh_ray down = {c, 0.0f, {0.0f, -1.0f, 0.0f}, BVH_INF};
+    bvh_scene_hit floor;
     uint32_t i;
+    float y = bvh_scene_intersect(&w->scene, &down, ~0u, &floor) ? c.y - floor.t : b.min.y;
     for (i = 0; i < SPHERES; i++) {
         sphere *s = &w->spheres[i];
         s->r = r * (1.0f + 0.25f * (float)i);
-        s->c = v3(c.x + 3.0f * r * ((float)i - 1.0f), b.min.y + s->r, c.z + r * (float)i);
+        s->c = v3(c.x + 3.0f * r * ((float)i - 1.0f), y + s->r, c.z + r * (float)i);
         s->albedo = v3(i == 0 ? 0.8f : 0.1f, i == 1 ? 0.8f : 0.1f, i == 2 ? 0.8f : 0.1f);
         boxes[i].min = sub(s->c, v3(s->r, s->r, s->r));
         boxes[i].max = add(s->c, v3(s->r, s->r, s->r));
@@ -392,15 +396,39 @@ static void *render_rows(void *arg) {
     return NULL;
 }
 
+/* The view of the scene's box b: from above, looking down at its centre; or, with --inside (for
+   interiors such as Sponza's atrium), from low near one end of its longer side, looking along it.
+   Vertical fov 60; right and up scaled by tan(fov / 2), as bvh_camera_standard's. */
+static bvh_camera view(bvh_aabb b, int inside, uint32_t width, uint32_t height) {
+    bvh_vec3 c = bvh_aabb_centroid(b), d = sub(b.max, b.min), f, r;
+    float th = tanf(PI / 6);
+    bvh_camera cam;
+    if (inside) {
+        f = d.x > d.z ? v3(1.0f, -0.12f, 0.0f) : v3(0.0f, -0.12f, 1.0f);
+        cam.eye = v3(c.x - 0.4f * f.x * d.x, b.min.y + 0.3f * d.y, c.z - 0.4f * f.z * d.z);
+    } else {
+        f = v3(-0.35f, -1.0f, -0.6f);
+        cam.eye = sub(c, scale(normalize(f), 0.75f * sqrtf(dot(d, d))));
+    }
+    cam.forward = f = normalize(f);
+    r = normalize(v3(-f.z, 0.0f, f.x)); /* forward x (0, 1, 0) */
+    cam.right = scale(r, th * (float)width / (float)height);
+    cam.up = scale(v3(r.y * f.z - r.z * f.y, r.z * f.x - r.x * f.z, r.x * f.y - r.y * f.x), th); /* right x forward */
+    cam.width = width;
+    cam.height = height;
+    return cam;
+}
+
 /* ---- main ----------------------------------------------------------------------------------- */
 static int usage(FILE *f, int status) {
-    fprintf(f, "usage: pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N]\n"
+    fprintf(f, "usage: pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N] [--inside]\n"
                "  SCENE        a glTF/GLB, OBJ... file (assimp); none: the built-in scene\n"
                "  --spp N      samples per pixel (default 16)\n"
                "  --depth D    diffuse hits per path (default 4)\n"
                "  --size WxH   image size (default 640x480)\n"
                "  --out FILE   .png or .ppm (default pathtrace.png, or .ppm without PNG support)\n"
                "  --threads N  (default: all CPUs; the image is the same for any N)\n"
+               "  --inside     view from inside the scene's box (interiors), not from above\n"
                "exit status: 0 done, 1 error, 2 bad command line\n");
     return status;
 }
@@ -414,12 +442,15 @@ int main(int argc, char **argv) {
     worker *wk;
     uint64_t rays = 0;
     double t0, t1, t2;
-    bvh_vec3 c;
     bvh_result r;
-    int ok = 1;
+    int ok = 1, inside = 0;
     for (i = 1; i < (uint32_t)argc; i++) {
         const char *a = argv[i], *v = i + 1 < (uint32_t)argc ? argv[i + 1] : NULL;
         if (!strcmp(a, "--help") || !strcmp(a, "-h")) return usage(stdout, 0);
+        if (!strcmp(a, "--inside")) {
+            inside = 1;
+            continue;
+        }
         if (a[0] != '-') {
             if (path) return fprintf(stderr, "pathtrace: one SCENE only\n"), usage(stderr, 2);
             path = a;
@@ -464,10 +495,7 @@ int main(int argc, char **argv) {
         return free(j ? j->rgb : NULL), free(j), free(wk), free_world(&w), 1;
     }
     j->w = &w;
-    j->cam = bvh_camera_standard(bvh_aabb_merge(bvh_tree_bounds(&w.scene.top), bvh_tree_bounds(&w.sphere_tree)), width,
-                                 height);
-    c = bvh_aabb_centroid(bvh_tree_bounds(&w.scene.top)); /* the standard view, from half as far */
-    j->cam.eye = add(c, scale(sub(j->cam.eye, c), 0.5f));
+    j->cam = view(bvh_tree_bounds(&w.scene.top), inside, width, height);
     j->sun_dir = normalize(SUN_DIR);
     j->spp = spp;
     j->depth = depth;

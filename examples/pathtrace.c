@@ -420,17 +420,17 @@ static bvh_camera view(bvh_aabb b, int inside, uint32_t width, uint32_t height) 
 }
 
 /* ---- main ----------------------------------------------------------------------------------- */
-static int usage(FILE *f, int status) {
-    fprintf(f, "usage: pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N] [--inside]\n"
-               "  SCENE        a glTF/GLB, OBJ... file (assimp); none: the built-in scene\n"
-               "  --spp N      samples per pixel (default 16)\n"
-               "  --depth D    diffuse hits per path (default 4)\n"
-               "  --size WxH   image size (default 640x480)\n"
-               "  --out FILE   .png or .ppm (default pathtrace.png, or .ppm without PNG support)\n"
-               "  --threads N  (default: all CPUs; the image is the same for any N)\n"
-               "  --inside     view from inside the scene's box (interiors), not from above\n"
-               "exit status: 0 done, 1 error, 2 bad command line\n");
-    return status;
+static int usage(void) {
+    printf("usage: pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N] [--inside]\n"
+           "  SCENE        a glTF/GLB, OBJ... file (assimp); none: the built-in scene\n"
+           "  --spp N      samples per pixel (default 16)\n"
+           "  --depth D    diffuse hits per path (default 4)\n"
+           "  --size WxH   image size (default 640x480)\n"
+           "  --out FILE   .png or .ppm (default pathtrace.png, or .ppm without PNG support)\n"
+           "  --threads N  (default: all CPUs; the image is the same for any N)\n"
+           "  --inside     view from inside the scene's box (interiors), not from above\n"
+           "exit status: 0 done, 1 error, 2 bad command line\n");
+    return 0;
 }
 
 int main(int argc, char **argv) {
@@ -443,34 +443,33 @@ int main(int argc, char **argv) {
     uint64_t rays = 0;
     double t0, t1, t2;
     bvh_result r;
-    int ok = 1, inside = 0;
-    for (i = 1; i < (uint32_t)argc; i++) {
+    int ok, inside = 0;
+    for (i = 1; i < (uint32_t)argc; i++) { /* options with a value: "--spp 4", not "--spp=4" */
         const char *a = argv[i], *v = i + 1 < (uint32_t)argc ? argv[i + 1] : NULL;
-        if (!strcmp(a, "--help") || !strcmp(a, "-h")) return usage(stdout, 0);
-        if (!strcmp(a, "--inside")) {
+        uint32_t *n = !strcmp(a, "--spp")       ? &spp
+                      : !strcmp(a, "--depth")   ? &depth
+                      : !strcmp(a, "--threads") ? &threads
+                                                : NULL;
+        uint32_t hi = n == &spp ? 65536 : n == &depth ? 64 : 256; /* n's largest value */
+        if (!strcmp(a, "--help") || !strcmp(a, "-h")) return usage();
+        if (!strcmp(a, "--inside"))
             inside = 1;
-            continue;
-        }
-        if (a[0] != '-') {
-            if (path) return fprintf(stderr, "pathtrace: one SCENE only\n"), usage(stderr, 2);
+        else if (a[0] != '-' && !path)
             path = a;
-            continue;
-        }
-        if (!v) return fprintf(stderr, "pathtrace: '%s' needs a value\n", a), usage(stderr, 2);
-        i++;
-        if (!strcmp(a, "--spp"))
-            ok = !scene_parse_u32(v, 1, 65536, &spp, NULL);
-        else if (!strcmp(a, "--depth"))
-            ok = !scene_parse_u32(v, 1, 64, &depth, NULL);
-        else if (!strcmp(a, "--threads"))
-            ok = !scene_parse_u32(v, 1, 256, &threads, NULL);
-        else if (!strcmp(a, "--size"))
-            ok = !scene_parse_size(v, 64u << 20, &width, &height);
-        else if (!strcmp(a, "--out"))
-            ok = !scene_check_image_path(v, err, sizeof err), out = v;
+        else if (a[0] != '-')
+            return fprintf(stderr, "pathtrace: one SCENE only (see --help)\n"), 2;
+        else if (!n && strcmp(a, "--size") && strcmp(a, "--out"))
+            return fprintf(stderr, "pathtrace: unknown option '%s' (see --help)\n", a), 2;
+        else if (!v)
+            return fprintf(stderr, "pathtrace: %s needs a value (see --help)\n", a), 2;
+        else if (n && scene_parse_u32(v, 1, hi, n, NULL))
+            return fprintf(stderr, "pathtrace: %s wants 1 to %u, not '%s'\n", a, hi, v), 2;
+        else if (!strcmp(a, "--size") && scene_parse_size(v, 64u << 20, &width, &height))
+            return fprintf(stderr, "pathtrace: --size wants WxH (1 to 16384 each), not '%s'\n", v), 2;
+        else if (!strcmp(a, "--out") && scene_check_image_path(v, err, sizeof err))
+            return fprintf(stderr, "pathtrace: --out: %s\n", err), 2;
         else
-            return fprintf(stderr, "pathtrace: unknown option '%s'\n", a), usage(stderr, 2);
-        if (!ok) return fprintf(stderr, "pathtrace: bad value '%s' for %s\n", v, a), usage(stderr, 2);
+            out = !strcmp(a, "--out") ? v : out, i++;
     }
 
     t0 = scene_now_ms();

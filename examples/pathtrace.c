@@ -56,7 +56,8 @@ typedef struct world {
     uint32_t instance_count, instance_cap;
     bvh_scene scene;
     sphere spheres[SPHERES];
-    bvh_tree sphere_tree;
+    bvh_tree sphere_tree;        /* built from the spheres' boxes */
+    bvh_custom_desc sphere_test; /* hit_sphere on w->spheres */
 } world;
 
 static bvh_vec3 v3(float x, float y, float z) { return (bvh_vec3){x, y, z}; }
@@ -249,6 +250,8 @@ static bvh_result add_spheres(world *w, bvh_aabb b) {
     }
     desc.boxes = boxes;
     desc.box_count = SPHERES;
+    w->sphere_test.intersect = hit_sphere;
+    w->sphere_test.user = w->spheres;
     return bvh_build(&w->sphere_tree, &desc);
 }
 
@@ -272,15 +275,11 @@ typedef struct surface {
 
 /* The closest hit among instances and spheres: its point, unit normal (facing the ray), albedo. */
 static int trace(const world *w, bvh_ray ray, surface *s) {
-    static const bvh_custom_desc no_desc = {0};
-    bvh_custom_desc spheres = no_desc;
     bvh_scene_hit h;
     bvh_hit sh;
     int hit = bvh_scene_intersect(&w->scene, &ray, ~0u, &h);
-    spheres.intersect = hit_sphere;
-    spheres.user = (void *)w->spheres;
     ray.tmax = h.t; /* the scene's hit, or the ray's tmax on a miss: a sphere must be nearer */
-    if (bvh_intersect_custom(&w->sphere_tree, &ray, &sh, &spheres)) {
+    if (bvh_intersect_custom(&w->sphere_tree, &ray, &sh, &w->sphere_test)) {
         const sphere *sp = &w->spheres[sh.prim];
         s->n = normalize(sub(add(ray.origin, scale(ray.dir, sh.t)), sp->c));
         s->p = add(sp->c, scale(s->n, sp->r)); /* on the sphere, not origin + t dir's rounding */
@@ -293,7 +292,8 @@ static int trace(const world *w, bvh_ray ray, surface *s) {
         bvh_hit_surface(&m->tris, &local, &q, NULL);
         s->p = v3(t[0] * q.x + t[1] * q.y + t[2] * q.z + t[3], t[4] * q.x + t[5] * q.y + t[6] * q.z + t[7],
                   t[8] * q.x + t[9] * q.y + t[10] * q.z + t[11]);
-        s->n = h.normal; /* geometric, world space, unit */
+        s->n = h.normal; /* geometric, world space, unit (zero for a zero-area triangle) */
+        if (dot(s->n, s->n) == 0.0f) s->n = scale(ray.dir, -1.0f / sqrtf(dot(ray.dir, ray.dir)));
         s->albedo = m->albedo;
     } else {
         return 0;
@@ -327,12 +327,8 @@ static bvh_vec3 sky(bvh_vec3 d) {                     /* pale at the horizon, bl
 
 /* One path: up to `depth` diffuse hits, each lit by the sun through a shadow ray. */
 static bvh_vec3 radiance(const world *w, bvh_ray ray, bvh_vec3 sun_dir, uint32_t depth, uint32_t *rng, uint64_t *rays) {
-    static const bvh_custom_desc no_desc = {0};
-    bvh_custom_desc spheres = no_desc;
     bvh_vec3 L = {0, 0, 0}, T = {1, 1, 1};
     uint32_t d;
-    spheres.intersect = hit_sphere;
-    spheres.user = (void *)w->spheres;
     for (d = 0; d < depth; d++) {
         surface s;
         float c;
@@ -344,7 +340,8 @@ static bvh_vec3 radiance(const world *w, bvh_ray ray, bvh_vec3 sun_dir, uint32_t
         c = dot(s.n, sun_dir);
         if (c > 0.0f) { /* the sun lights the side the ray came from: is it hidden? */
             ++*rays;
-            if (!bvh_scene_occluded(&w->scene, &ray, ~0u) && !bvh_occluded_custom(&w->sphere_tree, &ray, &spheres))
+            if (!bvh_scene_occluded(&w->scene, &ray, ~0u) &&
+                !bvh_occluded_custom(&w->sphere_tree, &ray, &w->sphere_test))
                 L = add(L, scale(mul(T, SUN), c));
         }
         ray.dir = cosine_dir(s.n, rng);

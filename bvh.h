@@ -235,8 +235,12 @@ typedef enum bvh_builder {
 } bvh_builder;
 
 /* ---- math types --------------------------------------------------------------------------- */
-typedef struct bvh_vec3 { float x, y, z; } bvh_vec3;
-typedef struct bvh_aabb { bvh_vec3 min, max; } bvh_aabb; /* empty: min = +inf, max = -inf */
+typedef struct bvh_vec3 {
+    float x, y, z;
+} bvh_vec3;
+typedef struct bvh_aabb {
+    bvh_vec3 min, max;
+} bvh_aabb; /* empty: min = +inf, max = -inf */
 
 /* A node: 32 bytes. count == 0: interior node whose children are nodes[index] and
    nodes[index + 1]. count > 0: leaf referencing tree.prims[index .. index + count - 1].
@@ -295,13 +299,15 @@ typedef struct bvh_allocator {
 
 /* SAH costs: traversal of an interior node, of a leaf, and one primitive intersection.
    All zero means the default (1, 0, 1), the convention all figures of this project use. */
-typedef struct bvh_costs { float interior, leaf, triangle; } bvh_costs;
+typedef struct bvh_costs {
+    float interior, leaf, triangle;
+} bvh_costs;
 
 typedef struct bvh_triangles {
-    const float *positions;   /* x, y, z floats of vertex i at (char*)positions + i*stride */
-    size_t stride;            /* bytes between vertices; 0 = 12 (tightly packed); else >= 12 */
+    const float *positions; /* x, y, z floats of vertex i at (char*)positions + i*stride */
+    size_t stride;          /* bytes between vertices; 0 = 12 (tightly packed); else >= 12 */
     uint32_t vertex_count;
-    const uint32_t *indices;  /* 3 per triangle; NULL: triangle i is vertices 3i, 3i+1, 3i+2 */
+    const uint32_t *indices; /* 3 per triangle; NULL: triangle i is vertices 3i, 3i+1, 3i+2 */
     uint32_t triangle_count;
 } bvh_triangles;
 
@@ -348,52 +354,51 @@ typedef struct bvh_thread_pool {
 /* The description of a build. Zero is the sensible default for every field. */
 typedef struct bvh_build_desc {
     bvh_builder builder;
-    bvh_triangles triangles;  /* either triangles ... */
-    const bvh_aabb *boxes;    /* ... or one box per custom primitive (then set box_count) */
+    bvh_triangles triangles; /* either triangles ... */
+    const bvh_aabb *boxes;   /* ... or one box per custom primitive (then set box_count) */
     uint32_t box_count;
-    uint32_t max_leaf_size;   /* 0 = the builder's (bvh_builder_info.max_leaf_size: 4 for top-down
-                                 and bottom-up, 8 for the SAH-collapsed builders); above 255 refused */
-    uint32_t threads;         /* ploc-parallel: 0 = all online CPUs; above 256 clamped to 256;
-                                 at most one per 8192 primitives (the tree is the same) */
-    bvh_costs costs;          /* build-time SAH costs, zero = (1, 0, 1) (PLOC's collapse: (1.2,
-                                 0, 1), for smaller trees at the same SAH); negative/NaN refused */
-    int skip_invalid;         /* 0: NaN/Inf geometry is refused with BVH_ERROR_INVALID_GEOMETRY;
-                                 1: such primitives are left out and counted in tree.excluded */
-    uint32_t trace_width;     /* CPU traversal: 0 or 8 = triangle builds add an 8-wide copy of
-                                 the tree with triangle packets (tree.nodes8, tree.tri4) that
-                                 bvh_intersect, bvh_occluded and the batch calls use: faster
-                                 tracing for a few percent of build time; 2 = binary nodes only;
-                                 anything else is refused */
-    bvh_thread_pool pool;     /* run NULL: the library's threads; else every parallel phase is
-                                 split into `threads` tasks (0 = online CPUs; set it without
-                                 pthreads) run by pool.run; the tree is the same either way */
-    int (*progress)(void *user, float fraction); /* NULL: none. Called on the thread that called
-                                 bvh_build, never concurrently, with a fraction from 0 rising to
-                                 1 (when the build completes), between stages and steps and every
-                                 65536 primitives of the serial loops (PROGRESS AND CANCEL above);
-                                 return nonzero to cancel: the build stops soon and returns
-                                 BVH_ERROR_CANCELLED (tree empty, nothing leaked) */
-    void *progress_user;      /* passed to progress */
-    bvh_allocator allocator;  /* both functions or neither (a half pair is refused) */
+    uint32_t max_leaf_size; /* 0 = the builder's (bvh_builder_info.max_leaf_size: 4 for top-down
+                               and bottom-up, 8 for the SAH-collapsed builders); above 255 refused */
+    uint32_t threads;       /* ploc-parallel: 0 = all online CPUs; above 256 clamped to 256;
+                               at most one per 8192 primitives (the tree is the same) */
+    bvh_costs costs;        /* build-time SAH costs, zero = (1, 0, 1) (PLOC's collapse: (1.2,
+                               0, 1), for smaller trees at the same SAH); negative/NaN refused */
+    int skip_invalid;       /* 0: NaN/Inf geometry is refused with BVH_ERROR_INVALID_GEOMETRY;
+                               1: such primitives are left out and counted in tree.excluded */
+    uint32_t trace_width;   /* CPU traversal: 0 or 8 = triangle builds add an 8-wide copy of
+                               the tree with triangle packets (tree.nodes8, tree.tri4) that
+                               bvh_intersect, bvh_occluded and the batch calls use: faster
+                               tracing for a few percent of build time; 2 = binary nodes only;
+                               anything else is refused */
+    bvh_thread_pool pool;   /* run NULL: the library's threads; else every parallel phase is
+                               split into `threads` tasks (0 = online CPUs; set it without
+                               pthreads) run by pool.run; the tree is the same either way */
+    /* progress: NULL = none. Called on the thread that called bvh_build, never concurrently, with
+       a fraction from 0 rising to 1 (when the build completes), between stages and steps and
+       every 65536 primitives of the serial loops (PROGRESS AND CANCEL above); return nonzero to
+       cancel: the build stops soon and returns BVH_ERROR_CANCELLED (tree empty, nothing leaked) */
+    int (*progress)(void *user, float fraction);
+    void *progress_user;     /* passed to progress */
+    bvh_allocator allocator; /* both functions or neither (a half pair is refused) */
     bvh_ploc_options ploc;
     bvh_sah_midpoint_options sah_midpoint;
 } bvh_build_desc;
 
 /* ---- the tree ------------------------------------------------------------------------------ */
 typedef struct bvh_tree {
-    bvh_node *nodes;        /* node_count nodes, root at 0 (node_count 0: empty tree) */
+    bvh_node *nodes; /* node_count nodes, root at 0 (node_count 0: empty tree) */
     uint32_t node_count;
-    uint32_t *prims;        /* ref_count original primitive indices, leaves index into this */
-    uint32_t ref_count;     /* == prim_count - excluded unless the builder splits references */
-    float *tris;            /* triangle builds: 9 floats (v0, v1, v2) per reference, in reference
-                               order, for traversal; NULL for box builds */
-    bvh_node8 *nodes8;      /* 8-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
+    uint32_t *prims;    /* ref_count original primitive indices, leaves index into this */
+    uint32_t ref_count; /* == prim_count - excluded unless the builder splits references */
+    float *tris;        /* triangle builds: 9 floats (v0, v1, v2) per reference, in reference
+                           order, for traversal; NULL for box builds */
+    bvh_node8 *nodes8;  /* 8-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
     uint32_t node8_count;
-    bvh_tri4 *tri4;         /* the 8-wide leaves' triangle packets (in nodes8's allocation, which
-                               also holds, after them, the grouping bvh_refit replays) */
+    bvh_tri4 *tri4; /* the 8-wide leaves' triangle packets (in nodes8's allocation, which
+                       also holds, after them, the grouping bvh_refit replays) */
     uint32_t tri4_count;
-    uint32_t prim_count;    /* primitives given */
-    uint32_t excluded;      /* primitives left out by skip_invalid */
+    uint32_t prim_count; /* primitives given */
+    uint32_t excluded;   /* primitives left out by skip_invalid */
     bvh_builder builder;
     bvh_allocator allocator;
 } bvh_tree;
@@ -406,8 +411,8 @@ typedef struct bvh_stats {
 } bvh_stats;
 
 typedef struct bvh_validation {
-    uint32_t node;      /* first offending node, BVH_INVALID if none or not node-specific */
-    char message[160];  /* what is wrong, "ok" when valid */
+    uint32_t node;     /* first offending node, BVH_INVALID if none or not node-specific */
+    char message[160]; /* what is wrong, "ok" when valid */
 } bvh_validation;
 
 /* The standard camera of the examples and benchmarks: pinhole at the centre of `bounds` +
@@ -427,11 +432,11 @@ BVH_API bvh_result bvh_builder_from_name(const char *name, bvh_builder *out);
 /* What a builder does with a zero description: its row of the builder table. */
 typedef struct bvh_builder_info {
     const char *name;
-    uint32_t max_leaf_size; /* the default of bvh_build_desc.max_leaf_size */
-    float interior_cost;    /* the default interior cost of its SAH decisions (costs all zero) */
-    int uses_threads;       /* builds on desc.threads (the same tree for any count) */
-    int splits_references;  /* may reference a primitive from several leaves (ref_count > prims) */
-    bvh_ploc_options ploc;  /* the defaults of desc.ploc (zero for builders that ignore it) */
+    uint32_t max_leaf_size;                /* the default of bvh_build_desc.max_leaf_size */
+    float interior_cost;                   /* the default interior cost of its SAH decisions (costs all zero) */
+    int uses_threads;                      /* builds on desc.threads (the same tree for any count) */
+    int splits_references;                 /* may reference a primitive from several leaves (ref_count > prims) */
+    bvh_ploc_options ploc;                 /* the defaults of desc.ploc (zero for builders that ignore it) */
     bvh_sah_midpoint_options sah_midpoint; /* the defaults of desc.sah_midpoint (likewise) */
 } bvh_builder_info;
 /* BVH_BUILDER_DEFAULT describes the builder it stands for.
@@ -466,8 +471,7 @@ BVH_API bvh_result bvh_sah(const bvh_tree *tree, const bvh_costs *costs, double 
    splits), depth <= BVH_MAX_DEPTH, and the same of the 8-wide copy. report may be NULL.
    SUCCESS; ARGUMENT: tree NULL, a half allocator pair in the tree, or a tree built from boxes
    without its prim_boxes; TREE: a defect, named in report; OUT_OF_MEMORY. */
-BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes,
-                                bvh_validation *report);
+BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes, bvh_validation *report);
 /* SUCCESS; ARGUMENT: tree or out NULL; TREE: as bvh_sah. */
 BVH_API bvh_result bvh_get_stats(const bvh_tree *tree, bvh_stats *out);
 
@@ -481,29 +485,28 @@ BVH_API int bvh_intersect(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit
 /* Any hit in [tmin, tmax]: 1 if the ray is blocked. */
 BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray);
 /* Same as bvh_intersect, counting nodes visited (for heat maps and statistics). */
-BVH_API int bvh_intersect_counted(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
-                                  uint32_t *nodes_visited);
+BVH_API int bvh_intersect_counted(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, uint32_t *nodes_visited);
 /* Traces count rays on `threads` threads (0 = all online CPUs).
    SUCCESS; ARGUMENT: tree NULL, rays or the output NULL with count > 0, a half allocator pair
    in the tree; NO_TRIANGLES: a tree built from boxes (every ray missed); OUT_OF_MEMORY: the
    worker threads' bookkeeping could not be allocated. */
-BVH_API bvh_result bvh_intersect_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits,
-                                       size_t count, uint32_t threads);
-BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays,
-                                      uint8_t *occluded, size_t count, uint32_t threads);
+BVH_API bvh_result bvh_intersect_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
+                                       uint32_t threads);
+BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
+                                      uint32_t threads);
 /* The batch calls with options (desc NULL = all zero): the same hits and flags on any pool. */
 typedef struct bvh_batch_desc {
     uint32_t threads;     /* threads, or tasks with a pool: 0 = online CPUs */
     bvh_thread_pool pool; /* run NULL: the library's threads (see bvh_thread_pool) */
 } bvh_batch_desc;
-BVH_API bvh_result bvh_intersect_batch_ex(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits,
-                                          size_t count, const bvh_batch_desc *desc);
-BVH_API bvh_result bvh_occluded_batch_ex(const bvh_tree *tree, const bvh_ray *rays,
-                                         uint8_t *occluded, size_t count, const bvh_batch_desc *desc);
+BVH_API bvh_result bvh_intersect_batch_ex(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
+                                          const bvh_batch_desc *desc);
+BVH_API bvh_result bvh_occluded_batch_ex(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
+                                         const bvh_batch_desc *desc);
 
 /* Watertight ray/triangle test (Woop, Benthin & Wald 2013), the one traversal uses. */
-BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const float v1[3],
-                                   const float v2[3], bvh_hit *hit);
+BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const float v1[3], const float v2[3],
+                                   bvh_hit *hit);
 
 /* ---- custom primitives ------------------------------------------------------------------- */
 /* A tree built from boxes (desc.boxes) is traced with the caller's own intersection test: the
@@ -527,17 +530,16 @@ typedef struct bvh_custom_desc {
    hit->prim = BVH_INVALID and hit->t = ray->tmax. Rays that bvh_intersect refuses (NaN, zero
    direction, tmin > tmax) miss; so does every ray when tree, ray, custom or custom->intersect is
    NULL (the batch calls return BVH_ERROR_INVALID_ARGUMENT for those). */
-BVH_API int bvh_intersect_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
-                                 const bvh_custom_desc *custom);
+BVH_API int bvh_intersect_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, const bvh_custom_desc *custom);
 /* Any hit in [tmin, tmax] by custom->intersect: 1 if the ray is blocked; stops at the first. */
 BVH_API int bvh_occluded_custom(const bvh_tree *tree, const bvh_ray *ray, const bvh_custom_desc *custom);
 /* The same for count rays on `threads` threads (0 = all online CPUs).
    SUCCESS; ARGUMENT: tree or custom or custom->intersect NULL, rays or the output NULL with
    count > 0, a half allocator pair in the tree; OUT_OF_MEMORY: as bvh_intersect_batch. */
-BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits,
-                                              size_t count, uint32_t threads, const bvh_custom_desc *custom);
-BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded,
-                                             size_t count, uint32_t threads, const bvh_custom_desc *custom);
+BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
+                                              uint32_t threads, const bvh_custom_desc *custom);
+BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
+                                             uint32_t threads, const bvh_custom_desc *custom);
 
 /* ---- secondary rays ------------------------------------------------------------------------ */
 /* A ray that leaves a surface from its computed hit point may hit that surface again (shadow
@@ -555,8 +557,7 @@ BVH_API bvh_vec3 bvh_offset_origin(bvh_vec3 p, bvh_vec3 n);
    (v1 - v0) x (v2 - v0) (zero for a zero-area triangle). Either output may be NULL.
    SUCCESS; ARGUMENT: mesh or hit NULL, positions NULL, stride below 12, hit->prim >= the triangle
    count (a miss included); INDEX_OUT_OF_RANGE: an index of the triangle >= vertex_count. */
-BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point,
-                                   bvh_vec3 *normal);
+BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point, bvh_vec3 *normal);
 
 /* ---- instances: two-level scenes ------------------------------------------------------------ */
 /* A scene places bottom-level trees (one per mesh, built by bvh_build from triangles, any
@@ -575,19 +576,19 @@ typedef struct bvh_instance {
 typedef struct bvh_scene_desc {
     const bvh_instance *instances; /* copied: the array may be freed when bvh_scene_build returns */
     uint32_t instance_count;
-    bvh_builder builder;           /* top level (0 = the default builder) */
-    uint32_t threads;              /* as bvh_build_desc.threads */
-    bvh_allocator allocator;       /* both functions or neither; kept by the scene */
+    bvh_builder builder;     /* top level (0 = the default builder) */
+    uint32_t threads;        /* as bvh_build_desc.threads */
+    bvh_allocator allocator; /* both functions or neither; kept by the scene */
 } bvh_scene_desc;
 typedef struct bvh_scene {
-    bvh_tree top;              /* over the instances' world boxes; prims = instance indices */
-    bvh_instance *instances;   /* instance_count copies of desc.instances */
-    float *inverse;            /* 12 floats per instance: world to object (bvh_ray_transform) */
+    bvh_tree top;            /* over the instances' world boxes; prims = instance indices */
+    bvh_instance *instances; /* instance_count copies of desc.instances */
+    float *inverse;          /* 12 floats per instance: world to object (bvh_ray_transform) */
     uint32_t instance_count;
-    uint32_t *mesh;            /* per instance: its tree's number among the distinct trees */
-    size_t *ref_base;          /* per distinct tree: its first entry in ref_of_prim */
-    uint32_t *ref_of_prim;     /* per distinct tree, prim_count entries: a reference of each
-                                  triangle (tree.tris + 9 * ref), for the hit's normal */
+    uint32_t *mesh;        /* per instance: its tree's number among the distinct trees */
+    size_t *ref_base;      /* per distinct tree: its first entry in ref_of_prim */
+    uint32_t *ref_of_prim; /* per distinct tree, prim_count entries: a reference of each
+                              triangle (tree.tris + 9 * ref), for the hit's normal */
     uint32_t mesh_count;
     bvh_allocator allocator;
 } bvh_scene;
@@ -633,10 +634,10 @@ BVH_API bvh_ray bvh_camera_ray(const bvh_camera *cam, uint32_t x, uint32_t y);
    with moved vertices, or one new box per primitive of a box tree (box_count = tree.prim_count).
    The buffers may differ from the build's (and may be freed after the call). */
 typedef struct bvh_refit_desc {
-    bvh_triangles triangles;  /* a triangle tree's new triangles ... */
-    const bvh_aabb *boxes;    /* ... or a box tree's new boxes (then set box_count) */
+    bvh_triangles triangles; /* a triangle tree's new triangles ... */
+    const bvh_aabb *boxes;   /* ... or a box tree's new boxes (then set box_count) */
     uint32_t box_count;
-    uint32_t threads;         /* 0 = all online CPUs; at most one per 8192 references */
+    uint32_t threads; /* 0 = all online CPUs; at most one per 8192 references */
 } bvh_refit_desc;
 /* Refits a built (or loaded) tree to moved primitives, keeping its topology: every binary node
    box bottom-up, tree.tris, and the 8-wide layout rewritten in place with the grouping the build
@@ -671,16 +672,16 @@ BVH_API bvh_result bvh_save(const bvh_tree *tree, bvh_write_fn write, void *user
 /* The bytes bvh_save writes for this tree (0 for a NULL tree). */
 BVH_API size_t bvh_save_size(const bvh_tree *tree);
 typedef struct bvh_load_desc {
-    bvh_read_fn read;         /* either a stream ... */
+    bvh_read_fn read; /* either a stream ... */
     void *user;
-    const void *data;         /* ... or a memory buffer of `size` bytes (then read is NULL) */
+    const void *data; /* ... or a memory buffer of `size` bytes (then read is NULL) */
     size_t size;
-    size_t max_bytes;         /* refuse a tree whose payload is larger (BVH_ERROR_CORRUPT) before
-                                 allocating it; 0 = no limit but the format's own caps (with a
-                                 memory buffer its size bounds the payload in any case) */
-    uint32_t trace_width;     /* 0 = as the saved tree had it; 8 = make the 8-wide layout; 2 = none */
-    uint32_t threads;         /* for the 8-wide layout: 0 = all online CPUs */
-    bvh_allocator allocator;  /* becomes the tree's, as bvh_build_desc.allocator */
+    size_t max_bytes;        /* refuse a tree whose payload is larger (BVH_ERROR_CORRUPT) before
+                                allocating it; 0 = no limit but the format's own caps (with a
+                                memory buffer its size bounds the payload in any case) */
+    uint32_t trace_width;    /* 0 = as the saved tree had it; 8 = make the 8-wide layout; 2 = none */
+    uint32_t threads;        /* for the 8-wide layout: 0 = all online CPUs */
+    bvh_allocator allocator; /* becomes the tree's, as bvh_build_desc.allocator */
 } bvh_load_desc;
 /* Reads a tree saved by bvh_save. Sizes are checked before anything is allocated; the checksums,
    then the structure (bvh_validate's checks; a box tree's leaves are not checked against boxes
@@ -736,7 +737,8 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
    which no macro reveals, must be left off for this file by the user (README: compiler flags). */
 #if defined(__clang__)
 #if defined(__FAST_MATH__) || (defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__)
-#error "bvh.h: clang cannot keep IEEE semantics for BVH_IMPLEMENTATION under -ffast-math / -Ofast: compile the file that defines BVH_IMPLEMENTATION with -fno-fast-math (your other files may keep -ffast-math), or use gcc"
+#error                                                                                                                 \
+    "bvh.h: clang cannot keep IEEE semantics for BVH_IMPLEMENTATION under -ffast-math / -Ofast: compile the file that defines BVH_IMPLEMENTATION with -fno-fast-math (your other files may keep -ffast-math), or use gcc"
 #endif
 #pragma float_control(precise, on, push)
 #pragma clang fp contract(off)
@@ -746,7 +748,7 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #include <emmintrin.h>
 #define BVH__SSE 1
 #endif
-#if defined(BVH__SSE) && !defined(BVH_NO_AVX2) && (defined(__x86_64__) || defined(__i386__)) && \
+#if defined(BVH__SSE) && !defined(BVH_NO_AVX2) && (defined(__x86_64__) || defined(__i386__)) &&                        \
     (defined(__GNUC__) || defined(__clang__))
 #include <immintrin.h>
 #define BVH__AVX2 1 /* compiled for AVX2 on its own (target attribute), used when the CPU has it */
@@ -779,8 +781,8 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #define BVH__MAX_THREADS 256u
 #define BVH__W 8u /* slots of a wide node (bvh_node8) */
 
-
-#if defined(__GNUC__) && !defined(__clang__) /* after the system headers: their inline functions keep their own options */
+#if defined(__GNUC__) &&                                                                                               \
+    !defined(__clang__) /* after the system headers: their inline functions keep their own options */
 #pragma GCC push_options
 #pragma GCC optimize("no-fast-math", "fp-contract=off")
 #define BVH__FP_POP _Pragma("GCC pop_options")
@@ -825,15 +827,21 @@ BVH__INLINE bvh_aabb bvh__empty(void) {
 }
 BVH_API bvh_aabb bvh_aabb_empty(void) { return bvh__empty(); }
 BVH__INLINE void bvh__grow(bvh_aabb *b, bvh_vec3 p) {
-    b->min.x = bvh__minf(b->min.x, p.x); b->max.x = bvh__maxf(b->max.x, p.x);
-    b->min.y = bvh__minf(b->min.y, p.y); b->max.y = bvh__maxf(b->max.y, p.y);
-    b->min.z = bvh__minf(b->min.z, p.z); b->max.z = bvh__maxf(b->max.z, p.z);
+    b->min.x = bvh__minf(b->min.x, p.x);
+    b->max.x = bvh__maxf(b->max.x, p.x);
+    b->min.y = bvh__minf(b->min.y, p.y);
+    b->max.y = bvh__maxf(b->max.y, p.y);
+    b->min.z = bvh__minf(b->min.z, p.z);
+    b->max.z = bvh__maxf(b->max.z, p.z);
 }
 BVH__INLINE bvh_aabb bvh__merge(bvh_aabb a, bvh_aabb b) {
     bvh_aabb r;
-    r.min.x = bvh__minf(a.min.x, b.min.x); r.max.x = bvh__maxf(a.max.x, b.max.x);
-    r.min.y = bvh__minf(a.min.y, b.min.y); r.max.y = bvh__maxf(a.max.y, b.max.y);
-    r.min.z = bvh__minf(a.min.z, b.min.z); r.max.z = bvh__maxf(a.max.z, b.max.z);
+    r.min.x = bvh__minf(a.min.x, b.min.x);
+    r.max.x = bvh__maxf(a.max.x, b.max.x);
+    r.min.y = bvh__minf(a.min.y, b.min.y);
+    r.max.y = bvh__maxf(a.max.y, b.max.y);
+    r.min.z = bvh__minf(a.min.z, b.min.z);
+    r.max.z = bvh__maxf(a.max.z, b.max.z);
     return r;
 }
 BVH_API void bvh_aabb_grow(bvh_aabb *b, bvh_vec3 p) { bvh__grow(b, p); }
@@ -855,26 +863,35 @@ static double bvh__half_area_d(bvh_aabb b) {
 }
 BVH__INLINE bvh_vec3 bvh__centroid(bvh_aabb b) {
     bvh_vec3 c;
-    c.x = 0.5f * (b.min.x + b.max.x); c.y = 0.5f * (b.min.y + b.max.y); c.z = 0.5f * (b.min.z + b.max.z);
+    c.x = 0.5f * (b.min.x + b.max.x);
+    c.y = 0.5f * (b.min.y + b.max.y);
+    c.z = 0.5f * (b.min.z + b.max.z);
     return c;
 }
 BVH_API bvh_vec3 bvh_aabb_centroid(bvh_aabb b) { return bvh__centroid(b); }
 BVH_API int bvh_aabb_contains(bvh_aabb o, bvh_aabb i) {
-    return o.min.x <= i.min.x && o.min.y <= i.min.y && o.min.z <= i.min.z &&
-           o.max.x >= i.max.x && o.max.y >= i.max.y && o.max.z >= i.max.z;
+    return o.min.x <= i.min.x && o.min.y <= i.min.y && o.min.z <= i.min.z && o.max.x >= i.max.x && o.max.y >= i.max.y &&
+           o.max.z >= i.max.z;
 }
 static int bvh__nonempty(bvh_aabb b) { return b.min.x <= b.max.x && b.min.y <= b.max.y && b.min.z <= b.max.z; }
 static bvh_aabb bvh__node_box(const bvh_node *n) {
     bvh_aabb b;
-    b.min = n->min; b.max = n->max;
+    b.min = n->min;
+    b.max = n->max;
     return b;
 }
-static void bvh__set_box(bvh_node *n, bvh_aabb b) { n->min = b.min; n->max = b.max; }
+static void bvh__set_box(bvh_node *n, bvh_aabb b) {
+    n->min = b.min;
+    n->max = b.max;
+}
 BVH__INLINE bvh_aabb bvh__tri_box(const float *t) {
     bvh_aabb b;
-    b.min.x = bvh__minf(bvh__minf(t[0], t[3]), t[6]); b.max.x = bvh__maxf(bvh__maxf(t[0], t[3]), t[6]);
-    b.min.y = bvh__minf(bvh__minf(t[1], t[4]), t[7]); b.max.y = bvh__maxf(bvh__maxf(t[1], t[4]), t[7]);
-    b.min.z = bvh__minf(bvh__minf(t[2], t[5]), t[8]); b.max.z = bvh__maxf(bvh__maxf(t[2], t[5]), t[8]);
+    b.min.x = bvh__minf(bvh__minf(t[0], t[3]), t[6]);
+    b.max.x = bvh__maxf(bvh__maxf(t[0], t[3]), t[6]);
+    b.min.y = bvh__minf(bvh__minf(t[1], t[4]), t[7]);
+    b.max.y = bvh__maxf(bvh__maxf(t[1], t[4]), t[7]);
+    b.min.z = bvh__minf(bvh__minf(t[2], t[5]), t[8]);
+    b.max.z = bvh__maxf(bvh__maxf(t[2], t[5]), t[8]);
     return b;
 }
 
@@ -883,21 +900,36 @@ BVH__INLINE bvh_aabb bvh__tri_box(const float *t) {
 /* ============================================================================================ */
 BVH_API const char *bvh_result_string(bvh_result r) {
     switch (r) {
-    case BVH_SUCCESS: return "success";
-    case BVH_ERROR_INVALID_ARGUMENT: return "invalid argument (NULL pointer or option out of range)";
-    case BVH_ERROR_INVALID_GEOMETRY: return "invalid geometry (NaN or Inf coordinate, or inverted box)";
-    case BVH_ERROR_INDEX_OUT_OF_RANGE: return "triangle index out of range of the vertex count";
-    case BVH_ERROR_TOO_MANY_PRIMITIVES: return "too many primitives for 32-bit references";
-    case BVH_ERROR_OUT_OF_MEMORY: return "out of memory";
-    case BVH_ERROR_THREAD: return "could not create a worker thread";
-    case BVH_ERROR_INVALID_TREE: return "invalid tree (see the validation report)";
-    case BVH_ERROR_NO_TRIANGLES: return "the tree was built from boxes and has no triangles to trace";
-    case BVH_ERROR_CANCELLED: return "the build was cancelled by its progress callback";
-    case BVH_ERROR_IO: return "the write callback took fewer bytes than given";
-    case BVH_ERROR_TRUNCATED: return "the saved tree ends early (truncated data)";
-    case BVH_ERROR_CORRUPT: return "not a saved tree, or a damaged one (checksum, sizes or structure)";
-    case BVH_ERROR_UNSUPPORTED_FORMAT: return "a saved tree of another format version or byte order";
-    default: return "unknown result code";
+    case BVH_SUCCESS:
+        return "success";
+    case BVH_ERROR_INVALID_ARGUMENT:
+        return "invalid argument (NULL pointer or option out of range)";
+    case BVH_ERROR_INVALID_GEOMETRY:
+        return "invalid geometry (NaN or Inf coordinate, or inverted box)";
+    case BVH_ERROR_INDEX_OUT_OF_RANGE:
+        return "triangle index out of range of the vertex count";
+    case BVH_ERROR_TOO_MANY_PRIMITIVES:
+        return "too many primitives for 32-bit references";
+    case BVH_ERROR_OUT_OF_MEMORY:
+        return "out of memory";
+    case BVH_ERROR_THREAD:
+        return "could not create a worker thread";
+    case BVH_ERROR_INVALID_TREE:
+        return "invalid tree (see the validation report)";
+    case BVH_ERROR_NO_TRIANGLES:
+        return "the tree was built from boxes and has no triangles to trace";
+    case BVH_ERROR_CANCELLED:
+        return "the build was cancelled by its progress callback";
+    case BVH_ERROR_IO:
+        return "the write callback took fewer bytes than given";
+    case BVH_ERROR_TRUNCATED:
+        return "the saved tree ends early (truncated data)";
+    case BVH_ERROR_CORRUPT:
+        return "not a saved tree, or a damaged one (checksum, sizes or structure)";
+    case BVH_ERROR_UNSUPPORTED_FORMAT:
+        return "a saved tree of another format version or byte order";
+    default:
+        return "unknown result code";
     }
 }
 
@@ -938,8 +970,10 @@ static void *bvh__alloc(const bvh_allocator *al, size_t count, size_t elem) {
 }
 static void bvh__free(const bvh_allocator *al, void *p) {
     if (!p) return;
-    if (al->free) al->free(p, al->user);
-    else BVH_FREE(p, al->user);
+    if (al->free)
+        al->free(p, al->user);
+    else
+        BVH_FREE(p, al->user);
 }
 #define BVH__ALLOC(al, T, n) BVH__CAST(T *, bvh__alloc((al), (size_t)(n), sizeof(T)))
 /* Both functions or neither: a half pair would hand the caller's blocks to BVH_FREE or malloc's to
@@ -994,7 +1028,10 @@ struct bvh__team {
     int spin; /* rounds to spin at a barrier: 0 when the team has more threads than CPUs */
 #endif
 };
-typedef struct bvh__worker { bvh__team *team; uint32_t tid; } bvh__worker;
+typedef struct bvh__worker {
+    bvh__team *team;
+    uint32_t tid;
+} bvh__worker;
 
 static uint32_t bvh__cpu_count(void) {
 #ifndef BVH_NO_THREADS
@@ -1076,19 +1113,27 @@ static void *bvh__worker_main(void *p) {
    cannot be allocated; thread creation failures reduce the team instead. */
 static bvh_result bvh__team_run(const bvh_allocator *al, uint32_t want, bvh__team_fn fn, void *arg) {
     bvh__team team;
-    team.fn = fn; team.arg = arg; team.n = 1; team.pool = NULL;
+    team.fn = fn;
+    team.arg = arg;
+    team.n = 1;
+    team.pool = NULL;
 #ifndef BVH_NO_THREADS
     if (want > 1) {
         uint32_t i, made = 0;
         pthread_t *th = BVH__ALLOC(al, pthread_t, want);
         bvh__worker *ws = BVH__ALLOC(al, bvh__worker, want);
-        if (!th || !ws) { bvh__free(al, th); bvh__free(al, ws); return BVH_ERROR_OUT_OF_MEMORY; }
+        if (!th || !ws) {
+            bvh__free(al, th);
+            bvh__free(al, ws);
+            return BVH_ERROR_OUT_OF_MEMORY;
+        }
         pthread_mutex_init(&team.mutex, NULL);
         pthread_cond_init(&team.cond, NULL);
         team.waiting = team.generation = team.started = 0;
         team.n = want;
         for (i = 1; i < want; i++) {
-            ws[i].team = &team; ws[i].tid = i;
+            ws[i].team = &team;
+            ws[i].tid = i;
             if (pthread_create(&th[i], NULL, bvh__worker_main, &ws[i]) != 0) break;
             made++;
         }
@@ -1102,11 +1147,13 @@ static bvh_result bvh__team_run(const bvh_allocator *al, uint32_t want, bvh__tea
         for (i = 1; i <= made; i++) pthread_join(th[i], NULL);
         pthread_cond_destroy(&team.cond);
         pthread_mutex_destroy(&team.mutex);
-        bvh__free(al, th); bvh__free(al, ws);
+        bvh__free(al, th);
+        bvh__free(al, ws);
         return BVH_SUCCESS;
     }
 #else
-    (void)want; (void)al;
+    (void)want;
+    (void)al;
 #endif
     fn(arg, 0, 1, &team);
     return BVH_SUCCESS;
@@ -1125,10 +1172,14 @@ static bvh_result bvh__team_run_on(const bvh_thread_pool *pool, const bvh_alloca
                                    bvh__team_fn fn, void *arg) {
     bvh__team team;
     if (!pool || !pool->run) return bvh__team_run(al, want, fn, arg);
-    team.fn = fn; team.arg = arg; team.pool = pool;
+    team.fn = fn;
+    team.arg = arg;
+    team.pool = pool;
     team.n = sync || want < 1 ? 1 : want;
-    if (team.n == 1) fn(arg, 0, 1, &team);
-    else pool->run(pool->user, team.n, bvh__pool_task, &team);
+    if (team.n == 1)
+        fn(arg, 0, 1, &team);
+    else
+        pool->run(pool->user, team.n, bvh__pool_task, &team);
     return BVH_SUCCESS;
 }
 /* Even split of [0, count) for thread tid of n. */
@@ -1151,7 +1202,9 @@ static uint64_t bvh__expand21(uint64_t v) { /* spreads 21 bits to every third bi
 }
 /* 63-bit Morton code of p inside the centroid bounds (21 bits per axis). In double, so that
    bounds spanning more than FLT_MAX (e.g. -3e38 .. 3e38) still quantise; NaN clamps to 0. */
-typedef struct bvh__mscale { double lo[3], scale[3]; } bvh__mscale;
+typedef struct bvh__mscale {
+    double lo[3], scale[3];
+} bvh__mscale;
 static uint64_t bvh__morton(bvh_vec3 p, const bvh__mscale *m) {
     double f[3];
     uint64_t q[3];
@@ -1159,7 +1212,7 @@ static uint64_t bvh__morton(bvh_vec3 p, const bvh__mscale *m) {
     f[0] = ((double)p.x - m->lo[0]) * m->scale[0];
     f[1] = ((double)p.y - m->lo[1]) * m->scale[1];
     f[2] = ((double)p.z - m->lo[2]) * m->scale[2];
-    for (a = 0; a < 3; a++) { /* written for maxsd/minsd and a signed 32-bit conversion */
+    for (a = 0; a < 3; a++) {               /* written for maxsd/minsd and a signed 32-bit conversion */
         double x = f[a] > 0.0 ? f[a] : 0.0; /* NaN: 0 */
         x = x < 2097151.0 ? x : 2097151.0;
         q[a] = (uint64_t)(int32_t)x;
@@ -1170,8 +1223,12 @@ static bvh__mscale bvh__morton_scale(bvh_aabb cb) {
     bvh__mscale m;
     double lo[3], hi[3];
     int a;
-    lo[0] = cb.min.x; lo[1] = cb.min.y; lo[2] = cb.min.z;
-    hi[0] = cb.max.x; hi[1] = cb.max.y; hi[2] = cb.max.z;
+    lo[0] = cb.min.x;
+    lo[1] = cb.min.y;
+    lo[2] = cb.min.z;
+    hi[0] = cb.max.x;
+    hi[1] = cb.max.y;
+    hi[2] = cb.max.z;
     for (a = 0; a < 3; a++) {
         double d = hi[a] - lo[a];
         m.lo[a] = lo[a];
@@ -1194,7 +1251,8 @@ typedef struct bvh__sort {
 /* One stable scatter of this thread's pairs [b, e) from keys/vals to keys_tmp/vals_tmp by the
    digit at `shift`, from the team's histograms: the offset of (digit d, thread tid) is the count
    of keys with a smaller digit plus those with digit d in earlier threads. */
-static void bvh__radix_scatter(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team, int shift, size_t b, size_t e) {
+static void bvh__radix_scatter(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team, int shift, size_t b,
+                               size_t e) {
     uint32_t local[BVH__RADIX_SIZE], d, t;
     size_t sum = 0, i;
     for (d = 0; d < BVH__RADIX_SIZE; d++) {
@@ -1230,13 +1288,19 @@ static void bvh__radix_lsd_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__te
             if (tot == s->n) all_same = 1;
             if (tot != 0) break;
         }
-        if (all_same) { bvh__team_sync(team); continue; }
+        if (all_same) {
+            bvh__team_sync(team);
+            continue;
+        }
         bvh__radix_scatter(s, tid, nt, team, shift, b, e);
         bvh__team_sync(team);
         if (tid == 0) {
-            uint64_t *tk = s->keys; uint32_t *tv = s->vals;
-            s->keys = s->keys_tmp; s->vals = s->vals_tmp;
-            s->keys_tmp = tk; s->vals_tmp = tv;
+            uint64_t *tk = s->keys;
+            uint32_t *tv = s->vals;
+            s->keys = s->keys_tmp;
+            s->vals = s->vals_tmp;
+            s->keys_tmp = tk;
+            s->vals_tmp = tv;
         }
         bvh__team_sync(team);
     }
@@ -1257,7 +1321,10 @@ static void bvh__msd_local(uint64_t *ck, uint32_t *cv, uint64_t *ok, uint32_t *o
         size_t off[257];
         memset(cnt, 0, nd * sizeof cnt[0]);
         for (i = lo; i < hi; i++) cnt[(ck[i] >> shift) & mask]++;
-        if (cnt[first] == m) { bits = (int)shift; continue; } /* one digit: nothing to move */
+        if (cnt[first] == m) {
+            bits = (int)shift;
+            continue;
+        } /* one digit: nothing to move */
         off[0] = lo;
         for (d = 0; d < nd; d++) off[d + 1] = off[d] + cnt[d];
         for (i = lo; i < hi; i++) {
@@ -1277,8 +1344,12 @@ static void bvh__msd_local(uint64_t *ck, uint32_t *cv, uint64_t *ok, uint32_t *o
         for (i = lo + 1; i < hi; i++) {
             uint64_t k = ck[i];
             uint32_t v = cv[i];
-            for (j = i; j > lo && ck[j - 1] > k; j--) { ck[j] = ck[j - 1]; cv[j] = cv[j - 1]; }
-            ck[j] = k; cv[j] = v;
+            for (j = i; j > lo && ck[j - 1] > k; j--) {
+                ck[j] = ck[j - 1];
+                cv[j] = cv[j - 1];
+            }
+            ck[j] = k;
+            cv[j] = v;
         }
     if (into_other) {
         memcpy(ok + lo, ck + lo, m * sizeof *ok);
@@ -1347,7 +1418,10 @@ typedef struct bvh__progress {
 #define BVH__STAGE_WIDE_LO 0.9f
 #define BVH__PROGRESS_WORK 65536u /* serial loops report at least once per this many primitives */
 static void bvh__stage(bvh__progress *g, float lo, float hi) {
-    if (g) { g->lo = lo; g->hi = hi; }
+    if (g) {
+        g->lo = lo;
+        g->hi = hi;
+    }
 }
 /* [a, b] of the builder's share */
 static void bvh__stage_in(bvh__progress *g, float a, float b) {
@@ -1379,15 +1453,15 @@ static int bvh__cancelled(const bvh__progress *g) { return g && g->cancelled; }
 typedef struct bvh__ctx {
     bvh_allocator al;
     const bvh_thread_pool *pool; /* the caller's pool, NULL: the team's threads */
-    bvh__progress *prog;   /* never NULL during builds */
-    uint32_t n;            /* primitives taking part (n >= 1 inside builders) */
-    bvh_aabb *boxes;       /* n boxes (PLOC releases them once its clusters hold them: NULL) */
-    const bvh_triangles *tris; /* the caller's triangles, NULL for box input */
-    const bvh_aabb *in_boxes;  /* the caller's boxes, NULL for triangle input */
-    const uint32_t *orig;  /* local id -> caller index when primitives were left out, else NULL */
+    bvh__progress *prog;         /* never NULL during builds */
+    uint32_t n;                  /* primitives taking part (n >= 1 inside builders) */
+    bvh_aabb *boxes;             /* n boxes (PLOC releases them once its clusters hold them: NULL) */
+    const bvh_triangles *tris;   /* the caller's triangles, NULL for box input */
+    const bvh_aabb *in_boxes;    /* the caller's boxes, NULL for triangle input */
+    const uint32_t *orig;        /* local id -> caller index when primitives were left out, else NULL */
     bvh_aabb bounds, cbounds;
     uint32_t max_leaf, threads, radius, sah_bins, ploc_top; /* sah_bins, ploc_top: 0 = off; else ploc_top >= 2 */
-    uint32_t budget;       /* collapse: tree bytes per primitive at most; 0 = no limit */
+    uint32_t budget; /* collapse: tree bytes per primitive at most; 0 = no limit */
     float ci, cl, ct, split_budget;
 } bvh__ctx;
 
@@ -1407,7 +1481,10 @@ static bvh_result bvh__out_init(const bvh__ctx *c, bvh__out *o, uint32_t node_ca
     memset(o, 0, sizeof *o);
     o->nodes = BVH__ALLOC(&c->al, bvh_node, node_cap);
     o->refs = BVH__ALLOC(&c->al, uint32_t, ref_cap);
-    if (!o->nodes || !o->refs) { bvh__out_free(c, o); return BVH_ERROR_OUT_OF_MEMORY; }
+    if (!o->nodes || !o->refs) {
+        bvh__out_free(c, o);
+        return BVH_ERROR_OUT_OF_MEMORY;
+    }
     o->node_cap = node_cap;
     o->ref_cap = ref_cap;
     return BVH_SUCCESS;
@@ -1475,8 +1552,10 @@ static bvh_result bvh__morton_job_init(const bvh__ctx *c, bvh__morton_job *j, ui
     return BVH_SUCCESS;
 }
 static void bvh__morton_job_free(const bvh__ctx *c, bvh__morton_job *j) {
-    bvh__free(&c->al, j->sort.keys); bvh__free(&c->al, j->sort.keys_tmp);
-    bvh__free(&c->al, j->sort.vals); bvh__free(&c->al, j->sort.vals_tmp);
+    bvh__free(&c->al, j->sort.keys);
+    bvh__free(&c->al, j->sort.keys_tmp);
+    bvh__free(&c->al, j->sort.vals);
+    bvh__free(&c->al, j->sort.vals_tmp);
     bvh__free(&c->al, j->sort.hist);
     memset(&j->sort, 0, sizeof j->sort);
 }
@@ -1519,8 +1598,10 @@ BVH__INLINE void bvh__select(void *v, size_t size, uint32_t n, uint32_t k, bvh__
         /* now [lo, j] <= pivot <= [j+1, hi] (when i > j) or element i == pivot (i == j) */
         if (i == j) {
             if (k == i) return;
-            if (k < i) hi = i - 1;
-            else lo = i + 1;
+            if (k < i)
+                hi = i - 1;
+            else
+                lo = i + 1;
         } else if (k <= j) {
             hi = j;
         } else {
@@ -1571,7 +1652,9 @@ static void bvh__median_build(const bvh__ctx *c, bvh__out *o, uint32_t root, uin
     uint32_t stack[3 * 40]; /* the median tree is at most ceil(log2(2^30)) + 1 deep */
     uint32_t sp = 0;
     double work = 0.0, total = (double)count * (1.0 + log2((double)count / (double)c->max_leaf + 1.0));
-    stack[sp++] = root; stack[sp++] = first; stack[sp++] = count;
+    stack[sp++] = root;
+    stack[sp++] = first;
+    stack[sp++] = count;
     while (sp) {
         uint32_t m = stack[--sp], b = stack[--sp], ni = stack[--sp], i, half;
         bvh_node *node = &o->nodes[ni];
@@ -1586,15 +1669,23 @@ static void bvh__median_build(const bvh__ctx *c, bvh__out *o, uint32_t root, uin
             bvh__grow(&cb, bvh__centroid(pb));
         }
         bvh__set_box(node, box);
-        if (m <= c->max_leaf) { node->index = b; node->count = m; continue; }
+        if (m <= c->max_leaf) {
+            node->index = b;
+            node->count = m;
+            continue;
+        }
         axis = bvh__median_axis(cb);
         half = m / 2;
         if (axis >= 0) bvh__select(o->refs + b, sizeof *o->refs, m, half, bvh__id_key, c, axis);
         node->index = o->node_count;
         node->count = 0;
         o->node_count += 2;
-        stack[sp++] = node->index + 1; stack[sp++] = b + half; stack[sp++] = m - half;
-        stack[sp++] = node->index; stack[sp++] = b; stack[sp++] = half;
+        stack[sp++] = node->index + 1;
+        stack[sp++] = b + half;
+        stack[sp++] = m - half;
+        stack[sp++] = node->index;
+        stack[sp++] = b;
+        stack[sp++] = half;
     }
 }
 
@@ -1631,7 +1722,9 @@ static bvh_result bvh__build_top_down(const bvh__ctx *c, bvh__out *o) {
    `node` and its references at `ref`. Positions follow from the subtree sizes: a
    node's children pair comes first, then the left subtree's nodes, then the right's; so does the
    order of references. Any split into tasks writes the same output. */
-typedef struct bvh__emit_task { uint32_t si, di, node, ref; } bvh__emit_task;
+typedef struct bvh__emit_task {
+    uint32_t si, di, node, ref;
+} bvh__emit_task;
 typedef struct bvh__emit_job {
     const bvh_node *src;
     const uint32_t *map, *cnt, *size;
@@ -1667,7 +1760,8 @@ static void bvh__emit_subtree(const bvh__emit_job *j, bvh__emit_task t0) {
         bvh__emit_task t = stack[--sp];
         const bvh_node *s = &j->src[t.si];
         bvh_node *d = &j->o->nodes[t.di];
-        d->min = s->min; d->max = s->max;
+        d->min = s->min;
+        d->max = s->max;
         if (s->count || (j->cnt[t.si] & BVH__COLLAPSE_BIT)) { /* a leaf: gather the primitives below */
             d->index = t.ref;
             d->count = bvh__gather_refs(j->src, j->map, t.si, small, j->o->refs + t.ref);
@@ -1676,8 +1770,14 @@ static void bvh__emit_subtree(const bvh__emit_job *j, bvh__emit_task t0) {
             bvh__emit_task a, b;
             d->index = t.node;
             d->count = 0;
-            a.si = l; a.di = t.node; a.node = t.node + 2; a.ref = t.ref;
-            b.si = l + 1; b.di = t.node + 1; b.node = t.node + 1 + lsize; b.ref = t.ref + lcnt;
+            a.si = l;
+            a.di = t.node;
+            a.node = t.node + 2;
+            a.ref = t.ref;
+            b.si = l + 1;
+            b.di = t.node + 1;
+            b.node = t.node + 1 + lsize;
+            b.ref = t.ref + lcnt;
             stack[sp++] = b;
             stack[sp++] = a;
         }
@@ -1696,7 +1796,10 @@ static void bvh__emit_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
    runs of src whose children all lie in earlier runs, as each PLOC iteration appends), each run
    is split over the team, which meets at a barrier between runs; without, all of src is one run
    on one thread. */
-typedef union bvh__fu { float f; uint32_t u; } bvh__fu; /* pass 1: SAH cost; pass 2: see bvh__place */
+typedef union bvh__fu {
+    float f;
+    uint32_t u;
+} bvh__fu; /* pass 1: SAH cost; pass 2: see bvh__place */
 typedef struct bvh__sizes {
     const bvh__ctx *c;
     const bvh_node *src;
@@ -1713,7 +1816,9 @@ static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
     uint8_t *height = q->height;
     bvh__fu *cost = q->cost;
     if (s->count) {
-        cnt[i] = s->count; height[i] = 0; size[i] = 1;
+        cnt[i] = s->count;
+        height[i] = 0;
+        size[i] = 1;
         if (cost) cost[i].f = BVH__LEAF_COST(c, bvh__half_area(bvh__node_box(s)), (float)s->count);
     } else {
         uint32_t l = s->index, n = (cnt[l] & ~BVH__COLLAPSE_BIT) + (cnt[l + 1] & ~BVH__COLLAPSE_BIT);
@@ -1725,8 +1830,13 @@ static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
             float a = bvh__half_area(bvh__node_box(s));
             float split = c->ci * a + cost[l].f + cost[l + 1].f;
             float leaf = BVH__LEAF_COST(c, a, (float)n);
-            if (bvh__sah_leaf(c, n, leaf, split)) { cost[i].f = leaf; cnt[i] |= BVH__COLLAPSE_BIT; height[i] = 0; size[i] = 1; }
-            else cost[i].f = split;
+            if (bvh__sah_leaf(c, n, leaf, split)) {
+                cost[i].f = leaf;
+                cnt[i] |= BVH__COLLAPSE_BIT;
+                height[i] = 0;
+                size[i] = 1;
+            } else
+                cost[i].f = split;
         }
     }
 }
@@ -1746,7 +1856,8 @@ static void bvh__sizes_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
             if (i + BVH__SIZES_AHEAD < e) {
                 const bvh_node *s = &q->src[start + i + BVH__SIZES_AHEAD];
                 if (!s->count) {
-                    BVH__PREFETCH(&q->cnt[s->index]); BVH__PREFETCH(&q->size[s->index]);
+                    BVH__PREFETCH(&q->cnt[s->index]);
+                    BVH__PREFETCH(&q->size[s->index]);
                     BVH__PREFETCH(&q->height[s->index]);
                     if (q->cost) BVH__PREFETCH(&q->cost[s->index]);
                 }
@@ -1786,11 +1897,13 @@ static bvh_result bvh__fit_budget(const bvh__ctx *c, bvh__sizes *q, uint32_t nth
         if (bvh__report(c->prog, 0.0)) return BVH_ERROR_CANCELLED;
         nhi = q->size[root];
         if (nhi <= (double)limit) break;
-        if (hi > top) { /* the smallest tree the leaf size allows */
+        if (hi > top) {      /* the smallest tree the leaf size allows */
             cc.ci = 3.0e38f; /* finite: a zero area times it stays zero */
             return bvh__run(c, nthreads, 1, bvh__sizes_fn, q);
         }
-        lo = hi; nlo = nhi; hi *= 2.0;
+        lo = hi;
+        nlo = nhi;
+        hi *= 2.0;
     }
     for (k = 0; k < BVH__BUDGET_STEPS && nhi < 0.99 * (double)limit; k++) {
         double aim = 0.995 * (double)limit, f = (log(nlo) - log(aim)) / (log(nlo) - log(nhi > 1.0 ? nhi : 1.0));
@@ -1799,8 +1912,15 @@ static bvh_result bvh__fit_budget(const bvh__ctx *c, bvh__sizes *q, uint32_t nth
         if ((r = bvh__run(c, nthreads, 1, bvh__sizes_fn, q)) != BVH_SUCCESS) return r;
         if (bvh__report(c->prog, 0.0)) return BVH_ERROR_CANCELLED;
         n = q->size[root];
-        if (n > (double)limit) { lo = mid; nlo = n; held = 0; }
-        else { hi = mid; nhi = n; held = 1; }
+        if (n > (double)limit) {
+            lo = mid;
+            nlo = n;
+            held = 0;
+        } else {
+            hi = mid;
+            nhi = n;
+            held = 1;
+        }
     }
     if (held) return BVH_SUCCESS;
     cc.ci = (float)hi;
@@ -1834,9 +1954,15 @@ static void bvh__place_node(const bvh__place *q, uint32_t x, uint32_t di, uint32
         q->pos[s->index + 1].u = ref;
     }
     if (!di) return;
-    d->min = s->min; d->max = s->max;
-    if (leaf) { d->index = ref; d->count = q->cnt[x] & ~BVH__COLLAPSE_BIT; }
-    else { d->index = node; d->count = 0; }
+    d->min = s->min;
+    d->max = s->max;
+    if (leaf) {
+        d->index = ref;
+        d->count = q->cnt[x] & ~BVH__COLLAPSE_BIT;
+    } else {
+        d->index = node;
+        d->count = 0;
+    }
 }
 static void bvh__place_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     const bvh__place *q = BVH__CAST(const bvh__place *, arg);
@@ -1898,7 +2024,10 @@ static bvh_result bvh__emit_tasks(const bvh__ctx *c, const bvh__sizes *q, const 
     uint32_t owner[BVH__EMIT_TASKS], load[BVH__EMIT_TASKS], nt = nthreads, k, t;
     bvh__emit_job job;
     uint32_t ntasks = 1;
-    tasks[0].si = src_count - 1; tasks[0].di = 0; tasks[0].node = 1; tasks[0].ref = 0;
+    tasks[0].si = src_count - 1;
+    tasks[0].di = 0;
+    tasks[0].node = 1;
+    tasks[0].ref = 0;
     if (nt > BVH__EMIT_TASKS / 4) nt = BVH__EMIT_TASKS / 4;
     while (nt > 1 && ntasks + 1 < BVH__EMIT_TASKS) {
         /* expand the largest task that is an interior node in the output */
@@ -1906,7 +2035,8 @@ static bvh_result bvh__emit_tasks(const bvh__ctx *c, const bvh__sizes *q, const 
         for (k = 0; k < ntasks; k++) {
             const bvh_node *s = &src[tasks[k].si];
             if (!s->count && !(cnt[tasks[k].si] & BVH__COLLAPSE_BIT) && size[tasks[k].si] > bigsize) {
-                big = k; bigsize = size[tasks[k].si];
+                big = k;
+                bigsize = size[tasks[k].si];
             }
         }
         if (big == ntasks || 2 * (size_t)bigsize < BVH__MIN_PRIMS_PER_THREAD) break;
@@ -1915,23 +2045,37 @@ static bvh_result bvh__emit_tasks(const bvh__ctx *c, const bvh__sizes *q, const 
             const bvh_node *s = &src[x.si];
             bvh_node *d = &o->nodes[x.di];
             uint32_t l = s->index;
-            d->min = s->min; d->max = s->max;
-            d->index = x.node; d->count = 0;
-            tasks[big].si = l; tasks[big].di = x.node; tasks[big].node = x.node + 2; tasks[big].ref = x.ref;
-            tasks[ntasks].si = l + 1; tasks[ntasks].di = x.node + 1;
-            tasks[ntasks].node = x.node + 1 + size[l]; tasks[ntasks].ref = x.ref + (cnt[l] & ~BVH__COLLAPSE_BIT);
+            d->min = s->min;
+            d->max = s->max;
+            d->index = x.node;
+            d->count = 0;
+            tasks[big].si = l;
+            tasks[big].di = x.node;
+            tasks[big].node = x.node + 2;
+            tasks[big].ref = x.ref;
+            tasks[ntasks].si = l + 1;
+            tasks[ntasks].di = x.node + 1;
+            tasks[ntasks].node = x.node + 1 + size[l];
+            tasks[ntasks].ref = x.ref + (cnt[l] & ~BVH__COLLAPSE_BIT);
             ntasks++;
         }
     }
     for (t = 0; t < nt; t++) load[t] = 0;
     for (k = 0; k < ntasks; k++) { /* greedy: each task to the least loaded thread so far */
         uint32_t least = 0;
-        for (t = 1; t < nt; t++) if (load[t] < load[least]) least = t;
+        for (t = 1; t < nt; t++)
+            if (load[t] < load[least]) least = t;
         owner[k] = least;
         load[least] += size[tasks[k].si];
     }
-    job.src = src; job.map = map; job.cnt = cnt; job.size = size; job.o = o;
-    job.tasks = tasks; job.owner = owner; job.task_count = ntasks;
+    job.src = src;
+    job.map = map;
+    job.cnt = cnt;
+    job.size = size;
+    job.o = o;
+    job.tasks = tasks;
+    job.owner = owner;
+    job.task_count = ntasks;
     return bvh__run(c, nt, 0, bvh__emit_team_fn, &job);
 }
 
@@ -1947,7 +2091,9 @@ static bvh_result bvh__emit_rebuild(const bvh__ctx *c, const bvh__sizes *q, cons
     uint32_t stack[3 * (BVH_MAX_DEPTH + 2)], small[2 * BVH__MAX_LEAF + 8], *gather = NULL, sp = 0;
     bvh_result r = BVH_SUCCESS;
     o->node_count = 1;
-    stack[sp++] = src_count - 1; stack[sp++] = 0; stack[sp++] = 1;
+    stack[sp++] = src_count - 1;
+    stack[sp++] = 0;
+    stack[sp++] = 1;
     while (sp) {
         uint32_t level = stack[--sp], di = stack[--sp], si = stack[--sp];
         const bvh_node *s = &src[si];
@@ -1960,21 +2106,34 @@ static bvh_result bvh__emit_rebuild(const bvh__ctx *c, const bvh__sizes *q, cons
             /* gather every primitive below si: a small subtree, or (rarely) a too deep one */
             uint32_t first = o->ref_count, n = cnt[si] & ~BVH__COLLAPSE_BIT, *g = small;
             if (too_deep) {
-                if (!gather && !(gather = BVH__ALLOC(&c->al, uint32_t, src_count))) { r = BVH_ERROR_OUT_OF_MEMORY; break; }
+                if (!gather && !(gather = BVH__ALLOC(&c->al, uint32_t, src_count))) {
+                    r = BVH_ERROR_OUT_OF_MEMORY;
+                    break;
+                }
                 g = gather;
             }
             o->ref_count += bvh__gather_refs(src, map, si, g, o->refs + first);
-            if (too_deep) { bvh__median_build(c, o, di, first, n); continue; }
-            d->min = s->min; d->max = s->max;
-            d->index = first; d->count = n;
+            if (too_deep) {
+                bvh__median_build(c, o, di, first, n);
+                continue;
+            }
+            d->min = s->min;
+            d->max = s->max;
+            d->index = first;
+            d->count = n;
             continue;
         }
-        d->min = s->min; d->max = s->max;
+        d->min = s->min;
+        d->max = s->max;
         d->count = 0;
         d->index = o->node_count;
         o->node_count += 2;
-        stack[sp++] = s->index + 1; stack[sp++] = d->index + 1; stack[sp++] = level + 1;
-        stack[sp++] = s->index; stack[sp++] = d->index; stack[sp++] = level + 1;
+        stack[sp++] = s->index + 1;
+        stack[sp++] = d->index + 1;
+        stack[sp++] = level + 1;
+        stack[sp++] = s->index;
+        stack[sp++] = d->index;
+        stack[sp++] = level + 1;
     }
     bvh__free(&c->al, gather);
     return r;
@@ -1988,7 +2147,7 @@ static bvh_result bvh__emit_rebuild(const bvh__ctx *c, const bvh__sizes *q, cons
 static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src_count, const uint32_t *map,
                             int collapse, uint32_t nthreads, const uint32_t *blocks, uint32_t block_count,
                             bvh__out *o) {
-    uint32_t *cnt = BVH__ALLOC(&c->al, uint32_t, src_count); /* prims below; top bit: collapsed */
+    uint32_t *cnt = BVH__ALLOC(&c->al, uint32_t, src_count);  /* prims below; top bit: collapsed */
     uint32_t *size = BVH__ALLOC(&c->al, uint32_t, src_count); /* output nodes below, itself included */
     uint8_t *height = BVH__ALLOC(&c->al, uint8_t, src_count); /* after collapsing, capped at 255 */
     /* with blocks, the costs' array is also pass 2's pos (bvh__place) */
@@ -1998,8 +2157,16 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
     int shallow;
     bvh__sizes q;
     bvh_result r = BVH_SUCCESS;
-    if (!cnt || !size || !height || ((collapse || blocks) && !cost)) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
-    q.c = c; q.src = src; q.cnt = cnt; q.size = size; q.height = height; q.cost = collapse ? cost : NULL;
+    if (!cnt || !size || !height || ((collapse || blocks) && !cost)) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    q.c = c;
+    q.src = src;
+    q.cnt = cnt;
+    q.size = size;
+    q.height = height;
+    q.cost = collapse ? cost : NULL;
     q.blocks = blocks ? blocks : &src_count;
     q.block_count = blocks ? block_count : 1;
     r = bvh__run(c, blocks ? nthreads : 1, 1, bvh__sizes_fn, &q);
@@ -2051,7 +2218,10 @@ static bvh_result bvh__build_bottom_up(const bvh__ctx *c, bvh__out *o) {
     if (r != BVH_SUCCESS) goto done;
     bvh__team_run(&c->al, 1, bvh__morton_team_fn, &job);
     bvh__stage_in(c->prog, 0.5f, 1.0f);
-    if (bvh__report(c->prog, 0.0)) { r = BVH_ERROR_CANCELLED; goto done; }
+    if (bvh__report(c->prog, 0.0)) {
+        r = BVH_ERROR_CANCELLED;
+        goto done;
+    }
     for (i = 0; i < leaves; i++) {
         uint32_t b = i * c->max_leaf, e = b + c->max_leaf < c->n ? b + c->max_leaf : c->n, k;
         bvh_aabb box = bvh__empty();
@@ -2061,7 +2231,8 @@ static bvh_result bvh__build_bottom_up(const bvh__ctx *c, bvh__out *o) {
         src[count].count = e - b;
         count++;
     }
-    level = 0; len = leaves;
+    level = 0;
+    len = leaves;
     while (len > 1) {
         uint32_t next = count;
         for (i = 0; i + 1 < len; i += 2) {
@@ -2101,24 +2272,27 @@ typedef struct bvh__ploc {
     const bvh__ctx *c;
     bvh__morton_job mj;
     bvh_node *cin, *cout, *src;
-    uint64_t *best;    /* per cluster: distance bits << 32 | tie key (see bvh__ploc_offer) */
-    uint64_t *bnd;     /* per thread, radius entries: best offers to the next chunk's clusters */
+    uint64_t *best;               /* per cluster: distance bits << 32 | tie key (see bvh__ploc_offer) */
+    uint64_t *bnd;                /* per thread, radius entries: best offers to the next chunk's clusters */
     uint32_t *merges, *survivors; /* per thread */
-    uint8_t *role;     /* per cluster, this iteration: see the merging decisions */
-    bvh__nn *nn;       /* per thread: the neighbour search's block buffers, in nn_f and nn_i */
+    uint8_t *role;                /* per cluster, this iteration: see the merging decisions */
+    bvh__nn *nn;                  /* per thread: the neighbour search's block buffers, in nn_f and nn_i */
     float *nn_f;
     int32_t *nn_i;
-    uint32_t *blocks;  /* end of src after each iteration, then after the root (for bvh__emit) */
+    uint32_t *blocks; /* end of src after each iteration, then after the root (for bvh__emit) */
     uint32_t block_count, block_cap, radius, root;
-    uint32_t top_cut;  /* bvh__ploc_top: top_m clusters were left when their count first fell */
+    uint32_t top_cut;                      /* bvh__ploc_top: top_m clusters were left when their count first fell */
     uint32_t top_m, top_slots, top_blocks; /* to top_cut; then src and blocks held this much */
-    int stop;          /* the build was cancelled (set by thread 0 before an iteration's first barrier) */
+    int stop; /* the build was cancelled (set by thread 0 before an iteration's first barrier) */
 } bvh__ploc;
 /* Room for every iteration's end and the root's: each iteration merges at least a 32nd of the
    clusters (or pairs them all), which bounds the count (about 660 for 2^30 primitives). */
 static uint32_t bvh__ploc_block_cap(uint32_t n) {
     uint32_t k = 1, m = n;
-    while (m > 1) { m -= m / 32 ? m / 32 : 1; k++; }
+    while (m > 1) {
+        m -= m / 32 ? m / 32 : 1;
+        k++;
+    }
     return k;
 }
 
@@ -2147,11 +2321,11 @@ BVH__INLINE uint32_t bvh__ploc_neighbour(uint32_t i, uint64_t best) {
    smaller distance, then smaller k, then the parity and side bits. Keys are the bits with the
    sign bit flipped, so that signed 32-bit comparisons order them as unsigned ones. */
 #define BVH__NN_BLOCK 256u
-struct bvh__nn { /* arrays of bvh__nn_block(n) entries (rd, rk) or that + r (the others) */
-    float *lo[3], *hi[3];  /* boxes of i0 .. i0 + nb + r */
-    int32_t *rd, *ld;      /* best distance key right/left */
-    int32_t *rk, *lk;      /* its offset k; 0: no offer yet */
-    size_t block;          /* clusters per block, bvh__nn_block(n) */
+struct bvh__nn {          /* arrays of bvh__nn_block(n) entries (rd, rk) or that + r (the others) */
+    float *lo[3], *hi[3]; /* boxes of i0 .. i0 + nb + r */
+    int32_t *rd, *ld;     /* best distance key right/left */
+    int32_t *rk, *lk;     /* its offset k; 0: no offer yet */
+    size_t block;         /* clusters per block, bvh__nn_block(n) */
 };
 /* Clusters per block: BVH__NN_BLOCK, or on inputs under 4 blocks n / 4 rounded up to the vector
    width, at least 64: there the buffers are a good part of the peak memory (500 triangles: 10 of
@@ -2169,7 +2343,8 @@ __attribute__((target("avx2"))) static void bvh__ploc_pairs8(bvh__nn *w, size_t 
     for (k = 1; k <= r; k++) {
         const float *lx = w->lo[0], *ly = w->lo[1], *lz = w->lo[2], *hx = w->hi[0], *hy = w->hi[1], *hz = w->hi[2];
         int32_t *rd = w->rd, *ld = w->ld + k, *rk = w->rk, *lk = w->lk + k;
-        const __m256i kk = _mm256_set1_epi32((int)k), zero = _mm256_setzero_si256(), flip = _mm256_set1_epi32(INT32_MIN);
+        const __m256i kk = _mm256_set1_epi32((int)k), zero = _mm256_setzero_si256(),
+                      flip = _mm256_set1_epi32(INT32_MIN);
         const __m256i limv = _mm256_set1_epi32(lim), lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
         for (q = 0; q < nbr; q += 8) {
             __m256 dx = _mm256_sub_ps(_mm256_max_ps(_mm256_loadu_ps(hx + q), _mm256_loadu_ps(hx + q + k)),
@@ -2178,16 +2353,19 @@ __attribute__((target("avx2"))) static void bvh__ploc_pairs8(bvh__nn *w, size_t 
                                       _mm256_min_ps(_mm256_loadu_ps(ly + q), _mm256_loadu_ps(ly + q + k)));
             __m256 dz = _mm256_sub_ps(_mm256_max_ps(_mm256_loadu_ps(hz + q), _mm256_loadu_ps(hz + q + k)),
                                       _mm256_min_ps(_mm256_loadu_ps(lz + q), _mm256_loadu_ps(lz + q + k)));
-            __m256 d = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(dx, dy), _mm256_mul_ps(dy, dz)), _mm256_mul_ps(dz, dx));
+            __m256 d =
+                _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(dx, dy), _mm256_mul_ps(dy, dz)), _mm256_mul_ps(dz, dx));
             __m256i key = _mm256_xor_si256(_mm256_castps_si256(d), flip);
             __m256i ok = _mm256_cmpgt_epi32(limv, _mm256_add_epi32(_mm256_set1_epi32((int)(q + k)), lane));
             __m256i cr = _mm256_loadu_si256((const __m256i *)(const void *)(rd + q));
             __m256i cl = _mm256_loadu_si256((const __m256i *)(const void *)(ld + q));
             __m256i kr = _mm256_loadu_si256((const __m256i *)(const void *)(rk + q));
             __m256i kl = _mm256_loadu_si256((const __m256i *)(const void *)(lk + q));
-            __m256i tr = _mm256_and_si256(ok, _mm256_or_si256(_mm256_cmpeq_epi32(kr, zero), _mm256_cmpgt_epi32(cr, key)));
-            __m256i tl = _mm256_and_si256(ok, _mm256_or_si256(_mm256_or_si256(_mm256_cmpeq_epi32(kl, zero), _mm256_cmpgt_epi32(cl, key)),
-                                                              _mm256_and_si256(_mm256_cmpeq_epi32(key, cl), _mm256_cmpgt_epi32(kl, kk))));
+            __m256i tr =
+                _mm256_and_si256(ok, _mm256_or_si256(_mm256_cmpeq_epi32(kr, zero), _mm256_cmpgt_epi32(cr, key)));
+            __m256i tl = _mm256_and_si256(
+                ok, _mm256_or_si256(_mm256_or_si256(_mm256_cmpeq_epi32(kl, zero), _mm256_cmpgt_epi32(cl, key)),
+                                    _mm256_and_si256(_mm256_cmpeq_epi32(key, cl), _mm256_cmpgt_epi32(kl, kk))));
             _mm256_storeu_si256((__m256i *)(void *)(rd + q), _mm256_blendv_epi8(cr, key, tr));
             _mm256_storeu_si256((__m256i *)(void *)(rk + q), _mm256_blendv_epi8(kr, kk, tr));
             _mm256_storeu_si256((__m256i *)(void *)(ld + q), _mm256_blendv_epi8(cl, key, tl));
@@ -2204,7 +2382,10 @@ static void bvh__ploc_pairs(bvh__nn *w, size_t nbr, uint32_t r, int32_t lim, int
     size_t q;
     uint32_t k;
 #ifdef BVH__AVX2
-    if (wide) { bvh__ploc_pairs8(w, nbr, r, lim); return; }
+    if (wide) {
+        bvh__ploc_pairs8(w, nbr, r, lim);
+        return;
+    }
 #else
     (void)wide;
 #endif
@@ -2231,12 +2412,17 @@ static void bvh__ploc_pairs(bvh__nn *w, size_t nbr, uint32_t r, int32_t lim, int
             /* right: offsets arrive in increasing k, so a strictly smaller key wins */
             __m128i tr = _mm_and_si128(ok, _mm_or_si128(_mm_cmpeq_epi32(kr, zero), _mm_cmplt_epi32(key, cr)));
             /* left (j = i0 + q + k): offers carried from the previous block have larger k */
-            __m128i tl = _mm_and_si128(ok, _mm_or_si128(_mm_or_si128(_mm_cmpeq_epi32(kl, zero), _mm_cmplt_epi32(key, cl)),
-                                                        _mm_and_si128(_mm_cmpeq_epi32(key, cl), _mm_cmplt_epi32(kk, kl))));
-            _mm_storeu_si128((__m128i *)(void *)(rd + q), _mm_or_si128(_mm_and_si128(tr, key), _mm_andnot_si128(tr, cr)));
-            _mm_storeu_si128((__m128i *)(void *)(rk + q), _mm_or_si128(_mm_and_si128(tr, kk), _mm_andnot_si128(tr, kr)));
-            _mm_storeu_si128((__m128i *)(void *)(ld + q), _mm_or_si128(_mm_and_si128(tl, key), _mm_andnot_si128(tl, cl)));
-            _mm_storeu_si128((__m128i *)(void *)(lk + q), _mm_or_si128(_mm_and_si128(tl, kk), _mm_andnot_si128(tl, kl)));
+            __m128i tl =
+                _mm_and_si128(ok, _mm_or_si128(_mm_or_si128(_mm_cmpeq_epi32(kl, zero), _mm_cmplt_epi32(key, cl)),
+                                               _mm_and_si128(_mm_cmpeq_epi32(key, cl), _mm_cmplt_epi32(kk, kl))));
+            _mm_storeu_si128((__m128i *)(void *)(rd + q),
+                             _mm_or_si128(_mm_and_si128(tr, key), _mm_andnot_si128(tr, cr)));
+            _mm_storeu_si128((__m128i *)(void *)(rk + q),
+                             _mm_or_si128(_mm_and_si128(tr, kk), _mm_andnot_si128(tr, kr)));
+            _mm_storeu_si128((__m128i *)(void *)(ld + q),
+                             _mm_or_si128(_mm_and_si128(tl, key), _mm_andnot_si128(tl, cl)));
+            _mm_storeu_si128((__m128i *)(void *)(lk + q),
+                             _mm_or_si128(_mm_and_si128(tl, kk), _mm_andnot_si128(tl, kl)));
         }
 #else
         for (q = 0; q < nbr; q++) {
@@ -2249,8 +2435,14 @@ static void bvh__ploc_pairs(bvh__nn *w, size_t nbr, uint32_t r, int32_t lim, int
             if ((int32_t)(q + k) >= lim) continue;
             memcpy(&bits, &d, sizeof bits);
             key = (int32_t)(bits ^ 0x80000000u);
-            if (rk[q] == 0 || key < rd[q]) { rd[q] = key; rk[q] = (int32_t)k; }
-            if (lk[q] == 0 || key < ld[q] || (key == ld[q] && (int32_t)k < lk[q])) { ld[q] = key; lk[q] = (int32_t)k; }
+            if (rk[q] == 0 || key < rd[q]) {
+                rd[q] = key;
+                rk[q] = (int32_t)k;
+            }
+            if (lk[q] == 0 || key < ld[q] || (key == ld[q] && (int32_t)k < lk[q])) {
+                ld[q] = key;
+                lk[q] = (int32_t)k;
+            }
         }
 #endif
     }
@@ -2260,7 +2452,10 @@ static void bvh__ploc_search(bvh__nn *w, const bvh_node *cin, uint32_t count, ui
     size_t i0, q, i;
     const int wide = bvh__have_avx2();
     const size_t vw = wide ? 8 : 4;
-    for (q = 0; q < r; q++) { w->ld[q] = 0; w->lk[q] = 0; }
+    for (q = 0; q < r; q++) {
+        w->ld[q] = 0;
+        w->lk[q] = 0;
+    }
     for (i0 = b; i0 < e; i0 += w->block) {
         /* Rounded up to the vector width (8 pairs at a time with AVX2, else 4): clusters past e
            make genuine offers, which the thread that owns them makes too (a minimum does not mind
@@ -2271,19 +2466,29 @@ static void bvh__ploc_search(bvh__nn *w, const bvh_node *cin, uint32_t count, ui
         for (q = 0; q < nbr + r; q++) {
             if (i0 + q < count) {
                 const bvh_node *n = &cin[i0 + q];
-                w->lo[0][q] = n->min.x; w->lo[1][q] = n->min.y; w->lo[2][q] = n->min.z;
-                w->hi[0][q] = n->max.x; w->hi[1][q] = n->max.y; w->hi[2][q] = n->max.z;
+                w->lo[0][q] = n->min.x;
+                w->lo[1][q] = n->min.y;
+                w->lo[2][q] = n->min.z;
+                w->hi[0][q] = n->max.x;
+                w->hi[1][q] = n->max.y;
+                w->hi[2][q] = n->max.z;
             } else {
                 w->lo[0][q] = w->lo[1][q] = w->lo[2][q] = w->hi[0][q] = w->hi[1][q] = w->hi[2][q] = 0.0f;
             }
         }
-        for (q = 0; q < nbr; q++) { w->rd[q] = 0; w->rk[q] = 0; w->ld[r + q] = 0; w->lk[r + q] = 0; }
+        for (q = 0; q < nbr; q++) {
+            w->rd[q] = 0;
+            w->rk[q] = 0;
+            w->ld[r + q] = 0;
+            w->lk[r + q] = 0;
+        }
         bvh__ploc_pairs(w, nbr, r, lim, wide);
         for (q = 0; q < nb; q++) {
             uint64_t right = ~(uint64_t)0, left = ~(uint64_t)0;
             i = i0 + q;
             if (w->rk[q]) right = bvh__ploc_offer(w->rd[q], (uint32_t)w->rk[q], (uint32_t)i & 1u, 1);
-            if (w->lk[q]) left = bvh__ploc_offer(w->ld[q], (uint32_t)w->lk[q], (uint32_t)(i - (uint32_t)w->lk[q]) & 1u, 0);
+            if (w->lk[q])
+                left = bvh__ploc_offer(w->ld[q], (uint32_t)w->lk[q], (uint32_t)(i - (uint32_t)w->lk[q]) & 1u, 0);
             best[i] = BVH__MIN64(left, right);
         }
         /* the left offers to the next r clusters move to the front */
@@ -2308,7 +2513,8 @@ static void bvh__ploc_init_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     for (i = b; i < e; i++) {
         if (i + BVH__GATHER_AHEAD < e) { /* the boxes are read in Morton order, at random: ask ahead */
             const char *x = (const char *)&c->boxes[p->mj.sort.vals[i + BVH__GATHER_AHEAD]];
-            BVH__PREFETCH(x); BVH__PREFETCH(x + sizeof(bvh_aabb) - 1);
+            BVH__PREFETCH(x);
+            BVH__PREFETCH(x + sizeof(bvh_aabb) - 1);
         }
         bvh__set_box(&p->cin[i], c->boxes[p->mj.sort.vals[i]]);
         p->cin[i].index = (uint32_t)i;
@@ -2331,7 +2537,9 @@ typedef struct bvh__ploc_iter {
 static void bvh__ploc_begin(bvh__ploc *p, bvh__ploc_iter *it, uint32_t nt, int lead) {
     const bvh__ctx *c = p->c;
     if (lead && !p->top_m && it->count <= p->top_cut) { /* where the SAH top would start */
-        p->top_m = it->count; p->top_slots = it->slots; p->top_blocks = p->block_count;
+        p->top_m = it->count;
+        p->top_slots = it->slots;
+        p->top_blocks = p->block_count;
     }
     it->active = it->count / (4 * p->radius + 256);
     if (it->active < 1) it->active = 1;
@@ -2345,7 +2553,10 @@ static void bvh__ploc_begin(bvh__ploc *p, bvh__ploc_iter *it, uint32_t nt, int l
 static int bvh__ploc_totals(const bvh__ploc *p, uint32_t count, uint32_t nt, uint32_t *surv, uint32_t *merge) {
     uint32_t t;
     *surv = *merge = 0;
-    for (t = 0; t < nt; t++) { *surv += p->survivors[t]; *merge += p->merges[t]; }
+    for (t = 0; t < nt; t++) {
+        *surv += p->survivors[t];
+        *merge += p->merges[t];
+    }
     if (*merge * 32 >= count) return 0;
     *merge = count / 2;
     *surv = count - *merge;
@@ -2392,7 +2603,10 @@ static void bvh__ploc_step(bvh__ploc *p, const bvh__ploc_iter *it, int k, uint32
             }
         }
     } else { /* merge and compact, at the positions the earlier chunks' counts give */
-        for (t = 0; t < tid; t++) { pos += p->survivors[t]; slot += 2 * p->merges[t]; }
+        for (t = 0; t < tid; t++) {
+            pos += p->survivors[t];
+            slot += 2 * p->merges[t];
+        }
         slot += slots;
         for (i = b; i < e; i++) {
             uint8_t role = p->role[i];
@@ -2422,11 +2636,15 @@ static void bvh__ploc_advance(bvh__ploc *p, bvh__ploc_iter *it, uint32_t nt, int
         if (p->block_count < p->block_cap) p->blocks[p->block_count] = it->slots;
         p->block_count++;
     }
-    it->cin = it->cout; it->cout = tmp;
+    it->cin = it->cout;
+    it->cout = tmp;
 }
 static void bvh__ploc_iter_init(const bvh__ploc *p, bvh__ploc_iter *it) {
-    it->cin = p->cin; it->cout = p->cout;
-    it->count = p->c->n; it->slots = 0; it->active = 1;
+    it->cin = p->cin;
+    it->cout = p->cout;
+    it->count = p->c->n;
+    it->slots = 0;
+    it->active = 1;
 }
 /* After the last iteration (unless cancelled): the root. */
 static void bvh__ploc_finish(bvh__ploc *p, const bvh__ploc_iter *it) {
@@ -2454,7 +2672,11 @@ static void bvh__ploc_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     if (tid == 0) bvh__ploc_finish(p, &it);
 }
 /* The clustering loop on a caller's pool: each step one run of nt tasks. */
-typedef struct bvh__ploc_run { bvh__ploc *p; const bvh__ploc_iter *it; int k; } bvh__ploc_run;
+typedef struct bvh__ploc_run {
+    bvh__ploc *p;
+    const bvh__ploc_iter *it;
+    int k;
+} bvh__ploc_run;
 static void bvh__ploc_step_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     const bvh__ploc_run *x = BVH__CAST(const bvh__ploc_run *, arg);
     (void)team;
@@ -2465,7 +2687,8 @@ static bvh_result bvh__ploc_steps(bvh__ploc *p, uint32_t nt) {
     bvh__ploc_run x;
     bvh_result r;
     bvh__ploc_iter_init(p, &it);
-    x.p = p; x.it = &it;
+    x.p = p;
+    x.it = &it;
     while (it.count > 1) {
         bvh__ploc_begin(p, &it, nt, 1);
         if (p->stop) return BVH_SUCCESS;
@@ -2500,19 +2723,42 @@ BVH__INLINE void bvh__f4_slots(uint32_t *p, bvh__f4 a) { /* lanes 0-2 truncated,
     p[2] = (uint32_t)_mm_cvtsi128_si32(_mm_shuffle_epi32(x, 2));
 }
 #else
-typedef struct bvh__f4 { float v[4]; } bvh__f4;
-BVH__INLINE bvh__f4 bvh__f4_at(const void *p) { bvh__f4 r; memcpy(r.v, p, sizeof r.v); return r; }
-BVH__INLINE bvh__f4 bvh__f4_at3(const void *p) { bvh__f4 r; memcpy(r.v, p, 3 * sizeof(float)); r.v[3] = 0.0f; return r; }
-BVH__INLINE bvh__f4 bvh__f4_set(float x) { bvh__f4 r; r.v[0] = r.v[1] = r.v[2] = r.v[3] = x; return r; }
-#define BVH__F4_OP(name, expr) \
-    BVH__INLINE bvh__f4 name(bvh__f4 a, bvh__f4 b) { bvh__f4 r; int k; for (k = 0; k < 4; k++) r.v[k] = expr; return r; }
+typedef struct bvh__f4 {
+    float v[4];
+} bvh__f4;
+BVH__INLINE bvh__f4 bvh__f4_at(const void *p) {
+    bvh__f4 r;
+    memcpy(r.v, p, sizeof r.v);
+    return r;
+}
+BVH__INLINE bvh__f4 bvh__f4_at3(const void *p) {
+    bvh__f4 r;
+    memcpy(r.v, p, 3 * sizeof(float));
+    r.v[3] = 0.0f;
+    return r;
+}
+BVH__INLINE bvh__f4 bvh__f4_set(float x) {
+    bvh__f4 r;
+    r.v[0] = r.v[1] = r.v[2] = r.v[3] = x;
+    return r;
+}
+#define BVH__F4_OP(name, expr)                                                                                         \
+    BVH__INLINE bvh__f4 name(bvh__f4 a, bvh__f4 b) {                                                                   \
+        bvh__f4 r;                                                                                                     \
+        int k;                                                                                                         \
+        for (k = 0; k < 4; k++) r.v[k] = expr;                                                                         \
+        return r;                                                                                                      \
+    }
 BVH__F4_OP(bvh__f4_min, a.v[k] < b.v[k] ? a.v[k] : b.v[k])
 BVH__F4_OP(bvh__f4_max, a.v[k] > b.v[k] ? a.v[k] : b.v[k])
 BVH__F4_OP(bvh__f4_add, a.v[k] + b.v[k])
 BVH__F4_OP(bvh__f4_sub, a.v[k] - b.v[k])
 BVH__F4_OP(bvh__f4_mul, a.v[k] * b.v[k])
 BVH__INLINE void bvh__f4_put(float *p, bvh__f4 a) { memcpy(p, a.v, sizeof a.v); }
-BVH__INLINE void bvh__f4_slots(uint32_t *p, bvh__f4 a) { int k; for (k = 0; k < 3; k++) p[k] = (uint32_t)a.v[k]; }
+BVH__INLINE void bvh__f4_slots(uint32_t *p, bvh__f4 a) {
+    int k;
+    for (k = 0; k < 3; k++) p[k] = (uint32_t)a.v[k];
+}
 #endif
 /* The half area of lanes 0-2, summed (xy + zx) + yz where bvh__half_area sums (xy + yz) + zx: the
    same quantity rounded differently, so PLOC's top keeps its own (its trees depend on it). */
@@ -2538,8 +2784,13 @@ BVH__INLINE float bvh__f4_half_area(bvh__f4 lo, bvh__f4 hi) {
 /* Clusters [b, e) of buffer `buf` (0 or 1) become internal node `id` and the nodes below it (ids
    in pre-order: the left subtree from id + 1, the right from id + its left count); lo, hi: the
    bounds of their boxes; clo, chi: a range of their centroids (doubled: lo + hi) to bin over. */
-typedef struct bvh__top_task { bvh__f4 lo, hi, clo, chi; uint32_t id, b, e, buf, pmin, pmax; } bvh__top_task;
-typedef struct bvh__top_bin { bvh__f4 lo, hi; } bvh__top_bin;
+typedef struct bvh__top_task {
+    bvh__f4 lo, hi, clo, chi;
+    uint32_t id, b, e, buf, pmin, pmax;
+} bvh__top_task;
+typedef struct bvh__top_bin {
+    bvh__f4 lo, hi;
+} bvh__top_bin;
 typedef struct bvh__top_job {
     bvh_node *v[2]; /* the clusters (index: their place in PLOC's order) and a second buffer */
     bvh_node *nodes;
@@ -2549,7 +2800,9 @@ typedef struct bvh__top_job {
     const uint32_t *par, *first, *cc, *lcc, *leaf;
     uint32_t task_count, busy, grain;
 } bvh__top_job;
-BVH__INLINE bvh__f4 bvh__top_centre(const bvh_node *x) { return bvh__f4_add(bvh__f4_at3(&x->min), bvh__f4_at3(&x->max)); }
+BVH__INLINE bvh__f4 bvh__top_centre(const bvh_node *x) {
+    return bvh__f4_add(bvh__f4_at3(&x->min), bvh__f4_at3(&x->max));
+}
 /* The bin of centre c (doubled) on each axis, clamped to [0, last]: binning and partition agree. */
 BVH__INLINE void bvh__top_slots(bvh__f4 c, const bvh__top_task *t, bvh__f4 scale, bvh__f4 last, uint32_t s[3]) {
     bvh__f4_slots(s, bvh__f4_min(bvh__f4_max(bvh__f4_mul(bvh__f4_sub(c, t->clo), scale), bvh__f4_set(0.0f)), last));
@@ -2559,12 +2812,21 @@ static void bvh__top_bounds(const bvh_node *v, uint32_t b, uint32_t e, bvh__top_
     uint32_t i, pmin = BVH__TOP_NONE, pmax = 0;
     for (i = b; i < e; i++) {
         bvh__f4 l = bvh__f4_at3(&v[i].min), h = bvh__f4_at3(&v[i].max), c = bvh__f4_add(l, h);
-        lo = bvh__f4_min(lo, l); hi = bvh__f4_max(hi, h);
-        clo = bvh__f4_min(clo, c); chi = bvh__f4_max(chi, c);
+        lo = bvh__f4_min(lo, l);
+        hi = bvh__f4_max(hi, h);
+        clo = bvh__f4_min(clo, c);
+        chi = bvh__f4_max(chi, c);
         pmin = v[i].index < pmin ? v[i].index : pmin;
         pmax = v[i].index > pmax ? v[i].index : pmax;
     }
-    t->lo = lo; t->hi = hi; t->clo = clo; t->chi = chi; t->b = b; t->e = e; t->pmin = pmin; t->pmax = pmax;
+    t->lo = lo;
+    t->hi = hi;
+    t->clo = clo;
+    t->chi = chi;
+    t->b = b;
+    t->e = e;
+    t->pmin = pmin;
+    t->pmax = pmax;
 }
 /* PLOC's own split of clusters in [a, b] (a < b; clusters numbered in PLOC's left-to-right
    order): that of their lowest common ancestor in PLOC's top, as the first cluster number on
@@ -2584,9 +2846,14 @@ static uint32_t bvh__top_ploc_split(const bvh__top_job *j, uint32_t a, uint32_t 
    under node id + 1 (the best of the three trees); no bins. */
 static void bvh__top_put(bvh_node *d, bvh__f4 lo, bvh__f4 hi) {
     float l[4], h[4];
-    bvh__f4_put(l, lo); bvh__f4_put(h, hi);
-    d->min.x = l[0]; d->min.y = l[1]; d->min.z = l[2];
-    d->max.x = h[0]; d->max.y = h[1]; d->max.z = h[2];
+    bvh__f4_put(l, lo);
+    bvh__f4_put(h, hi);
+    d->min.x = l[0];
+    d->min.y = l[1];
+    d->min.z = l[2];
+    d->max.x = h[0];
+    d->max.y = h[1];
+    d->max.z = h[2];
 }
 static void bvh__top_small(const bvh__top_job *j, const bvh__top_task *t) {
     const bvh_node *v = j->v[t->buf] + t->b;
@@ -2600,13 +2867,19 @@ static void bvh__top_small(const bvh__top_job *j, const bvh__top_task *t) {
         bvh__f4 lo[3], hi[3], plo[3], phi[3];
         float best = BVH_INF;
         int k, q = 0;
-        for (k = 0; k < 3; k++) { lo[k] = bvh__f4_at3(&v[k].min); hi[k] = bvh__f4_at3(&v[k].max); }
+        for (k = 0; k < 3; k++) {
+            lo[k] = bvh__f4_at3(&v[k].min);
+            hi[k] = bvh__f4_at3(&v[k].max);
+        }
         for (k = 0; k < 3; k++) {
             float a;
             plo[k] = bvh__f4_min(lo[pairs[k][0]], lo[pairs[k][1]]);
             phi[k] = bvh__f4_max(hi[pairs[k][0]], hi[pairs[k][1]]);
             a = bvh__f4_half_area(plo[k], phi[k]);
-            if (a < best) { best = a; q = k; }
+            if (a < best) {
+                best = a;
+                q = k;
+            }
         }
         node->index = t->id + 1;
         node->count = BVH__TOP_CLUSTER | v[pairs[q][2]].index;
@@ -2623,7 +2896,10 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
     bvh__f4 plo[2], phi[2];
     int ba = -1, a;
     bvh__f4 scale, last = bvh__f4_set((float)(nb - 1)), blo[2], bhi[2];
-    if (n <= 3) { bvh__top_small(j, t); return 0; }
+    if (n <= 3) {
+        bvh__top_small(j, t);
+        return 0;
+    }
     bvh__f4_put(ext, bvh__f4_sub(t->chi, t->clo));
     bvh__top_put(node, t->lo, t->hi);
     {
@@ -2632,7 +2908,8 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
         s[3] = 0.0f;
         scale = bvh__f4_at(s);
     }
-    blo[0] = blo[1] = bvh__f4_set(BVH_INF); bhi[0] = bhi[1] = bvh__f4_set(-BVH_INF);
+    blo[0] = blo[1] = bvh__f4_set(BVH_INF);
+    bhi[0] = bhi[1] = bvh__f4_set(-BVH_INF);
     ps = n >= BVH__TOP_PLOC_MIN && t->pmin < t->pmax ? bvh__top_ploc_split(j, t->pmin, t->pmax) : 0;
     { /* n >= 4 here */
         /* two sets of bins, even and odd clusters, so that neighbours (which often share a bin)
@@ -2642,25 +2919,41 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
         for (q = 0; q < sets; q++)
             for (a = 0; a < 3; a++)
                 for (k = 0; k < nb; k++) {
-                    bin[q][a][k].lo = bvh__f4_set(BVH_INF); bin[q][a][k].hi = bvh__f4_set(-BVH_INF);
+                    bin[q][a][k].lo = bvh__f4_set(BVH_INF);
+                    bin[q][a][k].hi = bvh__f4_set(-BVH_INF);
                     cnt[q][a][k] = 0;
                 }
-        plo[0] = plo[1] = bvh__f4_set(BVH_INF); phi[0] = phi[1] = bvh__f4_set(-BVH_INF);
+        plo[0] = plo[1] = bvh__f4_set(BVH_INF);
+        phi[0] = phi[1] = bvh__f4_set(-BVH_INF);
         for (i = b; i < e; i++) {
             uint32_t s[3], side = v[i].index >= ps;
             bvh__top_bin *x;
             bvh__f4 l = bvh__f4_at3(&v[i].min), h = bvh__f4_at3(&v[i].max);
             q = i & qm;
             bvh__top_slots(bvh__f4_add(l, h), t, scale, last, s);
-            x = &bin[q][0][s[0]]; x->lo = bvh__f4_min(x->lo, l); x->hi = bvh__f4_max(x->hi, h);
-            x = &bin[q][1][s[1]]; x->lo = bvh__f4_min(x->lo, l); x->hi = bvh__f4_max(x->hi, h);
-            x = &bin[q][2][s[2]]; x->lo = bvh__f4_min(x->lo, l); x->hi = bvh__f4_max(x->hi, h);
-            cnt[q][0][s[0]]++; cnt[q][1][s[1]]++; cnt[q][2][s[2]]++;
-            plo[side] = bvh__f4_min(plo[side], l); phi[side] = bvh__f4_max(phi[side], h); pc[side]++;
+            x = &bin[q][0][s[0]];
+            x->lo = bvh__f4_min(x->lo, l);
+            x->hi = bvh__f4_max(x->hi, h);
+            x = &bin[q][1][s[1]];
+            x->lo = bvh__f4_min(x->lo, l);
+            x->hi = bvh__f4_max(x->hi, h);
+            x = &bin[q][2][s[2]];
+            x->lo = bvh__f4_min(x->lo, l);
+            x->hi = bvh__f4_max(x->hi, h);
+            cnt[q][0][s[0]]++;
+            cnt[q][1][s[1]]++;
+            cnt[q][2][s[2]]++;
+            plo[side] = bvh__f4_min(plo[side], l);
+            phi[side] = bvh__f4_max(phi[side], h);
+            pc[side]++;
         }
         if (ps && pc[0] && pc[1]) { /* PLOC's split of these clusters, costed the same way */
-            float cost = bvh__f4_half_area(plo[0], phi[0]) * (float)pc[0] + bvh__f4_half_area(plo[1], phi[1]) * (float)pc[1];
-            if (cost < best) { best = cost; ba = 3; }
+            float cost =
+                bvh__f4_half_area(plo[0], phi[0]) * (float)pc[0] + bvh__f4_half_area(plo[1], phi[1]) * (float)pc[1];
+            if (cost < best) {
+                best = cost;
+                ba = 3;
+            }
         }
         for (a = 0; a < 3; a++) {
             float right[BVH__TOP_BINS];
@@ -2673,22 +2966,34 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
                 cnt[0][a][k] += cnt[1][a][k];
             }
             for (k = nb - 1; k > 0; k--) {
-                lo = bvh__f4_min(lo, bin[0][a][k].lo); hi = bvh__f4_max(hi, bin[0][a][k].hi);
+                lo = bvh__f4_min(lo, bin[0][a][k].lo);
+                hi = bvh__f4_max(hi, bin[0][a][k].hi);
                 c += cnt[0][a][k];
                 right[k] = c ? bvh__f4_half_area(lo, hi) * (float)c : -1.0f;
             }
-            lo = bvh__f4_set(BVH_INF); hi = bvh__f4_set(-BVH_INF); c = 0;
+            lo = bvh__f4_set(BVH_INF);
+            hi = bvh__f4_set(-BVH_INF);
+            c = 0;
             for (k = 0; k + 1 < nb; k++) {
                 float cost;
-                lo = bvh__f4_min(lo, bin[0][a][k].lo); hi = bvh__f4_max(hi, bin[0][a][k].hi);
+                lo = bvh__f4_min(lo, bin[0][a][k].lo);
+                hi = bvh__f4_max(hi, bin[0][a][k].hi);
                 c += cnt[0][a][k];
                 if (!c || right[k + 1] < 0.0f) continue;
                 cost = bvh__f4_half_area(lo, hi) * (float)c + right[k + 1];
-                if (cost < best) { best = cost; ba = a; bb = k; }
+                if (cost < best) {
+                    best = cost;
+                    ba = a;
+                    bb = k;
+                }
             }
         }
-        if (ba == 3) { blo[0] = plo[0]; blo[1] = plo[1]; bhi[0] = phi[0]; bhi[1] = phi[1]; }
-        else if (ba >= 0)
+        if (ba == 3) {
+            blo[0] = plo[0];
+            blo[1] = plo[1];
+            bhi[0] = phi[0];
+            bhi[1] = phi[1];
+        } else if (ba >= 0)
             for (k = 0; k < nb; k++) {
                 q = k > bb; /* the side of bin k */
                 blo[q] = bvh__f4_min(blo[q], bin[0][ba][k].lo);
@@ -2704,7 +3009,8 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
             left = ba == 3 ? id < ps : s[axis] <= bb;
             at = left ? l : r;
             w[at] = v[i];
-            l += left; r -= 1u - left;
+            l += left;
+            r -= 1u - left;
             pmin[1 - left] = id < pmin[1 - left] ? id : pmin[1 - left];
             pmax[1 - left] = id > pmax[1 - left] ? id : pmax[1 - left];
         }
@@ -2713,11 +3019,16 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
         for (k = 0; k < 2; k++) {
             kids[k].clo = bvh__f4_max(t->clo, bvh__f4_add(blo[k], blo[k]));
             kids[k].chi = bvh__f4_min(t->chi, bvh__f4_add(bhi[k], bhi[k]));
-            kids[k].lo = blo[k]; kids[k].hi = bhi[k];
+            kids[k].lo = blo[k];
+            kids[k].hi = bhi[k];
             kids[k].buf = t->buf ^ 1u;
-            kids[k].pmin = pmin[k]; kids[k].pmax = pmax[k];
+            kids[k].pmin = pmin[k];
+            kids[k].pmax = pmax[k];
         }
-        kids[0].b = b; kids[0].e = mid; kids[1].b = mid; kids[1].e = e;
+        kids[0].b = b;
+        kids[0].e = mid;
+        kids[1].b = mid;
+        kids[1].e = e;
     }
     if (ba < 0 || mid == b || mid == e) { /* in place: the middle of the range */
         mid = b + n / 2;
@@ -2731,7 +3042,10 @@ static uint32_t bvh__top_split(const bvh__top_job *j, const bvh__top_task *t, bv
     node->index = mid - b == 1 ? BVH__TOP_CLUSTER | w[b].index : kids[0].id;
     node->count = e - mid == 1 ? BVH__TOP_CLUSTER | w[mid].index : kids[1].id;
     if (mid - b > 1) out++;
-    if (e - mid > 1) { if (!out) kids[0] = kids[1]; out++; }
+    if (e - mid > 1) {
+        if (!out) kids[0] = kids[1];
+        out++;
+    }
     return out;
 }
 /* The whole subtree of task t, depth first, the larger side waiting (at most log2 n + 1 tasks wait). */
@@ -2742,7 +3056,11 @@ static void bvh__top_subtree(const bvh__top_job *j, const bvh__top_task *t) {
     while (sp) {
         bvh__top_task cur = st[--sp], kids[2];
         uint32_t k = bvh__top_split(j, &cur, kids);
-        if (k == 2 && kids[0].e - kids[0].b < kids[1].e - kids[1].b) { bvh__top_task x = kids[0]; kids[0] = kids[1]; kids[1] = x; }
+        if (k == 2 && kids[0].e - kids[0].b < kids[1].e - kids[1].b) {
+            bvh__top_task x = kids[0];
+            kids[0] = kids[1];
+            kids[1] = x;
+        }
         if (k >= 1) st[sp++] = kids[0];
         if (k == 2) st[sp++] = kids[1];
     }
@@ -2772,11 +3090,16 @@ static void bvh__top_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *te
         j->tasks[big] = j->tasks[--j->task_count];
         j->busy++;
         pthread_mutex_unlock(&team->mutex);
-        if (t.e - t.b > j->grain) k = bvh__top_split(j, &t, kids);
-        else bvh__top_subtree(j, &t);
+        if (t.e - t.b > j->grain)
+            k = bvh__top_split(j, &t, kids);
+        else
+            bvh__top_subtree(j, &t);
         pthread_mutex_lock(&team->mutex);
         for (i = 0; i < k; i++) {
-            if (j->task_count < BVH__TOP_TASKS) { j->tasks[j->task_count++] = kids[i]; continue; }
+            if (j->task_count < BVH__TOP_TASKS) {
+                j->tasks[j->task_count++] = kids[i];
+                continue;
+            }
             pthread_mutex_unlock(&team->mutex); /* full (not expected): build it here */
             bvh__top_subtree(j, &kids[i]);
             pthread_mutex_lock(&team->mutex);
@@ -2816,18 +3139,30 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
         size_t need = 3 * (size_t)m + 4 * (size_t)L + p->block_cap + 2, room = ((size_t)c->n - 2 * (size_t)m) * 8;
         uint32_t *u = need <= room ? BVH__CAST(uint32_t *, (void *)(p->cout + 2 * (size_t)m)) : NULL;
         if (!u) u = scratch = BVH__ALLOC(&c->al, uint32_t, need);
-        if (!u) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
-        height = u; slot = height + m; leaf = slot + m; par = leaf + m; first = par + L; cc = first + L;
-        lcc = cc + L; off = lcc + L;
+        if (!u) {
+            r = BVH_ERROR_OUT_OF_MEMORY;
+            goto done;
+        }
+        height = u;
+        slot = height + m;
+        leaf = slot + m;
+        par = leaf + m;
+        first = par + L;
+        cc = first + L;
+        lcc = cc + L;
+        off = lcc + L;
     }
     /* PLOC's top is src[base + x], x < L, children before parents: the m clusters are the
        entries made before the cut (or primitives), the others PLOC's nodes above them */
     for (x = 0; x < L; x++) {
         const bvh_node *s = &p->src[base + x];
-        if (s->count || s->index < base) { cc[x] = 1; lcc[x] = 0; }
-        else {
+        if (s->count || s->index < base) {
+            cc[x] = 1;
+            lcc[x] = 0;
+        } else {
             uint32_t l = s->index - base;
-            cc[x] = cc[l] + cc[l + 1]; lcc[x] = cc[l];
+            cc[x] = cc[l] + cc[l + 1];
+            lcc[x] = cc[l];
             par[l] = par[l + 1] = x;
             ploc_cost += bvh__half_area_d(bvh__node_box(s));
         }
@@ -2853,13 +3188,19 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
             first[l + 1] = first[x] + cc[l];
         }
     }
-    job->par = par; job->first = first; job->cc = cc; job->lcc = lcc; job->leaf = leaf;
+    job->par = par;
+    job->first = first;
+    job->cc = cc;
+    job->lcc = lcc;
+    job->leaf = leaf;
     job->nodes = nodes;
     job->tasks = tasks;
     job->task_count = 1;
     job->busy = 0;
-    job->grain = m / (4 * nthreads) > BVH__MIN_PRIMS_PER_THREAD / 4 ? m / (4 * nthreads) : BVH__MIN_PRIMS_PER_THREAD / 4;
-    tasks[0].id = 0; tasks[0].buf = 0;
+    job->grain =
+        m / (4 * nthreads) > BVH__MIN_PRIMS_PER_THREAD / 4 ? m / (4 * nthreads) : BVH__MIN_PRIMS_PER_THREAD / 4;
+    tasks[0].id = 0;
+    tasks[0].buf = 0;
     bvh__top_bounds(job->v[0], 0, m, &tasks[0]);
     r = bvh__run(c, nthreads, 1, bvh__top_team_fn, job);
     if (r != BVH_SUCCESS) goto done;
@@ -2868,9 +3209,13 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
         double sum = bvh__half_area_d(bvh__node_box(&nodes[i]));
         for (h = 0; h < 2; h++) {
             uint32_t y = h ? nodes[i].count : nodes[i].index;
-            if (!(y & BVH__TOP_CLUSTER)) { sum += cost[y]; if (height[y] > hh) hh = height[y]; }
+            if (!(y & BVH__TOP_CLUSTER)) {
+                sum += cost[y];
+                if (height[y] > hh) hh = height[y];
+            }
         }
-        cost[i] = sum; height[i] = hh + 1;
+        cost[i] = sum;
+        height[i] = hh + 1;
         if (height[i] > H) H = height[i];
     }
     top_cost = cost[0];
@@ -2880,20 +3225,35 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
     for (i = 0; i < m - 1; i++) off[height[i]]++;
     {
         uint32_t at = p->top_slots;
-        for (h = 1; h <= H; h++) { uint32_t pairs = off[h]; off[h] = at; at += 2 * pairs; p->blocks[p->top_blocks + h - 1] = at; }
+        for (h = 1; h <= H; h++) {
+            uint32_t pairs = off[h];
+            off[h] = at;
+            at += 2 * pairs;
+            p->blocks[p->top_blocks + h - 1] = at;
+        }
         p->root = at;
         p->blocks[p->top_blocks + H] = at + 1;
         p->block_count = p->top_blocks + H + 1;
     }
-    for (i = 0; i < m - 1; i++) { slot[i] = off[height[i]]; off[height[i]] += 2; }
+    for (i = 0; i < m - 1; i++) {
+        slot[i] = off[height[i]];
+        off[height[i]] += 2;
+    }
     for (i = 0; i < m - 1; i++)
         for (h = 0; h < 2; h++) {
             uint32_t y = h ? nodes[i].count : nodes[i].index;
             bvh_node *d = &p->src[slot[i] + h];
-            if (y & BVH__TOP_CLUSTER) *d = p->cin[y & ~BVH__TOP_CLUSTER];
-            else { d->min = nodes[y].min; d->max = nodes[y].max; d->index = slot[y]; d->count = 0; }
+            if (y & BVH__TOP_CLUSTER)
+                *d = p->cin[y & ~BVH__TOP_CLUSTER];
+            else {
+                d->min = nodes[y].min;
+                d->max = nodes[y].max;
+                d->index = slot[y];
+                d->count = 0;
+            }
         }
-    p->src[p->root].min = nodes[0].min; p->src[p->root].max = nodes[0].max;
+    p->src[p->root].min = nodes[0].min;
+    p->src[p->root].max = nodes[0].max;
     p->src[p->root].index = slot[0];
     p->src[p->root].count = 0;
 done:
@@ -2918,9 +3278,14 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     if (r == BVH_SUCCESS) r = bvh__run(c, nthreads, 1, bvh__ploc_init_fn, &p);
     bvh__stage_in(c->prog, 0.15f, 0.75f);
     /* the clusters now hold the boxes; the sorted keys' array becomes the offers' */
-    bvh__free(&c->al, c->boxes); c->boxes = NULL;
-    bvh__free(&c->al, p.mj.sort.keys_tmp); bvh__free(&c->al, p.mj.sort.vals_tmp); bvh__free(&c->al, p.mj.sort.hist);
-    p.mj.sort.keys_tmp = NULL; p.mj.sort.vals_tmp = NULL; p.mj.sort.hist = NULL;
+    bvh__free(&c->al, c->boxes);
+    c->boxes = NULL;
+    bvh__free(&c->al, p.mj.sort.keys_tmp);
+    bvh__free(&c->al, p.mj.sort.vals_tmp);
+    bvh__free(&c->al, p.mj.sort.hist);
+    p.mj.sort.keys_tmp = NULL;
+    p.mj.sort.vals_tmp = NULL;
+    p.mj.sort.hist = NULL;
     p.best = p.mj.sort.keys;
     if (r == BVH_SUCCESS) {
         p.cout = BVH__ALLOC(&c->al, bvh_node, n);
@@ -2935,9 +3300,16 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
                 float *f = p.nn_f + t * 6 * cap;
                 int32_t *k = p.nn_i + t * (2 * nbk + 2 * cap);
                 bvh__nn *w = &p.nn[t];
-                w->lo[0] = f; w->lo[1] = f + cap; w->lo[2] = f + 2 * cap;
-                w->hi[0] = f + 3 * cap; w->hi[1] = f + 4 * cap; w->hi[2] = f + 5 * cap;
-                w->rd = k; w->rk = k + nbk; w->ld = k + 2 * nbk; w->lk = k + 2 * nbk + cap;
+                w->lo[0] = f;
+                w->lo[1] = f + cap;
+                w->lo[2] = f + 2 * cap;
+                w->hi[0] = f + 3 * cap;
+                w->hi[1] = f + 4 * cap;
+                w->hi[2] = f + 5 * cap;
+                w->rd = k;
+                w->rk = k + nbk;
+                w->ld = k + 2 * nbk;
+                w->lk = k + 2 * nbk + cap;
                 w->block = nbk;
             }
         }
@@ -2947,22 +3319,28 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
         p.block_cap = bvh__ploc_block_cap((uint32_t)n);
         p.blocks = BVH__ALLOC(&c->al, uint32_t, p.block_cap);
         p.top_cut = c->ploc_top ? (uint32_t)(n / c->ploc_top) : 0; /* 0: never */
-        if (!p.cout || !p.src || !p.bnd || !p.nn || !p.nn_f || !p.nn_i || !p.role || !p.merges || !p.survivors || !p.blocks)
+        if (!p.cout || !p.src || !p.bnd || !p.nn || !p.nn_f || !p.nn_i || !p.role || !p.merges || !p.survivors ||
+            !p.blocks)
             r = BVH_ERROR_OUT_OF_MEMORY;
     }
     /* under a pool, nthreads tasks per step (the clustering's buffers are per task) */
-    if (r == BVH_SUCCESS) r = c->pool ? bvh__ploc_steps(&p, nthreads) : bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
+    if (r == BVH_SUCCESS)
+        r = c->pool ? bvh__ploc_steps(&p, nthreads) : bvh__team_run(&c->al, nthreads, bvh__ploc_team_fn, &p);
     if (r == BVH_SUCCESS && p.stop) r = BVH_ERROR_CANCELLED;
     bvh__stage_in(c->prog, 0.75f, 1.0f);
     if (r == BVH_SUCCESS && bvh__report(c->prog, 0.0)) r = BVH_ERROR_CANCELLED;
     if (r == BVH_SUCCESS && p.top_m && p.block_count <= p.block_cap) r = bvh__ploc_top(&p, nthreads);
     /* release the clustering scratch before emission, which needs its own */
-    bvh__free(&c->al, p.cin); bvh__free(&c->al, p.cout);
+    bvh__free(&c->al, p.cin);
+    bvh__free(&c->al, p.cout);
     bvh__free(&c->al, p.mj.sort.keys);
     bvh__free(&c->al, p.bnd);
-    bvh__free(&c->al, p.nn); bvh__free(&c->al, p.nn_f); bvh__free(&c->al, p.nn_i);
+    bvh__free(&c->al, p.nn);
+    bvh__free(&c->al, p.nn_f);
+    bvh__free(&c->al, p.nn_i);
     bvh__free(&c->al, p.role);
-    bvh__free(&c->al, p.merges); bvh__free(&c->al, p.survivors);
+    bvh__free(&c->al, p.merges);
+    bvh__free(&c->al, p.survivors);
     if (r == BVH_SUCCESS)
         r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, nthreads, p.block_count <= p.block_cap ? p.blocks : NULL,
                       p.block_count, o);
@@ -2997,20 +3375,23 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
 
 enum { BVH__SM_NONE, BVH__SM_BIN, BVH__SM_OVERLAP, BVH__SM_SPLIT, BVH__SM_MEDIAN };
 
-typedef struct bvh__sm_ref { bvh_aabb box; uint32_t id; } bvh__sm_ref; /* box: clipped bounds */
+typedef struct bvh__sm_ref {
+    bvh_aabb box;
+    uint32_t id;
+} bvh__sm_ref; /* box: clipped bounds */
 
 typedef struct bvh__sm_task {
     uint32_t node, count, depth; /* its references are work[top - count, top) when it is popped */
     uint32_t budget;             /* extra references this subtree may still create */
-    bvh_aabb box, cbox;       /* bounds of the references and of their centroids */
+    bvh_aabb box, cbox;          /* bounds of the references and of their centroids */
 } bvh__sm_task;
 
 typedef struct bvh__sm_choice {
     int kind, axis;
     uint32_t bin, bins, cut; /* BVH__SM_BIN: first child = slots below `bin` (see bvh__sm_axis) */
-    float plane;       /* the mid-point of the chosen axis (the cut of the binning, or the plane) */
+    float plane;             /* the mid-point of the chosen axis (the cut of the binning, or the plane) */
     float bin_lo, bin_scale;
-    double cost;       /* C, the sum over both children of half-area * references */
+    double cost;          /* C, the sum over both children of half-area * references */
     bvh_aabb left, right; /* BVH__SM_SPLIT: the children as costed, for unsplitting */
     uint32_t n_left, n_right;
 } bvh__sm_choice;
@@ -3070,25 +3451,39 @@ static int bvh__sm_clip(const bvh__ctx *c, const bvh__sm_ref *r, int a, float p,
         return 3;
     }
     bvh__ctx_triangle(c, r->id, t);
-    for (k = 0; k < 3; k++) { llo[k] = rlo[k] = BVH_INF; lhi[k] = rhi[k] = -BVH_INF; }
+    for (k = 0; k < 3; k++) {
+        llo[k] = rlo[k] = BVH_INF;
+        lhi[k] = rhi[k] = -BVH_INF;
+    }
     for (e = 0; e < 3; e++) {
         const float *u = t + 3 * e, *v = t + 3 * (e == 2 ? 0 : e + 1);
-        if (u[a] <= p) for (k = 0; k < 3; k++) { llo[k] = bvh__minf(llo[k], u[k]); lhi[k] = bvh__maxf(lhi[k], u[k]); }
-        if (u[a] >= p) for (k = 0; k < 3; k++) { rlo[k] = bvh__minf(rlo[k], u[k]); rhi[k] = bvh__maxf(rhi[k], u[k]); }
+        if (u[a] <= p)
+            for (k = 0; k < 3; k++) {
+                llo[k] = bvh__minf(llo[k], u[k]);
+                lhi[k] = bvh__maxf(lhi[k], u[k]);
+            }
+        if (u[a] >= p)
+            for (k = 0; k < 3; k++) {
+                rlo[k] = bvh__minf(rlo[k], u[k]);
+                rhi[k] = bvh__maxf(rhi[k], u[k]);
+            }
         if ((u[a] < p && v[a] > p) || (u[a] > p && v[a] < p)) {
             double f = ((double)p - u[a]) / ((double)v[a] - u[a]);
             for (k = 0; k < 3; k++) {
                 double x, eps;
                 float xl, xh;
-                if (k == a) { xl = xh = p; }
-                else {
+                if (k == a) {
+                    xl = xh = p;
+                } else {
                     x = u[k] + f * ((double)v[k] - u[k]);
                     eps = (fabs((double)u[k]) + fabs((double)v[k])) * (1.0 / 2097152.0) + (double)FLT_MIN;
                     xl = bvh__sm_to_float(x - eps);
                     xh = bvh__sm_to_float(x + eps);
                 }
-                llo[k] = bvh__minf(llo[k], xl); lhi[k] = bvh__maxf(lhi[k], xh);
-                rlo[k] = bvh__minf(rlo[k], xl); rhi[k] = bvh__maxf(rhi[k], xh);
+                llo[k] = bvh__minf(llo[k], xl);
+                lhi[k] = bvh__maxf(lhi[k], xh);
+                rlo[k] = bvh__minf(rlo[k], xl);
+                rhi[k] = bvh__maxf(rhi[k], xh);
             }
         }
     }
@@ -3141,7 +3536,8 @@ typedef struct bvh__sm_axis {
 } bvh__sm_axis;
 BVH__INLINE uint32_t bvh__sm_slot(const bvh__sm_ref *r, int a, float c, const bvh__sm_axis *x) { /* c: centroid */
     uint32_t k = x->bins > 1 ? bvh__sm_bin_of(c, x->lo, x->scale, x->bins) : 0;
-    uint32_t right = (uint32_t)(c >= x->p) & (uint32_t)((c != x->p) | (bvh__at(&r->box.max, a) > x->p)); /* not in D_L u O_L */
+    uint32_t right =
+        (uint32_t)(c >= x->p) & (uint32_t)((c != x->p) | (bvh__at(&r->box.max, a) > x->p)); /* not in D_L u O_L */
     return k + (uint32_t)(k > x->kp) + ((uint32_t)(k == x->kp) & right);
 }
 
@@ -3169,12 +3565,18 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         xa->lo = clo;
         xa->bins = bins > 1 && clo < chi ? bins : 1;
         xa->scale = xa->bins > 1 ? (float)((double)bins / ((double)chi - clo)) : 0.0f;
-        if (xa->bins > 1 && !(xa->scale > 0.0f && xa->scale <= FLT_MAX)) { xa->bins = 1; xa->scale = 0.0f; }
+        if (xa->bins > 1 && !(xa->scale > 0.0f && xa->scale <= FLT_MAX)) {
+            xa->bins = 1;
+            xa->scale = 0.0f;
+        }
         xa->kp = xa->bins;
         if (mid_ok[a] && clo <= xa->p && xa->p <= chi)
             xa->kp = xa->bins > 1 ? bvh__sm_bin_of(xa->p, xa->lo, xa->scale, xa->bins) : 0;
         slots[a] = xa->bins + (xa->kp < xa->bins);
-        for (k = 0; k < slots[a]; k++) { s->bin[a][k] = bvh__empty(); s->bin_n[a][k] = 0; }
+        for (k = 0; k < slots[a]; k++) {
+            s->bin[a][k] = bvh__empty();
+            s->bin_n[a][k] = 0;
+        }
     }
     for (i = b; i < e; i++) { /* pass 1 */
         const bvh__sm_ref *r = &s->work[i];
@@ -3248,27 +3650,49 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
             int mask;
             float p = x[a].p;
             if (!clip[a]) continue;
-            if (bvh__at(&r->box.max, a) <= p) { dl[a] = bvh__merge(dl[a], r->box); ndl[a]++; continue; }
-            if (bvh__at(&r->box.min, a) >= p) { dr[a] = bvh__merge(dr[a], r->box); ndr[a]++; continue; }
+            if (bvh__at(&r->box.max, a) <= p) {
+                dl[a] = bvh__merge(dl[a], r->box);
+                ndl[a]++;
+                continue;
+            }
+            if (bvh__at(&r->box.min, a) >= p) {
+                dr[a] = bvh__merge(dr[a], r->box);
+                ndr[a]++;
+                continue;
+            }
             mask = bvh__sm_clip(s->c, r, a, p, &lp, &rp);
-            if (mask & 1) { sl[a] = bvh__merge(sl[a], lp.box); nsl[a]++; }
-            if (mask & 2) { sr[a] = bvh__merge(sr[a], rp.box); nsr[a]++; }
+            if (mask & 1) {
+                sl[a] = bvh__merge(sl[a], lp.box);
+                nsl[a]++;
+            }
+            if (mask & 2) {
+                sr[a] = bvh__merge(sr[a], rp.box);
+                nsr[a]++;
+            }
             if (mask == 3 && ++dup[a] > budget) clip[a] = 0; /* over budget: not a candidate */
         }
     }
     for (a = 0; a < 3; a++) {
         if (!clip[a] || !(nsl[a] + nsr[a]) || !(ndl[a] + nsl[a]) || !(ndr[a] + nsr[a])) continue;
-        lb = dl[a]; lb = bvh__merge(lb, sl[a]);
-        rb = dr[a]; rb = bvh__merge(rb, sr[a]);
+        lb = dl[a];
+        lb = bvh__merge(lb, sl[a]);
+        rb = dr[a];
+        rb = bvh__merge(rb, sr[a]);
         if (bvh__sm_offer(best, BVH__SM_SPLIT, a, x[a].p,
                           bvh__half_area_d(lb) * (ndl[a] + nsl[a]) + bvh__half_area_d(rb) * (ndr[a] + nsr[a]))) {
-            best->left = lb; best->right = rb;
-            best->n_left = ndl[a] + nsl[a]; best->n_right = ndr[a] + nsr[a];
+            best->left = lb;
+            best->right = rb;
+            best->n_left = ndl[a] + nsl[a];
+            best->n_right = ndr[a] + nsr[a];
         }
     }
 }
 
-BVH__INLINE void bvh__sm_swap(bvh__sm_ref *x, bvh__sm_ref *y) { bvh__sm_ref t = *x; *x = *y; *y = t; }
+BVH__INLINE void bvh__sm_swap(bvh__sm_ref *x, bvh__sm_ref *y) {
+    bvh__sm_ref t = *x;
+    *x = *y;
+    *y = t;
+}
 
 /* Grows a child's bounds and centroid bounds by reference r. */
 BVH__INLINE void bvh__sm_add(bvh__sm_task *t, const bvh__sm_ref *r, bvh_vec3 centroid) {
@@ -3306,22 +3730,38 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
         while (mid < hi) {
             bvh__sm_ref *r = &w[mid];
             int side; /* 1 left, 2 right, 3 both */
-            if (bvh__at(&r->box.max, a) <= p) side = 1;
-            else if (bvh__at(&r->box.min, a) >= p) side = 2;
+            if (bvh__at(&r->box.max, a) <= p)
+                side = 1;
+            else if (bvh__at(&r->box.min, a) >= p)
+                side = 2;
             else {
                 bvh__sm_ref lp, rp;
                 int mask = bvh__sm_clip(s->c, r, a, p, &lp, &rp);
-                if (mask != 3) { side = mask; *r = mask == 1 ? lp : rp; } /* touches one side only */
+                if (mask != 3) {
+                    side = mask;
+                    *r = mask == 1 ? lp : rp;
+                } /* touches one side only */
                 else {
                     side = s->bins ? bvh__sm_unsplit(ch, r) : 3; /* 1 or 2: whole, on that side */
                     if (side == 3 && dups >= budget) side = bvh__sm_centre(r, a) < p ? 1 : 2;
-                    if (side == 3) { w[top + dups++] = lp; *r = rp; bvh__sm_add(first, &lp, bvh__sm_centroid(&lp)); }
+                    if (side == 3) {
+                        w[top + dups++] = lp;
+                        *r = rp;
+                        bvh__sm_add(first, &lp, bvh__sm_centroid(&lp));
+                    }
                 }
             }
             bvh__sm_add(side == 1 ? first : second, r, bvh__sm_centroid(r));
-            if (side == 2) { bvh__sm_swap(&w[lo], &w[mid]); lo++; mid++; }
-            else if (side == 3) mid++;
-            else { hi--; bvh__sm_swap(&w[mid], &w[hi]); }
+            if (side == 2) {
+                bvh__sm_swap(&w[lo], &w[mid]);
+                lo++;
+                mid++;
+            } else if (side == 3)
+                mid++;
+            else {
+                hi--;
+                bvh__sm_swap(&w[mid], &w[hi]);
+            }
         }
         s->extra += dups;
         s->top = top + dups;
@@ -3331,17 +3771,27 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
         const int a = ch->axis, binned = ch->kind == BVH__SM_BIN;
         const float p = ch->plane;
         bvh__sm_axis x;
-        x.lo = ch->bin_lo; x.scale = ch->bin_scale; x.p = p; x.bins = ch->bins; x.kp = ch->cut;
+        x.lo = ch->bin_lo;
+        x.scale = ch->bin_scale;
+        x.p = p;
+        x.bins = ch->bins;
+        x.kp = ch->cut;
         while (i < j) {
             const bvh__sm_ref *r = &w[i];
             const bvh_vec3 cc = bvh__sm_centroid(r);
             const float ca = bvh__at(&cc, a);
             int go_first;
-            if (binned) go_first = bvh__sm_slot(r, a, ca, &x) < ch->bin;
-            else go_first = bvh__at(&r->box.max, a) <= p || (bvh__at(&r->box.min, a) < p && ca < p);
+            if (binned)
+                go_first = bvh__sm_slot(r, a, ca, &x) < ch->bin;
+            else
+                go_first = bvh__at(&r->box.max, a) <= p || (bvh__at(&r->box.min, a) < p && ca < p);
             bvh__sm_add(go_first ? first : second, r, cc);
-            if (!go_first) i++;
-            else { j--; bvh__sm_swap(&w[i], &w[j]); }
+            if (!go_first)
+                i++;
+            else {
+                j--;
+                bvh__sm_swap(&w[i], &w[j]);
+            }
         }
     }
     return top - i;
@@ -3407,14 +3857,20 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
     o->node_cap = c->n < 1024 ? s->node_max : c->n; /* grown by half when full */
     o->nodes = BVH__ALLOC(&c->al, bvh_node, o->node_cap);
     o->ref_cap = s->cap;
-    if (!s->work || !o->refs || !o->nodes) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    if (!s->work || !o->refs || !o->nodes) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
     for (i = 0; i < c->n; i++) {
         s->work[i].box = c->boxes[i];
         s->work[i].id = i;
     }
     s->top = c->n;
     o->node_count = 1;
-    stack[0].node = 0; stack[0].count = c->n; stack[0].depth = 1; stack[0].budget = s->budget;
+    stack[0].node = 0;
+    stack[0].count = c->n;
+    stack[0].depth = 1;
+    stack[0].budget = s->budget;
     bvh__sm_bounds(s->work, c->n, &stack[0].box, &stack[0].cbox);
     s->root_area = bvh__half_area_d(stack[0].box);
     sp = 1;
@@ -3424,7 +3880,10 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
         bvh__sm_choice ch;
         bvh_aabb box;
         bvh_node *node;
-        if (bvh__tick(c->prog, m, (double)o->ref_count / (double)s->cap)) { r = BVH_ERROR_CANCELLED; goto done; }
+        if (bvh__tick(c->prog, m, (double)o->ref_count / (double)s->cap)) {
+            r = BVH_ERROR_CANCELLED;
+            goto done;
+        }
         memset(&ch, 0, sizeof ch);
         ch.kind = BVH__SM_MEDIAN;
         t.budget += s->carry; /* what the subtrees before this one left unused */
@@ -3467,9 +3926,11 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
         r = bvh__sm_reserve_pair(s);
         if (r != BVH_SUCCESS) goto done;
         node = &o->nodes[t.node];
-        tl.node = o->node_count; tr.node = o->node_count + 1;
+        tl.node = o->node_count;
+        tr.node = o->node_count + 1;
         o->node_count += 2;
-        tl.count = nl; tr.count = nr;
+        tl.count = nl;
+        tr.count = nr;
         tl.depth = tr.depth = t.depth + 1;
         box = tl.box;
         box = bvh__merge(box, tr.box); /* split parts may be tighter than the node's references */
@@ -3511,10 +3972,14 @@ typedef struct bvh__builder_row {
    collapse prices an interior node a little dearer (BVH__PLOC_INTERIOR): smaller trees at the
    same SAH. The defaults of the builder-specific options: radius, top, max_bytes_per_prim; bins,
    split_budget. */
-#define BVH__PLOC_DEFAULTS {16, 8, 40}
-#define BVH__SAH_MIDPOINT_DEFAULTS {32, 0.3f}
-#define BVH__NO_PLOC {0, 0, 0}
-#define BVH__NO_SAH_MIDPOINT {0, 0.0f}
+#define BVH__PLOC_DEFAULTS                                                                                             \
+    { 16, 8, 40 }
+#define BVH__SAH_MIDPOINT_DEFAULTS                                                                                     \
+    { 32, 0.3f }
+#define BVH__NO_PLOC                                                                                                   \
+    { 0, 0, 0 }
+#define BVH__NO_SAH_MIDPOINT                                                                                           \
+    { 0, 0.0f }
 static const bvh__builder_row bvh__builders[BVH_BUILDER_COUNT] = {
     {{"default", 8, BVH__PLOC_INTERIOR, 1, 0, BVH__PLOC_DEFAULTS, BVH__NO_SAH_MIDPOINT}, bvh__build_ploc_team},
     {{"top-down", 4, 1.0f, 0, 0, BVH__NO_PLOC, BVH__NO_SAH_MIDPOINT}, bvh__build_top_down_row},
@@ -3550,7 +4015,9 @@ BVH_API bvh_result bvh_builder_get_info(bvh_builder b, bvh_builder_info *out) {
 /* ============================================================================================ */
 static const float *bvh__vertex(const bvh_triangles *t, uint32_t v) {
     size_t stride = t->stride ? t->stride : 3 * sizeof(float);
-    return BVH__CAST(const float *, BVH__CAST(const void *, BVH__CAST(const char *, BVH__CAST(const void *, t->positions)) + (size_t)v * stride));
+    return BVH__CAST(
+        const float *,
+        BVH__CAST(const void *, BVH__CAST(const char *, BVH__CAST(const void *, t->positions)) + (size_t)v * stride));
 }
 /* memcpy: a stride that is no multiple of 4 (or an unaligned positions pointer) is read as well */
 BVH__INLINE void bvh__fetch_triangle(const bvh_triangles *t, uint32_t i, float out[9]) {
@@ -3561,8 +4028,8 @@ BVH__INLINE void bvh__fetch_triangle(const bvh_triangles *t, uint32_t i, float o
     }
 }
 static int bvh__costs_valid(const bvh_costs *k) {
-    return bvh__finite(k->interior) && bvh__finite(k->leaf) && bvh__finite(k->triangle) &&
-           k->interior >= 0.0f && k->leaf >= 0.0f && k->triangle >= 0.0f;
+    return bvh__finite(k->interior) && bvh__finite(k->leaf) && bvh__finite(k->triangle) && k->interior >= 0.0f &&
+           k->leaf >= 0.0f && k->triangle >= 0.0f;
 }
 /* BVH_OFF in the float option: the conversion is exact (2^31), so the comparison is too. */
 static int bvh__split_budget_off(float b) { return b == (float)BVH_OFF; }
@@ -3614,7 +4081,10 @@ BVH_API void bvh_free(bvh_tree *tree) {
 /* Front end of bvh_build on the build's team: every primitive's box, the bounds of the boxes and
    of their centroids per thread, and the invalid primitives (NaN/Inf, or a box with min > max),
    whose box is marked with a NaN for bvh_build to refuse or leave out. */
-typedef struct bvh__front_part { bvh_aabb bounds, cbounds; uint32_t invalid; } bvh__front_part;
+typedef struct bvh__front_part {
+    bvh_aabb bounds, cbounds;
+    uint32_t invalid;
+} bvh__front_part;
 typedef struct bvh__front {
     const bvh_build_desc *desc;
     bvh_aabb *boxes;
@@ -3658,7 +4128,10 @@ static void bvh__front_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     part->invalid = invalid;
 }
 /* Back end: the tree's triangles in reference order, references mapped to the caller's ids. */
-typedef struct bvh__back { const bvh__ctx *c; bvh_tree *tree; } bvh__back;
+typedef struct bvh__back {
+    const bvh__ctx *c;
+    bvh_tree *tree;
+} bvh__back;
 static void bvh__back_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     const bvh__back *k = BVH__CAST(const bvh__back *, arg);
     const bvh__ctx *c = k->c;
@@ -3675,13 +4148,17 @@ static void bvh__back_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) 
             if (i + 16 < e) {
                 uint32_t id = tree->prims[i + 16];
                 id = c->orig ? c->orig[id] : id;
-                if (t->indices) BVH__PREFETCH(&t->indices[3 * (size_t)id]);
-                else BVH__PREFETCH(bvh__vertex(t, 3 * id));
+                if (t->indices)
+                    BVH__PREFETCH(&t->indices[3 * (size_t)id]);
+                else
+                    BVH__PREFETCH(bvh__vertex(t, 3 * id));
             }
             if (t->indices && i + 8 < e) {
                 uint32_t id = tree->prims[i + 8];
                 const uint32_t *ix = &t->indices[3 * (size_t)(c->orig ? c->orig[id] : id)];
-                BVH__PREFETCH(bvh__vertex(t, ix[0])); BVH__PREFETCH(bvh__vertex(t, ix[1])); BVH__PREFETCH(bvh__vertex(t, ix[2]));
+                BVH__PREFETCH(bvh__vertex(t, ix[0]));
+                BVH__PREFETCH(bvh__vertex(t, ix[1]));
+                BVH__PREFETCH(bvh__vertex(t, ix[2]));
             }
             bvh__ctx_triangle(c, local, tree->tris + 9 * i);
         }
@@ -3719,7 +4196,8 @@ static void bvh__resolve(const bvh_build_desc *d, bvh_builder builder, uint32_t 
     }
     c->budget = d->ploc.max_bytes_per_prim ? d->ploc.max_bytes_per_prim : row->ploc.max_bytes_per_prim;
     if (c->budget == BVH_OFF) c->budget = 0;
-    c->split_budget = d->sah_midpoint.split_budget == 0.0f ? row->sah_midpoint.split_budget : d->sah_midpoint.split_budget;
+    c->split_budget =
+        d->sah_midpoint.split_budget == 0.0f ? row->sah_midpoint.split_budget : d->sah_midpoint.split_budget;
     if (bvh__split_budget_off(c->split_budget)) c->split_budget = 0.0f;
 }
 
@@ -3749,19 +4227,31 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     prog.user = desc->progress_user;
     c.prog = &prog;
     bvh__stage(&prog, 0.0f, BVH__STAGE_BUILD_LO);
-    if (bvh__report(&prog, 0.0)) { r = BVH_ERROR_CANCELLED; goto fail; }
+    if (bvh__report(&prog, 0.0)) {
+        r = BVH_ERROR_CANCELLED;
+        goto fail;
+    }
     if (count == 0) goto empty; /* an empty tree: node_count 0, every ray misses */
 
     c.boxes = BVH__ALLOC(&c.al, bvh_aabb, count);
-    if (!c.boxes) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
+    if (!c.boxes) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto fail;
+    }
     {
         /* boxes, bounds and validity on the build's threads (one for every builder but
            ploc-parallel); bounds are min/max, so the result does not depend on the split */
         bvh__front fr;
         memset(&fr, 0, sizeof fr);
-        fr.desc = desc; fr.boxes = c.boxes; fr.count = count; fr.nt = c.threads;
+        fr.desc = desc;
+        fr.boxes = c.boxes;
+        fr.count = count;
+        fr.nt = c.threads;
         fr.part = BVH__ALLOC(&c.al, bvh__front_part, c.threads);
-        if (!fr.part) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
+        if (!fr.part) {
+            r = BVH_ERROR_OUT_OF_MEMORY;
+            goto fail;
+        }
         r = bvh__run(&c, c.threads, 0, bvh__front_fn, &fr);
         c.bounds = c.cbounds = bvh__empty();
         for (i = 0; r == BVH_SUCCESS && i < fr.nt; i++) {
@@ -3774,8 +4264,14 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
         if (r != BVH_SUCCESS) goto fail;
     }
     if (n > 0) { /* some primitives are invalid (marked by a NaN box): refuse, or leave them out */
-        if (!desc->skip_invalid) { r = BVH_ERROR_INVALID_GEOMETRY; goto fail; }
-        if (!(orig = BVH__ALLOC(&c.al, uint32_t, count))) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
+        if (!desc->skip_invalid) {
+            r = BVH_ERROR_INVALID_GEOMETRY;
+            goto fail;
+        }
+        if (!(orig = BVH__ALLOC(&c.al, uint32_t, count))) {
+            r = BVH_ERROR_OUT_OF_MEMORY;
+            goto fail;
+        }
         c.bounds = c.cbounds = bvh__empty();
         for (i = 0, n = 0; i < count; i++) {
             bvh_aabb box = c.boxes[i];
@@ -3798,33 +4294,56 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     bvh__stage(&prog, BVH__STAGE_BUILD_LO, BVH__STAGE_BUILD_HI);
     if ((r = bvh__builders[builder].build(&c, &o)) != BVH_SUCCESS) goto fail;
     bvh__stage(&prog, BVH__STAGE_BUILD_HI, BVH__STAGE_WIDE_LO);
-    if (bvh__report(&prog, 0.0)) { r = BVH_ERROR_CANCELLED; goto fail; }
-    bvh__free(&c.al, c.boxes); c.boxes = NULL;
+    if (bvh__report(&prog, 0.0)) {
+        r = BVH_ERROR_CANCELLED;
+        goto fail;
+    }
+    bvh__free(&c.al, c.boxes);
+    c.boxes = NULL;
 
     /* exact-size outputs: nodes, references mapped to caller indices, triangles in reference order */
-    if (c.tris && !(tree->tris = BVH__ALLOC(&c.al, float, 9 * (size_t)o.ref_count))) { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
-    if (o.node_count == o.node_cap) { tree->nodes = o.nodes; o.nodes = NULL; } /* exact size: adopt */
+    if (c.tris && !(tree->tris = BVH__ALLOC(&c.al, float, 9 * (size_t)o.ref_count))) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto fail;
+    }
+    if (o.node_count == o.node_cap) {
+        tree->nodes = o.nodes;
+        o.nodes = NULL;
+    } /* exact size: adopt */
     else if ((tree->nodes = BVH__ALLOC(&c.al, bvh_node, o.node_count)) != NULL)
         memcpy(tree->nodes, o.nodes, (size_t)o.node_count * sizeof(bvh_node));
-    else { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
-    if (o.ref_count == o.ref_cap) { tree->prims = o.refs; o.refs = NULL; }
-    else if ((tree->prims = BVH__ALLOC(&c.al, uint32_t, o.ref_count)) != NULL)
+    else {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto fail;
+    }
+    if (o.ref_count == o.ref_cap) {
+        tree->prims = o.refs;
+        o.refs = NULL;
+    } else if ((tree->prims = BVH__ALLOC(&c.al, uint32_t, o.ref_count)) != NULL)
         memcpy(tree->prims, o.refs, (size_t)o.ref_count * sizeof(uint32_t));
-    else { r = BVH_ERROR_OUT_OF_MEMORY; goto fail; }
+    else {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto fail;
+    }
     tree->node_count = o.node_count;
     tree->ref_count = o.ref_count;
     if (c.tris || orig) { /* triangles in reference order, references to caller ids */
         bvh__back bk;
-        bk.c = &c; bk.tree = tree;
+        bk.c = &c;
+        bk.tree = tree;
         r = bvh__run(&c, c.threads, 0, bvh__back_fn, &bk);
         if (r != BVH_SUCCESS) goto fail;
     }
     bvh__stage(&prog, BVH__STAGE_WIDE_LO, 1.0f);
-    if (bvh__report(&prog, 0.0)) { r = BVH_ERROR_CANCELLED; goto fail; }
+    if (bvh__report(&prog, 0.0)) {
+        r = BVH_ERROR_CANCELLED;
+        goto fail;
+    }
     bvh__out_free(&c, &o); /* first, so that the 8-wide copy does not add to the peak */
     bvh__free(&c.al, orig);
     orig = NULL;
-    if (c.tris && desc->trace_width != 2 && (r = bvh__make_wide(tree, &c.al, c.pool, c.threads)) != BVH_SUCCESS) goto fail;
+    if (c.tris && desc->trace_width != 2 && (r = bvh__make_wide(tree, &c.al, c.pool, c.threads)) != BVH_SUCCESS)
+        goto fail;
 empty:
     /* complete: 1 is reported once, and its answer no longer cancels */
     bvh__stage(&prog, 1.0f, 1.0f);
@@ -3945,8 +4464,7 @@ static bvh_result bvh__invalid(bvh_validation *rep, uint32_t node, const char *m
 static void bvh__lane(const bvh_tri4 *p, int i, float tri[9]) {
     int v, a;
     for (v = 0; v < 3; v++)
-        for (a = 0; a < 3; a++)
-            tri[3 * v + a] = p->v[v][a][i];
+        for (a = 0; a < 3; a++) tri[3 * v + a] = p->v[v][a][i];
 }
 /* A lane whose three vertices coincide: how packets hold a zero-area triangle (no ray hits it,
    so where it lies cannot matter; a split reference's clipped box need not hold the point). */
@@ -3969,7 +4487,8 @@ static const char *bvh__validate_packets(const bvh_tree *tree, const bvh_aabb *p
             float tri[9];
             bvh_aabb pb;
             if (p->prim[i] >= tree->prim_count) return "packet lane with a primitive out of range";
-            for (j = 0; j < i && p->prim[j] != p->prim[i]; j++) {}
+            for (j = 0; j < i && p->prim[j] != p->prim[i]; j++) {
+            }
             if (j < i) continue; /* a repeated lane */
             bvh__lane(p, i, tri);
             pb = prim_boxes ? prim_boxes[p->prim[i]] : bvh__tri_box(tri);
@@ -3989,13 +4508,15 @@ static const char *bvh__validate_packets(const bvh_tree *tree, const bvh_aabb *p
 /* The 8-wide layout: every slot empty (+inf/-inf box, no child) or a valid box inside its parent's
    slot; interior slots point forward in the array (no cycles); every packet is in one leaf, and
    every referenced primitive in a packet (exactly one unless the builder splits references). */
-static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_boxes, int splits, bvh_validation *rep) {
+static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_boxes, int splits,
+                                     bvh_validation *rep) {
     bvh_allocator al = tree->allocator;
     uint32_t stack[BVH__W * (BVH_MAX_DEPTH + 2)][2], sp = 0, reached = 0, i, k, *seen;
     uint8_t *cover;
     bvh_aabb root = bvh__node_box(&tree->nodes[0]); /* deeper slots are checked against their parent's */
     bvh_result r = BVH_SUCCESS;
-    if (!tree->node8_count || !tree->tri4) return bvh__invalid(rep, BVH_INVALID, "8-wide node array without nodes or packets");
+    if (!tree->node8_count || !tree->tri4)
+        return bvh__invalid(rep, BVH_INVALID, "8-wide node array without nodes or packets");
     cover = BVH__ALLOC(&al, uint8_t, tree->tri4_count ? tree->tri4_count : 1);
     seen = BVH__ALLOC(&al, uint32_t, tree->prim_count ? tree->prim_count : 1);
     if (!cover || !seen) {
@@ -4004,50 +4525,88 @@ static bvh_result bvh__validate_wide(const bvh_tree *tree, const bvh_aabb *prim_
     }
     memset(cover, 0, tree->tri4_count ? tree->tri4_count : 1);
     memset(seen, 0, (tree->prim_count ? tree->prim_count : 1) * sizeof(uint32_t));
-    stack[sp][0] = 0; stack[sp][1] = 0; sp++;
+    stack[sp][0] = 0;
+    stack[sp][1] = 0;
+    sp++;
     while (sp) {
         uint32_t w = stack[--sp][0], depth = stack[sp][1];
         const bvh_node8 *n = &tree->nodes8[w];
         reached++;
-        if (depth > BVH_MAX_DEPTH) { r = bvh__invalid(rep, w, "8-wide tree deeper than BVH_MAX_DEPTH"); goto done; }
+        if (depth > BVH_MAX_DEPTH) {
+            r = bvh__invalid(rep, w, "8-wide tree deeper than BVH_MAX_DEPTH");
+            goto done;
+        }
         for (i = 0; i < BVH__W; i++) {
             bvh_aabb box;
-            box.min.x = n->min[0][i]; box.min.y = n->min[1][i]; box.min.z = n->min[2][i];
-            box.max.x = n->max[0][i]; box.max.y = n->max[1][i]; box.max.z = n->max[2][i];
+            box.min.x = n->min[0][i];
+            box.min.y = n->min[1][i];
+            box.min.z = n->min[2][i];
+            box.max.x = n->max[0][i];
+            box.max.y = n->max[1][i];
+            box.max.z = n->max[2][i];
             if (!n->count[i] && box.min.x == BVH_INF && box.min.y == BVH_INF && box.min.z == BVH_INF &&
                 box.max.x == -BVH_INF && box.max.y == -BVH_INF && box.max.z == -BVH_INF) {
-                if (n->child[i]) { r = bvh__invalid(rep, w, "empty 8-wide slot with a child"); goto done; }
+                if (n->child[i]) {
+                    r = bvh__invalid(rep, w, "empty 8-wide slot with a child");
+                    goto done;
+                }
                 continue;
             }
-            if (!(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z))
-                { r = bvh__invalid(rep, w, "8-wide slot box empty or NaN"); goto done; }
-            if (!bvh_aabb_contains(root, box)) { r = bvh__invalid(rep, w, "8-wide slot box not inside the root"); goto done; }
+            if (!(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z)) {
+                r = bvh__invalid(rep, w, "8-wide slot box empty or NaN");
+                goto done;
+            }
+            if (!bvh_aabb_contains(root, box)) {
+                r = bvh__invalid(rep, w, "8-wide slot box not inside the root");
+                goto done;
+            }
             if (n->count[i]) {
-                const char *msg = bvh__validate_packets(tree, prim_boxes, splits, box, n->child[i], n->count[i], cover, seen);
-                if (msg) { r = bvh__invalid(rep, w, msg); goto done; }
+                const char *msg =
+                    bvh__validate_packets(tree, prim_boxes, splits, box, n->child[i], n->count[i], cover, seen);
+                if (msg) {
+                    r = bvh__invalid(rep, w, msg);
+                    goto done;
+                }
             } else {
                 const bvh_node8 *c;
                 uint32_t j;
-                if (n->child[i] <= w || n->child[i] >= tree->node8_count)
-                    { r = bvh__invalid(rep, w, "8-wide child index out of range"); goto done; }
+                if (n->child[i] <= w || n->child[i] >= tree->node8_count) {
+                    r = bvh__invalid(rep, w, "8-wide child index out of range");
+                    goto done;
+                }
                 c = &tree->nodes8[n->child[i]];
                 for (j = 0; j < BVH__W; j++) /* the child's slots inside this slot (empty ones trivially) */
                     if (!(c->min[0][j] >= box.min.x && c->min[1][j] >= box.min.y && c->min[2][j] >= box.min.z &&
                           c->max[0][j] <= box.max.x && c->max[1][j] <= box.max.y && c->max[2][j] <= box.max.z) &&
-                        !(c->min[0][j] == BVH_INF && c->max[0][j] == -BVH_INF))
-                        { r = bvh__invalid(rep, n->child[i], "8-wide slot box not inside its parent"); goto done; }
-                if (sp == BVH__W * (BVH_MAX_DEPTH + 2)) { r = bvh__invalid(rep, w, "8-wide tree deeper than BVH_MAX_DEPTH"); goto done; }
-                stack[sp][0] = n->child[i]; stack[sp][1] = depth + 1; sp++;
+                        !(c->min[0][j] == BVH_INF && c->max[0][j] == -BVH_INF)) {
+                        r = bvh__invalid(rep, n->child[i], "8-wide slot box not inside its parent");
+                        goto done;
+                    }
+                if (sp == BVH__W * (BVH_MAX_DEPTH + 2)) {
+                    r = bvh__invalid(rep, w, "8-wide tree deeper than BVH_MAX_DEPTH");
+                    goto done;
+                }
+                stack[sp][0] = n->child[i];
+                stack[sp][1] = depth + 1;
+                sp++;
             }
         }
     }
-    if (reached != tree->node8_count) { r = bvh__invalid(rep, BVH_INVALID, "8-wide nodes not reached exactly once from the root"); goto done; }
+    if (reached != tree->node8_count) {
+        r = bvh__invalid(rep, BVH_INVALID, "8-wide nodes not reached exactly once from the root");
+        goto done;
+    }
     for (k = 0; k < tree->tri4_count; k++)
-        if (!cover[k]) { r = bvh__invalid(rep, BVH_INVALID, "packet in no 8-wide leaf"); goto done; }
+        if (!cover[k]) {
+            r = bvh__invalid(rep, BVH_INVALID, "packet in no 8-wide leaf");
+            goto done;
+        }
     for (k = 0; k < tree->ref_count; k++) {
         uint32_t p = tree->prims[k];
-        if (!seen[p] || (!splits && seen[p] != 1))
-            { r = bvh__invalid(rep, BVH_INVALID, "primitive not in exactly one 8-wide leaf packet"); goto done; }
+        if (!seen[p] || (!splits && seen[p] != 1)) {
+            r = bvh__invalid(rep, BVH_INVALID, "primitive not in exactly one 8-wide leaf packet");
+            goto done;
+        }
     }
 done:
     bvh__free(&al, cover);
@@ -4064,12 +4623,16 @@ static bvh_result bvh__validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
     uint32_t stack[2 * BVH_MAX_DEPTH + 8], sp = 0, i, refs_seen = 0;
     int splits;
     bvh_result r = BVH_SUCCESS;
-    if (rep) { rep->node = BVH_INVALID; strcpy(rep->message, "ok"); }
+    if (rep) {
+        rep->node = BVH_INVALID;
+        strcpy(rep->message, "ok");
+    }
     if (!tree || !bvh__allocator_paired(&tree->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
     al = tree->allocator;
     if (!tree->node_count) {
         if (tree->ref_count) return bvh__invalid(rep, BVH_INVALID, "empty tree with references");
-        if (tree->prim_count != tree->excluded) return bvh__invalid(rep, BVH_INVALID, "primitives missing from an empty tree");
+        if (tree->prim_count != tree->excluded)
+            return bvh__invalid(rep, BVH_INVALID, "primitives missing from an empty tree");
         return BVH_SUCCESS;
     }
     if (!tree->nodes || !tree->prims) return bvh__invalid(rep, BVH_INVALID, "node or reference array missing");
@@ -4078,61 +4641,101 @@ static bvh_result bvh__validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
         return BVH_ERROR_INVALID_ARGUMENT;
     }
     splits = tree->ref_count != tree->prim_count - tree->excluded;
-    if ((unsigned)tree->builder >= BVH_BUILDER_COUNT)
-        return bvh__invalid(rep, BVH_INVALID, "builder out of range");
+    if ((unsigned)tree->builder >= BVH_BUILDER_COUNT) return bvh__invalid(rep, BVH_INVALID, "builder out of range");
     if (splits && !bvh__builders[tree->builder].info.splits_references)
-        return bvh__invalid(rep, BVH_INVALID, "reference count differs from primitive count for a builder that does not split");
+        return bvh__invalid(rep, BVH_INVALID,
+                            "reference count differs from primitive count for a builder that does not split");
     seen = BVH__ALLOC(&al, uint8_t, tree->node_count);
     used = BVH__ALLOC(&al, uint8_t, tree->prim_count);
-    if (!seen || !used) { r = BVH_ERROR_OUT_OF_MEMORY; goto done; }
+    if (!seen || !used) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
     memset(seen, 0, tree->node_count);
     memset(used, 0, tree->prim_count);
-    stack[sp++] = 0; stack[sp++] = 1;
+    stack[sp++] = 0;
+    stack[sp++] = 1;
     while (sp) {
         uint32_t depth = stack[--sp], ni = stack[--sp];
         const bvh_node *n = &tree->nodes[ni];
         bvh_aabb box = bvh__node_box(n);
-        if (seen[ni]++) { r = bvh__invalid(rep, ni, "node reached twice"); goto done; }
-        if (depth > BVH_MAX_DEPTH) { r = bvh__invalid(rep, ni, "tree deeper than BVH_MAX_DEPTH"); goto done; }
-        if (!(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z))
-            { r = bvh__invalid(rep, ni, "node box empty or NaN"); goto done; }
+        if (seen[ni]++) {
+            r = bvh__invalid(rep, ni, "node reached twice");
+            goto done;
+        }
+        if (depth > BVH_MAX_DEPTH) {
+            r = bvh__invalid(rep, ni, "tree deeper than BVH_MAX_DEPTH");
+            goto done;
+        }
+        if (!(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z)) {
+            r = bvh__invalid(rep, ni, "node box empty or NaN");
+            goto done;
+        }
         if (n->count) {
             uint32_t k;
-            if (n->index > tree->ref_count || n->count > tree->ref_count - n->index)
-                { r = bvh__invalid(rep, ni, "leaf range outside the reference array"); goto done; }
+            if (n->index > tree->ref_count || n->count > tree->ref_count - n->index) {
+                r = bvh__invalid(rep, ni, "leaf range outside the reference array");
+                goto done;
+            }
             for (k = n->index; k < n->index + n->count; k++) {
                 uint32_t p = tree->prims[k];
                 bvh_aabb pb;
                 refs_seen++;
-                if (p >= tree->prim_count) { r = bvh__invalid(rep, ni, "reference to a primitive out of range"); goto done; }
-                if (used[p] && !splits) { r = bvh__invalid(rep, ni, "primitive referenced twice"); goto done; }
+                if (p >= tree->prim_count) {
+                    r = bvh__invalid(rep, ni, "reference to a primitive out of range");
+                    goto done;
+                }
+                if (used[p] && !splits) {
+                    r = bvh__invalid(rep, ni, "primitive referenced twice");
+                    goto done;
+                }
                 used[p] = 1;
                 if (!prim_boxes && !tree->tris) continue; /* structure_only */
                 pb = prim_boxes ? prim_boxes[p] : bvh__tri_box(tree->tris + 9 * (size_t)k);
                 if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
                                pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
-                           : !bvh_aabb_contains(box, pb))
-                    { r = bvh__invalid(rep, ni, splits ? "leaf box does not touch its primitive" : "leaf box does not contain its primitive"); goto done; }
+                           : !bvh_aabb_contains(box, pb)) {
+                    r = bvh__invalid(rep, ni,
+                                     splits ? "leaf box does not touch its primitive"
+                                            : "leaf box does not contain its primitive");
+                    goto done;
+                }
             }
             continue;
         }
-        if (n->index == 0 || n->index >= tree->node_count - 1)
-            { r = bvh__invalid(rep, ni, "child index out of range"); goto done; }
-        if (n->index <= ni) { r = bvh__invalid(rep, ni, "child stored before its parent"); goto done; }
+        if (n->index == 0 || n->index >= tree->node_count - 1) {
+            r = bvh__invalid(rep, ni, "child index out of range");
+            goto done;
+        }
+        if (n->index <= ni) {
+            r = bvh__invalid(rep, ni, "child stored before its parent");
+            goto done;
+        }
         for (i = 0; i < 2; i++) {
-            if (!bvh_aabb_contains(box, bvh__node_box(&tree->nodes[n->index + i])))
-                { r = bvh__invalid(rep, n->index + i, "child box not inside its parent"); goto done; }
-            stack[sp++] = n->index + i; stack[sp++] = depth + 1;
+            if (!bvh_aabb_contains(box, bvh__node_box(&tree->nodes[n->index + i]))) {
+                r = bvh__invalid(rep, n->index + i, "child box not inside its parent");
+                goto done;
+            }
+            stack[sp++] = n->index + i;
+            stack[sp++] = depth + 1;
         }
     }
     for (i = 0; i < tree->node_count; i++)
-        if (!seen[i]) { r = bvh__invalid(rep, i, "node not reachable from the root"); goto done; }
-    if (refs_seen != tree->ref_count) { r = bvh__invalid(rep, BVH_INVALID, "references not covered by exactly one leaf"); goto done; }
+        if (!seen[i]) {
+            r = bvh__invalid(rep, i, "node not reachable from the root");
+            goto done;
+        }
+    if (refs_seen != tree->ref_count) {
+        r = bvh__invalid(rep, BVH_INVALID, "references not covered by exactly one leaf");
+        goto done;
+    }
     {
         uint32_t used_count = 0;
         for (i = 0; i < tree->prim_count; i++) used_count += used[i];
-        if (used_count != tree->prim_count - tree->excluded)
-            { r = bvh__invalid(rep, BVH_INVALID, "a primitive is not referenced by any leaf"); goto done; }
+        if (used_count != tree->prim_count - tree->excluded) {
+            r = bvh__invalid(rep, BVH_INVALID, "a primitive is not referenced by any leaf");
+            goto done;
+        }
     }
     if (tree->nodes8) r = bvh__validate_wide(tree, prim_boxes, splits, rep);
 done:
@@ -4155,10 +4758,10 @@ BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
 /* ============================================================================================ */
 typedef struct bvh__rayx {
     float o[3], d[3], inv[3], tmin;
-    int near[3];     /* float offset in a node of the near plane on each axis: 0..2 min, 4..6 max */
+    int near[3];           /* float offset in a node of the near plane on each axis: 0..2 min, 4..6 max */
     int near8[3], far8[3]; /* the same in a bvh_node8 (slot 0): 0, 8, 16 min, 24, 32, 40 max */
-    int kx, ky, kz;  /* watertight: kz = dominant axis (bvh__ray_setup); kx, ky and the shear */
-    float sx, sy, sz; /* sx, sy, sz are made by bvh__ray_shear before the first triangle test */
+    int kx, ky, kz;        /* watertight: kz = dominant axis (bvh__ray_setup); kx, ky and the shear */
+    float sx, sy, sz;      /* sx, sy, sz are made by bvh__ray_shear before the first triangle test */
 } bvh__rayx;
 
 BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
@@ -4180,7 +4783,9 @@ BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
     if (rx->d[0] == 0.0f && rx->d[1] == 0.0f && rx->d[2] == 0.0f) return 0;
     d = rx->d;
     rx->tmin = ray->tmin;
-    ax = fabsf(d[0]); ay = fabsf(d[1]); az = fabsf(d[2]);
+    ax = fabsf(d[0]);
+    ay = fabsf(d[1]);
+    az = fabsf(d[2]);
     rx->kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
     return 1;
 }
@@ -4191,7 +4796,11 @@ BVH__INLINE void bvh__ray_shear(bvh__rayx *rx) {
     const float *d = rx->d;
     rx->kx = rx->kz == 2 ? 0 : rx->kz + 1;
     rx->ky = rx->kx == 2 ? 0 : rx->kx + 1;
-    if (d[rx->kz] < 0.0f) { int t = rx->kx; rx->kx = rx->ky; rx->ky = t; }
+    if (d[rx->kz] < 0.0f) {
+        int t = rx->kx;
+        rx->kx = rx->ky;
+        rx->ky = t;
+    }
     rx->sx = d[rx->kx] / d[rx->kz];
     rx->sy = d[rx->ky] / d[rx->kz];
     rx->sz = rx->inv[rx->kz]; /* 1 / d[kz], made by the set-up */
@@ -4277,12 +4886,23 @@ BVH_API int bvh_intersect_triangle(const bvh_ray *ray, const float v0[3], const 
                                    bvh_hit *hit) {
     bvh__rayx rx;
     float tri[9], t, u, v;
-    if (hit) { hit->t = ray ? ray->tmax : BVH_INF; hit->u = hit->v = 0.0f; hit->prim = BVH_INVALID; }
+    if (hit) {
+        hit->t = ray ? ray->tmax : BVH_INF;
+        hit->u = hit->v = 0.0f;
+        hit->prim = BVH_INVALID;
+    }
     if (!ray || !v0 || !v1 || !v2 || !bvh__ray_setup(ray, &rx)) return 0;
     bvh__ray_shear(&rx);
-    memcpy(tri, v0, 3 * sizeof(float)); memcpy(tri + 3, v1, 3 * sizeof(float)); memcpy(tri + 6, v2, 3 * sizeof(float));
+    memcpy(tri, v0, 3 * sizeof(float));
+    memcpy(tri + 3, v1, 3 * sizeof(float));
+    memcpy(tri + 6, v2, 3 * sizeof(float));
     if (!bvh__tri_test(&rx, tri, ray->tmax, &t, &u, &v)) return 0;
-    if (hit) { hit->t = t; hit->u = u; hit->v = v; hit->prim = 0; }
+    if (hit) {
+        hit->t = t;
+        hit->u = u;
+        hit->v = v;
+        hit->prim = 0;
+    }
     return 1;
 }
 
@@ -4314,11 +4934,11 @@ BVH__INLINE float bvh__slab_t(float tmin, int kz, float tfar, float t0x, float t
 /* Entry distance of the ray into node n if it enters before tfar, else +inf. */
 BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
     const float *f = &n->min.x; /* min at 0..2, max at 4..6 */
-    return bvh__slab_t(r->tmin, r->kz, tfar, (f[r->near[0]] - r->o[0]) * r->inv[0], (f[r->near[0] ^ 4] - r->o[0]) * r->inv[0],
-                       (f[r->near[1]] - r->o[1]) * r->inv[1], (f[r->near[1] ^ 4] - r->o[1]) * r->inv[1],
-                       (f[r->near[2]] - r->o[2]) * r->inv[2], (f[r->near[2] ^ 4] - r->o[2]) * r->inv[2]);
+    return bvh__slab_t(r->tmin, r->kz, tfar, (f[r->near[0]] - r->o[0]) * r->inv[0],
+                       (f[r->near[0] ^ 4] - r->o[0]) * r->inv[0], (f[r->near[1]] - r->o[1]) * r->inv[1],
+                       (f[r->near[1] ^ 4] - r->o[1]) * r->inv[1], (f[r->near[2]] - r->o[2]) * r->inv[2],
+                       (f[r->near[2] ^ 4] - r->o[2]) * r->inv[2]);
 }
-
 
 /* == 8-wide traversal layout =================================================================== */
 /* bvh_build turns the binary tree into 8-wide nodes (tree.nodes8) whose leaves are packets of four
@@ -4340,12 +4960,12 @@ typedef struct bvh__wide_src {
     const uint32_t *sub;   /* references below each binary node */
     const uint32_t *prims; /* the tree's references (caller ids) and their triangles */
     const float *tris;
-    bvh_tri4 *packets;     /* NULL: count only */
-    uint8_t *role;         /* the grouping, a byte per binary node (bvh__wide_heads): written by
-                              the write pass, read back by bvh_refit (replay) */
-    int replay;            /* 0: slots opened by area, sub given (the build); 1: by role, sub NULL,
-                              so that bvh_refit groups moved boxes as the build did (the same
-                              counts and numbering) without a scratch array */
+    bvh_tri4 *packets; /* NULL: count only */
+    uint8_t *role;     /* the grouping, a byte per binary node (bvh__wide_heads): written by
+                          the write pass, read back by bvh_refit (replay) */
+    int replay;        /* 0: slots opened by area, sub given (the build); 1: by role, sub NULL,
+                          so that bvh_refit groups moved boxes as the build did (the same
+                          counts and numbering) without a scratch array */
 } bvh__wide_src;
 /* Roles: 0 a node opened inside a wide node (or below a leaf slot), 1 the head of a wide node,
    2 + r a leaf slot of r references (r = 0 for a binary leaf, whose count says it). */
@@ -4369,8 +4989,7 @@ static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4
     while (sp) { /* a subtree of at most BVH__SLOT_REFS references: fewer levels than that */
         const bvh_node *nd = &s->nodes[stack[--sp]];
         if (nd->count) {
-            for (i = 0; i < nd->count; i++)
-                refs[n++] = nd->index + i;
+            for (i = 0; i < nd->count; i++) refs[n++] = nd->index + i;
         } else {
             stack[sp++] = nd->index + 1;
             stack[sp++] = nd->index;
@@ -4383,8 +5002,7 @@ static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4
             const float *t = s->tris + 9 * (size_t)k;
             const int flat = bvh__tri_zero_area(t); /* held as its first vertex three times */
             for (v = 0; v < 3; v++)
-                for (a = 0; a < 3; a++)
-                    p->v[v][a][j] = t[3 * (flat ? 0 : v) + a];
+                for (a = 0; a < 3; a++) p->v[v][a][j] = t[3 * (flat ? 0 : v) + a];
             p->prim[j] = s->prims[k];
         }
     }
@@ -4418,7 +5036,8 @@ static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t ou
 /* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
    gets the binary children in ascending order, so that nodes are read in memory order. Leaf slots
    take their packets from *packet on (written when s->packets is set). */
-static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *out, uint32_t kids[BVH__W], uint32_t *packet) {
+static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *out, uint32_t kids[BVH__W],
+                               uint32_t *packet) {
     uint32_t k, i, a;
     if (bvh__wide_leaf(s, b)) { /* a root that is a leaf slot */
         kids[0] = b;
@@ -4444,8 +5063,12 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *ou
     for (i = 0; i < k; i++) {
         const bvh_node *c = &s->nodes[kids[i]];
         if (out) {
-            out->min[0][i] = c->min.x; out->min[1][i] = c->min.y; out->min[2][i] = c->min.z;
-            out->max[0][i] = c->max.x; out->max[1][i] = c->max.y; out->max[2][i] = c->max.z;
+            out->min[0][i] = c->min.x;
+            out->min[1][i] = c->min.y;
+            out->min[2][i] = c->min.z;
+            out->max[0][i] = c->max.x;
+            out->max[1][i] = c->max.y;
+            out->max[2][i] = c->max.z;
         }
         if (!bvh__wide_leaf(s, kids[i])) continue; /* interior children: the caller sets the index */
         if (out) {
@@ -4546,8 +5169,10 @@ static void bvh__team_run_always(const bvh_allocator *al, uint32_t want, bvh__te
 }
 /* The same on the build's pool when there is one (a pool's run cannot fail). */
 static void bvh__wide_run(const bvh__wide_plan *p, const bvh_allocator *al, bvh__wide_job *job) {
-    if (p->pool && p->pool->run) (void)bvh__team_run_on(p->pool, al, p->nt, 0, bvh__wide_fn, job);
-    else bvh__team_run_always(al, p->nt, bvh__wide_fn, job);
+    if (p->pool && p->pool->run)
+        (void)bvh__team_run_on(p->pool, al, p->nt, 0, bvh__wide_fn, job);
+    else
+        bvh__team_run_always(al, p->nt, bvh__wide_fn, job);
 }
 /* What bvh_refit keeps of the build's layout, after the packets in nodes8's block: the role of
    each binary node (a byte each, bvh__wide_heads), then the plan's top and subtree starts (top,
@@ -4560,7 +5185,8 @@ static uint32_t *bvh__wide_kept(const bvh_tree *tree) {
     return BVH__CAST(uint32_t *, BVH__CAST(void *, bvh__wide_heads(tree) + ((size_t)tree->node_count + 3u) / 4u * 4u));
 }
 static size_t bvh__wide_kept_bytes(uint32_t node_count, const bvh__wide_plan *p) {
-    return ((size_t)node_count + 3u) / 4u * 4u + sizeof(uint32_t) * (2u + (size_t)p->qlen + 2u * (size_t)(p->qlen - p->top));
+    return ((size_t)node_count + 3u) / 4u * 4u +
+           sizeof(uint32_t) * (2u + (size_t)p->qlen + 2u * (size_t)(p->qlen - p->top));
 }
 static void bvh__wide_plan_init(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub, uint8_t *role) {
     memset(&p->job, 0, sizeof p->job);
@@ -4609,7 +5235,8 @@ static bvh_result bvh__wide_plan_make(bvh__wide_plan *p, const bvh_tree *tree, c
     p->queue[0] = 0;
     p->qlen = 1;
     p->top = 0;
-    while (p->top < p->qlen && p->qlen - p->top < BVH__WIDE_SUBTREES && p->qlen + BVH__W <= BVH__WIDE_TOP) { /* breadth-first top */
+    while (p->top < p->qlen && p->qlen - p->top < BVH__WIDE_SUBTREES &&
+           p->qlen + BVH__W <= BVH__WIDE_TOP) { /* breadth-first top */
         k = bvh__wide_node(&p->job.src, p->queue[p->top++], NULL, kids, &ptotal);
         for (i = 0; i < k; i++)
             if (!bvh__wide_leaf(&p->job.src, kids[i])) p->queue[p->qlen++] = kids[i];
@@ -4669,9 +5296,9 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, const 
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
-    tree->nodes8 = BVH__CAST(bvh_node8 *, bvh__alloc_lines(al, (size_t)p->nodes * sizeof(bvh_node8) +
-                                                                   (size_t)(p->packets ? p->packets : 1) * sizeof(bvh_tri4) +
-                                                                   kept));
+    tree->nodes8 = BVH__CAST(bvh_node8 *,
+                             bvh__alloc_lines(al, (size_t)p->nodes * sizeof(bvh_node8) +
+                                                      (size_t)(p->packets ? p->packets : 1) * sizeof(bvh_tri4) + kept));
     if (!tree->nodes8) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
@@ -4711,7 +5338,10 @@ typedef struct bvh__best {
     float t, u, v;
     uint32_t prim;
 } bvh__best;
-typedef struct bvh__entry8 { uint32_t child, count; float t; } bvh__entry8;
+typedef struct bvh__entry8 {
+    uint32_t child, count;
+    float t;
+} bvh__entry8;
 #if defined(__GNUC__) || defined(__clang__)
 #define BVH__CTZ(m) ((unsigned)__builtin_ctz(m))
 #else
@@ -4849,8 +5479,8 @@ __attribute__((target("avx2"))) static inline float bvh__lane8(__m256 x, unsigne
     return f[i];
 }
 /* Vertex k of the lanes of packets p (lanes 0-3) and p1 (4-7), translated and sheared. */
-__attribute__((target("avx2"))) BVH__INLINE void bvh__shear8(const bvh__rayx *r, const bvh_tri4 *p, const bvh_tri4 *p1, int k,
-                                                            __m256 *x, __m256 *y, __m256 *z) {
+__attribute__((target("avx2"))) BVH__INLINE void bvh__shear8(const bvh__rayx *r, const bvh_tri4 *p, const bvh_tri4 *p1,
+                                                             int k, __m256 *x, __m256 *y, __m256 *z) {
     const __m256 zk = _mm256_sub_ps(bvh__load8(p->v[k][r->kz], p1->v[k][r->kz]), _mm256_set1_ps(r->o[r->kz]));
     *z = zk;
     *x = _mm256_sub_ps(_mm256_sub_ps(bvh__load8(p->v[k][r->kx], p1->v[k][r->kx]), _mm256_set1_ps(r->o[r->kx])),
@@ -4859,7 +5489,7 @@ __attribute__((target("avx2"))) BVH__INLINE void bvh__shear8(const bvh__rayx *r,
                        _mm256_mul_ps(_mm256_set1_ps(r->sy), zk));
 }
 __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np,
-                                                                     bvh__best *b, int any) {
+                                                                    bvh__best *b, int any) {
     const int kz = r->kz;
     const __m256 zero = _mm256_setzero_ps(), inf = _mm256_set1_ps(BVH_INF);
     uint32_t q;
@@ -4906,8 +5536,9 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
         if (!m) continue;
         /* bvh__packet_hits on eight lanes */
         det = _mm256_add_ps(_mm256_add_ps(U, V), W);
-        T = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(U, _mm256_mul_ps(sz, z0)), _mm256_mul_ps(V, _mm256_mul_ps(sz, z1))),
-                          _mm256_mul_ps(W, _mm256_mul_ps(sz, z2)));
+        T = _mm256_add_ps(
+            _mm256_add_ps(_mm256_mul_ps(U, _mm256_mul_ps(sz, z0)), _mm256_mul_ps(V, _mm256_mul_ps(sz, z1))),
+            _mm256_mul_ps(W, _mm256_mul_ps(sz, z2)));
         ft = _mm256_div_ps(T, det);
         ok = _mm256_and_ps(_mm256_cmp_ps(ft, _mm256_set1_ps(r->tmin), _CMP_GE_OQ),
                            _mm256_cmp_ps(ft, _mm256_set1_ps(b->t), _CMP_LE_OQ));
@@ -5006,7 +5637,8 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     /* a subnormal component counts as +0, as in bvh__ray_setup */
     const __m128 d = _mm_andnot_ps(_mm_cmplt_ps(ad, _mm_set1_ps(FLT_MIN)), d0);
     const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), d); /* 1 / +0 = +inf */
-    const unsigned finite = (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmplt_ps(_mm_and_ps(o, absm), inf), _mm_cmplt_ps(ad, inf)));
+    const unsigned finite =
+        (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmplt_ps(_mm_and_ps(o, absm), inf), _mm_cmplt_ps(ad, inf)));
     const unsigned neg = (unsigned)_mm_movemask_ps(_mm_cmplt_ps(inv, _mm_setzero_ps()));
     float fo[4], fd[4], fi[4], ax, ay, az;
     const unsigned char *order;
@@ -5081,8 +5713,8 @@ BVH__INLINE unsigned bvh__slab8q(const bvh__ray8 *q, const bvh_node8 *n, float t
 #ifdef BVH__AVX2
 /* bvh__slab8q in one pass of eight lanes (the same operations, so the same bits). Not forced
    inline: only bvh__traverse8_avx2, compiled for AVX2 as well, takes it in. */
-__attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh__ray8 *q, const bvh_node8 *n, float tfar,
-                                                                       float tn_out[BVH__W]) {
+__attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh__ray8 *q, const bvh_node8 *n,
+                                                                       float tfar, float tn_out[BVH__W]) {
     const float *f = &n->min[0][0];
     const __m256 oa = _mm256_broadcast_ss(&q->so[0]), ob = _mm256_broadcast_ss(&q->so[1]);
     const __m256 oc = _mm256_broadcast_ss(&q->so[2]), ia = _mm256_broadcast_ss(&q->sinv[0]);
@@ -5113,7 +5745,9 @@ __attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh
 #endif
 #else
 #define BVH__SLAB8(n, tfar, tn) bvh__slab8(rx, n, tfar, tn)
-typedef struct bvh__ray8 { int unused; } bvh__ray8; /* plain C: the slab test reads bvh__rayx */
+typedef struct bvh__ray8 {
+    int unused;
+} bvh__ray8; /* plain C: the slab test reads bvh__rayx */
 #endif
 #ifndef BVH__PACKETS
 #define BVH__PACKETS(r, p, np, b, any) bvh__packets(r, p, np, b, any)
@@ -5248,7 +5882,7 @@ BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *h
 }
 #ifdef BVH__AVX2
 __attribute__((target("avx2"))) static int bvh__trace8_avx2(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
-                                                              int any) {
+                                                            int any) {
     return bvh__trace8(tree, ray, hit, any, 1);
 }
 #endif
@@ -5270,7 +5904,11 @@ static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
     uint32_t stack[BVH_MAX_DEPTH + 2], sp = 0, best_prim = BVH_INVALID, nvis = 0;
     float stack_t[BVH_MAX_DEPTH + 2], best_t, best_u = 0.0f, best_v = 0.0f;
     const bvh_node *nodes, *node;
-    if (hit) { hit->t = ray ? ray->tmax : BVH_INF; hit->u = hit->v = 0.0f; hit->prim = BVH_INVALID; }
+    if (hit) {
+        hit->t = ray ? ray->tmax : BVH_INF;
+        hit->u = hit->v = 0.0f;
+        hit->prim = BVH_INVALID;
+    }
     if (visited) *visited = 0;
     if (!tree || !ray || !tree->node_count || !tree->tris) return 0;
     if (tree->nodes8 && !visited) return bvh__traverse8(tree, ray, hit, any);
@@ -5283,12 +5921,18 @@ static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
     for (;;) {
         if (node->count) {
             uint32_t k, end = node->index + node->count;
-            if (!sheared) { bvh__ray_shear(&rx); sheared = 1; }
+            if (!sheared) {
+                bvh__ray_shear(&rx);
+                sheared = 1;
+            }
             for (k = node->index; k < end; k++) {
                 float t, u, v;
                 if (!bvh__tri_test(&rx, tree->tris + 9 * (size_t)k, best_t, &t, &u, &v)) continue;
                 if (t == best_t && tree->prims[k] > best_prim) continue; /* ties: lowest index */
-                best_t = t; best_u = u; best_v = v; best_prim = tree->prims[k];
+                best_t = t;
+                best_u = u;
+                best_v = v;
+                best_prim = tree->prims[k];
                 if (any) goto out;
             }
         } else {
@@ -5296,7 +5940,14 @@ static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
             float t0 = bvh__slab(&rx, c0, best_t), t1 = bvh__slab(&rx, c1, best_t);
             nvis += 2;
             if (t0 != BVH_INF || t1 != BVH_INF) {
-                if (t1 < t0) { const bvh_node *tc = c0; float tt = t0; c0 = c1; c1 = tc; t0 = t1; t1 = tt; }
+                if (t1 < t0) {
+                    const bvh_node *tc = c0;
+                    float tt = t0;
+                    c0 = c1;
+                    c1 = tc;
+                    t0 = t1;
+                    t1 = tt;
+                }
                 node = c0;
                 if (t1 != BVH_INF) {
                     if (sp == BVH_MAX_DEPTH + 2) goto out; /* a tree deeper than the validator allows */
@@ -5309,13 +5960,21 @@ static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
         for (;;) { /* pop the next node still in reach of the current best */
             if (!sp) goto out;
             --sp;
-            if (stack_t[sp] <= best_t) { node = &nodes[stack[sp]]; break; }
+            if (stack_t[sp] <= best_t) {
+                node = &nodes[stack[sp]];
+                break;
+            }
         }
     }
 out:
     if (visited) *visited = nvis;
     if (best_prim == BVH_INVALID) return 0;
-    if (hit) { hit->t = best_t; hit->u = best_u; hit->v = best_v; hit->prim = best_prim; }
+    if (hit) {
+        hit->t = best_t;
+        hit->u = best_u;
+        hit->v = best_v;
+        hit->prim = best_prim;
+    }
     return 1;
 }
 
@@ -5363,12 +6022,15 @@ static size_t bvh__batch_take(bvh__batch *b, bvh__team *team) {
 static void bvh__batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__batch *b = BVH__CAST(bvh__batch *, arg);
     size_t chunk, i, e;
-    (void)tid; (void)nt;
+    (void)tid;
+    (void)nt;
     while ((chunk = bvh__batch_take(b, team)) < b->count) {
         e = chunk + BVH__BATCH_CHUNK < b->count ? chunk + BVH__BATCH_CHUNK : b->count;
         for (i = chunk; i < e; i++) {
-            if (b->hits) bvh__traverse(b->tree, &b->rays[i], &b->hits[i], 0, NULL);
-            else b->occluded[i] = (uint8_t)bvh__traverse(b->tree, &b->rays[i], NULL, 1, NULL);
+            if (b->hits)
+                bvh__traverse(b->tree, &b->rays[i], &b->hits[i], 0, NULL);
+            else
+                b->occluded[i] = (uint8_t)bvh__traverse(b->tree, &b->rays[i], NULL, 1, NULL);
         }
     }
 }
@@ -5377,12 +6039,14 @@ static void bvh__batch_task(void *arg, uint32_t index) {
     const bvh__batch *b = BVH__CAST(const bvh__batch *, arg);
     size_t i = (size_t)index * BVH__BATCH_CHUNK, e = i + BVH__BATCH_CHUNK < b->count ? i + BVH__BATCH_CHUNK : b->count;
     for (; i < e; i++) {
-        if (b->hits) bvh__traverse(b->tree, &b->rays[i], &b->hits[i], 0, NULL);
-        else b->occluded[i] = (uint8_t)bvh__traverse(b->tree, &b->rays[i], NULL, 1, NULL);
+        if (b->hits)
+            bvh__traverse(b->tree, &b->rays[i], &b->hits[i], 0, NULL);
+        else
+            b->occluded[i] = (uint8_t)bvh__traverse(b->tree, &b->rays[i], NULL, 1, NULL);
     }
 }
-static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ,
-                                 size_t count, uint32_t threads, const bvh_thread_pool *pool) {
+static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ, size_t count,
+                                 uint32_t threads, const bvh_thread_pool *pool) {
     bvh__batch b;
     uint32_t nt;
     if (!tree || (count && (!rays || (!hits && !occ)))) return BVH_ERROR_INVALID_ARGUMENT;
@@ -5390,15 +6054,22 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
     if (tree->node_count && !tree->tris) { /* as the single-ray calls: every ray misses */
         size_t i;
         for (i = 0; i < count; i++) {
-            if (hits) bvh__traverse(tree, &rays[i], &hits[i], 0, NULL);
-            else occ[i] = 0;
+            if (hits)
+                bvh__traverse(tree, &rays[i], &hits[i], 0, NULL);
+            else
+                occ[i] = 0;
         }
         return BVH_ERROR_NO_TRIANGLES;
     }
-    b.tree = tree; b.rays = rays; b.hits = hits; b.occluded = occ; b.count = count; b.next = 0;
+    b.tree = tree;
+    b.rays = rays;
+    b.hits = hits;
+    b.occluded = occ;
+    b.count = count;
+    b.next = 0;
     if (pool && pool->run) {
         size_t chunks = (count + BVH__BATCH_CHUNK - 1) / BVH__BATCH_CHUNK, done;
-        (void)threads; /* the pool balances the chunks itself */
+        (void)threads;                   /* the pool balances the chunks itself */
         for (done = 0; done < chunks;) { /* runs of at most 2^32 - 1 tasks */
             uint32_t k = chunks - done > 0xffffffffu ? 0xffffffffu : (uint32_t)(chunks - done);
             b.rays = rays + done * BVH__BATCH_CHUNK;
@@ -5428,14 +6099,20 @@ BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays,
 BVH_API bvh_result bvh_intersect_batch_ex(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
                                           const bvh_batch_desc *desc) {
     bvh_batch_desc zero;
-    if (!desc) { memset(&zero, 0, sizeof zero); desc = &zero; }
+    if (!desc) {
+        memset(&zero, 0, sizeof zero);
+        desc = &zero;
+    }
     if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
     return bvh__batch_run(tree, rays, hits, NULL, count, desc->threads, &desc->pool);
 }
 BVH_API bvh_result bvh_occluded_batch_ex(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
                                          const bvh_batch_desc *desc) {
     bvh_batch_desc zero;
-    if (!desc) { memset(&zero, 0, sizeof zero); desc = &zero; }
+    if (!desc) {
+        memset(&zero, 0, sizeof zero);
+        desc = &zero;
+    }
     if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
     return bvh__batch_run(tree, rays, NULL, occluded, count, desc->threads, &desc->pool);
 }
@@ -5476,7 +6153,14 @@ static int bvh__trace_leaves(const bvh_tree *tree, const bvh_ray *ray_in, int an
             const bvh_node *c0 = &nodes[node->index], *c1 = c0 + 1;
             float t0 = bvh__slab(&rx, c0, ray.tmax), t1 = bvh__slab(&rx, c1, ray.tmax);
             if (t0 != BVH_INF || t1 != BVH_INF) {
-                if (t1 < t0) { const bvh_node *tc = c0; float tt = t0; c0 = c1; c1 = tc; t0 = t1; t1 = tt; }
+                if (t1 < t0) {
+                    const bvh_node *tc = c0;
+                    float tt = t0;
+                    c0 = c1;
+                    c1 = tc;
+                    t0 = t1;
+                    t1 = tt;
+                }
                 node = c0;
                 if (t1 != BVH_INF) {
                     if (sp == BVH_MAX_DEPTH + 2) return found; /* deeper than the validator allows */
@@ -5489,7 +6173,10 @@ static int bvh__trace_leaves(const bvh_tree *tree, const bvh_ray *ray_in, int an
         for (;;) { /* pop the next node still in reach of the current best */
             if (!sp) return found;
             --sp;
-            if (stack_t[sp] <= ray.tmax) { node = &nodes[stack[sp]]; break; }
+            if (stack_t[sp] <= ray.tmax) {
+                node = &nodes[stack[sp]];
+                break;
+            }
         }
     }
 }
@@ -5544,12 +6231,15 @@ static void bvh__custom_batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team
     bvh__custom_batch *cb = BVH__CAST(bvh__custom_batch *, arg);
     bvh__batch *b = &cb->b;
     size_t chunk, i, e;
-    (void)tid; (void)nt;
+    (void)tid;
+    (void)nt;
     while ((chunk = bvh__batch_take(b, team)) < b->count) {
         e = chunk + BVH__BATCH_CHUNK < b->count ? chunk + BVH__BATCH_CHUNK : b->count;
         for (i = chunk; i < e; i++) {
-            if (b->hits) bvh__trace_custom(b->tree, &b->rays[i], &b->hits[i], 0, cb->custom);
-            else b->occluded[i] = (uint8_t)bvh__trace_custom(b->tree, &b->rays[i], NULL, 1, cb->custom);
+            if (b->hits)
+                bvh__trace_custom(b->tree, &b->rays[i], &b->hits[i], 0, cb->custom);
+            else
+                b->occluded[i] = (uint8_t)bvh__trace_custom(b->tree, &b->rays[i], NULL, 1, cb->custom);
         }
     }
 }
@@ -5560,7 +6250,12 @@ static bvh_result bvh__custom_batch_run(const bvh_tree *tree, const bvh_ray *ray
     if (!tree || !custom || !custom->intersect || (count && (!rays || (!hits && !occ))))
         return BVH_ERROR_INVALID_ARGUMENT;
     if (!bvh__allocator_paired(&tree->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
-    cb.b.tree = tree; cb.b.rays = rays; cb.b.hits = hits; cb.b.occluded = occ; cb.b.count = count; cb.b.next = 0;
+    cb.b.tree = tree;
+    cb.b.rays = rays;
+    cb.b.hits = hits;
+    cb.b.occluded = occ;
+    cb.b.count = count;
+    cb.b.next = 0;
     cb.custom = custom;
     nt = bvh__resolve_threads(threads);
     if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
@@ -5572,8 +6267,8 @@ BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ra
     if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
     return bvh__custom_batch_run(tree, rays, hits, NULL, count, threads, custom);
 }
-BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded,
-                                             size_t count, uint32_t threads, const bvh_custom_desc *custom) {
+BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
+                                             uint32_t threads, const bvh_custom_desc *custom) {
     if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
     return bvh__custom_batch_run(tree, rays, NULL, occluded, count, threads, custom);
 }
@@ -5612,8 +6307,7 @@ BVH_API bvh_vec3 bvh_offset_origin(bvh_vec3 p, bvh_vec3 n) {
     r.z = bvh__offset1(p.z, n.z);
     return r;
 }
-BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point,
-                                   bvh_vec3 *normal) {
+BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point, bvh_vec3 *normal) {
     float t[9], w, e1[3], e2[3];
     double nx, ny, nz, l;
     int k;
@@ -5635,7 +6329,10 @@ BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit
         point->z = w * t[2] + hit->u * t[5] + hit->v * t[8];
     }
     if (normal) { /* the cross product in double: no overflow for large, no underflow for tiny triangles */
-        for (k = 0; k < 3; k++) { e1[k] = t[3 + k] - t[k]; e2[k] = t[6 + k] - t[k]; }
+        for (k = 0; k < 3; k++) {
+            e1[k] = t[3 + k] - t[k];
+            e2[k] = t[6 + k] - t[k];
+        }
         nx = (double)e1[1] * e2[2] - (double)e1[2] * e2[1];
         ny = (double)e1[2] * e2[0] - (double)e1[0] * e2[2];
         nz = (double)e1[0] * e2[1] - (double)e1[1] * e2[0];
@@ -5680,9 +6377,15 @@ static int bvh__invert34(const float m[12], float out[12]) {
     for (i = 0; i < 12; i++)
         if (!bvh__finite(m[i])) return 0;
     for (i = 0; i < 9; i++) a[i] = m[(i / 3) * 4 + i % 3];
-    inv[0] = a[4] * a[8] - a[5] * a[7]; inv[1] = a[2] * a[7] - a[1] * a[8]; inv[2] = a[1] * a[5] - a[2] * a[4];
-    inv[3] = a[5] * a[6] - a[3] * a[8]; inv[4] = a[0] * a[8] - a[2] * a[6]; inv[5] = a[2] * a[3] - a[0] * a[5];
-    inv[6] = a[3] * a[7] - a[4] * a[6]; inv[7] = a[1] * a[6] - a[0] * a[7]; inv[8] = a[0] * a[4] - a[1] * a[3];
+    inv[0] = a[4] * a[8] - a[5] * a[7];
+    inv[1] = a[2] * a[7] - a[1] * a[8];
+    inv[2] = a[1] * a[5] - a[2] * a[4];
+    inv[3] = a[5] * a[6] - a[3] * a[8];
+    inv[4] = a[0] * a[8] - a[2] * a[6];
+    inv[5] = a[2] * a[3] - a[0] * a[5];
+    inv[6] = a[3] * a[7] - a[4] * a[6];
+    inv[7] = a[1] * a[6] - a[0] * a[7];
+    inv[8] = a[0] * a[4] - a[1] * a[3];
     det = a[0] * inv[0] + a[1] * inv[3] + a[2] * inv[6];
     if (det == 0.0) return 0;
     for (i = 0; i < 9; i++) inv[i] /= det;
@@ -5710,7 +6413,8 @@ static bvh_aabb bvh__instance_box(const bvh_instance *in) {
         p[1] = c & 2 ? b.max.y : b.min.y;
         p[2] = c & 4 ? b.max.z : b.min.z;
         for (i = 0; i < 3; i++) {
-            double x = (double)m[4 * i] * p[0] + (double)m[4 * i + 1] * p[1] + (double)m[4 * i + 2] * p[2] + m[4 * i + 3];
+            double x =
+                (double)m[4 * i] * p[0] + (double)m[4 * i + 1] * p[1] + (double)m[4 * i + 2] * p[2] + m[4 * i + 3];
             lo[i] = x < lo[i] ? x : lo[i];
             hi[i] = x > hi[i] ? x : hi[i];
         }
@@ -5760,7 +6464,10 @@ static bvh_result bvh__scene_maps(bvh_scene *sc) {
             const bvh_tree *t = sc->instances[i].tree;
             uint32_t h = (uint32_t)(((uint64_t)(uintptr_t)t * 0x9E3779B97F4A7C15ull) >> 40) & (cap - 1);
             while (keys[h] && keys[h] != t) h = (h + 1) & (cap - 1);
-            if (!keys[h]) { keys[h] = t; slot[h] = m++; }
+            if (!keys[h]) {
+                keys[h] = t;
+                slot[h] = m++;
+            }
             sc->mesh[i] = slot[h];
         }
         sc->mesh_count = m;
@@ -5770,7 +6477,11 @@ static bvh_result bvh__scene_maps(bvh_scene *sc) {
     if (r == BVH_SUCCESS) {
         for (i = 0; i < cap; i++)
             if (keys[i]) sc->ref_base[slot[i]] = keys[i]->prim_count;
-        for (i = 0; i < m; i++) { size_t c = sc->ref_base[i]; sc->ref_base[i] = total; total += c; }
+        for (i = 0; i < m; i++) {
+            size_t c = sc->ref_base[i];
+            sc->ref_base[i] = total;
+            total += c;
+        }
         sc->ref_of_prim = BVH__ALLOC(&sc->allocator, uint32_t, total ? total : 1);
         if (!sc->ref_of_prim) r = BVH_ERROR_OUT_OF_MEMORY;
     }
@@ -5810,8 +6521,10 @@ BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc)
     if (!scene->instances || !scene->inverse || !boxes) r = BVH_ERROR_OUT_OF_MEMORY;
     for (i = 0; r == BVH_SUCCESS && i < n; i++) {
         scene->instances[i] = desc->instances[i];
-        if (!bvh__invert34(desc->instances[i].transform, scene->inverse + 12 * (size_t)i)) r = BVH_ERROR_INVALID_GEOMETRY;
-        else boxes[i] = bvh__instance_box(&desc->instances[i]);
+        if (!bvh__invert34(desc->instances[i].transform, scene->inverse + 12 * (size_t)i))
+            r = BVH_ERROR_INVALID_GEOMETRY;
+        else
+            boxes[i] = bvh__instance_box(&desc->instances[i]);
     }
     if (r == BVH_SUCCESS) r = bvh__scene_maps(scene);
     if (r == BVH_SUCCESS) {
@@ -5859,7 +6572,10 @@ static bvh_vec3 bvh__scene_normal(const bvh_scene *scene, const bvh__scene_ctx *
     bvh_vec3 out = {0.0f, 0.0f, 0.0f};
     int k;
     t = tree->tris + 9 * (size_t)ref;
-    for (k = 0; k < 3; k++) { e1[k] = (double)t[3 + k] - t[k]; e2[k] = (double)t[6 + k] - t[k]; }
+    for (k = 0; k < 3; k++) {
+        e1[k] = (double)t[3 + k] - t[k];
+        e2[k] = (double)t[6 + k] - t[k];
+    }
     n[0] = e1[1] * e2[2] - e1[2] * e2[1];
     n[1] = e1[2] * e2[0] - e1[0] * e2[2];
     n[2] = e1[0] * e2[1] - e1[1] * e2[0];
@@ -5959,8 +6675,10 @@ static int bvh__refit_subtree(const bvh__refit *j, uint32_t h) {
         }
         if (n->index <= b || n->index >= j->tree->node_count - 1 || sp + 2 > 2 * BVH_MAX_DEPTH + 4) return 0;
         open[sp - 1] = 1;
-        node[sp] = n->index + 1; open[sp++] = 0;
-        node[sp] = n->index; open[sp++] = 0;
+        node[sp] = n->index + 1;
+        open[sp++] = 0;
+        node[sp] = n->index;
+        open[sp++] = 0;
     }
     return 1;
 }
@@ -5987,10 +6705,14 @@ static void bvh__refit_tris_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *
         }
         if (t->indices && i + 8 < e && prims[i + 8] < n) {
             const uint32_t *ix = &t->indices[3 * (size_t)prims[i + 8]];
-            BVH__PREFETCH(bvh__vertex(t, ix[0])); BVH__PREFETCH(bvh__vertex(t, ix[1])); BVH__PREFETCH(bvh__vertex(t, ix[2]));
+            BVH__PREFETCH(bvh__vertex(t, ix[0]));
+            BVH__PREFETCH(bvh__vertex(t, ix[1]));
+            BVH__PREFETCH(bvh__vertex(t, ix[2]));
         }
-        if (prims[i] < n) bvh__fetch_triangle(t, prims[i], j->tree->tris + 9 * i);
-        else bad++;
+        if (prims[i] < n)
+            bvh__fetch_triangle(t, prims[i], j->tree->tris + 9 * i);
+        else
+            bad++;
     }
     j->bad[tid] += bad;
 }
@@ -6108,7 +6830,8 @@ static bvh_result bvh__refit_check_desc(const bvh_tree *tree, const bvh_refit_de
             return BVH_ERROR_INVALID_ARGUMENT;
         if (t->stride != 0 && t->stride < 3 * sizeof(float)) return BVH_ERROR_INVALID_ARGUMENT;
         if ((uintptr_t)t->indices % sizeof(uint32_t)) return BVH_ERROR_INVALID_ARGUMENT;
-        if (!t->indices && (uint64_t)t->vertex_count < 3 * (uint64_t)t->triangle_count) return BVH_ERROR_INDEX_OUT_OF_RANGE;
+        if (!t->indices && (uint64_t)t->vertex_count < 3 * (uint64_t)t->triangle_count)
+            return BVH_ERROR_INDEX_OUT_OF_RANGE;
         return BVH_SUCCESS;
     }
     if (t->triangle_count || !d->boxes || d->box_count != tree->prim_count) return BVH_ERROR_INVALID_ARGUMENT;
@@ -6164,7 +6887,7 @@ typedef struct bvh__file_header {
     char magic[8];
     uint32_t version, endian, header_bytes, flags;
     uint32_t builder, node_count, ref_count, prim_count, excluded;
-    uint32_t header_check;  /* bvh__hash of the header with this field 0, low 32 bits */
+    uint32_t header_check; /* bvh__hash of the header with this field 0, low 32 bits */
     uint64_t payload_bytes;
     uint64_t payload_check; /* bvh__hash of nodes, references and triangles, chained */
 } bvh__file_header;
@@ -6177,7 +6900,9 @@ typedef char bvh__header_is_64_bytes[sizeof(bvh__file_header) == BVH__FILE_HEADE
 #define BVH__P2 0xC2B2AE3D27D4EB4FULL
 BVH__INLINE uint64_t bvh__rotl64(uint64_t x, int r) { return (x << r) | (x >> (64 - r)); }
 BVH__INLINE uint64_t bvh__round64(uint64_t acc, uint64_t w) { return bvh__rotl64(acc + w * BVH__P2, 31) * BVH__P1; }
-typedef struct bvh__hasher { uint64_t a, b, c, d; } bvh__hasher;
+typedef struct bvh__hasher {
+    uint64_t a, b, c, d;
+} bvh__hasher;
 static void bvh__hash_init(bvh__hasher *s, uint64_t seed) {
     s->a = seed + BVH__P1 + BVH__P2;
     s->b = seed + BVH__P2;
@@ -6191,10 +6916,15 @@ static void bvh__hash_blocks(bvh__hasher *s, const void *data, size_t size) {
     size_t i, n = size / 32;
     for (i = 0; i < n; i++, p += 32) {
         memcpy(w, p, 32);
-        a = bvh__round64(a, w[0]); b = bvh__round64(b, w[1]);
-        c = bvh__round64(c, w[2]); d = bvh__round64(d, w[3]);
+        a = bvh__round64(a, w[0]);
+        b = bvh__round64(b, w[1]);
+        c = bvh__round64(c, w[2]);
+        d = bvh__round64(d, w[3]);
     }
-    s->a = a; s->b = b; s->c = c; s->d = d;
+    s->a = a;
+    s->b = b;
+    s->c = c;
+    s->d = d;
 }
 /* The tail (size % 32 bytes at `tail`) and the total length. */
 static uint64_t bvh__hash_final(bvh__hasher *s, const void *tail, size_t size) {
@@ -6203,7 +6933,11 @@ static uint64_t bvh__hash_final(bvh__hasher *s, const void *tail, size_t size) {
     if (size % 32) memcpy(w, tail, size % 32);
     bvh__hash_blocks(s, w, 32);
     h = bvh__rotl64(s->a, 1) + bvh__rotl64(s->b, 7) + bvh__rotl64(s->c, 12) + bvh__rotl64(s->d, 18) + (uint64_t)size;
-    h ^= h >> 33; h *= BVH__P2; h ^= h >> 29; h *= BVH__P1; h ^= h >> 32;
+    h ^= h >> 33;
+    h *= BVH__P2;
+    h ^= h >> 29;
+    h *= BVH__P1;
+    h ^= h >> 32;
     return h;
 }
 static uint64_t bvh__hash(const void *data, size_t size, uint64_t seed) {
@@ -6261,8 +6995,10 @@ BVH_API bvh_result bvh_save(const bvh_tree *tree, bvh_write_fn write, void *user
     h.payload_check = bvh__payload_check(tree);
     h.header_check = bvh__header_check(h);
     if ((r = bvh__write_all(write, user, &h, sizeof h)) != BVH_SUCCESS) return r;
-    if ((r = bvh__write_all(write, user, tree->nodes, (size_t)tree->node_count * sizeof(bvh_node))) != BVH_SUCCESS) return r;
-    if ((r = bvh__write_all(write, user, tree->prims, (size_t)tree->ref_count * sizeof(uint32_t))) != BVH_SUCCESS) return r;
+    if ((r = bvh__write_all(write, user, tree->nodes, (size_t)tree->node_count * sizeof(bvh_node))) != BVH_SUCCESS)
+        return r;
+    if ((r = bvh__write_all(write, user, tree->prims, (size_t)tree->ref_count * sizeof(uint32_t))) != BVH_SUCCESS)
+        return r;
     if (tree->tris) r = bvh__write_all(write, user, tree->tris, (size_t)tree->ref_count * 9 * sizeof(float));
     return r;
 }
@@ -6317,8 +7053,10 @@ static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int k
         size_t n = size - done < piece ? size - done : piece;
         if ((r = bvh__read_all(rd, p + done, n)) != BVH_SUCCESS) return r;
         bvh__hash_blocks(&s, p + done, n / 32 * 32);
-        if (kind == 1) *bad |= !bvh__leaves_small(BVH__CAST(const bvh_node *, BVH__CAST(void *, p + done)), n / sizeof(bvh_node));
-        if (kind == 2) *bad |= !bvh__floats_finite(BVH__CAST(const float *, BVH__CAST(void *, p + done)), n / sizeof(float));
+        if (kind == 1)
+            *bad |= !bvh__leaves_small(BVH__CAST(const bvh_node *, BVH__CAST(void *, p + done)), n / sizeof(bvh_node));
+        if (kind == 2)
+            *bad |= !bvh__floats_finite(BVH__CAST(const float *, BVH__CAST(void *, p + done)), n / sizeof(float));
         done += n;
     }
     *check = bvh__hash_final(&s, p + size / 32 * 32, size);
@@ -6383,9 +7121,12 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         goto fail;
     }
     check = 1; /* bvh__payload_check's chain */
-    if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, &check, &bad)) != BVH_SUCCESS ||
-        (r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 0, &check, &bad)) != BVH_SUCCESS ||
-        (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, &check, &bad)) != BVH_SUCCESS))
+    if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, &check, &bad)) !=
+            BVH_SUCCESS ||
+        (r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 0, &check, &bad)) !=
+            BVH_SUCCESS ||
+        (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, &check,
+                                            &bad)) != BVH_SUCCESS))
         goto fail;
     tree->node_count = h.node_count;
     tree->ref_count = h.ref_count;
@@ -6414,7 +7155,13 @@ fail:
 /* ============================================================================================ */
 /* == camera ===================================================================================== */
 /* ============================================================================================ */
-static bvh_vec3 bvh__v3(float x, float y, float z) { bvh_vec3 v; v.x = x; v.y = y; v.z = z; return v; }
+static bvh_vec3 bvh__v3(float x, float y, float z) {
+    bvh_vec3 v;
+    v.x = x;
+    v.y = y;
+    v.z = z;
+    return v;
+}
 static bvh_vec3 bvh__normalize(bvh_vec3 v) {
     float l = sqrtf(v.x * v.x + v.y * v.y + v.z * v.z);
     return l > 0.0f ? bvh__v3(v.x / l, v.y / l, v.z / l) : v;

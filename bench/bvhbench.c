@@ -90,16 +90,17 @@
 #define BENCH_MAX_SCENES 64
 #define BENCH_MAX_ROWS (1 + BVH_BUILDER_COUNT + 3)
 #define BENCH_MAX_REPEAT 1000
-#define BENCH_TRACE_REPEAT 3 /* frames per CPU, OpenCL and Embree tracer; median time */
+#define BENCH_TRACE_REPEAT 3  /* frames per CPU, OpenCL and Embree tracer; median time */
 #define BENCH_BRUTE_TESTS 1e9 /* brute force: at most this many ray-triangle tests per frame */
 #define BENCH_BUNNY "/usr/share/glmark2/models/bunny.obj"
-#define BENCH_SET_TOLERANCE 1e-3 /* Embree may answer another way on this fraction of a secondary
-                                    set's rays (grazing rays, float noise) before it disagrees */
+#define BENCH_SET_TOLERANCE                                                                                            \
+    1e-3 /* Embree may answer another way on this fraction of a secondary                                              \
+            set's rays (grazing rays, float noise) before it disagrees */
 
 typedef struct options {
     const char *scenes[BENCH_MAX_SCENES];
     int nscenes;
-    int brute;                              /* the "none" row */
+    int brute; /* the "none" row */
     bvh_builder builders[BVH_BUILDER_COUNT];
     int nbuilders;
     emb_quality qualities[3];
@@ -107,10 +108,10 @@ typedef struct options {
     uint32_t threads;  /* as given, 0 = all cores */
     uint32_t nthreads; /* resolved */
     uint32_t repeat, width, height, brute_max, trace_width, ploc_top, max_bytes;
-    uint32_t paired;   /* rounds of interleaved builds against Embree medium (0: none) */
+    uint32_t paired;    /* rounds of interleaved builds against Embree medium (0: none) */
     uint32_t instances; /* instances of the scene's tree for the top-level rebuild (0: none) */
-    uint32_t refit;    /* frames of the animated case (--refit; 0: none) */
-    int save_load;     /* --save-load: time bvh_save and bvh_load of every tree */
+    uint32_t refit;     /* frames of the animated case (--refit; 0: none) */
+    int save_load;      /* --save-load: time bvh_save and bvh_load of every tree */
     int trace_cpu, trace_cl, trace_auto;
     const char *md, *json, *plots, *argv0;
     int quiet, strict;
@@ -120,11 +121,11 @@ typedef struct options {
 enum { SET_DIFFUSE, SET_SHADOW, SET_COUNT };
 static const char *const g_set_names[SET_COUNT] = {"diffuse", "shadow"};
 typedef struct set_figs {
-    double rays, count, t_sum;               /* count: diffuse hits, shadow rays occluded */
+    double rays, count, t_sum; /* count: diffuse hits, shadow rays occluded */
     double ms_1t, mrays_1t, ms_mt, mrays_mt;
-    double x_p, x_p_min, x_p_max;            /* 1-thread Mrays/s / Embree medium's, paired rounds */
-    double p_mrays;                          /* median 1-thread Mrays/s of the paired rounds */
-    double other;                            /* Embree: rays answered otherwise than by bvh.h */
+    double x_p, x_p_min, x_p_max; /* 1-thread Mrays/s / Embree medium's, paired rounds */
+    double p_mrays;               /* median 1-thread Mrays/s of the paired rounds */
+    double other;                 /* Embree: rays answered otherwise than by bvh.h */
 } set_figs;
 
 /* One row of a scene's table. Every number is NAN when it does not apply ("-" / null). */
@@ -136,34 +137,34 @@ typedef struct row {
     emb_quality quality;
     char name[24];
     row_state state;
-    char note[200];                           /* why skipped or failed */
+    char note[200]; /* why skipped or failed */
     double build_ms, build_min, build_max;
     double sah, nodes, leaves, refs, max_depth, max_leaf, bvh_bytes, tri_bytes, wide_bytes, peak_bytes;
     double ms_1t, mrays_1t, ms_mt, mrays_mt, ms_cl, mrays_cl, cl_kernel_ms;
     double frame_ms, fps, hits, t_sum;
-    double x_build, x_sah, x_mrays;           /* ours / Embree medium */
-    double x_pair, x_pair_min, x_pair_max;    /* build time / Embree medium's in paired rounds:
-                                                 median, min, max of the rounds' ratios */
-    double pair_ms;                           /* median build ms in the paired rounds (bvh.h rows
-                                                 and the Embree medium row) */
+    double x_build, x_sah, x_mrays;              /* ours / Embree medium */
+    double x_pair, x_pair_min, x_pair_max;       /* build time / Embree medium's in paired rounds:
+                                                    median, min, max of the rounds' ratios */
+    double pair_ms;                              /* median build ms in the paired rounds (bvh.h rows
+                                                    and the Embree medium row) */
     double x_ptrace, x_ptrace_min, x_ptrace_max; /* 1-thread Mrays/s / Embree medium's, paired */
-    double x_pcl, x_pcl_min, x_pcl_max;       /* OpenCL frame Mrays/s / the CPU's on N threads, paired */
-    double p_mrays;                           /* median 1-thread Mrays/s of the paired rounds */
-    set_figs set[SET_COUNT];                  /* the diffuse and shadow rays */
-    char set_note[320];                       /* Embree: its answers on the sets, where they differ */
-    double emb_bvh_ms, emb_prim_diff;         /* Embree: rtcBuildBVH time; pixels whose triangle
-                                                 differs from bvh.h's */
-    double refit_ms, rebuild_ms;              /* --refit: median per-frame bvh_refit of this tree,
-                                                 and rebuild by the fastest builder (bottom-up) */
-    double refit_sah, rebuild_sah;            /* the last frame: SAH of the refitted tree, and of
-                                                 this builder's tree rebuilt on it */
-    double refit_mrays, rebuild_mrays;        /* camera rays of the last frame on N threads */
-    double save_ms, load_ms;                  /* --save-load: to and from memory (median of 3) */
+    double x_pcl, x_pcl_min, x_pcl_max;          /* OpenCL frame Mrays/s / the CPU's on N threads, paired */
+    double p_mrays;                              /* median 1-thread Mrays/s of the paired rounds */
+    set_figs set[SET_COUNT];                     /* the diffuse and shadow rays */
+    char set_note[320];                          /* Embree: its answers on the sets, where they differ */
+    double emb_bvh_ms, emb_prim_diff;            /* Embree: rtcBuildBVH time; pixels whose triangle
+                                                    differs from bvh.h's */
+    double refit_ms, rebuild_ms;                 /* --refit: median per-frame bvh_refit of this tree,
+                                                    and rebuild by the fastest builder (bottom-up) */
+    double refit_sah, rebuild_sah;               /* the last frame: SAH of the refitted tree, and of
+                                                    this builder's tree rebuilt on it */
+    double refit_mrays, rebuild_mrays;           /* camera rays of the last frame on N threads */
+    double save_ms, load_ms;                     /* --save-load: to and from memory (median of 3) */
     const char *frame_tracer;
-    int disagree;                             /* (!): the hits disagree */
+    int disagree; /* (!): the hits disagree */
     char disagree_msg[320];
-    int refereed;                             /* (e): Embree differs from bvh.h on pixels where an
-                                                 exact test decides for bvh.h */
+    int refereed; /* (e): Embree differs from bvh.h on pixels where an
+                     exact test decides for bvh.h */
     char referee_msg[320];
 } row;
 
@@ -192,8 +193,10 @@ static void progress(const char *fmt, ...) {
     va_start(ap, fmt);
     vfprintf(stderr, fmt, ap);
     va_end(ap);
-    if (isatty(2)) g_progress_open = 1;
-    else fputc('\n', stderr);
+    if (isatty(2))
+        g_progress_open = 1;
+    else
+        fputc('\n', stderr);
     fflush(stderr);
 }
 static void progress_end(void) {
@@ -256,8 +259,13 @@ static void frame_pick(row *r, double ms, const char *tracer) {
 /* ============================================================================================ */
 /* == peak build memory: a counting allocator ==================================================== */
 /* ============================================================================================ */
-typedef union mem_header { size_t size; max_align_t align; } mem_header;
-typedef struct mem_counter { atomic_size_t live, peak; } mem_counter;
+typedef union mem_header {
+    size_t size;
+    max_align_t align;
+} mem_header;
+typedef struct mem_counter {
+    atomic_size_t live, peak;
+} mem_counter;
 
 static void *count_alloc(size_t size, void *user) {
     mem_counter *c = (mem_counter *)user;
@@ -269,7 +277,8 @@ static void *count_alloc(size_t size, void *user) {
     h->size = size;
     now = atomic_fetch_add(&c->live, size) + size;
     peak = atomic_load(&c->peak);
-    while (now > peak && !atomic_compare_exchange_weak(&c->peak, &peak, now)) {}
+    while (now > peak && !atomic_compare_exchange_weak(&c->peak, &peak, now)) {
+    }
     return h + 1;
 }
 static void count_free(void *ptr, void *user) {
@@ -302,8 +311,10 @@ static int bcl_open(bench_cl *b, char *msg, size_t msglen) {
     r = bvh_cl_create(&b->ctx, &d);
     if (r != BVH_CL_SUCCESS) {
         const char *what = bvh_cl_result_string(r);
-        if (!log[0] || strstr(what, log)) snprintf(msg, msglen, "%s", what);
-        else snprintf(msg, msglen, "%s: %.300s", what, log);
+        if (!log[0] || strstr(what, log))
+            snprintf(msg, msglen, "%s", what);
+        else
+            snprintf(msg, msglen, "%s: %.300s", what, log);
         return 1;
     }
     if (bvh_cl_get_info(b->ctx, &info) == BVH_CL_SUCCESS)
@@ -364,7 +375,7 @@ typedef struct brute_job {
     bvh_hit *hits;
     size_t count;
     uint32_t tid, nt;
-    int any;             /* any hit: stop at the first (shadow rays) */
+    int any; /* any hit: stop at the first (shadow rays) */
 } brute_job;
 
 /* Closest hit over every triangle in index order; ties in t keep the lower index, as bvh.h. */
@@ -372,7 +383,9 @@ static void brute_ray(const brute_job *j, size_t i) {
     bvh_ray ray = j->rays[i];
     bvh_hit best, h;
     uint32_t k;
-    best.t = ray.tmax; best.u = best.v = 0.0f; best.prim = BVH_INVALID;
+    best.t = ray.tmax;
+    best.u = best.v = 0.0f;
+    best.prim = BVH_INVALID;
     for (k = 0; k < j->nids; k++) {
         const float *t = j->v + 9 * (size_t)j->ids[k];
         if (bvh_intersect_triangle(&ray, t, t + 3, t + 6, &h) && (best.prim == BVH_INVALID || h.t < best.t)) {
@@ -402,12 +415,22 @@ static int trace_brute(const float *v, const uint32_t *ids, uint32_t nids, const
     double t0;
     int rc = 0;
     for (k = 0; k < threads; k++) {
-        jobs[k].v = v; jobs[k].ids = ids; jobs[k].nids = nids; jobs[k].rays = rays; jobs[k].hits = hits;
-        jobs[k].count = count; jobs[k].tid = k; jobs[k].nt = threads; jobs[k].any = any;
+        jobs[k].v = v;
+        jobs[k].ids = ids;
+        jobs[k].nids = nids;
+        jobs[k].rays = rays;
+        jobs[k].hits = hits;
+        jobs[k].count = count;
+        jobs[k].tid = k;
+        jobs[k].nt = threads;
+        jobs[k].any = any;
     }
     t0 = scene_now_ms();
     for (k = 1; k < threads; k++, started++)
-        if (pthread_create(&tid[k], NULL, brute_worker, &jobs[k]) != 0) { rc = 1; break; }
+        if (pthread_create(&tid[k], NULL, brute_worker, &jobs[k]) != 0) {
+            rc = 1;
+            break;
+        }
     if (!rc) brute_worker(&jobs[0]);
     for (k = 1; k < started; k++) pthread_join(tid[k], NULL);
     *ms = scene_now_ms() - t0;
@@ -421,13 +444,13 @@ typedef struct run_ctx {
     const options *o;
     const scene *s;
     bench_scene *out;
-    bench_cl *cl;           /* NULL: no OpenCL */
-    uint32_t *ids;          /* the finite triangles */
+    bench_cl *cl;  /* NULL: no OpenCL */
+    uint32_t *ids; /* the finite triangles */
     uint32_t nids;
-    bvh_aabb bounds;        /* of the finite triangles = the root box of every tree */
+    bvh_aabb bounds; /* of the finite triangles = the root box of every tree */
     size_t npix;
     bvh_ray *rays;
-    bvh_hit *hits, *ref;    /* a frame; the scene's reference frame (the first bvh.h traced) */
+    bvh_hit *hits, *ref; /* a frame; the scene's reference frame (the first bvh.h traced) */
     uint32_t *emb_prims;
     int has_ref;
     char ref_name[48];
@@ -435,8 +458,8 @@ typedef struct run_ctx {
     char ref_hits_name[48]; /* ... and its row */
     rays_set sets;          /* diffuse and shadow rays from the reference frame, made once */
     int has_sets;
-    bvh_hit *dhits, *dref;  /* a diffuse frame; the reference one (the first bvh.h traced) */
-    uint8_t *occ, *oref;    /* a shadow frame; the reference one */
+    bvh_hit *dhits, *dref; /* a diffuse frame; the reference one (the first bvh.h traced) */
+    uint8_t *occ, *oref;   /* a shadow frame; the reference one */
     int has_sref[SET_COUNT];
     char sref_name[SET_COUNT][48];
     double sref_count[SET_COUNT]; /* the reference's diffuse hits, shadow rays occluded */
@@ -461,8 +484,14 @@ static void check_frame(run_ctx *c, row *r, const char *tracer, const bvh_hit *h
     size_t i, diff = 0, first = 0;
     double hits = 0.0, t_sum = 0.0;
     for (i = 0; i < c->npix; i++)
-        if (h[i].prim != BVH_INVALID) { hits += 1.0; t_sum += (double)h[i].t; }
-    if (isnan(r->hits)) { r->hits = hits; r->t_sum = t_sum; }
+        if (h[i].prim != BVH_INVALID) {
+            hits += 1.0;
+            t_sum += (double)h[i].t;
+        }
+    if (isnan(r->hits)) {
+        r->hits = hits;
+        r->t_sum = t_sum;
+    }
     if (!c->has_ref) {
         memcpy(c->ref, h, c->npix * sizeof *h);
         c->has_ref = 1;
@@ -527,23 +556,33 @@ static void check_set(run_ctx *c, row *r, int set, const char *tracer) {
     double count = 0.0, t_sum = 0.0;
     set_figs *f = &r->set[set];
     for (i = 0; i < n; i++) {
-        if (set == SET_SHADOW) count += c->occ[i];
-        else if (c->dhits[i].prim != BVH_INVALID) { count += 1.0; t_sum += (double)c->dhits[i].t; }
+        if (set == SET_SHADOW)
+            count += c->occ[i];
+        else if (c->dhits[i].prim != BVH_INVALID) {
+            count += 1.0;
+            t_sum += (double)c->dhits[i].t;
+        }
     }
     f->rays = (double)n;
-    if (isnan(f->count)) { f->count = count; f->t_sum = t_sum; }
+    if (isnan(f->count)) {
+        f->count = count;
+        f->t_sum = t_sum;
+    }
     if (!c->has_sref[set]) {
-        if (set == SET_SHADOW) memcpy(c->oref, c->occ, n);
-        else memcpy(c->dref, c->dhits, n * sizeof *c->dhits);
+        if (set == SET_SHADOW)
+            memcpy(c->oref, c->occ, n);
+        else
+            memcpy(c->dref, c->dhits, n * sizeof *c->dhits);
         c->has_sref[set] = 1;
         c->sref_count[set] = count;
         snprintf(c->sref_name[set], sizeof c->sref_name[set], "%s %s", r->name, tracer);
         return;
     }
     for (i = 0; i < n; i++) {
-        int same = set == SET_SHADOW ? c->occ[i] == c->oref[i]
-                 : c->dhits[i].prim == c->dref[i].prim &&
-                   (c->dhits[i].prim == BVH_INVALID || !memcmp(&c->dhits[i].t, &c->dref[i].t, sizeof(float)));
+        int same = set == SET_SHADOW
+                       ? c->occ[i] == c->oref[i]
+                       : c->dhits[i].prim == c->dref[i].prim &&
+                             (c->dhits[i].prim == BVH_INVALID || !memcmp(&c->dhits[i].t, &c->dref[i].t, sizeof(float)));
         if (!same && !diff++) first = i;
     }
     if (diff)
@@ -559,8 +598,9 @@ static bvh_result trace_set(run_ctx *c, const bvh_tree *tree, int set, uint32_t 
     uint32_t i;
     for (i = 0; i < BENCH_TRACE_REPEAT; i++) {
         double t0 = scene_now_ms();
-        bvh_result res = set == SET_DIFFUSE ? bvh_intersect_batch(tree, c->sets.diffuse, c->dhits, c->sets.ndiffuse, threads)
-                                            : bvh_occluded_batch(tree, c->sets.shadow, c->occ, c->sets.nshadow, threads);
+        bvh_result res = set == SET_DIFFUSE
+                             ? bvh_intersect_batch(tree, c->sets.diffuse, c->dhits, c->sets.ndiffuse, threads)
+                             : bvh_occluded_batch(tree, c->sets.shadow, c->occ, c->sets.nshadow, threads);
         v[i] = scene_now_ms() - t0;
         if (res != BVH_SUCCESS) return res;
     }
@@ -613,7 +653,10 @@ static int brute_sets(run_ctx *c, row *r) {
                 for (i = 0; i < n; i++) c->occ[i] = c->dhits[i].prim != BVH_INVALID;
             snprintf(tag, sizeof tag, "cpu-%ut", th);
             check_set(c, r, set, tag);
-            if (th == 1) { f->ms_1t = ms; f->mrays_1t = mrays_of(n, ms); }
+            if (th == 1) {
+                f->ms_1t = ms;
+                f->mrays_1t = mrays_of(n, ms);
+            }
             f->ms_mt = ms;
             f->mrays_mt = mrays_of(n, ms);
         }
@@ -629,8 +672,8 @@ static void run_brute(run_ctx *c, row *r) {
     r->build_ms = r->build_min = r->build_max = 0.0; /* the study's "0": nothing is built */
     if (!o->trace_cpu) {
         r->state = ROW_SKIPPED;
-        snprintf(r->note, sizeof r->note, "skipped (%s)", o->trace_cl ? "brute force runs on the CPU only, see --trace"
-                                                                       : "no tracing: --trace none");
+        snprintf(r->note, sizeof r->note, "skipped (%s)",
+                 o->trace_cl ? "brute force runs on the CPU only, see --trace" : "no tracing: --trace none");
         return;
     }
     if (c->nids > o->brute_max || tests > BENCH_BRUTE_TESTS) {
@@ -731,8 +774,13 @@ static int tree_figures(row *r, const bvh_tree *tree) {
         snprintf(r->note, sizeof r->note, "failed: no SAH or statistics");
         return 1;
     }
-    r->nodes = st.nodes; r->leaves = st.leaves; r->refs = st.refs; r->max_depth = st.max_depth;
-    r->max_leaf = st.max_leaf_size; r->bvh_bytes = (double)st.bytes; r->tri_bytes = (double)st.triangle_bytes;
+    r->nodes = st.nodes;
+    r->leaves = st.leaves;
+    r->refs = st.refs;
+    r->max_depth = st.max_depth;
+    r->max_leaf = st.max_leaf_size;
+    r->bvh_bytes = (double)st.bytes;
+    r->tri_bytes = (double)st.triangle_bytes;
     r->wide_bytes = (double)st.wide_bytes;
     return 0;
 }
@@ -799,7 +847,9 @@ fail:
 /* --save-load: bvh_save into a buffer of bvh_save_size bytes and bvh_load from it (the 8-wide
    layout made again on N threads), 3 times each; the median times. The loaded tree must be the
    saved one. */
-typedef struct mem_writer { unsigned char *p; } mem_writer;
+typedef struct mem_writer {
+    unsigned char *p;
+} mem_writer;
 static size_t mem_write(void *user, const void *data, size_t size) {
     mem_writer *w = (mem_writer *)user;
     memcpy(w->p, data, size);
@@ -905,14 +955,15 @@ static void animate(run_ctx *c, row *r, bvh_tree *tree) {
         res = bvh_build(&fresh, &desc);
     }
     if (res == BVH_SUCCESS && (res = bvh_validate(tree, NULL, NULL)) == BVH_SUCCESS &&
-        (res = bvh_sah(tree, NULL, &r->refit_sah)) == BVH_SUCCESS && (res = bvh_sah(&fresh, NULL, &r->rebuild_sah)) == BVH_SUCCESS &&
-        o->trace_cpu) {
+        (res = bvh_sah(tree, NULL, &r->refit_sah)) == BVH_SUCCESS &&
+        (res = bvh_sah(&fresh, NULL, &r->rebuild_sah)) == BVH_SUCCESS && o->trace_cpu) {
         progress("%s: %s, trace after refit and after rebuild", c->out->name, r->name);
         make_rays(c, bvh_tree_bounds(tree), &cam);
         if ((res = trace_median(c, tree, o->nthreads, &ms)) == BVH_SUCCESS) {
             r->refit_mrays = mrays_of(c->npix, ms);
             memcpy(hits, c->hits, c->npix * sizeof *hits);
-            if ((res = trace_median(c, &fresh, o->nthreads, &ms)) == BVH_SUCCESS) r->rebuild_mrays = mrays_of(c->npix, ms);
+            if ((res = trace_median(c, &fresh, o->nthreads, &ms)) == BVH_SUCCESS)
+                r->rebuild_mrays = mrays_of(c->npix, ms);
             for (i = 0; res == BVH_SUCCESS && i < c->npix; i++)
                 if (hits[i].prim != c->hits[i].prim || memcmp(&hits[i].t, &c->hits[i].t, sizeof hits[i].t)) {
                     flag(c, r, "pixel %zu: the refitted tree hits triangle %u, the rebuilt one %u", i, hits[i].prim,
@@ -956,28 +1007,46 @@ static long double edge_volume(const long double o[3], const long double d[3], c
                                long double *bound) {
     long double A[3], B[3], c[3], m[3];
     int k;
-    for (k = 0; k < 3; k++) { A[k] = (long double)a[k] - o[k]; B[k] = (long double)b[k] - o[k]; }
-    c[0] = A[1] * B[2] - A[2] * B[1]; m[0] = fabsl(A[1] * B[2]) + fabsl(A[2] * B[1]);
-    c[1] = A[2] * B[0] - A[0] * B[2]; m[1] = fabsl(A[2] * B[0]) + fabsl(A[0] * B[2]);
-    c[2] = A[0] * B[1] - A[1] * B[0]; m[2] = fabsl(A[0] * B[1]) + fabsl(A[1] * B[0]);
+    for (k = 0; k < 3; k++) {
+        A[k] = (long double)a[k] - o[k];
+        B[k] = (long double)b[k] - o[k];
+    }
+    c[0] = A[1] * B[2] - A[2] * B[1];
+    m[0] = fabsl(A[1] * B[2]) + fabsl(A[2] * B[1]);
+    c[1] = A[2] * B[0] - A[0] * B[2];
+    m[1] = fabsl(A[2] * B[0]) + fabsl(A[0] * B[2]);
+    c[2] = A[0] * B[1] - A[1] * B[0];
+    m[2] = fabsl(A[0] * B[1]) + fabsl(A[1] * B[0]);
     *bound = 4.0L * FLT_EPSILON * (m[0] * fabsl(d[0]) + m[1] * fabsl(d[1]) + m[2] * fabsl(d[2]));
     return c[0] * d[0] + c[1] * d[1] + c[2] * d[2];
 }
 static int exact_hit(const bvh_ray *r, const float *t3, long double *t) {
     long double o[3], d[3], v[3], bound[3], e1[3], e2[3], n[3], nd;
     int k, pos = 0, neg = 0, unsure = 0;
-    o[0] = r->origin.x; o[1] = r->origin.y; o[2] = r->origin.z;
-    d[0] = r->dir.x; d[1] = r->dir.y; d[2] = r->dir.z;
+    o[0] = r->origin.x;
+    o[1] = r->origin.y;
+    o[2] = r->origin.z;
+    d[0] = r->dir.x;
+    d[1] = r->dir.y;
+    d[2] = r->dir.z;
     v[0] = edge_volume(o, d, t3 + 3, t3 + 6, &bound[0]);
     v[1] = edge_volume(o, d, t3 + 6, t3, &bound[1]);
     v[2] = edge_volume(o, d, t3, t3 + 3, &bound[2]);
     for (k = 0; k < 3; k++) {
-        if (fabsl(v[k]) <= bound[k]) unsure = 1;
-        else if (v[k] > 0) pos = 1;
-        else neg = 1;
+        if (fabsl(v[k]) <= bound[k])
+            unsure = 1;
+        else if (v[k] > 0)
+            pos = 1;
+        else
+            neg = 1;
     }
-    for (k = 0; k < 3; k++) { e1[k] = (long double)t3[3 + k] - t3[k]; e2[k] = (long double)t3[6 + k] - t3[k]; }
-    n[0] = e1[1] * e2[2] - e1[2] * e2[1]; n[1] = e1[2] * e2[0] - e1[0] * e2[2]; n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    for (k = 0; k < 3; k++) {
+        e1[k] = (long double)t3[3 + k] - t3[k];
+        e2[k] = (long double)t3[6 + k] - t3[k];
+    }
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
     nd = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
     if (nd == 0.0L) return -1;
     *t = (n[0] * (t3[0] - o[0]) + n[1] * (t3[1] - o[1]) + n[2] * (t3[2] - o[2])) / nd;
@@ -987,8 +1056,10 @@ static int exact_hit(const bvh_ray *r, const float *t3, long double *t) {
 }
 
 static const char *prim_text(uint32_t prim, char *b, size_t n) {
-    if (prim == BVH_INVALID) snprintf(b, n, "miss");
-    else snprintf(b, n, "triangle %u", prim);
+    if (prim == BVH_INVALID)
+        snprintf(b, n, "miss");
+    else
+        snprintf(b, n, "triangle %u", prim);
     return b;
 }
 
@@ -1023,8 +1094,9 @@ static void referee_embree(run_ctx *c, row *r) {
     if (lost) {
         x = first_lost % o->width;
         y = first_lost / o->width;
-        flag(c, r, "%s: %.0f hits (%s: %.0f); %zu pixels differ, at %zu an exact test says bvh.h is wrong (first "
-                   "x=%zu y=%zu: bvh.h %s, Embree %s)",
+        flag(c, r,
+             "%s: %.0f hits (%s: %.0f); %zu pixels differ, at %zu an exact test says bvh.h is wrong (first "
+             "x=%zu y=%zu: bvh.h %s, Embree %s)",
              r->name, r->hits, c->ref_name, c->ref_hits, diff, lost, x, y,
              prim_text(c->ref[first_lost].prim, pb, sizeof pb), prim_text(c->emb_prims[first_lost], pe, sizeof pe));
     } else if (diff || r->hits != c->ref_hits) {
@@ -1034,10 +1106,13 @@ static void referee_embree(run_ctx *c, row *r) {
         snprintf(r->referee_msg, sizeof r->referee_msg,
                  "%s: %.0f hits (%s: %.0f); %zu pixel(s) differ, all grazing rays (float precision) or decided "
                  "for bvh.h by an exact test (first "
-                 "x=%zu y=%zu: bvh.h %s, Embree %s)", r->name, r->hits, c->ref_name, c->ref_hits, diff, x, y,
-                 prim_text(c->ref[first].prim, pb, sizeof pb), prim_text(c->emb_prims[first], pe, sizeof pe));
-        if (o->strict) flag(c, r, "%s (--strict)", r->referee_msg);
-        else say("note on %s: %s", c->out->name, r->referee_msg);
+                 "x=%zu y=%zu: bvh.h %s, Embree %s)",
+                 r->name, r->hits, c->ref_name, c->ref_hits, diff, x, y, prim_text(c->ref[first].prim, pb, sizeof pb),
+                 prim_text(c->emb_prims[first], pe, sizeof pe));
+        if (o->strict)
+            flag(c, r, "%s (--strict)", r->referee_msg);
+        else
+            say("note on %s: %s", c->out->name, r->referee_msg);
     }
 }
 
@@ -1057,7 +1132,10 @@ static void embree_set_compare(run_ctx *c, row *r, int set, const uint32_t *prim
             count += occ[i];
             differs = occ[i] != c->oref[i];
         } else {
-            if (prim[i] != BVH_INVALID) { count += 1.0; t_sum += (double)t[i]; }
+            if (prim[i] != BVH_INVALID) {
+                count += 1.0;
+                t_sum += (double)t[i];
+            }
             differs = prim[i] != c->dref[i].prim;
             if (differs && ours_loses(c, &c->sets.diffuse[i], prim[i], c->dref[i].prim) && !lost++) first_lost = i;
         }
@@ -1072,8 +1150,8 @@ static void embree_set_compare(run_ctx *c, row *r, int set, const uint32_t *prim
              r->name, other, g_set_names[set], lost, first_lost);
     if (!other || !c->has_sref[set]) return;
     snprintf(line, sizeof line, "%s rays: %.0f %s (%s: %.0f), %zu of %zu rays answered otherwise (first: ray %zu)",
-             g_set_names[set], count, set == SET_SHADOW ? "occluded" : "hits", c->sref_name[set],
-             c->sref_count[set], other, n, first);
+             g_set_names[set], count, set == SET_SHADOW ? "occluded" : "hits", c->sref_name[set], c->sref_count[set],
+             other, n, first);
     if ((double)other > BENCH_SET_TOLERANCE * (double)n)
         flag(c, r, "%s: %s, more than the tolerance of %g of the rays", r->name, line, BENCH_SET_TOLERANCE);
     else if (!lost)
@@ -1112,14 +1190,17 @@ static void embree_sets(run_ctx *c, row *r) {
                 break;
             }
             ms = scene_median(v, BENCH_TRACE_REPEAT);
-            if (!pass) { f->ms_1t = ms; f->mrays_1t = mrays_of(m, ms); }
+            if (!pass) {
+                f->ms_1t = ms;
+                f->mrays_1t = mrays_of(m, ms);
+            }
             f->ms_mt = ms;
             f->mrays_mt = mrays_of(m, ms);
         }
         if (st != EMB_OK) break;
         for (i = 0; passes == 2 && i < m; i++)
             mt_diff += set == SET_SHADOW ? occ[i] != occ[n + i]
-                     : p[i] != p[n + i] || (p[i] != BVH_INVALID && t[i] != t[n + i]);
+                                         : p[i] != p[n + i] || (p[i] != BVH_INVALID && t[i] != t[n + i]);
         if (mt_diff)
             flag(c, r, "%s: %zu %s rays answered otherwise on %u threads than on 1", r->name, mt_diff, g_set_names[set],
                  o->nthreads);
@@ -1148,7 +1229,10 @@ static void run_embree(run_ctx *c, row *r) {
     d.quality = r->quality;
     d.threads = o->threads;
     d.repeat = o->repeat;
-    if (o->trace_cpu) { d.width = o->width; d.height = o->height; }
+    if (o->trace_cpu) {
+        d.width = o->width;
+        d.height = o->height;
+    }
     d.trace_threads = o->nthreads;
     d.trace_repeat = BENCH_TRACE_REPEAT;
     d.robust = 1; /* RTC_SCENE_FLAG_ROBUST: the closest Embree comes to a watertight test */
@@ -1161,15 +1245,22 @@ static void run_embree(run_ctx *c, row *r) {
         snprintf(r->note, sizeof r->note, "failed: %s", res.message);
         return;
     }
-    r->build_ms = res.build.ms; r->build_min = res.build.min_ms; r->build_max = res.build.max_ms;
+    r->build_ms = res.build.ms;
+    r->build_min = res.build.min_ms;
+    r->build_max = res.build.max_ms;
     if (d.width) {
-        r->ms_1t = res.trace_ms; r->mrays_1t = res.mrays;
-        r->ms_mt = res.trace_ms_mt; r->mrays_mt = res.mrays_mt;
-        r->hits = (double)res.hits; r->t_sum = res.t_sum;
+        r->ms_1t = res.trace_ms;
+        r->mrays_1t = res.mrays;
+        r->ms_mt = res.trace_ms_mt;
+        r->mrays_mt = res.mrays_mt;
+        r->hits = (double)res.hits;
+        r->t_sum = res.t_sum;
         frame_pick(r, r->ms_1t, "cpu-1t");
         frame_pick(r, r->ms_mt, "cpu-mt");
-        if (!res.mt_identical) flag(c, r, "%s: the %u-thread frame differs from the 1-thread frame", r->name, o->nthreads);
-        if (c->has_ref) referee_embree(c, r);
+        if (!res.mt_identical)
+            flag(c, r, "%s: the %u-thread frame differs from the 1-thread frame", r->name, o->nthreads);
+        if (c->has_ref)
+            referee_embree(c, r);
         else if (isnan(c->ref_hits)) {
             c->ref_hits = r->hits;
             snprintf(c->ref_hits_name, sizeof c->ref_hits_name, "%s", r->name);
@@ -1189,8 +1280,13 @@ static void run_embree(run_ctx *c, row *r) {
         snprintf(r->note, sizeof r->note, "failed: rtcBuildBVH: %s", sah.message);
         return;
     }
-    r->sah = sah.sah; r->nodes = sah.nodes; r->leaves = sah.leaves; r->refs = sah.refs;
-    r->max_depth = sah.max_depth; r->max_leaf = sah.max_leaf_size; r->emb_bvh_ms = sah.build.ms;
+    r->sah = sah.sah;
+    r->nodes = sah.nodes;
+    r->leaves = sah.leaves;
+    r->refs = sah.refs;
+    r->max_depth = sah.max_depth;
+    r->max_leaf = sah.max_leaf_size;
+    r->emb_bvh_ms = sah.build.ms;
 }
 
 /* OpenCL against the CPU on N threads, paired: each round renders one frame of every tree with
@@ -1235,7 +1331,7 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
     const options *o = c->o;
     bvh_tree trees[BENCH_MAX_ROWS];
     double *pms = ratio + (size_t)(1 + SET_COUNT) * out->nrows * o->paired; /* ms per kind, tree, round */
-    double *ems = NULL;                                          /* Embree's ms per kind and round */
+    double *ems = NULL;                                                     /* Embree's ms per kind and round */
     float *et = NULL;
     uint32_t *ep = NULL;
     uint8_t *eo = NULL;
@@ -1252,7 +1348,10 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
         bvh_build_desc desc;
         if (out->rows[i].kind != ROW_BVH || out->rows[i].state != ROW_OK) continue;
         bench_desc(c, out->rows[i].builder, &desc);
-        if (bvh_build(&trees[i], &desc) != BVH_SUCCESS) { say("%s: paired tracing: build failed", out->name); goto done; }
+        if (bvh_build(&trees[i], &desc) != BVH_SUCCESS) {
+            say("%s: paired tracing: build failed", out->name);
+            goto done;
+        }
         made = i + 1;
     }
     kinds = c->has_sets ? 1 + SET_COUNT : 1;
@@ -1260,7 +1359,10 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
     et = (float *)malloc(n * sizeof *et);
     ep = (uint32_t *)malloc(n * sizeof *ep);
     eo = (uint8_t *)malloc(n);
-    if (!ems || !et || !ep || !eo) { say("%s: paired tracing: out of memory", out->name); goto done; }
+    if (!ems || !et || !ep || !eo) {
+        say("%s: paired tracing: out of memory", out->name);
+        goto done;
+    }
     for (k = 0; k <= o->paired; k++) { /* round 0: warm-up */
         double ms[BENCH_MAX_ROWS][1 + SET_COUNT], em[1 + SET_COUNT];
         for (i = 0; i < made; i++) {
@@ -1270,17 +1372,17 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
             for (kind = 0; kind < kinds; kind++) { /* the camera rays, then each set */
                 double t0 = scene_now_ms();
                 bvh_result res = kind == 0 ? bvh_intersect_batch(&trees[i], c->rays, c->hits, c->npix, 1)
-                               : kind == 1 + SET_DIFFUSE
-                                   ? bvh_intersect_batch(&trees[i], c->sets.diffuse, c->dhits, c->sets.ndiffuse, 1)
-                                   : bvh_occluded_batch(&trees[i], c->sets.shadow, c->occ, c->sets.nshadow, 1);
+                                 : kind == 1 + SET_DIFFUSE
+                                     ? bvh_intersect_batch(&trees[i], c->sets.diffuse, c->dhits, c->sets.ndiffuse, 1)
+                                     : bvh_occluded_batch(&trees[i], c->sets.shadow, c->occ, c->sets.nshadow, 1);
                 ms[i][kind] = scene_now_ms() - t0;
                 if (res != BVH_SUCCESS) goto done;
             }
         }
         for (kind = 0; kind < kinds; kind++) {
             int st = kind == 0 ? emb_builder_trace(eb, c->rays, o->width, o->height, 1, &em[kind])
-                   : emb_builder_rays(eb, set_rays(c, kind - 1), set_size(c, kind - 1), 1, et, ep,
-                                      kind == 1 + SET_SHADOW ? eo : NULL, &em[kind]);
+                               : emb_builder_rays(eb, set_rays(c, kind - 1), set_size(c, kind - 1), 1, et, ep,
+                                                  kind == 1 + SET_SHADOW ? eo : NULL, &em[kind]);
             if (st != EMB_OK || !(em[kind] > 0.0)) {
                 say("%s: paired tracing: Embree failed", out->name);
                 goto done;
@@ -1324,7 +1426,6 @@ done:
     free(eo);
 }
 
-
 /* Paired rounds (--paired N): on a shared machine a builder's five builds and Embree's five
    later ones can fall into different moments of noise, and their medians' ratio with them. Here
    each round builds once with every bvh.h builder of the table and once with Embree medium, one
@@ -1349,9 +1450,13 @@ static void run_paired(run_ctx *c, bench_scene *out) {
     }
     /* the builds' ratios and times; then paired_trace's: ratios and times per kind of ray */
     ratio = (double *)malloc((size_t)(2 * (1 + SET_COUNT) * out->nrows + 1) * o->paired * sizeof *ratio);
-    if (!ratio) { emb_builder_close(eb); say("%s: paired rounds: out of memory", out->name); return; }
+    if (!ratio) {
+        emb_builder_close(eb);
+        say("%s: paired rounds: out of memory", out->name);
+        return;
+    }
     pms = ratio + (size_t)out->nrows * o->paired; /* build ms per row and round; Embree's last */
-    for (k = 0; k <= o->paired; k++) { /* round 0: warm-up */
+    for (k = 0; k <= o->paired; k++) {            /* round 0: warm-up */
         double ms[BENCH_MAX_ROWS];
         for (i = 0; i < out->nrows; i++) {
             row *r = &out->rows[i];
@@ -1362,7 +1467,10 @@ static void run_paired(run_ctx *c, bench_scene *out) {
             progress("%s: paired round %u/%u%s, %s", out->name, k, o->paired, k ? "" : " (warm-up)", r->name);
             bench_desc(c, r->builder, &desc);
             t0 = scene_now_ms();
-            if (bvh_build(&t, &desc) != BVH_SUCCESS) { say("%s: paired rounds: %s failed", out->name, r->name); goto done; }
+            if (bvh_build(&t, &desc) != BVH_SUCCESS) {
+                say("%s: paired rounds: %s failed", out->name, r->name);
+                goto done;
+            }
             ms[i] = scene_now_ms() - t0;
             bvh_free(&t);
         }
@@ -1453,15 +1561,21 @@ static int run_instances(run_ctx *c, bench_scene *out) {
         return 1;
     }
     inst = (bvh_instance *)calloc(n, sizeof *inst);
-    if (!inst) { bvh_free(&tree); say("%s: out of memory", out->name); return 1; }
+    if (!inst) {
+        bvh_free(&tree);
+        say("%s: out of memory", out->name);
+        return 1;
+    }
     for (i = 0; i < n; i++) {
         float a;
         seed = seed * 1664525u + 1013904223u;
         a = (float)(seed >> 8) * (6.2831853f / 16777216.0f);
         inst[i].tree = &tree;
-        inst[i].transform[0] = cosf(a); inst[i].transform[2] = sinf(a);
+        inst[i].transform[0] = cosf(a);
+        inst[i].transform[2] = sinf(a);
         inst[i].transform[5] = 1.0f;
-        inst[i].transform[8] = -sinf(a); inst[i].transform[10] = cosf(a);
+        inst[i].transform[8] = -sinf(a);
+        inst[i].transform[10] = cosf(a);
         inst[i].transform[3] = diag * (float)(i % side);
         inst[i].transform[7] = diag * (float)(i / side % side);
         inst[i].transform[11] = diag * (float)(i / side / side);
@@ -1514,7 +1628,10 @@ static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene
     int i, failed = 0;
     uint32_t t;
     memset(&c, 0, sizeof c);
-    c.o = o; c.s = s; c.out = out; c.cl = cl;
+    c.o = o;
+    c.s = s;
+    c.out = out;
+    c.cl = cl;
     out->inst_ms = out->inst_min = out->inst_max = out->inst_mrays_1t = out->one_level_mrays_1t = NAN;
     c.ref_hits = NAN;
     atomic_init(&c.mem.live, 0);
@@ -1539,7 +1656,9 @@ static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene
         c.ids[c.nids++] = t;
         for (k = 0; k < 3; k++) {
             bvh_vec3 q;
-            q.x = p[3 * k]; q.y = p[3 * k + 1]; q.z = p[3 * k + 2];
+            q.x = p[3 * k];
+            q.y = p[3 * k + 1];
+            q.z = p[3 * k + 2];
             bvh_aabb_grow(&c.bounds, q);
         }
     }
@@ -1558,9 +1677,12 @@ static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene
     }
     for (i = 0; i < out->nrows; i++) {
         row *r = &out->rows[i];
-        if (r->kind == ROW_BRUTE) run_brute(&c, r);
-        else if (r->kind == ROW_BVH) run_builder(&c, r);
-        else run_embree(&c, r);
+        if (r->kind == ROW_BRUTE)
+            run_brute(&c, r);
+        else if (r->kind == ROW_BVH)
+            run_builder(&c, r);
+        else
+            run_embree(&c, r);
         if (r->state == ROW_FAILED) {
             say("%s: %s %s", out->name, r->name, r->note);
             failed = 1;
@@ -1588,14 +1710,38 @@ done:
 /* == tables: columns, cells, best values ========================================================= */
 /* ============================================================================================ */
 enum {
-    C_BUILDER, C_BUILD, C_RANGE, C_SAH, C_NODES, C_LEAVES, C_REFS, C_DEPTH, C_BPT, C_WBPT, C_PEAK, C_PEAKBPT, C_MR1,
-    C_MRN, C_MRCL, C_DMR1, C_DMRN, C_SMR1, C_SMRN, C_FRAME, C_FPS, C_HITS, C_XBUILD, C_XSAH, C_XMR, C_COUNT
+    C_BUILDER,
+    C_BUILD,
+    C_RANGE,
+    C_SAH,
+    C_NODES,
+    C_LEAVES,
+    C_REFS,
+    C_DEPTH,
+    C_BPT,
+    C_WBPT,
+    C_PEAK,
+    C_PEAKBPT,
+    C_MR1,
+    C_MRN,
+    C_MRCL,
+    C_DMR1,
+    C_DMRN,
+    C_SMR1,
+    C_SMRN,
+    C_FRAME,
+    C_FPS,
+    C_HITS,
+    C_XBUILD,
+    C_XSAH,
+    C_XMR,
+    C_COUNT
 };
 typedef struct column {
-    const char *head;  /* text table; "%u" becomes the thread count */
-    const char *md;    /* Markdown header */
-    int width;         /* text table */
-    int better;        /* -1 lower is better, +1 higher, 0 not ranked */
+    const char *head; /* text table; "%u" becomes the thread count */
+    const char *md;   /* Markdown header */
+    int width;        /* text table */
+    int better;       /* -1 lower is better, +1 higher, 0 not ranked */
 } column;
 static const column g_cols[C_COUNT] = {
     {"builder", "Builder", 14, 0},
@@ -1626,8 +1772,10 @@ static const column g_cols[C_COUNT] = {
 };
 
 static void fmt_num(char *b, size_t n, double v, int prec) {
-    if (isnan(v)) snprintf(b, n, "-");
-    else snprintf(b, n, "%.*f", prec, v);
+    if (isnan(v))
+        snprintf(b, n, "-");
+    else
+        snprintf(b, n, "%.*f", prec, v);
 }
 static void fmt_ms(char *b, size_t n, double v) { /* 3 significant digits, at least 0 decimals */
     fmt_num(b, n, v, isnan(v) ? 0 : v < 10.0 ? 3 : v < 100.0 ? 2 : v < 1000.0 ? 1 : 0);
@@ -1638,40 +1786,94 @@ static double cell(const bench_scene *s, const row *r, int col, char *b, size_t 
     double tris = s->triangles ? (double)s->triangles : NAN;
     char lo[32], hi[32];
     switch (col) {
-    case C_BUILDER: snprintf(b, n, "%s", r->name); return NAN;
+    case C_BUILDER:
+        snprintf(b, n, "%s", r->name);
+        return NAN;
     case C_BUILD:
-        if (r->kind == ROW_BRUTE) { snprintf(b, n, "0"); return NAN; } /* the study's 0: nothing built */
+        if (r->kind == ROW_BRUTE) {
+            snprintf(b, n, "0");
+            return NAN;
+        } /* the study's 0: nothing built */
         fmt_ms(b, n, r->build_ms);
         return r->build_ms;
     case C_RANGE:
-        if (isnan(r->build_min) || r->kind == ROW_BRUTE) { snprintf(b, n, "-"); return NAN; }
+        if (isnan(r->build_min) || r->kind == ROW_BRUTE) {
+            snprintf(b, n, "-");
+            return NAN;
+        }
         fmt_ms(lo, sizeof lo, r->build_min);
         fmt_ms(hi, sizeof hi, r->build_max);
         snprintf(b, n, "%s-%s", lo, hi);
         return NAN;
-    case C_SAH: fmt_num(b, n, r->sah, 2); return r->sah;
-    case C_NODES: fmt_num(b, n, r->nodes, 0); return r->nodes;
-    case C_LEAVES: fmt_num(b, n, r->leaves, 0); return r->leaves;
-    case C_REFS: fmt_num(b, n, r->refs, 0); return r->refs;
-    case C_DEPTH: fmt_num(b, n, r->max_depth, 0); return r->max_depth;
-    case C_BPT: fmt_num(b, n, r->bvh_bytes / tris, 1); return r->bvh_bytes / tris;
-    case C_WBPT: fmt_num(b, n, r->wide_bytes / tris, 1); return r->wide_bytes / tris;
-    case C_PEAK: fmt_ms(b, n, r->peak_bytes / 1048576.0); return r->peak_bytes;
-    case C_PEAKBPT: fmt_num(b, n, r->peak_bytes / tris, 0); return r->peak_bytes / tris;
-    case C_MR1: fmt_num(b, n, r->mrays_1t, 2); return r->mrays_1t;
-    case C_MRN: fmt_num(b, n, r->mrays_mt, 2); return r->mrays_mt;
-    case C_MRCL: fmt_num(b, n, r->mrays_cl, 2); return r->mrays_cl;
-    case C_DMR1: fmt_num(b, n, r->set[SET_DIFFUSE].mrays_1t, 2); return r->set[SET_DIFFUSE].mrays_1t;
-    case C_DMRN: fmt_num(b, n, r->set[SET_DIFFUSE].mrays_mt, 2); return r->set[SET_DIFFUSE].mrays_mt;
-    case C_SMR1: fmt_num(b, n, r->set[SET_SHADOW].mrays_1t, 2); return r->set[SET_SHADOW].mrays_1t;
-    case C_SMRN: fmt_num(b, n, r->set[SET_SHADOW].mrays_mt, 2); return r->set[SET_SHADOW].mrays_mt;
-    case C_FRAME: fmt_ms(b, n, r->frame_ms); return r->frame_ms;
-    case C_FPS: fmt_num(b, n, r->fps, r->fps < 10.0 ? 2 : 1); return r->fps;
-    case C_HITS: fmt_num(b, n, r->hits, 0); return NAN;
-    case C_XBUILD: fmt_num(b, n, r->x_build, 2); return r->x_build;
-    case C_XSAH: fmt_num(b, n, r->x_sah, 3); return r->x_sah;
-    case C_XMR: fmt_num(b, n, r->x_mrays, 2); return r->x_mrays;
-    default: snprintf(b, n, "?"); return NAN;
+    case C_SAH:
+        fmt_num(b, n, r->sah, 2);
+        return r->sah;
+    case C_NODES:
+        fmt_num(b, n, r->nodes, 0);
+        return r->nodes;
+    case C_LEAVES:
+        fmt_num(b, n, r->leaves, 0);
+        return r->leaves;
+    case C_REFS:
+        fmt_num(b, n, r->refs, 0);
+        return r->refs;
+    case C_DEPTH:
+        fmt_num(b, n, r->max_depth, 0);
+        return r->max_depth;
+    case C_BPT:
+        fmt_num(b, n, r->bvh_bytes / tris, 1);
+        return r->bvh_bytes / tris;
+    case C_WBPT:
+        fmt_num(b, n, r->wide_bytes / tris, 1);
+        return r->wide_bytes / tris;
+    case C_PEAK:
+        fmt_ms(b, n, r->peak_bytes / 1048576.0);
+        return r->peak_bytes;
+    case C_PEAKBPT:
+        fmt_num(b, n, r->peak_bytes / tris, 0);
+        return r->peak_bytes / tris;
+    case C_MR1:
+        fmt_num(b, n, r->mrays_1t, 2);
+        return r->mrays_1t;
+    case C_MRN:
+        fmt_num(b, n, r->mrays_mt, 2);
+        return r->mrays_mt;
+    case C_MRCL:
+        fmt_num(b, n, r->mrays_cl, 2);
+        return r->mrays_cl;
+    case C_DMR1:
+        fmt_num(b, n, r->set[SET_DIFFUSE].mrays_1t, 2);
+        return r->set[SET_DIFFUSE].mrays_1t;
+    case C_DMRN:
+        fmt_num(b, n, r->set[SET_DIFFUSE].mrays_mt, 2);
+        return r->set[SET_DIFFUSE].mrays_mt;
+    case C_SMR1:
+        fmt_num(b, n, r->set[SET_SHADOW].mrays_1t, 2);
+        return r->set[SET_SHADOW].mrays_1t;
+    case C_SMRN:
+        fmt_num(b, n, r->set[SET_SHADOW].mrays_mt, 2);
+        return r->set[SET_SHADOW].mrays_mt;
+    case C_FRAME:
+        fmt_ms(b, n, r->frame_ms);
+        return r->frame_ms;
+    case C_FPS:
+        fmt_num(b, n, r->fps, r->fps < 10.0 ? 2 : 1);
+        return r->fps;
+    case C_HITS:
+        fmt_num(b, n, r->hits, 0);
+        return NAN;
+    case C_XBUILD:
+        fmt_num(b, n, r->x_build, 2);
+        return r->x_build;
+    case C_XSAH:
+        fmt_num(b, n, r->x_sah, 3);
+        return r->x_sah;
+    case C_XMR:
+        fmt_num(b, n, r->x_mrays, 2);
+        return r->x_mrays;
+    default:
+        snprintf(b, n, "?");
+        return NAN;
     }
 }
 
@@ -1696,8 +1898,10 @@ static void best_cells(const bench_scene *s, char best[C_COUNT][40]) {
 
 static void head_text(int col, const options *o, int md, char *b, size_t n) {
     const char *h = md ? g_cols[col].md : g_cols[col].head;
-    if (col == C_MRN || col == C_DMRN || col == C_SMRN) snprintf(b, n, h, o->nthreads);
-    else snprintf(b, n, "%s", h);
+    if (col == C_MRN || col == C_DMRN || col == C_SMRN)
+        snprintf(b, n, h, o->nthreads);
+    else
+        snprintf(b, n, "%s", h);
 }
 
 /* ---- the text table ------------------------------------------------------------------------ */
@@ -1718,7 +1922,8 @@ static void paired_block(FILE *f, const bench_scene *s, const row *em, const cha
         if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(med)) continue;
         if (!any++) fprintf(f, "%s%s: median (min-max)\n", prefix, title);
         fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)", prefix, r->name, med, lo, hi);
-        if (which == 0 && !isnan(r->pair_ms)) fprintf(f, "   median build %.4g ms (table: %.4g)", r->pair_ms, r->build_ms);
+        if (which == 0 && !isnan(r->pair_ms))
+            fprintf(f, "   median build %.4g ms (table: %.4g)", r->pair_ms, r->build_ms);
         if (!isnan(mr)) fprintf(f, "   median %.3g Mrays/s (embree-medium %.3g)", mr, emr);
         fputc('\n', f);
     }
@@ -1731,8 +1936,10 @@ static void paired_lines(FILE *f, const options *o, const bench_scene *s, const 
         if (s->rows[i].kind == ROW_EMBREE && s->rows[i].quality == EMB_QUALITY_MEDIUM && !isnan(s->rows[i].pair_ms))
             em = &s->rows[i];
     if (em)
-        snprintf(t, sizeof t, "build / embree-medium in %u paired rounds (one build each, interleaved; embree-medium's "
-                 "median build %.4g ms, table: %.4g)", o->paired, em->pair_ms, em->build_ms);
+        snprintf(t, sizeof t,
+                 "build / embree-medium in %u paired rounds (one build each, interleaved; embree-medium's "
+                 "median build %.4g ms, table: %.4g)",
+                 o->paired, em->pair_ms, em->build_ms);
     else
         snprintf(t, sizeof t, "build / embree-medium in %u paired rounds (one build each, interleaved)", o->paired);
     paired_block(f, s, em, prefix, 0, t);
@@ -1759,9 +1966,10 @@ static void sets_lines(FILE *f, const bench_scene *s, const char *prefix) {
     for (i = 0; i < s->nrows && !r; i++)
         if (s->rows[i].kind != ROW_EMBREE && !isnan(s->rows[i].set[SET_SHADOW].count)) r = &s->rows[i];
     if (!r) return;
-    fprintf(f, "%sdiffuse rays: %.0f (one per primary hit, cosine-weighted about the normal, origin %g x the scene "
-               "diagonal off the surface), %.0f hit; shadow rays: %.0f (to the light (%.3f, %.3f, %.3f) from the "
-               "hits facing it, any hit), %.0f occluded\n",
+    fprintf(f,
+            "%sdiffuse rays: %.0f (one per primary hit, cosine-weighted about the normal, origin %g x the scene "
+            "diagonal off the surface), %.0f hit; shadow rays: %.0f (to the light (%.3f, %.3f, %.3f) from the "
+            "hits facing it, any hit), %.0f occluded\n",
             prefix, r->set[SET_DIFFUSE].rays, (double)RAYS_OFFSET, r->set[SET_DIFFUSE].count, r->set[SET_SHADOW].rays,
             (double)L.x, (double)L.y, (double)L.z, r->set[SET_SHADOW].count);
     for (i = 0; i < s->nrows; i++)
@@ -1772,9 +1980,10 @@ static void sets_lines(FILE *f, const bench_scene *s, const char *prefix) {
 
 static void instances_line(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
     if (isnan(s->inst_ms)) return;
-    fprintf(f, "%sinstances: top-level rebuild for %u instances of the default tree: %.2f ms (%.2f..%.2f, %s top, "
-               "%u threads); one instance vs the tree itself, camera rays on 1 thread: %.2f vs %.2f Mrays/s "
-               "(%.3fx)\n",
+    fprintf(f,
+            "%sinstances: top-level rebuild for %u instances of the default tree: %.2f ms (%.2f..%.2f, %s top, "
+            "%u threads); one instance vs the tree itself, camera rays on 1 thread: %.2f vs %.2f Mrays/s "
+            "(%.3fx)\n",
             prefix, o->instances, s->inst_ms, s->inst_min, s->inst_max, bvh_builder_name(BVH_BUILDER_PLOC_PARALLEL),
             o->nthreads, s->inst_mrays_1t, s->one_level_mrays_1t, s->inst_mrays_1t / s->one_level_mrays_1t);
 }
@@ -1782,21 +1991,25 @@ static void instances_line(FILE *f, const options *o, const bench_scene *s, cons
 static void anim_lines(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
     int i;
     if (o->refit)
-        fprintf(f, "%sanimated (--refit %u: a twist and a wave, %u threads): per-frame refit ms, rebuild ms (bottom-up), "
-                   "SAH refitted / rebuilt by the builder at the last frame, Mrays/s after refit / after rebuild\n",
+        fprintf(f,
+                "%sanimated (--refit %u: a twist and a wave, %u threads): per-frame refit ms, rebuild ms (bottom-up), "
+                "SAH refitted / rebuilt by the builder at the last frame, Mrays/s after refit / after rebuild\n",
                 prefix, o->refit, o->nthreads);
     for (i = 0; o->refit && i < s->nrows; i++) {
         const row *r = &s->rows[i];
         if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
-        fprintf(f, "%s  %-14s refit %8.2f ms  rebuild %8.2f ms (%5.1fx)  SAH %8.2f / %8.2f (%+.1f%%)  Mrays/s %7.2f / %7.2f\n",
-                prefix, r->name, r->refit_ms, r->rebuild_ms, r->rebuild_ms / r->refit_ms, r->refit_sah, r->rebuild_sah,
-                100.0 * (r->refit_sah / r->rebuild_sah - 1.0), r->refit_mrays, r->rebuild_mrays);
+        fprintf(
+            f,
+            "%s  %-14s refit %8.2f ms  rebuild %8.2f ms (%5.1fx)  SAH %8.2f / %8.2f (%+.1f%%)  Mrays/s %7.2f / %7.2f\n",
+            prefix, r->name, r->refit_ms, r->rebuild_ms, r->rebuild_ms / r->refit_ms, r->refit_sah, r->rebuild_sah,
+            100.0 * (r->refit_sah / r->rebuild_sah - 1.0), r->refit_mrays, r->rebuild_mrays);
     }
     if (o->save_load) fprintf(f, "%ssave and load (--save-load, memory, 8-wide layout made on load): ms\n", prefix);
     for (i = 0; o->save_load && i < s->nrows; i++) {
         const row *r = &s->rows[i];
         if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
-        fprintf(f, "%s  %-14s save %8.2f  load %8.2f  (build %8.2f)\n", prefix, r->name, r->save_ms, r->load_ms, r->build_ms);
+        fprintf(f, "%s  %-14s save %8.2f  load %8.2f  (build %8.2f)\n", prefix, r->name, r->save_ms, r->load_ms,
+                r->build_ms);
     }
 }
 
@@ -1826,8 +2039,10 @@ static void print_block(FILE *f, const options *o, const bench_scene *s) {
         fputc('\n', f);
     }
     for (i = 0; i < s->nrows; i++)
-        if (s->rows[i].disagree) fprintf(f, "(!) HITS DISAGREE: %s\n", s->rows[i].disagree_msg);
-        else if (s->rows[i].refereed) fprintf(f, "(e) %s\n", s->rows[i].referee_msg);
+        if (s->rows[i].disagree)
+            fprintf(f, "(!) HITS DISAGREE: %s\n", s->rows[i].disagree_msg);
+        else if (s->rows[i].refereed)
+            fprintf(f, "(e) %s\n", s->rows[i].referee_msg);
     sets_lines(f, s, "");
     anim_lines(f, o, s, "");
     paired_lines(f, o, s, "");
@@ -1853,23 +2068,28 @@ static void md_block(FILE *f, const options *o, const bench_scene *s) {
         for (col = 1; col < C_COUNT; col++) {
             if (r->state != ROW_OK) {
                 const char *t = col == C_BUILD && r->kind == ROW_BRUTE ? "0"
-                              : col == C_RANGE ? (r->state == ROW_SKIPPED ? "skipped (too slow)" : "failed")
-                              : (col == C_FRAME || col == C_FPS) ? "X" : "";
+                                : col == C_RANGE ? (r->state == ROW_SKIPPED ? "skipped (too slow)" : "failed")
+                                : (col == C_FRAME || col == C_FPS) ? "X"
+                                                                   : "";
                 if (col == C_RANGE && r->state == ROW_SKIPPED && strncmp(r->note, "skipped (too slow", 17))
                     t = "skipped";
                 fprintf(f, " %s |", t);
                 continue;
             }
             cell(s, r, col, b, sizeof b);
-            if (best[col][0] && !strcmp(b, best[col])) fprintf(f, " **%s** |", b);
-            else fprintf(f, " %s%s |", b, col != C_HITS ? "" : r->disagree ? " **(!)**" : r->refereed ? " (e)" : "");
+            if (best[col][0] && !strcmp(b, best[col]))
+                fprintf(f, " **%s** |", b);
+            else
+                fprintf(f, " %s%s |", b, col != C_HITS ? "" : r->disagree ? " **(!)**" : r->refereed ? " (e)" : "");
         }
         fputc('\n', f);
     }
     for (i = 0; i < s->nrows; i++) {
         const row *r = &s->rows[i];
-        if (r->disagree) fprintf(f, "\n**(!) HITS DISAGREE:** %s\n", r->disagree_msg);
-        else if (r->refereed) fprintf(f, "\n(e) %s\n", r->referee_msg);
+        if (r->disagree)
+            fprintf(f, "\n**(!) HITS DISAGREE:** %s\n", r->disagree_msg);
+        else if (r->refereed)
+            fprintf(f, "\n(e) %s\n", r->referee_msg);
         if (r->state != ROW_OK) fprintf(f, "\n%s: %s\n", r->name, r->note);
     }
     fputc('\n', f);
@@ -1907,19 +2127,26 @@ typedef struct header_info {
 static void header_lines(FILE *f, const options *o, const header_info *h, const char *prefix) {
     fprintf(f, "%sbvhbench: bvh.h %d.%d.%d, %s\n", prefix, BVH_VERSION_MAJOR, BVH_VERSION_MINOR, BVH_VERSION_PATCH,
             h->date);
-    fprintf(f, "%sCPU: %s, %u cores online; threads %u (ploc-parallel, multi-thread tracing, Embree)\n", prefix,
-            h->cpu, scene_cpu_count(), o->nthreads);
+    fprintf(f, "%sCPU: %s, %u cores online; threads %u (ploc-parallel, multi-thread tracing, Embree)\n", prefix, h->cpu,
+            scene_cpu_count(), o->nthreads);
     fprintf(f, "%sEmbree: %s\n", prefix, h->embree);
     bvh_builder_info ploc;
     bvh_builder_get_info(BVH_BUILDER_PLOC, &ploc); /* the defaults of desc.ploc */
-    if (o->ploc_top == BVH_OFF) fprintf(f, "%sPLOC: the paper's, without the SAH top (--ploc-top off)\n", prefix);
-    else fprintf(f, "%sPLOC: with the SAH top over the last n/%u clusters (--ploc-top)\n", prefix, o->ploc_top ? o->ploc_top : ploc.ploc.top);
-    if (o->max_bytes == BVH_OFF) fprintf(f, "%sPLOC's collapse: the SAH alone (--max-bytes off)\n", prefix);
-    else fprintf(f, "%sPLOC's collapse: tree at most %u bytes per triangle (--max-bytes)\n", prefix, o->max_bytes ? o->max_bytes : ploc.ploc.max_bytes_per_prim);
+    if (o->ploc_top == BVH_OFF)
+        fprintf(f, "%sPLOC: the paper's, without the SAH top (--ploc-top off)\n", prefix);
+    else
+        fprintf(f, "%sPLOC: with the SAH top over the last n/%u clusters (--ploc-top)\n", prefix,
+                o->ploc_top ? o->ploc_top : ploc.ploc.top);
+    if (o->max_bytes == BVH_OFF)
+        fprintf(f, "%sPLOC's collapse: the SAH alone (--max-bytes off)\n", prefix);
+    else
+        fprintf(f, "%sPLOC's collapse: tree at most %u bytes per triangle (--max-bytes)\n", prefix,
+                o->max_bytes ? o->max_bytes : ploc.ploc.max_bytes_per_prim);
     fprintf(f, "%sOpenCL: %s\n", prefix, h->opencl);
-    fprintf(f, "%sbuild: median of %u timed build(s) after one warm-up; frame: %ux%u primary rays of the standard camera, "
-               "traced %s (CPU, OpenCL and Embree: median of %d frames); frame ms = fastest tracer; CPU tracing walks the "
-               "%s\n",
+    fprintf(f,
+            "%sbuild: median of %u timed build(s) after one warm-up; frame: %ux%u primary rays of the standard camera, "
+            "traced %s (CPU, OpenCL and Embree: median of %d frames); frame ms = fastest tracer; CPU tracing walks the "
+            "%s\n",
             prefix, o->repeat, o->width, o->height, h->trace, BENCH_TRACE_REPEAT,
             o->trace_width == 2 ? "binary nodes (--trace-width 2)" : "8-wide copy (OpenCL: the binary nodes)");
 }
@@ -1941,7 +2168,10 @@ static FILE *create_file(const char *path) {
 static int write_md(const char *path, const options *o, const header_info *h, const bench_scene *sc, int n) {
     FILE *f = create_file(path);
     int i;
-    if (!f) { say("cannot write %s: %s", path, strerror(errno)); return 1; }
+    if (!f) {
+        say("cannot write %s: %s", path, strerror(errno));
+        return 1;
+    }
     fputs("# bvh.h benchmark: the study's Table I, with Embree\n\n", f);
     header_lines(f, o, h, "- ");
     fputs("- best value per column and scene in **bold**; \"-\": does not apply; X: too slow to be measured "
@@ -1951,15 +2181,20 @@ static int write_md(const char *path, const options *o, const header_info *h, co
           "leaves, refs, depth of rtcBuildBVH's binary tree at the same quality (max leaf 8)\n",
           f);
     for (i = 0; i < n; i++) md_block(f, o, &sc[i]);
-    if (fclose(f) != 0) { say("cannot write %s", path); return 1; }
+    if (fclose(f) != 0) {
+        say("cannot write %s", path);
+        return 1;
+    }
     return 0;
 }
 
 /* ---- JSON lines ------------------------------------------------------------------------------------ */
 static void json_num(FILE *f, const char *key, double v, int prec) {
     fprintf(f, ",\"%s\":", key);
-    if (isnan(v) || isinf(v)) fputs("null", f);
-    else fprintf(f, "%.*f", prec, v);
+    if (isnan(v) || isinf(v))
+        fputs("null", f);
+    else
+        fprintf(f, "%.*f", prec, v);
 }
 
 /* "diffuse_KEY" / "shadow_KEY" */
@@ -1980,8 +2215,13 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         fprintf(f, ",\"triangles\":%u,\"builder\":", s->triangles);
         scene_json_string(f, r->name);
         fprintf(f, ",\"kind\":\"%s\",\"status\":\"%s\",\"threads\":%u,\"repeat\":%u",
-                r->kind == ROW_BRUTE ? "brute-force" : r->kind == ROW_BVH ? "bvh.h" : "embree",
-                r->state == ROW_OK ? "ok" : r->state == ROW_SKIPPED ? "skipped" : "failed", o->nthreads, o->repeat);
+                r->kind == ROW_BRUTE ? "brute-force"
+                : r->kind == ROW_BVH ? "bvh.h"
+                                     : "embree",
+                r->state == ROW_OK        ? "ok"
+                : r->state == ROW_SKIPPED ? "skipped"
+                                          : "failed",
+                o->nthreads, o->repeat);
         json_num(f, "build_ms", r->build_ms, 4);
         json_num(f, "build_ms_min", r->build_min, 4);
         json_num(f, "build_ms_max", r->build_max, 4);
@@ -2012,8 +2252,10 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "frame_ms", r->frame_ms, 4);
         json_num(f, "fps", r->fps, 3);
         fputs(",\"frame_tracer\":", f);
-        if (r->frame_tracer) scene_json_string(f, r->frame_tracer);
-        else fputs("null", f);
+        if (r->frame_tracer)
+            scene_json_string(f, r->frame_tracer);
+        else
+            fputs("null", f);
         json_num(f, "ratio_build", r->x_build, 4);
         json_num(f, "ratio_build_paired", r->x_pair, 4);
         json_num(f, "build_ms_paired", r->pair_ms, 4);
@@ -2104,7 +2346,8 @@ static int row_names(const bench_scene *sc, int n, const char *names[BENCH_MAX_R
     int count = 0, i, j, k;
     for (i = 0; i < n; i++)
         for (j = 0; j < sc[i].nrows; j++) {
-            for (k = 0; k < count && strcmp(names[k], sc[i].rows[j].name); k++) {}
+            for (k = 0; k < count && strcmp(names[k], sc[i].rows[j].name); k++) {
+            }
             if (k == count && count < BENCH_MAX_ROWS * 2) names[count++] = sc[i].rows[j].name;
         }
     return count;
@@ -2119,15 +2362,21 @@ static const row *find_row(const bench_scene *s, const char *name) {
 
 /* 500, 69.7K, 1.04M */
 static void fmt_count(char *b, size_t n, uint32_t v) {
-    if (v < 10000) snprintf(b, n, "%u", v);
-    else if (v < 1000000) snprintf(b, n, "%.3gK", v / 1e3);
-    else snprintf(b, n, "%.3gM", v / 1e6);
+    if (v < 10000)
+        snprintf(b, n, "%u", v);
+    else if (v < 1000000)
+        snprintf(b, n, "%.3gK", v / 1e3);
+    else
+        snprintf(b, n, "%.3gM", v / 1e6);
 }
 
 static double per_scene_value(const bench_scene *s, const char *name, int field) {
     const row *r = find_row(s, name);
-    return !r ? NAN : field == 0 ? r->mrays_1t : field == 1 ? r->mrays_mt : field == 2 ? r->mrays_cl
-                     : r->set[field - 3].mrays_1t; /* 3, 4: the diffuse and shadow rays */
+    return !r           ? NAN
+           : field == 0 ? r->mrays_1t
+           : field == 1 ? r->mrays_mt
+           : field == 2 ? r->mrays_cl
+                        : r->set[field - 3].mrays_1t; /* 3, 4: the diffuse and shadow rays */
 }
 
 /* One data column per row name that has a value somewhere (gnuplot cannot draw a histogram
@@ -2153,8 +2402,10 @@ static int write_per_scene(const char *dir, const char *file, const char *what, 
         for (k = 0; k < nn; k++) {
             double v = per_scene_value(&sc[i], names[k], field);
             if (!use[k]) continue;
-            if (isnan(v)) fputs(" -", f);
-            else fprintf(f, " %.4f", v);
+            if (isnan(v))
+                fputs(" -", f);
+            else
+                fprintf(f, " %.4f", v);
         }
         fputc('\n', f);
     }
@@ -2165,7 +2416,10 @@ static int write_plot_data(const char *dir, const options *o, const bench_scene 
     const char *names[BENCH_MAX_ROWS * 2];
     int nn = row_names(sc, n, names), i, k, rc = 0, blocks, points;
     FILE *f;
-    if (mkdir_p(dir)) { say("cannot create %s: %s", dir, strerror(errno)); return 1; }
+    if (mkdir_p(dir)) {
+        say("cannot create %s: %s", dir, strerror(errno));
+        return 1;
+    }
     for (k = 0; k < 5; k++) { /* no stale panel from an earlier run */
         static const char *const which[5] = {"1t", "mt", "cl", "diffuse_1t", "shadow_1t"};
         char path[1200];
@@ -2220,10 +2474,16 @@ static int run_plot_script(const char *argv0, const char *dir) {
     snprintf(script, sizeof script, "bench/plot.sh");
     if (access(script, R_OK) != 0 && slash)
         snprintf(script, sizeof script, "%.*s/../bench/plot.sh", (int)(slash - argv0), argv0);
-    if (access(script, R_OK) != 0) { say("bench/plot.sh not found: plot data left in %s", dir); return 1; }
+    if (access(script, R_OK) != 0) {
+        say("bench/plot.sh not found: plot data left in %s", dir);
+        return 1;
+    }
     fflush(NULL);
     pid = fork();
-    if (pid < 0) { say("cannot run %s: %s", script, strerror(errno)); return 1; }
+    if (pid < 0) {
+        say("cannot run %s: %s", script, strerror(errno));
+        return 1;
+    }
     if (pid == 0) {
         execlp("sh", "sh", script, dir, (char *)NULL);
         _exit(127);
@@ -2284,7 +2544,10 @@ static void usage(FILE *f) {
 
 /* "off" (gives `off`) or a count up to 2^30: the --ploc-top and --max-bytes values */
 static int parse_count_or_off(const char *s, uint32_t off, uint32_t *out) {
-    if (s && !strcmp(s, "off")) { *out = off; return 0; }
+    if (s && !strcmp(s, "off")) {
+        *out = off;
+        return 0;
+    }
     return scene_parse_u32(s, 0, 1u << 30, out, NULL);
 }
 
@@ -2303,9 +2566,13 @@ static int parse_builders(const char *list, options *o) {
             for (i = BVH_BUILDER_TOP_DOWN; i < BVH_BUILDER_COUNT; i++) o->builders[o->nbuilders++] = (bvh_builder)i;
             continue;
         }
-        if (!strcmp(tok, "none")) { o->brute = 1; continue; }
+        if (!strcmp(tok, "none")) {
+            o->brute = 1;
+            continue;
+        }
         if (bvh_builder_from_name(tok, &b) != BVH_SUCCESS || b == BVH_BUILDER_DEFAULT) return 1;
-        for (i = 0; i < o->nbuilders && o->builders[i] != b; i++) {}
+        for (i = 0; i < o->nbuilders && o->builders[i] != b; i++) {
+        }
         if (i == o->nbuilders) o->builders[o->nbuilders++] = b;
     }
     return 0;
@@ -2322,7 +2589,8 @@ static int parse_embree(const char *list, options *o) {
     for (tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
         emb_quality q;
         if (emb_quality_from_name(tok, &q) != 0) return 1;
-        for (i = 0; i < o->nqualities && o->qualities[i] != q; i++) {}
+        for (i = 0; i < o->nqualities && o->qualities[i] != q; i++) {
+        }
         if (i == o->nqualities) o->qualities[o->nqualities++] = q;
     }
     return 0;
@@ -2343,22 +2611,34 @@ static int parse_args(int argc, char **argv, options *o) {
     o->trace_auto = 1;
     for (i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-        int takes = a[0] == '-' && a[1] == '-' && strcmp(a, "--quiet") && strcmp(a, "--strict") && strcmp(a, "--help") &&
-                    strcmp(a, "--save-load");
-        if (!strcmp(a, "--help") || !strcmp(a, "-h")) { usage(stdout); return 1; }
-        if (takes && !v) { fprintf(stderr, "bvhbench: %s needs a value (see --help)\n", a); return 2; }
-        if (!strcmp(a, "--quiet")) o->quiet = 1;
-        else if (!strcmp(a, "--save-load")) o->save_load = 1;
-        else if (!strcmp(a, "--strict")) o->strict = 1;
+        int takes = a[0] == '-' && a[1] == '-' && strcmp(a, "--quiet") && strcmp(a, "--strict") &&
+                    strcmp(a, "--help") && strcmp(a, "--save-load");
+        if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
+            usage(stdout);
+            return 1;
+        }
+        if (takes && !v) {
+            fprintf(stderr, "bvhbench: %s needs a value (see --help)\n", a);
+            return 2;
+        }
+        if (!strcmp(a, "--quiet"))
+            o->quiet = 1;
+        else if (!strcmp(a, "--save-load"))
+            o->save_load = 1;
+        else if (!strcmp(a, "--strict"))
+            o->strict = 1;
         else if (!strcmp(a, "--builder")) {
             if (parse_builders(v, o)) {
-                fprintf(stderr, "bvhbench: --builder wants all or a comma list of none, top-down, bottom-up, "
-                                "sah-midpoint, ploc, ploc-parallel, not '%s'\n", v);
+                fprintf(stderr,
+                        "bvhbench: --builder wants all or a comma list of none, top-down, bottom-up, "
+                        "sah-midpoint, ploc, ploc-parallel, not '%s'\n",
+                        v);
                 return 2;
             }
         } else if (!strcmp(a, "--embree")) {
             if (parse_embree(v, o)) {
-                fprintf(stderr, "bvhbench: --embree wants all, none or a comma list of low, medium, high, not '%s'\n", v);
+                fprintf(stderr, "bvhbench: --embree wants all, none or a comma list of low, medium, high, not '%s'\n",
+                        v);
                 return 2;
             }
         } else if (!strcmp(a, "--threads")) {
@@ -2388,7 +2668,8 @@ static int parse_args(int argc, char **argv, options *o) {
             }
         } else if (!strcmp(a, "--max-bytes")) {
             if (parse_count_or_off(v, BVH_OFF, &o->max_bytes)) {
-                fprintf(stderr, "bvhbench: --max-bytes wants bytes per triangle (0 = default) or off, not '%s'\n", v ? v : "");
+                fprintf(stderr, "bvhbench: --max-bytes wants bytes per triangle (0 = default) or off, not '%s'\n",
+                        v ? v : "");
                 return 2;
             }
         } else if (!strcmp(a, "--trace-width")) {
@@ -2408,8 +2689,10 @@ static int parse_args(int argc, char **argv, options *o) {
             }
         } else if (!strcmp(a, "--size")) {
             if (scene_parse_size(v, BENCH_MAX_PIXELS, &o->width, &o->height)) {
-                fprintf(stderr, "bvhbench: --size wants WxH (e.g. 1024x1024, at most 16384 a side and %u pixels), "
-                                "not '%s'\n", BENCH_MAX_PIXELS, v);
+                fprintf(stderr,
+                        "bvhbench: --size wants WxH (e.g. 1024x1024, at most 16384 a side and %u pixels), "
+                        "not '%s'\n",
+                        BENCH_MAX_PIXELS, v);
                 return 2;
             }
         } else if (!strcmp(a, "--trace")) {
@@ -2420,16 +2703,20 @@ static int parse_args(int argc, char **argv, options *o) {
                 fprintf(stderr, "bvhbench: --trace wants cpu, opencl, both or none, not '%s'\n", v);
                 return 2;
             }
-        } else if (!strcmp(a, "--md")) o->md = v;
-        else if (!strcmp(a, "--json")) o->json = v;
-        else if (!strcmp(a, "--plots")) o->plots = v;
+        } else if (!strcmp(a, "--md"))
+            o->md = v;
+        else if (!strcmp(a, "--json"))
+            o->json = v;
+        else if (!strcmp(a, "--plots"))
+            o->plots = v;
         else if (a[0] == '-' && a[1]) {
             fprintf(stderr, "bvhbench: unknown option '%s' (see --help)\n", a);
             return 2;
         } else if (o->nscenes == BENCH_MAX_SCENES) {
             fprintf(stderr, "bvhbench: at most %d scenes\n", BENCH_MAX_SCENES);
             return 2;
-        } else o->scenes[o->nscenes++] = a;
+        } else
+            o->scenes[o->nscenes++] = a;
         if (takes) i++;
     }
     if (!o->brute && !o->nbuilders && !o->nqualities) {
@@ -2450,7 +2737,8 @@ static void default_scenes(options *o) {
     o->scenes[o->nscenes++] = bunny ? "gen:field:44" : "gen:procedural:3065306";
     if (!bunny)
         say("the Stanford bunny %s is missing (Debian glmark2-data): using gen:random:100000 and procedural "
-            "scenes of 1M and 3M triangles instead", BENCH_BUNNY);
+            "scenes of 1M and 3M triangles instead",
+            BENCH_BUNNY);
 }
 
 /* ============================================================================================ */
@@ -2464,13 +2752,17 @@ static int setup(options *o, header_info *h, bench_cl *store, bench_cl **cl) {
     strftime(h->date, sizeof h->date, "%Y-%m-%d %H:%M:%S %Z", localtime(&now));
     cpu_model(h->cpu, sizeof h->cpu);
     if (!emb_available())
-        snprintf(h->embree, sizeof h->embree, "not available (built without BVH_HAVE_EMBREE: install libembree-dev "
-                                              "and rebuild); no Embree rows");
-    else if (!o->nqualities) snprintf(h->embree, sizeof h->embree, "%s, not run (--embree none)", emb_version());
-    else snprintf(h->embree, sizeof h->embree, "%s (ratio columns: ours / embree-medium)", emb_version());
+        snprintf(h->embree, sizeof h->embree,
+                 "not available (built without BVH_HAVE_EMBREE: install libembree-dev "
+                 "and rebuild); no Embree rows");
+    else if (!o->nqualities)
+        snprintf(h->embree, sizeof h->embree, "%s, not run (--embree none)", emb_version());
+    else
+        snprintf(h->embree, sizeof h->embree, "%s (ratio columns: ours / embree-medium)", emb_version());
     if (o->trace_auto) o->trace_cpu = o->trace_cl = 1;
     *cl = NULL;
-    if (!o->trace_cl) snprintf(h->opencl, sizeof h->opencl, "not used (--trace)");
+    if (!o->trace_cl)
+        snprintf(h->opencl, sizeof h->opencl, "not used (--trace)");
     else if (bcl_open(store, msg, sizeof msg) == 0) {
         *cl = store;
         snprintf(h->opencl, sizeof h->opencl, "%s", store->device);
@@ -2482,8 +2774,10 @@ static int setup(options *o, header_info *h, bench_cl *store, bench_cl **cl) {
         return 1;
     }
     snprintf(h->trace, sizeof h->trace, "%s",
-             o->trace_cpu && o->trace_cl ? "on the CPU and with OpenCL" : o->trace_cpu ? "on the CPU"
-             : o->trace_cl ? "with OpenCL" : "not (--trace none)");
+             o->trace_cpu && o->trace_cl ? "on the CPU and with OpenCL"
+             : o->trace_cpu              ? "on the CPU"
+             : o->trace_cl               ? "with OpenCL"
+                                         : "not (--trace none)");
     return 0;
 }
 
@@ -2523,8 +2817,10 @@ int main(int argc, char **argv) {
     g_quiet = o.quiet;
     if (!o.nscenes) default_scenes(&o);
     if (setup(&o, &h, &cl_store, &cl)) return 1;
-    if (o.json && !strcmp(o.json, "-")) { json = stdout; table = stderr; }
-    else if (o.json && !(json = create_file(o.json))) {
+    if (o.json && !strcmp(o.json, "-")) {
+        json = stdout;
+        table = stderr;
+    } else if (o.json && !(json = create_file(o.json))) {
         say("cannot write %s: %s", o.json, strerror(errno));
         bcl_close(&cl_store);
         return 1;
@@ -2545,7 +2841,10 @@ int main(int argc, char **argv) {
         if (o.md) failed |= write_md(o.md, &o, &h, scenes, done);
         if (o.plots) failed |= write_plot_data(o.plots, &o, scenes, done);
     }
-    if (json && json != stdout && fclose(json) != 0) { say("cannot write %s", o.json); failed = 1; }
+    if (json && json != stdout && fclose(json) != 0) {
+        say("cannot write %s", o.json);
+        failed = 1;
+    }
     if (o.plots && done) failed |= run_plot_script(o.argv0, o.plots);
     bcl_close(&cl_store);
     progress_end();

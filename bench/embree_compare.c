@@ -30,9 +30,11 @@
 #include <string.h>
 
 static int usage(void) {
-    fprintf(stderr, "usage: embree_compare [--quality low|medium|high|all] [--threads N] [--repeat R]\n"
-                    "                      [--size WxH] [--trace-threads T] [--max-leaf L] [--robust]\n"
-                    "                      SCENE\n%s", scene_spec_help());
+    fprintf(stderr,
+            "usage: embree_compare [--quality low|medium|high|all] [--threads N] [--repeat R]\n"
+            "                      [--size WxH] [--trace-threads T] [--max-leaf L] [--robust]\n"
+            "                      SCENE\n%s",
+            scene_spec_help());
     return 2;
 }
 
@@ -62,21 +64,39 @@ int main(int argc, char **argv) {
             if (scene_parse_u32(next, 1, 32, &max_leaf, NULL)) return usage();
             qi++;
         } else if (!strcmp(a, "--size") && next) {
-            if (!strcmp(next, "0x0")) w = h = 0;
-            else if (scene_parse_size(next, (uint64_t)16384 * 16384, &w, &h)) return usage();
+            if (!strcmp(next, "0x0"))
+                w = h = 0;
+            else if (scene_parse_size(next, (uint64_t)16384 * 16384, &w, &h))
+                return usage();
             qi++;
-        } else if (!strcmp(a, "--robust")) robust = 1;
-        else if (a[0] == '-' && a[1]) return usage();
-        else if (!path) path = a;
-        else return usage();
+        } else if (!strcmp(a, "--robust"))
+            robust = 1;
+        else if (a[0] == '-' && a[1])
+            return usage();
+        else if (!path)
+            path = a;
+        else
+            return usage();
     }
     if (!path) return usage();
-    if (!strcmp(qarg, "all")) { qs[0] = EMB_QUALITY_LOW; qs[1] = EMB_QUALITY_MEDIUM; qs[2] = EMB_QUALITY_HIGH; nq = 3; }
-    else if (!emb_quality_from_name(qarg, &qs[0])) nq = 1;
-    else return usage();
-    if (!emb_available()) { fprintf(stderr, "embree_compare: Embree not installed\n"); return 3; }
+    if (!strcmp(qarg, "all")) {
+        qs[0] = EMB_QUALITY_LOW;
+        qs[1] = EMB_QUALITY_MEDIUM;
+        qs[2] = EMB_QUALITY_HIGH;
+        nq = 3;
+    } else if (!emb_quality_from_name(qarg, &qs[0]))
+        nq = 1;
+    else
+        return usage();
+    if (!emb_available()) {
+        fprintf(stderr, "embree_compare: Embree not installed\n");
+        return 3;
+    }
 
-    if (scene_load(path, &s, err, sizeof err)) { fprintf(stderr, "embree_compare: %s\n", err); return 1; }
+    if (scene_load(path, &s, err, sizeof err)) {
+        fprintf(stderr, "embree_compare: %s\n", err);
+        return 1;
+    }
     n = s.triangles;
     if (!trace_threads) trace_threads = threads; /* 0 = online CPUs, resolved by emb_scene_bench */
 
@@ -87,28 +107,43 @@ int main(int argc, char **argv) {
         emb_sah_result hr;
         int s1, s2;
         memset(&sd, 0, sizeof sd);
-        sd.quality = qs[qi]; sd.threads = threads; sd.repeat = repeat;
-        sd.width = w; sd.height = h; sd.trace_threads = trace_threads; sd.robust = robust;
+        sd.quality = qs[qi];
+        sd.threads = threads;
+        sd.repeat = repeat;
+        sd.width = w;
+        sd.height = h;
+        sd.trace_threads = trace_threads;
+        sd.robust = robust;
         memset(&hd, 0, sizeof hd);
-        hd.quality = qs[qi]; hd.threads = threads; hd.repeat = repeat; hd.max_leaf = max_leaf;
+        hd.quality = qs[qi];
+        hd.threads = threads;
+        hd.repeat = repeat;
+        hd.max_leaf = max_leaf;
         s1 = emb_scene_bench(s.v, n, &sd, &sr);
         if (s1 != EMB_OK) fprintf(stderr, "embree_compare: %s: scene API: %s\n", emb_quality_name(qs[qi]), sr.message);
         s2 = emb_bvh_sah(s.v, n, &hd, &hr);
-        if (s2 != EMB_OK) fprintf(stderr, "embree_compare: %s: rtcBuildBVH: %s\n", emb_quality_name(qs[qi]), hr.message);
-        if (s1 != EMB_OK || s2 != EMB_OK) { status = 1; continue; }
-        if (w && !sr.mt_identical) fprintf(stderr, "embree_compare: %s: the %u-thread frame differs from the 1-thread frame\n",
-                                      emb_quality_name(qs[qi]), sr.trace_threads);
+        if (s2 != EMB_OK)
+            fprintf(stderr, "embree_compare: %s: rtcBuildBVH: %s\n", emb_quality_name(qs[qi]), hr.message);
+        if (s1 != EMB_OK || s2 != EMB_OK) {
+            status = 1;
+            continue;
+        }
+        if (w && !sr.mt_identical)
+            fprintf(stderr, "embree_compare: %s: the %u-thread frame differs from the 1-thread frame\n",
+                    emb_quality_name(qs[qi]), sr.trace_threads);
         printf("{\"scene\":");
         scene_json_string(stdout, path);
         printf(",\"triangles\":%u,\"builder\":\"embree-%s\",\"threads\":%u", n, emb_quality_name(qs[qi]), threads);
-        printf(",\"build_ms\":%.3f,\"build_ms_min\":%.3f,\"build_ms_max\":%.3f", sr.build.ms, sr.build.min_ms, sr.build.max_ms);
+        printf(",\"build_ms\":%.3f,\"build_ms_min\":%.3f,\"build_ms_max\":%.3f", sr.build.ms, sr.build.min_ms,
+               sr.build.max_ms);
         printf(",\"sah\":%.4f,\"nodes\":%u,\"leaves\":%u", hr.sah, hr.nodes, hr.leaves);
         printf(",\"hits\":%llu,\"t_sum\":%.17g", (unsigned long long)sr.hits, sr.t_sum);
         printf(",\"mrays\":%.3f,\"mrays_mt\":%.3f", sr.mrays, sr.mrays_mt);
         printf(",\"commit_ms\":%.3f,\"bvh_build_ms\":%.3f,\"refs\":%u,\"spatial_splits\":%d", sr.commit.ms, hr.build.ms,
                hr.refs, hr.spatial_splits);
-        printf(",\"width\":%u,\"height\":%u,\"trace_threads\":%u,\"mt_identical\":%s,\"robust\":%s,\"embree\":\"%s\"}\n",
-               w, h, sr.trace_threads, sr.mt_identical ? "true" : "false", robust ? "true" : "false", emb_version());
+        printf(
+            ",\"width\":%u,\"height\":%u,\"trace_threads\":%u,\"mt_identical\":%s,\"robust\":%s,\"embree\":\"%s\"}\n",
+            w, h, sr.trace_threads, sr.mt_identical ? "true" : "false", robust ? "true" : "false", emb_version());
         fflush(stdout);
     }
     scene_free(&s);

@@ -6,14 +6,11 @@
        emb_scene_bench  Embree's scene API (what a renderer uses): build time at a build quality
                         on N threads (rtcNewScene .. rtcCommitScene, and rtcCommitScene alone;
                         median/min/max of R builds after one warm-up), then W x H frames of
-                        the project's standard camera (median time of trace_repeat frames) (bvh_camera_standard over the scene bounds,
-                        bvh_camera_ray per pixel centre: bit-identical rays to bvh.h's) traced
-                        with rtcIntersect1 on 1 thread and on T pthreads (rows interleaved):
-                        hits, t_sum, Mrays/s.
-       emb_builder_*    one timed scene build at a time on a device kept open, so that a
-                        benchmark can interleave Embree's builds with its own (paired rounds
-                        on a shared machine: both see the same moments of noise); a scene kept
-                        open traces frames (emb_builder_trace) or any ray array
+                        the project's standard camera (median time of trace_repeat frames) (bvh_camera_standard over the
+   scene bounds, bvh_camera_ray per pixel centre: bit-identical rays to bvh.h's) traced with rtcIntersect1 on 1 thread
+   and on T pthreads (rows interleaved): hits, t_sum, Mrays/s. emb_builder_*    one timed scene build at a time on a
+   device kept open, so that a benchmark can interleave Embree's builds with its own (paired rounds on a shared machine:
+   both see the same moments of noise); a scene kept open traces frames (emb_builder_trace) or any ray array
                         (emb_builder_rays: rtcIntersect1, or rtcOccluded1 for shadow rays).
        emb_bvh_sah      Embree's BVH builder API (rtcBuildBVH) making a binary tree of our own
                         nodes over the triangle boxes, with maxBranchingFactor 2, maxDepth 64,
@@ -91,7 +88,9 @@ typedef enum emb_quality {
     EMB_QUALITY_COUNT
 } emb_quality;
 
-typedef struct emb_timing { double ms, min_ms, max_ms; } emb_timing; /* ms = median */
+typedef struct emb_timing {
+    double ms, min_ms, max_ms;
+} emb_timing; /* ms = median */
 
 typedef struct emb_scene_desc {
     emb_quality quality;    /* DEFAULT = MEDIUM */
@@ -109,27 +108,27 @@ typedef struct emb_scene_desc {
 } emb_scene_desc;
 
 typedef struct emb_scene_result {
-    emb_timing build;       /* rtcNewScene .. rtcCommitScene */
-    emb_timing commit;      /* rtcCommitScene alone */
-    uint32_t threads;       /* build threads asked (0 = all) */
+    emb_timing build;  /* rtcNewScene .. rtcCommitScene */
+    emb_timing commit; /* rtcCommitScene alone */
+    uint32_t threads;  /* build threads asked (0 = all) */
     uint32_t repeat;
     uint64_t rays, hits;    /* the frame */
     double t_sum;           /* sum of hit t over the frame, in pixel order */
     double trace_ms, mrays; /* 1 thread */
     uint32_t trace_threads; /* threads of the multi-threaded frame */
     double trace_ms_mt, mrays_mt;
-    int mt_identical;       /* 1: the multi-threaded frame gave the same t and triangle per
-                               pixel as the 1-thread frame (also 1 when there is no frame) */
+    int mt_identical; /* 1: the multi-threaded frame gave the same t and triangle per
+                         pixel as the 1-thread frame (also 1 when there is no frame) */
     char message[160];
 } emb_scene_result;
 
 typedef struct emb_sah_desc {
-    emb_quality quality;    /* DEFAULT = MEDIUM */
-    uint32_t threads;       /* Embree device "threads=N"; 0 = all hardware threads */
-    uint32_t repeat;        /* timed builds after one warm-up; 0 = 5; at most 100000 */
-    uint32_t max_leaf;      /* maxLeafSize; 0 = 8; 1..32 (RTC_BUILD_MAX_PRIMITIVES_PER_LEAF) */
-    float split_factor;     /* HIGH only: room for split_factor * n references for spatial
-                               splits; 0 = 1.2; < 0 or <= 1: no spatial splits */
+    emb_quality quality; /* DEFAULT = MEDIUM */
+    uint32_t threads;    /* Embree device "threads=N"; 0 = all hardware threads */
+    uint32_t repeat;     /* timed builds after one warm-up; 0 = 5; at most 100000 */
+    uint32_t max_leaf;   /* maxLeafSize; 0 = 8; 1..32 (RTC_BUILD_MAX_PRIMITIVES_PER_LEAF) */
+    float split_factor;  /* HIGH only: room for split_factor * n references for spatial
+                            splits; 0 = 1.2; < 0 or <= 1: no spatial splits */
 } emb_sah_desc;
 
 typedef struct emb_sah_result {
@@ -138,21 +137,20 @@ typedef struct emb_sah_result {
     uint32_t refs;          /* sum of leaf sizes (> triangles with spatial splits) */
     uint32_t max_depth;     /* root = 1 */
     uint32_t max_leaf_size;
-    int spatial_splits;     /* 1 when rtcBuildBVH was given a splitter and room (HIGH) */
-    emb_timing build;       /* rtcBuildBVH alone */
+    int spatial_splits; /* 1 when rtcBuildBVH was given a splitter and room (HIGH) */
+    emb_timing build;   /* rtcBuildBVH alone */
     uint32_t threads, repeat;
     char message[160];
 } emb_sah_result;
 
-EMB_API int emb_available(void);                 /* 1 when compiled with BVH_HAVE_EMBREE */
-EMB_API const char *emb_version(void);           /* "3.13.5", or "none" */
+EMB_API int emb_available(void);       /* 1 when compiled with BVH_HAVE_EMBREE */
+EMB_API const char *emb_version(void); /* "3.13.5", or "none" */
 EMB_API const char *emb_status_string(int status);
-EMB_API const char *emb_quality_name(emb_quality q);                     /* "low", "medium"... */
+EMB_API const char *emb_quality_name(emb_quality q);                   /* "low", "medium"... */
 EMB_API int emb_quality_from_name(const char *name, emb_quality *out); /* 0 ok, -1 unknown */
 
 /* v: 9 floats (x0 y0 z0 x1 ... z2) per triangle, n triangles; desc NULL = all defaults. */
-EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *desc,
-                            emb_scene_result *out);
+EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *desc, emb_scene_result *out);
 EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *desc, emb_sah_result *out);
 
 /* A device for single timed scene builds (as emb_scene_bench's, robust flag set): open once,
@@ -171,8 +169,8 @@ EMB_API int emb_builder_trace(emb_builder *b, const bvh_ray *rays, uint32_t w, u
    prim (BVH_INVALID: a miss), or, when occluded is not NULL, rtcOccluded1 into occluded[i]
    (1: blocked; t and prim may be NULL). The rays go to Embree as they are: tnear = tmin, tfar =
    tmax. *ms: the wall time. */
-EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint32_t threads, float *t,
-                             uint32_t *prim, uint8_t *occluded, double *ms);
+EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint32_t threads, float *t, uint32_t *prim,
+                             uint8_t *occluded, double *ms);
 EMB_API void emb_builder_close(emb_builder *b);
 
 #ifdef __cplusplus
@@ -196,27 +194,34 @@ EMB_API void emb_builder_close(emb_builder *b);
 static void emb__msg(char *buf, const char *text) { snprintf(buf, 160, "%s", text); }
 
 EMB_API const char *emb_status_string(int s) {
-    static const char *names[EMB_STATUS_COUNT] = {"ok", "Embree not installed", "invalid argument",
-                                                  "out of memory", "thread creation failed",
-                                                  "Embree error"};
+    static const char *names[EMB_STATUS_COUNT] = {
+        "ok", "Embree not installed", "invalid argument", "out of memory", "thread creation failed", "Embree error"};
     return s >= 0 && s < EMB_STATUS_COUNT ? names[s] : "unknown status";
 }
 EMB_API const char *emb_quality_name(emb_quality q) {
     switch (q) {
-    case EMB_QUALITY_LOW: return "low";
+    case EMB_QUALITY_LOW:
+        return "low";
     case EMB_QUALITY_DEFAULT:
-    case EMB_QUALITY_MEDIUM: return "medium";
-    case EMB_QUALITY_HIGH: return "high";
-    default: return "invalid";
+    case EMB_QUALITY_MEDIUM:
+        return "medium";
+    case EMB_QUALITY_HIGH:
+        return "high";
+    default:
+        return "invalid";
     }
 }
 EMB_API int emb_quality_from_name(const char *s, emb_quality *out) {
     emb_quality q;
     if (!s || !out) return -1;
-    if (!strcmp(s, "low")) q = EMB_QUALITY_LOW;
-    else if (!strcmp(s, "medium")) q = EMB_QUALITY_MEDIUM;
-    else if (!strcmp(s, "high")) q = EMB_QUALITY_HIGH;
-    else return -1;
+    if (!strcmp(s, "low"))
+        q = EMB_QUALITY_LOW;
+    else if (!strcmp(s, "medium"))
+        q = EMB_QUALITY_MEDIUM;
+    else if (!strcmp(s, "high"))
+        q = EMB_QUALITY_HIGH;
+    else
+        return -1;
     *out = q;
     return 0;
 }
@@ -226,39 +231,64 @@ EMB_API int emb_quality_from_name(const char *s, emb_quality *out) {
 EMB_API int emb_available(void) { return 0; }
 EMB_API const char *emb_version(void) { return "none"; }
 EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *d, emb_scene_result *o) {
-    (void)v; (void)n; (void)d;
-    if (o) { memset(o, 0, sizeof *o); emb__msg(o->message, "Embree not installed"); }
+    (void)v;
+    (void)n;
+    (void)d;
+    if (o) {
+        memset(o, 0, sizeof *o);
+        emb__msg(o->message, "Embree not installed");
+    }
     return EMB_ERR_UNAVAILABLE;
 }
 EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *d, emb_sah_result *o) {
-    (void)v; (void)n; (void)d;
-    if (o) { memset(o, 0, sizeof *o); emb__msg(o->message, "Embree not installed"); }
+    (void)v;
+    (void)n;
+    (void)d;
+    if (o) {
+        memset(o, 0, sizeof *o);
+        emb__msg(o->message, "Embree not installed");
+    }
     return EMB_ERR_UNAVAILABLE;
 }
 EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, char *message) {
-    (void)quality; (void)threads;
+    (void)quality;
+    (void)threads;
     if (out) *out = NULL;
     if (message) emb__msg(message, "Embree not installed");
     return EMB_ERR_UNAVAILABLE;
 }
 EMB_API int emb_builder_time(emb_builder *b, const float *v, uint32_t n, double *ms) {
-    (void)b; (void)v; (void)n;
+    (void)b;
+    (void)v;
+    (void)n;
     if (ms) *ms = 0.0;
     return EMB_ERR_UNAVAILABLE;
 }
 EMB_API int emb_builder_keep(emb_builder *b, const float *v, uint32_t n) {
-    (void)b; (void)v; (void)n;
+    (void)b;
+    (void)v;
+    (void)n;
     return EMB_ERR_UNAVAILABLE;
 }
 EMB_API int emb_builder_trace(emb_builder *b, const bvh_ray *rays, uint32_t w, uint32_t h, uint32_t threads,
                               double *ms) {
-    (void)b; (void)rays; (void)w; (void)h; (void)threads;
+    (void)b;
+    (void)rays;
+    (void)w;
+    (void)h;
+    (void)threads;
     if (ms) *ms = 0.0;
     return EMB_ERR_UNAVAILABLE;
 }
-EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint32_t threads, float *t,
-                             uint32_t *prim, uint8_t *occluded, double *ms) {
-    (void)b; (void)rays; (void)n; (void)threads; (void)t; (void)prim; (void)occluded;
+EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint32_t threads, float *t, uint32_t *prim,
+                             uint8_t *occluded, double *ms) {
+    (void)b;
+    (void)rays;
+    (void)n;
+    (void)threads;
+    (void)t;
+    (void)prim;
+    (void)occluded;
     if (ms) *ms = 0.0;
     return EMB_ERR_UNAVAILABLE;
 }
@@ -271,7 +301,7 @@ EMB_API void emb_builder_close(emb_builder *b) { (void)b; }
 #include "examples/scene.h"
 
 #define EMB__MAX_TRIANGLES (UINT32_MAX / 3u) /* the index buffer is 3n unsigned ints */
-#define EMB__RAYS_CHUNK 64 /* emb_builder_rays: rays per chunk, chunks interleaved over the threads */
+#define EMB__RAYS_CHUNK 64                   /* emb_builder_rays: rays per chunk, chunks interleaved over the threads */
 
 EMB_API int emb_available(void) { return 1; }
 EMB_API const char *emb_version(void) { return RTC_VERSION_STRING; }
@@ -285,13 +315,18 @@ static emb_timing emb__timing(double *ms, uint32_t n) {
     return t;
 }
 static enum RTCBuildQuality emb__rtc_quality(emb_quality q) {
-    return q == EMB_QUALITY_LOW ? RTC_BUILD_QUALITY_LOW
-         : q == EMB_QUALITY_HIGH ? RTC_BUILD_QUALITY_HIGH : RTC_BUILD_QUALITY_MEDIUM;
+    return q == EMB_QUALITY_LOW    ? RTC_BUILD_QUALITY_LOW
+           : q == EMB_QUALITY_HIGH ? RTC_BUILD_QUALITY_HIGH
+                                   : RTC_BUILD_QUALITY_MEDIUM;
 }
 
 /* Device errors land in the caller's message buffer (first error wins) and a flag. */
 /* The callback may run on Embree's worker threads, hence the lock. */
-typedef struct emb__err { char *message; int failed; pthread_mutex_t lock; } emb__err;
+typedef struct emb__err {
+    char *message;
+    int failed;
+    pthread_mutex_t lock;
+} emb__err;
 static void emb__on_error(void *user, enum RTCError code, const char *str) {
     emb__err *e = (emb__err *)user;
     pthread_mutex_lock(&e->lock);
@@ -341,7 +376,9 @@ static bvh_aabb emb__bounds(const float *v, uint32_t n) {
         const float *p = v + i * 3;
         if (isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2])) {
             bvh_vec3 q;
-            q.x = p[0]; q.y = p[1]; q.z = p[2];
+            q.x = p[0];
+            q.y = p[1];
+            q.z = p[2];
             bvh_aabb_grow(&b, q);
         }
     }
@@ -350,8 +387,8 @@ static bvh_aabb emb__bounds(const float *v, uint32_t n) {
 
 /* ---- scene API: build ---------------------------------------------------------------------- */
 /* One build as embree_ref.c times it: scene, geometry, buffers, copy, commit. */
-static RTCScene emb__build_scene(RTCDevice dev, const float *v, uint32_t n, enum RTCBuildQuality bq,
-                                 int robust, double *total_ms, double *commit_ms) {
+static RTCScene emb__build_scene(RTCDevice dev, const float *v, uint32_t n, enum RTCBuildQuality bq, int robust,
+                                 double *total_ms, double *commit_ms) {
     double t0 = scene_now_ms(), t1;
     RTCScene scene = rtcNewScene(dev);
     if (!scene) return NULL;
@@ -362,13 +399,20 @@ static RTCScene emb__build_scene(RTCDevice dev, const float *v, uint32_t n, enum
         float *vb;
         unsigned *ib;
         uint32_t i;
-        if (!g) { rtcReleaseScene(scene); return NULL; }
+        if (!g) {
+            rtcReleaseScene(scene);
+            return NULL;
+        }
         rtcSetGeometryBuildQuality(g, bq);
-        vb = (float *)rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                              3 * sizeof(float), (size_t)n * 3);
-        ib = (unsigned *)rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                                 3 * sizeof(unsigned), n);
-        if (!vb || !ib) { rtcReleaseGeometry(g); rtcReleaseScene(scene); return NULL; }
+        vb = (float *)rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
+                                              (size_t)n * 3);
+        ib =
+            (unsigned *)rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), n);
+        if (!vb || !ib) {
+            rtcReleaseGeometry(g);
+            rtcReleaseScene(scene);
+            return NULL;
+        }
         memcpy(vb, v, (size_t)n * 9 * sizeof(float));
         for (i = 0; i < n * 3; i++) ib[i] = i;
         rtcCommitGeometry(g);
@@ -386,11 +430,11 @@ static RTCScene emb__build_scene(RTCDevice dev, const float *v, uint32_t n, enum
 typedef struct emb__trace_job {
     RTCScene scene;
     const bvh_ray *rays;
-    size_t count, chunk;     /* rays, and rays per chunk (a frame: its width, a chunk a row) */
-    size_t first, step;      /* this thread's chunks: first, first + step, ... */
+    size_t count, chunk; /* rays, and rays per chunk (a frame: its width, a chunk a row) */
+    size_t first, step;  /* this thread's chunks: first, first + step, ... */
     float *t;
     uint32_t *prim;
-    uint8_t *occluded;       /* not NULL: rtcOccluded1 into it (1 blocked), t and prim unused */
+    uint8_t *occluded; /* not NULL: rtcOccluded1 into it (1 blocked), t and prim unused */
 } emb__trace_job;
 
 static void emb__occluded_chunk(const emb__trace_job *j, struct RTCIntersectContext *ctx, size_t lo, size_t hi) {
@@ -398,9 +442,13 @@ static void emb__occluded_chunk(const emb__trace_job *j, struct RTCIntersectCont
     for (i = lo; i < hi; i++) {
         const bvh_ray *r = &j->rays[i];
         struct RTCRay ray;
-        ray.org_x = r->origin.x; ray.org_y = r->origin.y; ray.org_z = r->origin.z;
+        ray.org_x = r->origin.x;
+        ray.org_y = r->origin.y;
+        ray.org_z = r->origin.z;
         ray.tnear = r->tmin;
-        ray.dir_x = r->dir.x; ray.dir_y = r->dir.y; ray.dir_z = r->dir.z;
+        ray.dir_x = r->dir.x;
+        ray.dir_y = r->dir.y;
+        ray.dir_z = r->dir.z;
         ray.time = 0.0f;
         ray.tfar = r->tmax;
         ray.mask = 0xFFFFFFFFu;
@@ -425,9 +473,13 @@ static void *emb__trace_rows(void *arg) {
         for (i = lo; i < hi; i++) {
             const bvh_ray *r = &j->rays[i];
             struct RTCRayHit rh;
-            rh.ray.org_x = r->origin.x; rh.ray.org_y = r->origin.y; rh.ray.org_z = r->origin.z;
+            rh.ray.org_x = r->origin.x;
+            rh.ray.org_y = r->origin.y;
+            rh.ray.org_z = r->origin.z;
             rh.ray.tnear = r->tmin;
-            rh.ray.dir_x = r->dir.x; rh.ray.dir_y = r->dir.y; rh.ray.dir_z = r->dir.z;
+            rh.ray.dir_x = r->dir.x;
+            rh.ray.dir_y = r->dir.y;
+            rh.ray.dir_z = r->dir.z;
             rh.ray.time = 0.0f;
             rh.ray.tfar = r->tmax;
             rh.ray.mask = 0xFFFFFFFFu;
@@ -453,29 +505,40 @@ static void *emb__trace_rows(void *arg) {
    `threads` threads (1: on the calling thread); rtcOccluded1 into occluded when it is not NULL,
    else rtcIntersect1 into t and prim. Returns EMB_OK or EMB_ERR_THREAD / EMB_ERR_MEMORY; *ms is
    the wall time from the first thread start to the last join. */
-static int emb__trace(RTCScene scene, const bvh_ray *rays, size_t count, size_t chunk, uint32_t threads,
-                      float *t, uint32_t *prim, uint8_t *occluded, double *ms);
+static int emb__trace(RTCScene scene, const bvh_ray *rays, size_t count, size_t chunk, uint32_t threads, float *t,
+                      uint32_t *prim, uint8_t *occluded, double *ms);
 /* d->trace_repeat frames (at most 15); *ms = the median time */
-static int emb__trace_median(RTCScene scene, const bvh_ray *rays, const emb_scene_desc *d, uint32_t threads,
-                             float *t, uint32_t *prim, double *ms) {
+static int emb__trace_median(RTCScene scene, const bvh_ray *rays, const emb_scene_desc *d, uint32_t threads, float *t,
+                             uint32_t *prim, double *ms) {
     double v[15];
     uint32_t n = d->trace_repeat ? d->trace_repeat : 1, i, j;
     if (n > 15) n = 15;
     for (i = 0; i < n; i++) {
         int st = emb__trace(scene, rays, (size_t)d->width * d->height, d->width, threads, t, prim, NULL, &v[i]);
         if (st != EMB_OK) return st;
-        for (j = i; j > 0 && v[j - 1] > v[j]; j--) { double x = v[j]; v[j] = v[j - 1]; v[j - 1] = x; }
+        for (j = i; j > 0 && v[j - 1] > v[j]; j--) {
+            double x = v[j];
+            v[j] = v[j - 1];
+            v[j - 1] = x;
+        }
     }
     *ms = n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
     return EMB_OK;
 }
-static int emb__trace(RTCScene scene, const bvh_ray *rays, size_t count, size_t chunk, uint32_t threads,
-                      float *t, uint32_t *prim, uint8_t *occluded, double *ms) {
+static int emb__trace(RTCScene scene, const bvh_ray *rays, size_t count, size_t chunk, uint32_t threads, float *t,
+                      uint32_t *prim, uint8_t *occluded, double *ms) {
     double t0;
     if (threads <= 1) {
         emb__trace_job j;
-        j.scene = scene; j.rays = rays; j.count = count; j.chunk = chunk;
-        j.first = 0; j.step = 1; j.t = t; j.prim = prim; j.occluded = occluded;
+        j.scene = scene;
+        j.rays = rays;
+        j.count = count;
+        j.chunk = chunk;
+        j.first = 0;
+        j.step = 1;
+        j.t = t;
+        j.prim = prim;
+        j.occluded = occluded;
         t0 = scene_now_ms();
         emb__trace_rows(&j);
         *ms = scene_now_ms() - t0;
@@ -485,15 +548,28 @@ static int emb__trace(RTCScene scene, const bvh_ray *rays, size_t count, size_t 
         pthread_t *tid = (pthread_t *)malloc(threads * sizeof *tid);
         uint32_t k, started = 0;
         int st = EMB_OK;
-        if (!jobs || !tid) { free(jobs); free(tid); return EMB_ERR_MEMORY; }
+        if (!jobs || !tid) {
+            free(jobs);
+            free(tid);
+            return EMB_ERR_MEMORY;
+        }
         for (k = 0; k < threads; k++) {
-            jobs[k].scene = scene; jobs[k].rays = rays; jobs[k].count = count; jobs[k].chunk = chunk;
-            jobs[k].first = k; jobs[k].step = threads; jobs[k].t = t; jobs[k].prim = prim;
+            jobs[k].scene = scene;
+            jobs[k].rays = rays;
+            jobs[k].count = count;
+            jobs[k].chunk = chunk;
+            jobs[k].first = k;
+            jobs[k].step = threads;
+            jobs[k].t = t;
+            jobs[k].prim = prim;
             jobs[k].occluded = occluded;
         }
         t0 = scene_now_ms();
         for (k = 1; k < threads; k++) {
-            if (pthread_create(&tid[k], NULL, emb__trace_rows, &jobs[k]) != 0) { st = EMB_ERR_THREAD; break; }
+            if (pthread_create(&tid[k], NULL, emb__trace_rows, &jobs[k]) != 0) {
+                st = EMB_ERR_THREAD;
+                break;
+            }
             started = k;
         }
         if (st == EMB_OK) emb__trace_rows(&jobs[0]); /* the calling thread takes rows 0, T, 2T... */
@@ -522,7 +598,10 @@ EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t th
     *out = NULL;
     if ((int)quality < 0 || quality >= EMB_QUALITY_COUNT) return EMB_ERR_ARGUMENT;
     b = (emb_builder *)calloc(1, sizeof *b);
-    if (!b) { if (message) emb__msg(message, "out of memory"); return EMB_ERR_MEMORY; }
+    if (!b) {
+        if (message) emb__msg(message, "out of memory");
+        return EMB_ERR_MEMORY;
+    }
     b->err.message = b->message;
     b->err.failed = 0;
     pthread_mutex_init(&b->err.lock, NULL);
@@ -572,7 +651,8 @@ EMB_API int emb_builder_trace(emb_builder *b, const bvh_ray *rays, uint32_t w, u
     if (ms) *ms = 0.0;
     if (!b || !b->kept || !rays || !ms || !npix) return EMB_ERR_ARGUMENT;
     if (npix > b->npix) {
-        free(b->t); free(b->prim);
+        free(b->t);
+        free(b->prim);
         b->t = (float *)malloc(npix * sizeof *b->t);
         b->prim = (uint32_t *)malloc(npix * sizeof *b->prim);
         b->npix = b->t && b->prim ? npix : 0;
@@ -580,8 +660,8 @@ EMB_API int emb_builder_trace(emb_builder *b, const bvh_ray *rays, uint32_t w, u
     }
     return emb__trace(b->kept, rays, npix, w, threads, b->t, b->prim, NULL, ms);
 }
-EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint32_t threads, float *t,
-                             uint32_t *prim, uint8_t *occluded, double *ms) {
+EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint32_t threads, float *t, uint32_t *prim,
+                             uint8_t *occluded, double *ms) {
     int st;
     if (ms) *ms = 0.0;
     if (!b || !b->kept || (!rays && n) || !ms || (!occluded && (!t || !prim))) return EMB_ERR_ARGUMENT;
@@ -593,14 +673,14 @@ EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint
 EMB_API void emb_builder_close(emb_builder *b) {
     if (!b) return;
     if (b->kept) rtcReleaseScene(b->kept);
-    free(b->t); free(b->prim);
+    free(b->t);
+    free(b->prim);
     rtcReleaseDevice(b->dev);
     pthread_mutex_destroy(&b->err.lock);
     free(b);
 }
 
-EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *desc,
-                            emb_scene_result *out) {
+EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *desc, emb_scene_result *out) {
     emb_scene_desc d;
     emb__err err;
     RTCDevice dev = NULL;
@@ -617,7 +697,10 @@ EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *de
     if (!out) return EMB_ERR_ARGUMENT;
     memset(out, 0, sizeof *out);
     emb__msg(out->message, "ok");
-    if (desc) d = *desc; else memset(&d, 0, sizeof d);
+    if (desc)
+        d = *desc;
+    else
+        memset(&d, 0, sizeof d);
     if ((!v && n) || n > EMB__MAX_TRIANGLES || (int)d.quality < 0 || d.quality >= EMB_QUALITY_COUNT) {
         emb__msg(out->message, "invalid argument (vertices NULL, too many triangles or bad quality)");
         return EMB_ERR_ARGUMENT;
@@ -636,10 +719,17 @@ EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *de
     err.failed = 0;
     pthread_mutex_init(&err.lock, NULL);
     ms = (double *)malloc(2 * (size_t)d.repeat * sizeof *ms);
-    if (!ms) { st = EMB_ERR_MEMORY; emb__msg(out->message, "out of memory"); goto done; }
+    if (!ms) {
+        st = EMB_ERR_MEMORY;
+        emb__msg(out->message, "out of memory");
+        goto done;
+    }
     cms = ms + d.repeat;
     dev = emb__device(d.threads, &err);
-    if (!dev) { st = EMB_ERR_EMBREE; goto done; }
+    if (!dev) {
+        st = EMB_ERR_EMBREE;
+        goto done;
+    }
 
     /* one warm-up build, then d.repeat timed ones; the last scene is kept for tracing */
     for (rep = 0; rep <= d.repeat; rep++) {
@@ -651,7 +741,10 @@ EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *de
             st = EMB_ERR_EMBREE;
             goto done;
         }
-        if (rep) { ms[rep - 1] = total; cms[rep - 1] = commit; }
+        if (rep) {
+            ms[rep - 1] = total;
+            cms[rep - 1] = commit;
+        }
     }
     out->build = emb__timing(ms, d.repeat);
     out->commit = emb__timing(cms, d.repeat);
@@ -666,15 +759,21 @@ EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *de
         rays = (bvh_ray *)malloc(npix * sizeof *rays);
         t1 = d.t_out ? d.t_out : (float *)malloc(npix * sizeof *t1);
         p1 = d.prim_out ? d.prim_out : (uint32_t *)malloc(npix * sizeof *p1);
-        if (!rays || !t1 || !p1) { st = EMB_ERR_MEMORY; emb__msg(out->message, "out of memory (rays)"); goto done; }
+        if (!rays || !t1 || !p1) {
+            st = EMB_ERR_MEMORY;
+            emb__msg(out->message, "out of memory (rays)");
+            goto done;
+        }
         for (y = 0; y < d.height; y++)
             for (x = 0; x < d.width; x++) rays[(size_t)y * d.width + x] = bvh_camera_ray(&cam, x, y);
         st = emb__trace_median(scene, rays, &d, 1, t1, p1, &ms1);
         if (st == EMB_OK && d.trace_threads > 1) {
             t2 = (float *)malloc(npix * sizeof *t2);
             p2 = (uint32_t *)malloc(npix * sizeof *p2);
-            if (!t2 || !p2) st = EMB_ERR_MEMORY;
-            else st = emb__trace_median(scene, rays, &d, d.trace_threads, t2, p2, &ms2);
+            if (!t2 || !p2)
+                st = EMB_ERR_MEMORY;
+            else
+                st = emb__trace_median(scene, rays, &d, d.trace_threads, t2, p2, &ms2);
         } else {
             ms2 = ms1;
         }
@@ -682,14 +781,23 @@ EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *de
             snprintf(out->message, sizeof out->message, "tracing: %s", emb_status_string(st));
             goto done;
         }
-        if (emb__check(dev, &err, "rtcIntersect1")) { st = EMB_ERR_EMBREE; goto done; }
+        if (emb__check(dev, &err, "rtcIntersect1")) {
+            st = EMB_ERR_EMBREE;
+            goto done;
+        }
         out->rays = npix;
         for (i = 0; i < npix; i++) {
-            if (p1[i] != BVH_INVALID) { out->hits++; out->t_sum += (double)t1[i]; }
+            if (p1[i] != BVH_INVALID) {
+                out->hits++;
+                out->t_sum += (double)t1[i];
+            }
         }
         if (t2) {
             for (i = 0; i < npix; i++) {
-                if (p1[i] != p2[i] || (p1[i] != BVH_INVALID && t1[i] != t2[i])) { out->mt_identical = 0; break; }
+                if (p1[i] != p2[i] || (p1[i] != BVH_INVALID && t1[i] != t2[i])) {
+                    out->mt_identical = 0;
+                    break;
+                }
             }
         }
         out->trace_ms = ms1;
@@ -713,23 +821,26 @@ done:
 
 /* ---- BVH builder API: a binary tree of our own nodes, and its SAH ---------------------------- */
 typedef struct emb__bnode {
-    uint32_t leaf;                    /* 1: emb__bleaf */
-    uint32_t count;                   /* leaf: primitive references */
+    uint32_t leaf;  /* 1: emb__bleaf */
+    uint32_t count; /* leaf: primitive references */
 } emb__bnode;
 typedef struct emb__binner {
-    emb__bnode head;                  /* leaf = 0 */
+    emb__bnode head; /* leaf = 0 */
     emb__bnode *child[2];
-    float box[2][6];                  /* child bounds: lower xyz, upper xyz */
+    float box[2][6]; /* child bounds: lower xyz, upper xyz */
 } emb__binner;
 
-typedef struct emb__bctx { const float *v; } emb__bctx;
+typedef struct emb__bctx {
+    const float *v;
+} emb__bctx;
 
 static void *emb__create_node(RTCThreadLocalAllocator a, unsigned int count, void *user) {
     emb__binner *n = (emb__binner *)rtcThreadLocalAlloc(a, sizeof(emb__binner), 16);
     (void)user;
     if (!n) return NULL;
     (void)count; /* always 2 with maxBranchingFactor 2 */
-    n->head.leaf = 0; n->head.count = 0;
+    n->head.leaf = 0;
+    n->head.count = 0;
     n->child[0] = n->child[1] = NULL;
     return n;
 }
@@ -744,14 +855,19 @@ static void emb__set_bounds(void *node, const struct RTCBounds **b, unsigned int
     unsigned i;
     (void)user;
     for (i = 0; i < count && i < 2; i++) {
-        n->box[i][0] = b[i]->lower_x; n->box[i][1] = b[i]->lower_y; n->box[i][2] = b[i]->lower_z;
-        n->box[i][3] = b[i]->upper_x; n->box[i][4] = b[i]->upper_y; n->box[i][5] = b[i]->upper_z;
+        n->box[i][0] = b[i]->lower_x;
+        n->box[i][1] = b[i]->lower_y;
+        n->box[i][2] = b[i]->lower_z;
+        n->box[i][3] = b[i]->upper_x;
+        n->box[i][4] = b[i]->upper_y;
+        n->box[i][5] = b[i]->upper_z;
     }
 }
-static void *emb__create_leaf(RTCThreadLocalAllocator a, const struct RTCBuildPrimitive *prims,
-                              size_t count, void *user) {
+static void *emb__create_leaf(RTCThreadLocalAllocator a, const struct RTCBuildPrimitive *prims, size_t count,
+                              void *user) {
     emb__bnode *l = (emb__bnode *)rtcThreadLocalAlloc(a, sizeof(emb__bnode), 16);
-    (void)prims; (void)user;
+    (void)prims;
+    (void)user;
     if (!l) return NULL;
     l->leaf = 1;
     l->count = (uint32_t)count;
@@ -767,15 +883,23 @@ static void emb__grow3(float *lo, float *hi, const float *p) {
 /* Spatial split of a triangle reference (HIGH): clips the triangle at `pos` on axis `dim`, the
    bounds of each side intersected with the reference's current box. A side on which the
    clipped triangle has nothing inside the box gets the plain half box (always conservative). */
-static void emb__split_prim(const struct RTCBuildPrimitive *p, unsigned int dim, float pos,
-                            struct RTCBounds *lb, struct RTCBounds *rb, void *user) {
+static void emb__split_prim(const struct RTCBuildPrimitive *p, unsigned int dim, float pos, struct RTCBounds *lb,
+                            struct RTCBounds *rb, void *user) {
     const emb__bctx *c = (const emb__bctx *)user;
     const float *t = c->v + (size_t)p->primID * 9;
     float lo[2][3], hi[2][3], plo[3], phi[3];
     int s, k, i;
-    plo[0] = p->lower_x; plo[1] = p->lower_y; plo[2] = p->lower_z;
-    phi[0] = p->upper_x; phi[1] = p->upper_y; phi[2] = p->upper_z;
-    for (s = 0; s < 2; s++) for (k = 0; k < 3; k++) { lo[s][k] = HUGE_VALF; hi[s][k] = -HUGE_VALF; }
+    plo[0] = p->lower_x;
+    plo[1] = p->lower_y;
+    plo[2] = p->lower_z;
+    phi[0] = p->upper_x;
+    phi[1] = p->upper_y;
+    phi[2] = p->upper_z;
+    for (s = 0; s < 2; s++)
+        for (k = 0; k < 3; k++) {
+            lo[s][k] = HUGE_VALF;
+            hi[s][k] = -HUGE_VALF;
+        }
     for (i = 0; i < 3; i++) {
         const float *a = t + 3 * i, *b = t + 3 * ((i + 1) % 3);
         float da = a[dim], db = b[dim];
@@ -799,14 +923,28 @@ static void emb__split_prim(const struct RTCBuildPrimitive *p, unsigned int dim,
         if (s == 1 && lo[1][dim] < pos) lo[1][dim] = pos;
         for (k = 0; k < 3; k++) empty |= !(lo[s][k] <= hi[s][k]);
         if (empty) {
-            for (k = 0; k < 3; k++) { lo[s][k] = plo[k]; hi[s][k] = phi[k]; }
-            if (s == 0) hi[0][dim] = pos; else lo[1][dim] = pos;
+            for (k = 0; k < 3; k++) {
+                lo[s][k] = plo[k];
+                hi[s][k] = phi[k];
+            }
+            if (s == 0)
+                hi[0][dim] = pos;
+            else
+                lo[1][dim] = pos;
         }
     }
-    lb->lower_x = lo[0][0]; lb->lower_y = lo[0][1]; lb->lower_z = lo[0][2];
-    lb->upper_x = hi[0][0]; lb->upper_y = hi[0][1]; lb->upper_z = hi[0][2];
-    rb->lower_x = lo[1][0]; rb->lower_y = lo[1][1]; rb->lower_z = lo[1][2];
-    rb->upper_x = hi[1][0]; rb->upper_y = hi[1][1]; rb->upper_z = hi[1][2];
+    lb->lower_x = lo[0][0];
+    lb->lower_y = lo[0][1];
+    lb->lower_z = lo[0][2];
+    lb->upper_x = hi[0][0];
+    lb->upper_y = hi[0][1];
+    lb->upper_z = hi[0][2];
+    rb->lower_x = lo[1][0];
+    rb->lower_y = lo[1][1];
+    rb->lower_z = lo[1][2];
+    rb->upper_x = hi[1][0];
+    rb->upper_y = hi[1][1];
+    rb->upper_z = hi[1][2];
 }
 
 /* half area as bvh.h computes it (float), 0 for an empty box */
@@ -818,12 +956,19 @@ static float emb__half_area(const float *b) {
 
 /* Walks the tree from root (whose box is rootbox); fills sah, counts. */
 static int emb__tree_sah(const emb__bnode *root, const float *rootbox, emb_sah_result *o) {
-    typedef struct { const emb__bnode *n; const float *box; uint32_t depth; } item;
+    typedef struct {
+        const emb__bnode *n;
+        const float *box;
+        uint32_t depth;
+    } item;
     size_t cap = 256, sp = 0;
     item *stack = (item *)malloc(cap * sizeof *stack);
     double ra = emb__half_area(rootbox), si = 0.0, st = 0.0;
     if (!stack) return EMB_ERR_MEMORY;
-    stack[sp].n = root; stack[sp].box = rootbox; stack[sp].depth = 1; sp++;
+    stack[sp].n = root;
+    stack[sp].box = rootbox;
+    stack[sp].depth = 1;
+    sp++;
     while (sp) {
         item it = stack[--sp];
         double a = ra > 0.0 ? emb__half_area(it.box) / ra : 1.0;
@@ -840,13 +985,22 @@ static int emb__tree_sah(const emb__bnode *root, const float *rootbox, emb_sah_r
             si += a;
             if (sp + 2 > cap) {
                 item *ns = (item *)realloc(stack, 2 * cap * sizeof *stack);
-                if (!ns) { free(stack); return EMB_ERR_MEMORY; }
+                if (!ns) {
+                    free(stack);
+                    return EMB_ERR_MEMORY;
+                }
                 stack = ns;
                 cap *= 2;
             }
             for (c = 1; c >= 0; c--) {
-                if (!in->child[c]) { free(stack); return EMB_ERR_EMBREE; }
-                stack[sp].n = in->child[c]; stack[sp].box = in->box[c]; stack[sp].depth = it.depth + 1; sp++;
+                if (!in->child[c]) {
+                    free(stack);
+                    return EMB_ERR_EMBREE;
+                }
+                stack[sp].n = in->child[c];
+                stack[sp].box = in->box[c];
+                stack[sp].depth = it.depth + 1;
+                sp++;
             }
         }
     }
@@ -873,12 +1027,16 @@ EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *desc, em
     if (!out) return EMB_ERR_ARGUMENT;
     memset(out, 0, sizeof *out);
     emb__msg(out->message, "ok");
-    if (desc) d = *desc; else memset(&d, 0, sizeof d);
+    if (desc)
+        d = *desc;
+    else
+        memset(&d, 0, sizeof d);
     if (!d.max_leaf) d.max_leaf = 8;
     if ((!v && n) || n > EMB__MAX_TRIANGLES || (int)d.quality < 0 || d.quality >= EMB_QUALITY_COUNT ||
         d.max_leaf > RTC_BUILD_MAX_PRIMITIVES_PER_LEAF || !(d.split_factor == d.split_factor) ||
         d.split_factor > 16.0f) {
-        emb__msg(out->message, "invalid argument (vertices NULL, too many triangles, quality, max_leaf > 32 or split_factor)");
+        emb__msg(out->message,
+                 "invalid argument (vertices NULL, too many triangles, quality, max_leaf > 32 or split_factor)");
         return EMB_ERR_ARGUMENT;
     }
     if (!d.repeat) d.repeat = 5;
@@ -900,7 +1058,11 @@ EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *desc, em
     src = (struct RTCBuildPrimitive *)aligned_alloc(32, (size_t)n * sizeof *src);
     prims = (struct RTCBuildPrimitive *)aligned_alloc(32, bytes);
     ms = (double *)malloc(d.repeat * sizeof *ms);
-    if (!src || !prims || !ms) { st = EMB_ERR_MEMORY; emb__msg(out->message, "out of memory"); goto done; }
+    if (!src || !prims || !ms) {
+        st = EMB_ERR_MEMORY;
+        emb__msg(out->message, "out of memory");
+        goto done;
+    }
 
     /* the primitives: one box per triangle; NaN/Inf triangles are left out as Embree's scene
        API does, so that refs may be < n for such input */
@@ -920,8 +1082,14 @@ EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *desc, em
                 if (lo[k] < rootbox[k]) rootbox[k] = lo[k];
                 if (hi[k] > rootbox[3 + k]) rootbox[3 + k] = hi[k];
             }
-            src[m].lower_x = lo[0]; src[m].lower_y = lo[1]; src[m].lower_z = lo[2]; src[m].geomID = 0;
-            src[m].upper_x = hi[0]; src[m].upper_y = hi[1]; src[m].upper_z = hi[2]; src[m].primID = i;
+            src[m].lower_x = lo[0];
+            src[m].lower_y = lo[1];
+            src[m].lower_z = lo[2];
+            src[m].geomID = 0;
+            src[m].upper_x = hi[0];
+            src[m].upper_y = hi[1];
+            src[m].upper_z = hi[2];
+            src[m].primID = i;
             m++;
         }
         if (!m) goto done;
@@ -930,9 +1098,15 @@ EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *desc, em
     }
 
     dev = emb__device(d.threads, &err);
-    if (!dev) { st = EMB_ERR_EMBREE; goto done; }
+    if (!dev) {
+        st = EMB_ERR_EMBREE;
+        goto done;
+    }
     bvh = rtcNewBVH(dev);
-    if (!bvh || emb__check(dev, &err, "rtcNewBVH")) { st = EMB_ERR_EMBREE; goto done; }
+    if (!bvh || emb__check(dev, &err, "rtcNewBVH")) {
+        st = EMB_ERR_EMBREE;
+        goto done;
+    }
 
     ctx.v = v;
     args = rtcDefaultBuildArguments();
@@ -975,8 +1149,10 @@ EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *desc, em
     }
     out->build = emb__timing(ms, d.repeat);
     st = emb__tree_sah((const emb__bnode *)root, rootbox, out);
-    if (st == EMB_ERR_EMBREE) emb__msg(out->message, "rtcBuildBVH left a node without children");
-    else if (st != EMB_OK) emb__msg(out->message, "out of memory");
+    if (st == EMB_ERR_EMBREE)
+        emb__msg(out->message, "rtcBuildBVH left a node without children");
+    else if (st != EMB_OK)
+        emb__msg(out->message, "out of memory");
 
 done:
     if (bvh) rtcReleaseBVH(bvh); /* frees the nodes */

@@ -79,23 +79,22 @@
 #endif
 #endif
 
-
 #ifdef __cplusplus
 extern "C" {
 #endif
 
 typedef enum bvh_cl_result {
     BVH_CL_SUCCESS = 0,
-    BVH_CL_ERROR_NOT_AVAILABLE,     /* compiled without BVH_HAVE_OPENCL */
-    BVH_CL_ERROR_NO_PLATFORM,       /* no OpenCL platform, or platform index out of range */
-    BVH_CL_ERROR_NO_DEVICE,         /* the platform has no device, or device index out of range */
-    BVH_CL_ERROR_KERNEL_NOT_FOUND,  /* the kernel file could not be read (path in desc.log) */
-    BVH_CL_ERROR_BUILD_FAILED,      /* the kernel did not compile: the compiler's log in desc.log */
-    BVH_CL_ERROR_OUT_OF_RESOURCES,  /* host or device memory or resources exhausted */
-    BVH_CL_ERROR_BUFFER_TOO_LARGE,  /* a buffer exceeds CL_DEVICE_MAX_MEM_ALLOC_SIZE (or
-                                       desc.max_alloc), or the tree the global memory */
-    BVH_CL_ERROR_INVALID_ARGUMENT,  /* NULL pointer, bad "platform:device" string, box-only tree */
-    BVH_CL_ERROR_OPENCL,            /* any other OpenCL error: see bvh_cl_last_error() */
+    BVH_CL_ERROR_NOT_AVAILABLE,    /* compiled without BVH_HAVE_OPENCL */
+    BVH_CL_ERROR_NO_PLATFORM,      /* no OpenCL platform, or platform index out of range */
+    BVH_CL_ERROR_NO_DEVICE,        /* the platform has no device, or device index out of range */
+    BVH_CL_ERROR_KERNEL_NOT_FOUND, /* the kernel file could not be read (path in desc.log) */
+    BVH_CL_ERROR_BUILD_FAILED,     /* the kernel did not compile: the compiler's log in desc.log */
+    BVH_CL_ERROR_OUT_OF_RESOURCES, /* host or device memory or resources exhausted */
+    BVH_CL_ERROR_BUFFER_TOO_LARGE, /* a buffer exceeds CL_DEVICE_MAX_MEM_ALLOC_SIZE (or
+                                      desc.max_alloc), or the tree the global memory */
+    BVH_CL_ERROR_INVALID_ARGUMENT, /* NULL pointer, bad "platform:device" string, box-only tree */
+    BVH_CL_ERROR_OPENCL,           /* any other OpenCL error: see bvh_cl_last_error() */
     BVH_CL_RESULT_COUNT
 } bvh_cl_result;
 
@@ -118,19 +117,19 @@ typedef struct bvh_cl_desc {
     char *log;                 /* optional: on failure of bvh_cl_create, receives the compiler's
                                   log (BUILD_FAILED) or the failing call; NUL-terminated */
     size_t log_size;
-    bvh_allocator allocator;   /* host memory of the context and its trees, as bvh.h's: both
-                                  NULL = BVH_CL_MALLOC / BVH_CL_FREE, one alone refused; blocks
-                                  aligned less than malloc's count as failed allocations */
+    bvh_allocator allocator; /* host memory of the context and its trees, as bvh.h's: both
+                                NULL = BVH_CL_MALLOC / BVH_CL_FREE, one alone refused; blocks
+                                aligned less than malloc's count as failed allocations */
 } bvh_cl_desc;
 
 typedef struct bvh_cl_device_info {
     char platform[128], device[128], version[128];
     uint32_t platform_index, device_index;
     uint32_t compute_units;
-    uint64_t max_alloc;  /* effective limit on one buffer (device limit, or desc.max_alloc) */
+    uint64_t max_alloc; /* effective limit on one buffer (device limit, or desc.max_alloc) */
     uint64_t global_mem;
     int is_gpu;
-    int exact;           /* correctly rounded divide/sqrt and fp64: t bit-identical to the CPU */
+    int exact; /* correctly rounded divide/sqrt and fp64: t bit-identical to the CPU */
 } bvh_cl_device_info;
 
 typedef struct bvh_cl_context bvh_cl_context; /* device, queue, compiled kernels */
@@ -168,8 +167,7 @@ BVH_CL_API void bvh_cl_tree_free(bvh_cl_tree *tree);
    SUCCESS; ARGUMENT: rays or the output NULL with count > 0; BUFFER_TOO_LARGE; OUT_OF_RESOURCES;
    OPENCL. */
 BVH_CL_API bvh_cl_result bvh_cl_intersect(bvh_cl_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count);
-BVH_CL_API bvh_cl_result bvh_cl_occluded(bvh_cl_tree *tree, const bvh_ray *rays, uint8_t *occluded,
-                                         size_t count);
+BVH_CL_API bvh_cl_result bvh_cl_occluded(bvh_cl_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count);
 
 /* Traces the camera's width x height primary rays (bvh_camera_ray, row 0 at the top), generated
    on the device. Outputs, each optional (NULL), width*height entries in row-major order:
@@ -179,8 +177,8 @@ BVH_CL_API bvh_cl_result bvh_cl_occluded(bvh_cl_tree *tree, const bvh_ray *rays,
    On a CPU device (desc.frame_rays), frames without visited counts trace packets of 4 x 4 pixels
    per work-item, set up and box-tested as float16.
    SUCCESS; ARGUMENT: cam NULL; BUFFER_TOO_LARGE; OUT_OF_RESOURCES; OPENCL. */
-BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera *cam, uint8_t *rgba,
-                                             bvh_hit *hits, uint32_t *visited);
+BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera *cam, uint8_t *rgba, bvh_hit *hits,
+                                             uint32_t *visited);
 
 #ifdef __cplusplus
 }
@@ -213,17 +211,28 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera
 
 BVH_CL_API const char *bvh_cl_result_string(bvh_cl_result r) {
     switch (r) {
-    case BVH_CL_SUCCESS: return "success";
-    case BVH_CL_ERROR_NOT_AVAILABLE: return "OpenCL not available (built without BVH_HAVE_OPENCL)";
-    case BVH_CL_ERROR_NO_PLATFORM: return "no OpenCL platform (or platform index out of range)";
-    case BVH_CL_ERROR_NO_DEVICE: return "no OpenCL device (or device index out of range)";
-    case BVH_CL_ERROR_KERNEL_NOT_FOUND: return "kernel source file could not be read";
-    case BVH_CL_ERROR_BUILD_FAILED: return "kernel build failed (see the build log)";
-    case BVH_CL_ERROR_OUT_OF_RESOURCES: return "out of device or host memory/resources";
-    case BVH_CL_ERROR_BUFFER_TOO_LARGE: return "buffer too large for the device";
-    case BVH_CL_ERROR_INVALID_ARGUMENT: return "invalid argument";
-    case BVH_CL_ERROR_OPENCL: return "OpenCL error (see bvh_cl_last_error)";
-    default: return "unknown result code";
+    case BVH_CL_SUCCESS:
+        return "success";
+    case BVH_CL_ERROR_NOT_AVAILABLE:
+        return "OpenCL not available (built without BVH_HAVE_OPENCL)";
+    case BVH_CL_ERROR_NO_PLATFORM:
+        return "no OpenCL platform (or platform index out of range)";
+    case BVH_CL_ERROR_NO_DEVICE:
+        return "no OpenCL device (or device index out of range)";
+    case BVH_CL_ERROR_KERNEL_NOT_FOUND:
+        return "kernel source file could not be read";
+    case BVH_CL_ERROR_BUILD_FAILED:
+        return "kernel build failed (see the build log)";
+    case BVH_CL_ERROR_OUT_OF_RESOURCES:
+        return "out of device or host memory/resources";
+    case BVH_CL_ERROR_BUFFER_TOO_LARGE:
+        return "buffer too large for the device";
+    case BVH_CL_ERROR_INVALID_ARGUMENT:
+        return "invalid argument";
+    case BVH_CL_ERROR_OPENCL:
+        return "OpenCL error (see bvh_cl_last_error)";
+    default:
+        return "unknown result code";
     }
 }
 
@@ -232,7 +241,8 @@ BVH_CL_API const char *bvh_cl_result_string(bvh_cl_result r) {
 /* == without OpenCL: every call reports BVH_CL_ERROR_NOT_AVAILABLE ============================== */
 /* ============================================================================================ */
 BVH_CL_API bvh_cl_result bvh_cl_enumerate(bvh_cl_device_info *out, uint32_t capacity, uint32_t *count) {
-    (void)out; (void)capacity;
+    (void)out;
+    (void)capacity;
     if (count) *count = 0;
     return BVH_CL_ERROR_NOT_AVAILABLE;
 }
@@ -250,30 +260,47 @@ BVH_CL_API bvh_cl_result bvh_cl_get_info(const bvh_cl_context *ctx, bvh_cl_devic
     if (out) memset(out, 0, sizeof *out);
     return BVH_CL_ERROR_NOT_AVAILABLE;
 }
-BVH_CL_API const char *bvh_cl_build_log(const bvh_cl_context *ctx) { (void)ctx; return ""; }
+BVH_CL_API const char *bvh_cl_build_log(const bvh_cl_context *ctx) {
+    (void)ctx;
+    return "";
+}
 BVH_CL_API int bvh_cl_last_error(const bvh_cl_context *ctx, const char **call) {
     (void)ctx;
     if (call) *call = "";
     return 0;
 }
-BVH_CL_API double bvh_cl_last_kernel_ms(const bvh_cl_context *ctx) { (void)ctx; return 0.0; }
+BVH_CL_API double bvh_cl_last_kernel_ms(const bvh_cl_context *ctx) {
+    (void)ctx;
+    return 0.0;
+}
 BVH_CL_API bvh_cl_result bvh_cl_upload(bvh_cl_context *ctx, const bvh_tree *tree, bvh_cl_tree **out) {
-    (void)ctx; (void)tree;
+    (void)ctx;
+    (void)tree;
     if (out) *out = NULL;
     return BVH_CL_ERROR_NOT_AVAILABLE;
 }
 BVH_CL_API void bvh_cl_tree_free(bvh_cl_tree *tree) { (void)tree; }
 BVH_CL_API bvh_cl_result bvh_cl_intersect(bvh_cl_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count) {
-    (void)tree; (void)rays; (void)hits; (void)count;
+    (void)tree;
+    (void)rays;
+    (void)hits;
+    (void)count;
     return BVH_CL_ERROR_NOT_AVAILABLE;
 }
 BVH_CL_API bvh_cl_result bvh_cl_occluded(bvh_cl_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count) {
-    (void)tree; (void)rays; (void)occluded; (void)count;
+    (void)tree;
+    (void)rays;
+    (void)occluded;
+    (void)count;
     return BVH_CL_ERROR_NOT_AVAILABLE;
 }
 BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera *cam, uint8_t *rgba, bvh_hit *hits,
                                              uint32_t *visited) {
-    (void)tree; (void)cam; (void)rgba; (void)hits; (void)visited;
+    (void)tree;
+    (void)cam;
+    (void)rgba;
+    (void)hits;
+    (void)visited;
     return BVH_CL_ERROR_NOT_AVAILABLE;
 }
 
@@ -299,12 +326,12 @@ typedef char bvh_cl__hit_is_16_bytes[sizeof(bvh_hit) == 16 ? 1 : -1];
 
 #define BVH_CL__PLATFORM_NOT_FOUND (-1001) /* CL_PLATFORM_NOT_FOUND_KHR of the ICD loader */
 #define BVH_CL__MAX_IDS 64
-#define BVH_CL__PACKET_DEFAULT 16 /* frame rays per work-item on CPU devices */
+#define BVH_CL__PACKET_DEFAULT 16       /* frame rays per work-item on CPU devices */
 #define BVH_CL__CHUNK ((size_t)1 << 20) /* rays or pixels per kernel launch at most */
 enum { BVH_CL__K_CLOSEST, BVH_CL__K_ANY, BVH_CL__K_FRAME, BVH_CL__K_FRAME8, BVH_CL__K_COUNT };
 enum { BVH_CL__S_IN, BVH_CL__S_OUT, BVH_CL__S_RGBA, BVH_CL__S_VISITED, BVH_CL__S_COUNT };
 static const char *const bvh_cl__kernel_names[BVH_CL__K_COUNT] = {"bvh_intersect_kernel", "bvh_occluded_kernel",
-                                                                   "bvh_frame_kernel", "bvh_frame_packet_kernel"};
+                                                                  "bvh_frame_kernel", "bvh_frame_packet_kernel"};
 
 struct bvh_cl_context {
     bvh_allocator al; /* desc.allocator: the context's own block, its log and its trees' */
@@ -346,8 +373,10 @@ static void *bvh_cl__alloc(const bvh_allocator *al, size_t size) {
 }
 static void bvh_cl__free(const bvh_allocator *al, void *p) {
     if (!p) return;
-    if (al->free) al->free(p, al->user);
-    else BVH_CL_FREE(p, al->user);
+    if (al->free)
+        al->free(p, al->user);
+    else
+        BVH_CL_FREE(p, al->user);
 }
 
 static void bvh_cl__logf(const bvh_cl_desc *d, const char *fmt, ...) {
@@ -360,20 +389,33 @@ static void bvh_cl__logf(const bvh_cl_desc *d, const char *fmt, ...) {
 
 static bvh_cl_result bvh_cl__map(cl_int err) {
     switch (err) {
-    case CL_SUCCESS: return BVH_CL_SUCCESS;
-    case BVH_CL__PLATFORM_NOT_FOUND: return BVH_CL_ERROR_NO_PLATFORM;
-    case CL_DEVICE_NOT_FOUND: case CL_DEVICE_NOT_AVAILABLE: return BVH_CL_ERROR_NO_DEVICE;
-    case CL_BUILD_PROGRAM_FAILURE: case CL_COMPILER_NOT_AVAILABLE: return BVH_CL_ERROR_BUILD_FAILED;
-    case CL_OUT_OF_RESOURCES: case CL_OUT_OF_HOST_MEMORY: case CL_MEM_OBJECT_ALLOCATION_FAILURE:
+    case CL_SUCCESS:
+        return BVH_CL_SUCCESS;
+    case BVH_CL__PLATFORM_NOT_FOUND:
+        return BVH_CL_ERROR_NO_PLATFORM;
+    case CL_DEVICE_NOT_FOUND:
+    case CL_DEVICE_NOT_AVAILABLE:
+        return BVH_CL_ERROR_NO_DEVICE;
+    case CL_BUILD_PROGRAM_FAILURE:
+    case CL_COMPILER_NOT_AVAILABLE:
+        return BVH_CL_ERROR_BUILD_FAILED;
+    case CL_OUT_OF_RESOURCES:
+    case CL_OUT_OF_HOST_MEMORY:
+    case CL_MEM_OBJECT_ALLOCATION_FAILURE:
         return BVH_CL_ERROR_OUT_OF_RESOURCES;
-    case CL_INVALID_BUFFER_SIZE: return BVH_CL_ERROR_BUFFER_TOO_LARGE;
-    default: return BVH_CL_ERROR_OPENCL;
+    case CL_INVALID_BUFFER_SIZE:
+        return BVH_CL_ERROR_BUFFER_TOO_LARGE;
+    default:
+        return BVH_CL_ERROR_OPENCL;
     }
 }
 
 /* records the failing call in the context (if any) and maps the error */
 static bvh_cl_result bvh_cl__fail(bvh_cl_context *c, cl_int err, const char *call) {
-    if (c) { c->last_error = err; c->last_call = call; }
+    if (c) {
+        c->last_error = err;
+        c->last_call = call;
+    }
     return bvh_cl__map(err);
 }
 
@@ -391,7 +433,8 @@ static int bvh_cl__parse_device(const char *s, cl_uint *p, cl_uint *d) {
         b = strtoul(end + 1, &end, 10);
     }
     if (*end != '\0' || a > 0xFFFFu || b > 0xFFFFu) return 0;
-    *p = (cl_uint)a; *d = (cl_uint)b;
+    *p = (cl_uint)a;
+    *d = (cl_uint)b;
     return 1;
 }
 
@@ -419,7 +462,10 @@ static void bvh_cl__describe(cl_platform_id p, cl_device_id d, bvh_cl_device_inf
 
 static cl_int bvh_cl__devices(cl_platform_id p, cl_device_id *ids, cl_uint *n) {
     cl_int err = clGetDeviceIDs(p, CL_DEVICE_TYPE_ALL, BVH_CL__MAX_IDS, ids, n);
-    if (err == CL_DEVICE_NOT_FOUND) { *n = 0; err = CL_SUCCESS; }
+    if (err == CL_DEVICE_NOT_FOUND) {
+        *n = 0;
+        err = CL_SUCCESS;
+    }
     if (*n > BVH_CL__MAX_IDS) *n = BVH_CL__MAX_IDS;
     return err;
 }
@@ -444,7 +490,10 @@ static bvh_cl_result bvh_cl__pick(const bvh_cl_desc *desc, bvh_cl_context *c) {
             bvh_cl__logf(desc, "device \"%s\": expected \"platform:device\" indices", want);
             return BVH_CL_ERROR_INVALID_ARGUMENT;
         }
-        if (pi >= np) { bvh_cl__logf(desc, "platform %u of %u", pi, np); return BVH_CL_ERROR_NO_PLATFORM; }
+        if (pi >= np) {
+            bvh_cl__logf(desc, "platform %u of %u", pi, np);
+            return BVH_CL_ERROR_NO_PLATFORM;
+        }
         if ((err = bvh_cl__devices(plats[pi], devs, &nd)) != CL_SUCCESS) return bvh_cl__fail(c, err, "clGetDeviceIDs");
         if (di >= nd) {
             bvh_cl__logf(desc, "device %u of %u on platform %u", di, nd, pi);
@@ -452,9 +501,15 @@ static bvh_cl_result bvh_cl__pick(const bvh_cl_desc *desc, bvh_cl_context *c) {
         }
     } else {
         for (i = 0; i < np; i++) {
-            if (bvh_cl__devices(plats[i], devs, &nd) == CL_SUCCESS && nd > 0) { pi = i; break; }
+            if (bvh_cl__devices(plats[i], devs, &nd) == CL_SUCCESS && nd > 0) {
+                pi = i;
+                break;
+            }
         }
-        if (i == np) { bvh_cl__logf(desc, "%u OpenCL platform(s), no device", np); return BVH_CL_ERROR_NO_DEVICE; }
+        if (i == np) {
+            bvh_cl__logf(desc, "%u OpenCL platform(s), no device", np);
+            return BVH_CL_ERROR_NO_DEVICE;
+        }
     }
     c->platform = plats[pi];
     c->device = devs[di];
@@ -555,7 +610,7 @@ static const char *const bvh_cl__source[] = {
 "/* ============================================================================================ */\n",
 "typedef struct bvh_cl_rayx {\n",
 "    float3 o, inv;\n",
-"    int3 neg;            /* inv < 0: the near plane is the max plane on that axis */\n",
+"    int3 neg; /* inv < 0: the near plane is the max plane on that axis */\n",
 "    float tmin;\n",
 "    int kx, ky, kz;      /* watertight: kz = dominant axis, kx/ky swapped for d[kz] < 0 */\n",
 "    float okx, oky, okz; /* the origin permuted like the axes */\n",
@@ -568,8 +623,7 @@ static const char *const bvh_cl__source[] = {
 "BVH_CL_FN int bvh_cl_ray_setup(float3 o, float tmin, float3 d, float tmax, bvh_cl_rayx *rx) {\n",
 "    float ax, ay, az, dkz;\n",
 "    int t;\n",
-"    if (!(isfinite(o.x) && isfinite(o.y) && isfinite(o.z) && isfinite(d.x) && isfinite(d.y) && isfinite(d.z)))\n",
-"        return 0;\n",
+"    if (!(isfinite(o.x) && isfinite(o.y) && isfinite(o.z) && isfinite(d.x) && isfinite(d.y) && isfinite(d.z))) return 0;\n",
 "    if (isnan(tmin) || isnan(tmax) || tmin > tmax) return 0;\n",
 "    /* as bvh__ray_setup: subnormal components have no finite inverse and count as 0 */\n",
 "    d.x = fabs(d.x) < FLT_MIN ? 0.0f : d.x;\n",
@@ -582,12 +636,18 @@ static const char *const bvh_cl__source[] = {
 "    rx->inv.z = d.z == 0.0f ? INFINITY : 1.0f / d.z;\n",
 "    rx->neg = rx->inv < (float3)(0.0f);\n",
 "    rx->tmin = tmin;\n",
-"    ax = fabs(d.x); ay = fabs(d.y); az = fabs(d.z);\n",
+"    ax = fabs(d.x);\n",
+"    ay = fabs(d.y);\n",
+"    az = fabs(d.z);\n",
 "    rx->kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);\n",
 "    rx->kx = rx->kz == 2 ? 0 : rx->kz + 1;\n",
 "    rx->ky = rx->kx == 2 ? 0 : rx->kx + 1;\n",
 "    dkz = bvh_cl_comp(d, rx->kz);\n",
-"    if (dkz < 0.0f) { t = rx->kx; rx->kx = rx->ky; rx->ky = t; }\n",
+"    if (dkz < 0.0f) {\n",
+"        t = rx->kx;\n",
+"        rx->kx = rx->ky;\n",
+"        rx->ky = t;\n",
+"    }\n",
 "    rx->sx = bvh_cl_comp(d, rx->kx) / dkz;\n",
 "    rx->sy = bvh_cl_comp(d, rx->ky) / dkz;\n",
 "    rx->sz = 1.0f / dkz;\n",
@@ -672,7 +732,7 @@ static const char *const bvh_cl__source[] = {
 "    tn = a0.z > tn ? a0.z : tn;\n",
 "    tf = a1.z < tf ? a1.z : tf;\n",
 "    tf *= 1.0000004f; /* 1 + 2 gamma(3) */\n",
-"    { /* as bvh__slab: lower the entry by 2^-18 of the box's distances along the dominant axis */\n",
+"    {                 /* as bvh__slab: lower the entry by 2^-18 of the box's distances along the dominant axis */\n",
 "        float k0 = fabs(r->kz == 0 ? a0.x : r->kz == 1 ? a0.y : a0.z);\n",
 "        float k1 = fabs(r->kz == 0 ? a1.x : r->kz == 1 ? a1.y : a1.z);\n",
 "        tn -= (k0 > k1 ? k0 : k1) * 0x1p-18f;\n",
@@ -699,8 +759,10 @@ static const char *const bvh_cl__source[] = {
 "   outside the array (a corrupt tree: the traversal ends). */\n",
 "BVH_CL_FN int bvh_cl_children(const bvh_cl_scene *s, uint c, uint4 *lo0, uint4 *hi0, uint4 *lo1, uint4 *hi1) {\n",
 "    if (c >= s->node_count - 1) return 0;\n",
-"    *lo0 = s->nodes[2 * c]; *hi0 = s->nodes[2 * c + 1];\n",
-"    *lo1 = s->nodes[2 * c + 2]; *hi1 = s->nodes[2 * c + 3];\n",
+"    *lo0 = s->nodes[2 * c];\n",
+"    *hi0 = s->nodes[2 * c + 1];\n",
+"    *lo1 = s->nodes[2 * c + 2];\n",
+"    *hi1 = s->nodes[2 * c + 3];\n",
 "    return 1;\n",
 "}\n",
 "\n",
@@ -728,8 +790,15 @@ static const char *const bvh_cl__source[] = {
 "                if (!bvh_cl_tri_test(rx, s->tris + 9 * (size_t)k, best_t, &t, &u, &v)) continue;\n",
 "                prim = s->prims[k];\n",
 "                if (t == best_t && prim > res->prim) continue; /* ties: lowest index */\n",
-"                best_t = t; res->u = u; res->v = v; res->prim = prim; res->ref = k;\n",
-"                if (any) { done = 1; break; }\n",
+"                best_t = t;\n",
+"                res->u = u;\n",
+"                res->v = v;\n",
+"                res->prim = prim;\n",
+"                res->ref = k;\n",
+"                if (any) {\n",
+"                    done = 1;\n",
+"                    break;\n",
+"                }\n",
 "            }\n",
 "        } else {\n",
 "            uint c = lo.w;\n",
@@ -741,8 +810,17 @@ static const char *const bvh_cl__source[] = {
 "            nvis += 2;\n",
 "            if (t0 != INFINITY || t1 != INFINITY) {\n",
 "                uint far = c + 1;\n",
-"                if (t1 < t0) { float tt = t0; t0 = t1; t1 = tt; lo = lo1; hi = hi1; far = c; }\n",
-"                else { lo = lo0; hi = hi0; }\n",
+"                if (t1 < t0) {\n",
+"                    float tt = t0;\n",
+"                    t0 = t1;\n",
+"                    t1 = tt;\n",
+"                    lo = lo1;\n",
+"                    hi = hi1;\n",
+"                    far = c;\n",
+"                } else {\n",
+"                    lo = lo0;\n",
+"                    hi = hi0;\n",
+"                }\n",
 "                if (t1 != INFINITY) {\n",
 "                    if (sp == BVH_CL_STACK) break; /* a tree deeper than the validator allows */\n",
 "                    stack_t[sp] = t1;\n",
@@ -753,9 +831,16 @@ static const char *const bvh_cl__source[] = {
 "        }\n",
 "        if (!descended && !done) {\n",
 "            for (;;) { /* pop the next node still in reach of the current best */\n",
-"                if (!sp) { done = 1; break; }\n",
+"                if (!sp) {\n",
+"                    done = 1;\n",
+"                    break;\n",
+"                }\n",
 "                --sp;\n",
-"                if (stack_t[sp] <= best_t) { lo = s->nodes[2 * stack[sp]]; hi = s->nodes[2 * stack[sp] + 1]; break; }\n",
+"                if (stack_t[sp] <= best_t) {\n",
+"                    lo = s->nodes[2 * stack[sp]];\n",
+"                    hi = s->nodes[2 * stack[sp] + 1];\n",
+"                    break;\n",
+"                }\n",
 "            }\n",
 "        }\n",
 "    }\n",
@@ -767,10 +852,17 @@ static const char *const bvh_cl__source[] = {
 "BVH_CL_FN void bvh_cl_trace(const bvh_cl_scene *s, float3 o, float tmin, float3 d, float tmax, int any,\n",
 "                            bvh_cl_hitrec *res) {\n",
 "    bvh_cl_rayx rx;\n",
-"    res->t = tmax; res->u = res->v = 0.0f; res->prim = BVH_CL_INVALID; res->ref = 0; res->visited = 0;\n",
+"    res->t = tmax;\n",
+"    res->u = res->v = 0.0f;\n",
+"    res->prim = BVH_CL_INVALID;\n",
+"    res->ref = 0;\n",
+"    res->visited = 0;\n",
 "    if (!s->node_count || !bvh_cl_ray_setup(o, tmin, d, tmax, &rx)) return;\n",
 "    bvh_cl_traverse(s, &rx, tmax, any, res);\n",
-"    if (res->prim == BVH_CL_INVALID) { res->t = tmax; res->u = res->v = 0.0f; }\n",
+"    if (res->prim == BVH_CL_INVALID) {\n",
+"        res->t = tmax;\n",
+"        res->u = res->v = 0.0f;\n",
+"    }\n",
 "}\n",
 "\n",
 "/* Ray i of a batch (origin, tmin, direction, tmax: 8 floats) traced into *res. */\n",
@@ -779,7 +871,11 @@ static const char *const bvh_cl__source[] = {
 "                            bvh_cl_hitrec *res) {\n",
 "    bvh_cl_scene s;\n",
 "    const float4 r0 = vload4(2 * (size_t)i, rays), r1 = vload4(2 * (size_t)i + 1, rays);\n",
-"    s.nodes = nodes; s.tris = tris; s.prims = prims; s.node_count = node_count; s.ref_count = ref_count;\n",
+"    s.nodes = nodes;\n",
+"    s.tris = tris;\n",
+"    s.prims = prims;\n",
+"    s.node_count = node_count;\n",
+"    s.ref_count = ref_count;\n",
 "    bvh_cl_trace(&s, r0.xyz, r0.w, r1.xyz, r1.w, any, res);\n",
 "}\n",
 "\n",
@@ -788,8 +884,8 @@ static const char *const bvh_cl__source[] = {
 "/* ============================================================================================ */\n",
 "/* Closest hit of rays[0 .. count) into hits (bvh_intersect_batch). */\n",
 "__kernel void bvh_intersect_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,\n",
-"                               __global const uint *prims, uint ref_count, __global const float *rays,\n",
-"                               __global uint4 *hits, uint count) {\n",
+"                                   __global const uint *prims, uint ref_count, __global const float *rays,\n",
+"                                   __global uint4 *hits, uint count) {\n",
 "    uint i = (uint)get_global_id(0);\n",
 "    bvh_cl_hitrec res;\n",
 "    if (i >= count) return;\n",
@@ -799,8 +895,8 @@ static const char *const bvh_cl__source[] = {
 "\n",
 "/* Any hit of rays[0 .. count): occluded[i] = 1 if blocked (bvh_occluded_batch). */\n",
 "__kernel void bvh_occluded_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,\n",
-"                              __global const uint *prims, uint ref_count, __global const float *rays,\n",
-"                              __global uchar *occluded, uint count) {\n",
+"                                  __global const uint *prims, uint ref_count, __global const float *rays,\n",
+"                                  __global uchar *occluded, uint count) {\n",
 "    uint i = (uint)get_global_id(0);\n",
 "    bvh_cl_hitrec res;\n",
 "    if (i >= count) return;\n",
@@ -834,9 +930,8 @@ static const char *const bvh_cl__source[] = {
 "   hits shaded with a headlight, grey * (0.2 + 0.8 |dot(n, d)|), misses a vertical gradient;\n",
 "   hits (bvh_hit); visited (nodes visited, as bvh_intersect_counted). */\n",
 "__kernel void bvh_frame_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,\n",
-"                           __global const uint *prims, uint ref_count, float16 cam, uint width, uint height,\n",
-"                           uint y0, uint rows, __global uchar *rgba, __global uint4 *hits,\n",
-"                           __global uint *visited) {\n",
+"                               __global const uint *prims, uint ref_count, float16 cam, uint width, uint height,\n",
+"                               uint y0, uint rows, __global uchar *rgba, __global uint4 *hits, __global uint *visited) {\n",
 "    uint x = (uint)get_global_id(0), row = (uint)get_global_id(1), y = y0 + row;\n",
 "    size_t pix = (size_t)row * width + x;\n",
 "    bvh_cl_scene s;\n",
@@ -844,14 +939,22 @@ static const char *const bvh_cl__source[] = {
 "    float sx, sy, l;\n",
 "    float3 d;\n",
 "    if (x >= width || row >= rows) return;\n",
-"    s.nodes = nodes; s.tris = tris; s.prims = prims; s.node_count = node_count; s.ref_count = ref_count;\n",
+"    s.nodes = nodes;\n",
+"    s.tris = tris;\n",
+"    s.prims = prims;\n",
+"    s.node_count = node_count;\n",
+"    s.ref_count = ref_count;\n",
 "    sx = 2.0f * ((float)x + 0.5f) / (float)width - 1.0f;\n",
 "    sy = 1.0f - 2.0f * ((float)y + 0.5f) / (float)height;\n",
 "    d.x = cam.s3 + sx * cam.s6 + sy * cam.s9;\n",
 "    d.y = cam.s4 + sx * cam.s7 + sy * cam.sa;\n",
 "    d.z = cam.s5 + sx * cam.s8 + sy * cam.sb;\n",
 "    l = sqrt(d.x * d.x + d.y * d.y + d.z * d.z);\n",
-"    if (l > 0.0f) { d.x = d.x / l; d.y = d.y / l; d.z = d.z / l; }\n",
+"    if (l > 0.0f) {\n",
+"        d.x = d.x / l;\n",
+"        d.y = d.y / l;\n",
+"        d.z = d.z / l;\n",
+"    }\n",
 "    bvh_cl_trace(&s, cam.s012, 0.0f, d, INFINITY, 0, &res);\n",
 "    if (hits) hits[pix] = (uint4)(as_uint(res.t), as_uint(res.u), as_uint(res.v), res.prim);\n",
 "    if (visited) visited[pix] = res.visited;\n",
@@ -865,11 +968,11 @@ static const char *const bvh_cl__source[] = {
 "   does not take their data-dependent loops across work-items. Here one work-item traces the\n",
 "   4 x BVH_CL_PACKET_H pixels of a tile together (BVH_CL_PACKET = 4 BVH_CL_PACKET_H rays, 8 or\n",
 "   16, set by the host): the rays are set up and every box test is done for all of them at once\n",
-"   in vectors of that width (a vector instruction or two per step), the node is entered when any ray of the packet reaches it, and\n",
-"   the triangles of a leaf are tested ray by ray with the scalar watertight test, for the rays\n",
-"   that reach the leaf. The slab test is bvh_cl_slab's, step for step, so every ray gets exactly\n",
-"   its one-ray hit (visiting a node more for some ray never changes a closest hit: the triangle\n",
-"   test alone decides). The node counts of a heat map are the one-ray kernel's. */\n",
+"   in vectors of that width (a vector instruction or two per step), the node is entered when any ray of the packet\n",
+"   reaches it, and the triangles of a leaf are tested ray by ray with the scalar watertight test, for the rays that\n",
+"   reach the leaf. The slab test is bvh_cl_slab's, step for step, so every ray gets exactly its one-ray hit (visiting a\n",
+"   node more for some ray never changes a closest hit: the triangle test alone decides). The node counts of a heat map\n",
+"   are the one-ray kernel's. */\n",
 "#ifndef BVH_CL_PACKET\n",
 "#define BVH_CL_PACKET 8\n",
 "#endif\n",
@@ -964,7 +1067,11 @@ static const char *const bvh_cl__source[] = {
 "                    if (!bvh_cl_tri_test(r, s->tris + 9 * (size_t)k, bl, &t, &tu, &tv)) continue;\n",
 "                    pr = s->prims[k];\n",
 "                    if (t == bl && pr > prim[l]) continue; /* ties: lowest index */\n",
-"                    bl = t; u[l] = tu; v[l] = tv; prim[l] = pr; ref[l] = k;\n",
+"                    bl = t;\n",
+"                    u[l] = tu;\n",
+"                    v[l] = tv;\n",
+"                    prim[l] = pr;\n",
+"                    ref[l] = k;\n",
 "                }\n",
 "                best[l] = bl;\n",
 "            }\n",
@@ -982,7 +1089,15 @@ static const char *const bvh_cl__source[] = {
 "            if (h0 || h1) {\n",
 "                /* near child first: the one more of the packet's rays enter first */\n",
 "                int one = h1 && (!h0 || 2 * popcount(bvh_cl_bits(t1 < t0)) > BVH_CL_PACKET);\n",
-"                if (one) { lo = lo1; hi = hi1; te = t1; } else { lo = lo0; hi = hi0; te = t0; }\n",
+"                if (one) {\n",
+"                    lo = lo1;\n",
+"                    hi = hi1;\n",
+"                    te = t1;\n",
+"                } else {\n",
+"                    lo = lo0;\n",
+"                    hi = hi0;\n",
+"                    te = t0;\n",
+"                }\n",
 "                if (h0 && h1) {\n",
 "                    if (sp == BVH_CL_STACK) return; /* a tree deeper than the validator allows */\n",
 "                    stack_t[sp] = one ? t0 : t1;\n",
@@ -996,7 +1111,9 @@ static const char *const bvh_cl__source[] = {
 "                if (!sp) return;\n",
 "                --sp;\n",
 "                if (any((stack_t[sp] != (bvh_pkf)(INFINITY)) & (stack_t[sp] <= bt))) {\n",
-"                    lo = s->nodes[2 * stack[sp]]; hi = s->nodes[2 * stack[sp] + 1]; te = stack_t[sp];\n",
+"                    lo = s->nodes[2 * stack[sp]];\n",
+"                    hi = s->nodes[2 * stack[sp] + 1];\n",
+"                    te = stack_t[sp];\n",
 "                    break;\n",
 "                }\n",
 "            }\n",
@@ -1021,44 +1138,73 @@ static const char *const bvh_cl__source[] = {
 "    dy = select(dy, (bvh_pkf)(0.0f), fabs(dy) < (bvh_pkf)(FLT_MIN));\n",
 "    dz = select(dz, (bvh_pkf)(0.0f), fabs(dz) < (bvh_pkf)(FLT_MIN));\n",
 "    ok &= (dx != (bvh_pkf)(0.0f)) | (dy != (bvh_pkf)(0.0f)) | (dz != (bvh_pkf)(0.0f));\n",
-"    p->ox = (bvh_pkf)(o.x); p->oy = (bvh_pkf)(o.y); p->oz = (bvh_pkf)(o.z);\n",
+"    p->ox = (bvh_pkf)(o.x);\n",
+"    p->oy = (bvh_pkf)(o.y);\n",
+"    p->oz = (bvh_pkf)(o.z);\n",
 "    p->ix = select((bvh_pkf)(1.0f) / dx, inf, dx == (bvh_pkf)(0.0f));\n",
 "    p->iy = select((bvh_pkf)(1.0f) / dy, inf, dy == (bvh_pkf)(0.0f));\n",
 "    p->iz = select((bvh_pkf)(1.0f) / dz, inf, dz == (bvh_pkf)(0.0f));\n",
-"    p->nx = p->ix < (bvh_pkf)(0.0f); p->ny = p->iy < (bvh_pkf)(0.0f); p->nz = p->iz < (bvh_pkf)(0.0f);\n",
-"    ax = fabs(dx); ay = fabs(dy); az = fabs(dz);\n",
+"    p->nx = p->ix < (bvh_pkf)(0.0f);\n",
+"    p->ny = p->iy < (bvh_pkf)(0.0f);\n",
+"    p->nz = p->iz < (bvh_pkf)(0.0f);\n",
+"    ax = fabs(dx);\n",
+"    ay = fabs(dy);\n",
+"    az = fabs(dz);\n",
 "    kz = select(select((bvh_pki)(2), (bvh_pki)(1), ay > az), select((bvh_pki)(2), (bvh_pki)(0), ax > az), ax > ay);\n",
 "    kx = select(kz + 1, (bvh_pki)(0), kz == (bvh_pki)(2));\n",
 "    ky = select(kx + 1, (bvh_pki)(0), kx == (bvh_pki)(2));\n",
 "    dkz = select(select(dz, dy, kz == (bvh_pki)(1)), dx, kz == (bvh_pki)(0));\n",
 "    sw = dkz < (bvh_pkf)(0.0f);\n",
-"    t = kx; kx = select(kx, ky, sw); ky = select(ky, t, sw);\n",
+"    t = kx;\n",
+"    kx = select(kx, ky, sw);\n",
+"    ky = select(ky, t, sw);\n",
 "    dkx = select(select(dz, dy, kx == (bvh_pki)(1)), dx, kx == (bvh_pki)(0));\n",
 "    dky = select(select(dz, dy, ky == (bvh_pki)(1)), dx, ky == (bvh_pki)(0));\n",
-"    sx = dkx / dkz; sy = dky / dkz; sz = (bvh_pkf)(1.0f) / dkz;\n",
+"    sx = dkx / dkz;\n",
+"    sy = dky / dkz;\n",
+"    sz = (bvh_pkf)(1.0f) / dkz;\n",
 "    okx = select(select(p->oz, p->oy, kx == (bvh_pki)(1)), p->ox, kx == (bvh_pki)(0));\n",
 "    oky = select(select(p->oz, p->oy, ky == (bvh_pki)(1)), p->ox, ky == (bvh_pki)(0));\n",
 "    okz = select(select(p->oz, p->oy, kz == (bvh_pki)(1)), p->ox, kz == (bvh_pki)(0));\n",
 "    /* lanes that are no ray: finite stand-ins that enter no box */\n",
-"    p->ix = select((bvh_pkf)(1.0f), p->ix, ok); p->iy = select((bvh_pkf)(1.0f), p->iy, ok);\n",
+"    p->ix = select((bvh_pkf)(1.0f), p->ix, ok);\n",
+"    p->iy = select((bvh_pkf)(1.0f), p->iy, ok);\n",
 "    p->iz = select((bvh_pkf)(1.0f), p->iz, ok);\n",
-"    p->nx &= ok; p->ny &= ok; p->nz &= ok;\n",
+"    p->nx &= ok;\n",
+"    p->ny &= ok;\n",
+"    p->nz &= ok;\n",
 "    p->tmin = select(inf, (bvh_pkf)(0.0f), ok);\n",
 "    p->kz = select((bvh_pki)(0), kz, ok);\n",
-"    BVH_PK_STORE(p->ix, 0, a[0]); BVH_PK_STORE(p->iy, 0, a[1]); BVH_PK_STORE(p->iz, 0, a[2]);\n",
-"    BVH_PK_STORE(sx, 0, a[3]); BVH_PK_STORE(sy, 0, a[4]); BVH_PK_STORE(sz, 0, a[5]);\n",
-"    BVH_PK_STORE(okx, 0, a[6]); BVH_PK_STORE(oky, 0, a[7]); BVH_PK_STORE(okz, 0, a[8]);\n",
-"    BVH_PK_STORE(kx, 0, m[0]); BVH_PK_STORE(ky, 0, m[1]); BVH_PK_STORE(kz, 0, m[2]);\n",
-"    BVH_PK_STORE(p->nx, 0, m[3]); BVH_PK_STORE(p->ny, 0, m[4]); BVH_PK_STORE(p->nz, 0, m[5]);\n",
+"    BVH_PK_STORE(p->ix, 0, a[0]);\n",
+"    BVH_PK_STORE(p->iy, 0, a[1]);\n",
+"    BVH_PK_STORE(p->iz, 0, a[2]);\n",
+"    BVH_PK_STORE(sx, 0, a[3]);\n",
+"    BVH_PK_STORE(sy, 0, a[4]);\n",
+"    BVH_PK_STORE(sz, 0, a[5]);\n",
+"    BVH_PK_STORE(okx, 0, a[6]);\n",
+"    BVH_PK_STORE(oky, 0, a[7]);\n",
+"    BVH_PK_STORE(okz, 0, a[8]);\n",
+"    BVH_PK_STORE(kx, 0, m[0]);\n",
+"    BVH_PK_STORE(ky, 0, m[1]);\n",
+"    BVH_PK_STORE(kz, 0, m[2]);\n",
+"    BVH_PK_STORE(p->nx, 0, m[3]);\n",
+"    BVH_PK_STORE(p->ny, 0, m[4]);\n",
+"    BVH_PK_STORE(p->nz, 0, m[5]);\n",
 "    BVH_PK_STORE(select(-inf, inf, ok), 0, best);\n",
 "    for (l = 0; l < BVH_CL_PACKET; l++) {\n",
 "        rx[l].o = o;\n",
 "        rx[l].inv = (float3)(a[0][l], a[1][l], a[2][l]);\n",
 "        rx[l].neg = (int3)(m[3][l], m[4][l], m[5][l]);\n",
 "        rx[l].tmin = 0.0f;\n",
-"        rx[l].kx = m[0][l]; rx[l].ky = m[1][l]; rx[l].kz = m[2][l];\n",
-"        rx[l].sx = a[3][l]; rx[l].sy = a[4][l]; rx[l].sz = a[5][l];\n",
-"        rx[l].okx = a[6][l]; rx[l].oky = a[7][l]; rx[l].okz = a[8][l];\n",
+"        rx[l].kx = m[0][l];\n",
+"        rx[l].ky = m[1][l];\n",
+"        rx[l].kz = m[2][l];\n",
+"        rx[l].sx = a[3][l];\n",
+"        rx[l].sy = a[4][l];\n",
+"        rx[l].sz = a[5][l];\n",
+"        rx[l].okx = a[6][l];\n",
+"        rx[l].oky = a[7][l];\n",
+"        rx[l].okz = a[8][l];\n",
 "    }\n",
 "}\n",
 "\n",
@@ -1066,8 +1212,8 @@ static const char *const bvh_cl__source[] = {
 "   pixels x = 4 gx .. 4 gx + 3 of rows BVH_CL_PACKET_H gy .. of the band; the same outputs as\n",
 "   bvh_frame_kernel but no visited counts. */\n",
 "__kernel void bvh_frame_packet_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,\n",
-"                                      __global const uint *prims, uint ref_count, float16 cam, uint width,\n",
-"                                      uint height, uint y0, uint rows, __global uchar *rgba, __global uint4 *hits) {\n",
+"                                      __global const uint *prims, uint ref_count, float16 cam, uint width, uint height,\n",
+"                                      uint y0, uint rows, __global uchar *rgba, __global uint4 *hits) {\n",
 "    uint gx = (uint)get_global_id(0), gy = (uint)get_global_id(1), l;\n",
 "    bvh_cl_scene s;\n",
 "    bvh_cl_rayx rx[BVH_CL_PACKET];\n",
@@ -1080,7 +1226,11 @@ static const char *const bvh_cl__source[] = {
 "    bvh_pkf sx, sy, dx, dy, dz, ln;\n",
 "    bvh_pki live;\n",
 "    if (4 * gx >= width || BVH_CL_PACKET_H * gy >= rows) return;\n",
-"    s.nodes = nodes; s.tris = tris; s.prims = prims; s.node_count = node_count; s.ref_count = ref_count;\n",
+"    s.nodes = nodes;\n",
+"    s.tris = tris;\n",
+"    s.prims = prims;\n",
+"    s.node_count = node_count;\n",
+"    s.ref_count = ref_count;\n",
 "    x8 = (bvh_pku)(4 * gx) + BVH_PK_ASU(BVH_PK_IOTA & (bvh_pki)(3));\n",
 "    row8 = (bvh_pku)(BVH_CL_PACKET_H * gy) + BVH_PK_ASU(BVH_PK_IOTA >> (bvh_pki)(2));\n",
 "    live = (x8 < (bvh_pku)(width)) & (row8 < (bvh_pku)(rows));\n",
@@ -1094,17 +1244,27 @@ static const char *const bvh_cl__source[] = {
 "    dx = select(dx, dx / ln, ln > (bvh_pkf)(0.0f));\n",
 "    dy = select(dy, dy / ln, ln > (bvh_pkf)(0.0f));\n",
 "    dz = select(dz, dz / ln, ln > (bvh_pkf)(0.0f));\n",
-"    BVH_PK_STORE(dx, 0, dxl); BVH_PK_STORE(dy, 0, dyl); BVH_PK_STORE(dz, 0, dzl); BVH_PK_STORE(sy, 0, syl);\n",
+"    BVH_PK_STORE(dx, 0, dxl);\n",
+"    BVH_PK_STORE(dy, 0, dyl);\n",
+"    BVH_PK_STORE(dz, 0, dzl);\n",
+"    BVH_PK_STORE(sy, 0, syl);\n",
 "    BVH_PK_STORE(live, 0, livel);\n",
 "    bvh_cl_packet_setup(cam.s012, dx, dy, dz, live, &p, rx, best);\n",
-"    for (l = 0; l < BVH_CL_PACKET; l++) { u[l] = v[l] = 0.0f; prim[l] = BVH_CL_INVALID; ref[l] = 0; }\n",
+"    for (l = 0; l < BVH_CL_PACKET; l++) {\n",
+"        u[l] = v[l] = 0.0f;\n",
+"        prim[l] = BVH_CL_INVALID;\n",
+"        ref[l] = 0;\n",
+"    }\n",
 "    if (node_count) bvh_cl_traverse8(&s, &p, rx, best, u, v, prim, ref);\n",
 "    for (l = 0; l < BVH_CL_PACKET; l++) {\n",
 "        uint x = 4 * gx + (l & 3), row = BVH_CL_PACKET_H * gy + (l >> 2);\n",
 "        size_t pix = (size_t)row * width + x;\n",
 "        float3 d = (float3)(dxl[l], dyl[l], dzl[l]);\n",
 "        if (!livel[l]) continue;\n",
-"        if (prim[l] == BVH_CL_INVALID) { best[l] = INFINITY; u[l] = v[l] = 0.0f; }\n",
+"        if (prim[l] == BVH_CL_INVALID) {\n",
+"            best[l] = INFINITY;\n",
+"            u[l] = v[l] = 0.0f;\n",
+"        }\n",
 "        if (hits) hits[pix] = (uint4)(as_uint(best[l]), as_uint(u[l]), as_uint(v[l]), prim[l]);\n",
 "        if (rgba) vstore4(bvh_cl_shade(tris, prim[l], ref[l], d, syl[l]), pix, rgba);\n",
 "    }\n",
@@ -1119,8 +1279,11 @@ static char *bvh_cl__read_file(const bvh_allocator *al, const char *path) {
     if (!f) return NULL;
     if (fseek(f, 0, SEEK_END) == 0 && (n = ftell(f)) >= 0 && fseek(f, 0, SEEK_SET) == 0 &&
         (s = BVH_CL__CAST(char *, bvh_cl__alloc(al, (size_t)n + 1))) != NULL) {
-        if (fread(s, 1, (size_t)n, f) != (size_t)n) { bvh_cl__free(al, s); s = NULL; }
-        else s[n] = '\0';
+        if (fread(s, 1, (size_t)n, f) != (size_t)n) {
+            bvh_cl__free(al, s);
+            s = NULL;
+        } else
+            s[n] = '\0';
     }
     fclose(f);
     return s;
@@ -1231,7 +1394,8 @@ static void bvh_cl__local_size(bvh_cl_context *c, size_t want) {
     if (c->max_items[0] && c->local_size > c->max_items[0]) c->local_size = c->max_items[0];
     for (i = 0; i < BVH_CL__K_COUNT; i++) {
         if (clGetKernelWorkGroupInfo(c->kernels[i], c->device, CL_KERNEL_WORK_GROUP_SIZE, sizeof k, &k, NULL) ==
-                CL_SUCCESS && k && c->local_size > k)
+                CL_SUCCESS &&
+            k && c->local_size > k)
             c->local_size = k;
     }
 }
@@ -1244,7 +1408,10 @@ BVH_CL_API bvh_cl_result bvh_cl_create(bvh_cl_context **out, const bvh_cl_desc *
     cl_int err = CL_SUCCESS;
     if (!out) return BVH_CL_ERROR_INVALID_ARGUMENT;
     *out = NULL;
-    if (!desc) { memset(&zero, 0, sizeof zero); desc = &zero; }
+    if (!desc) {
+        memset(&zero, 0, sizeof zero);
+        desc = &zero;
+    }
     if (desc->log && desc->log_size) desc->log[0] = '\0';
     if (desc->frame_rays != 0 && desc->frame_rays != 1 && desc->frame_rays != 8 && desc->frame_rays != 16)
         return BVH_CL_ERROR_INVALID_ARGUMENT;
@@ -1273,7 +1440,10 @@ BVH_CL_API bvh_cl_result bvh_cl_create(bvh_cl_context **out, const bvh_cl_desc *
     }
     c->frame_rays = desc->frame_rays ? desc->frame_rays : c->info.is_gpu ? 1 : BVH_CL__PACKET_DEFAULT;
     if (r == BVH_CL_SUCCESS) r = bvh_cl__build(c, desc);
-    if (r != BVH_CL_SUCCESS) { bvh_cl_destroy(c); return r; }
+    if (r != BVH_CL_SUCCESS) {
+        bvh_cl_destroy(c);
+        return r;
+    }
     if (desc->max_alloc && desc->max_alloc < c->info.max_alloc) c->info.max_alloc = desc->max_alloc;
     c->max_alloc = c->info.max_alloc > (uint64_t)(size_t)-1 ? (size_t)-1 : (size_t)c->info.max_alloc;
     bvh_cl__local_size(c, desc->local_size);
@@ -1286,9 +1456,7 @@ BVH_CL_API bvh_cl_result bvh_cl_get_info(const bvh_cl_context *c, bvh_cl_device_
     *out = c->info;
     return BVH_CL_SUCCESS;
 }
-BVH_CL_API const char *bvh_cl_build_log(const bvh_cl_context *c) {
-    return c && c->build_log ? c->build_log : "";
-}
+BVH_CL_API const char *bvh_cl_build_log(const bvh_cl_context *c) { return c && c->build_log ? c->build_log : ""; }
 BVH_CL_API int bvh_cl_last_error(const bvh_cl_context *c, const char **call) {
     if (call) *call = c && c->last_call ? c->last_call : "";
     return c ? (int)c->last_error : 0;
@@ -1336,7 +1504,10 @@ BVH_CL_API bvh_cl_result bvh_cl_upload(bvh_cl_context *c, const bvh_tree *tree, 
     t->nodes = bvh_cl__buffer(c, nb, tree->nodes, &err);
     if (err == CL_SUCCESS) t->tris = bvh_cl__buffer(c, tb, tree->tris, &err);
     if (err == CL_SUCCESS) t->prims = bvh_cl__buffer(c, pb, tree->prims, &err);
-    if (err != CL_SUCCESS) { bvh_cl_tree_free(t); return bvh_cl__fail(c, err, "clCreateBuffer"); }
+    if (err != CL_SUCCESS) {
+        bvh_cl_tree_free(t);
+        return bvh_cl__fail(c, err, "clCreateBuffer");
+    }
     *out = t;
     return BVH_CL_SUCCESS;
 }
@@ -1353,7 +1524,10 @@ static bvh_cl_result bvh_cl__scratch(bvh_cl_context *c, int i, size_t size, cl_m
     c->scratch_size[i] = 0;
     if (size > c->max_alloc) return BVH_CL_ERROR_BUFFER_TOO_LARGE;
     c->scratch[i] = clCreateBuffer(c->context, flags, size, NULL, &err);
-    if (err != CL_SUCCESS) { c->scratch[i] = NULL; return bvh_cl__fail(c, err, "clCreateBuffer"); }
+    if (err != CL_SUCCESS) {
+        c->scratch[i] = NULL;
+        return bvh_cl__fail(c, err, "clCreateBuffer");
+    }
     c->scratch_size[i] = size;
     return BVH_CL_SUCCESS;
 }
@@ -1408,12 +1582,17 @@ static bvh_cl_result bvh_cl__batch(bvh_cl_tree *t, const bvh_ray *rays, void *ou
         err |= clSetKernelArg(k, 7, sizeof(cl_uint), &nn);
         if (err != CL_SUCCESS) return bvh_cl__fail(c, CL_INVALID_KERNEL_ARGS, "clSetKernelArg");
         err = clEnqueueNDRangeKernel(c->queue, k, 1, NULL, &global, &local, 0, NULL, &ev);
-        if (err != CL_SUCCESS) { clFinish(c->queue); return bvh_cl__fail(c, err, "clEnqueueNDRangeKernel"); }
+        if (err != CL_SUCCESS) {
+            clFinish(c->queue);
+            return bvh_cl__fail(c, err, "clEnqueueNDRangeKernel");
+        }
         /* a non-blocking read and clFinish: PoCL's blocking read spins on a core the kernel needs */
         err = clEnqueueReadBuffer(c->queue, c->scratch[BVH_CL__S_OUT], CL_FALSE, 0, n * out_elem,
                                   BVH_CL__CAST(char *, out) + i * out_elem, 0, NULL, NULL);
-        if (err == CL_SUCCESS) err = clFinish(c->queue);
-        else clFinish(c->queue);
+        if (err == CL_SUCCESS)
+            err = clFinish(c->queue);
+        else
+            clFinish(c->queue);
         bvh_cl__time(c, ev);
         if (err != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueReadBuffer");
     }
@@ -1449,9 +1628,12 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *t, const bvh_camera *c
     packets = c->frame_rays > 1 && !visited ? c->frame_rays / 4 : 0; /* tile height */
     k = c->kernels[packets ? BVH_CL__K_FRAME8 : BVH_CL__K_FRAME];
     c->kernel_ms = 0.0;
-    w = cam->width; h = cam->height;
+    w = cam->width;
+    h = cam->height;
     if (!w || !h) return BVH_CL_SUCCESS;
-    dst[0] = rgba; dst[1] = hits; dst[2] = visited;
+    dst[0] = rgba;
+    dst[1] = hits;
+    dst[2] = visited;
     for (i = 0; i < 3; i++)
         if (dst[i] && elem[i] > per) per = elem[i];
     band = (cl_uint)(BVH_CL__CHUNK / w > 0 ? BVH_CL__CHUNK / w : 1);
@@ -1477,8 +1659,12 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *t, const bvh_camera *c
     if (err != CL_SUCCESS) return bvh_cl__fail(c, CL_INVALID_KERNEL_ARGS, "clSetKernelArg");
     lx = c->local_size >= 8 && c->local_size % 8 == 0 ? 8 : c->local_size; /* 8 x 8 tiles by default */
     ly = c->local_size / lx;
-    while (c->max_items[1] && ly > c->max_items[1]) { lx *= 2; ly /= 2; } /* 8 x 64 may be too tall */
-    local[0] = lx; local[1] = ly;
+    while (c->max_items[1] && ly > c->max_items[1]) {
+        lx *= 2;
+        ly /= 2;
+    } /* 8 x 64 may be too tall */
+    local[0] = lx;
+    local[1] = ly;
     for (y0 = 0; y0 < h; y0 += rows) {
         rows = h - y0 < band ? h - y0 : band;
         /* packets: a work-item per 4 x `packets` pixels */
@@ -1488,14 +1674,19 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *t, const bvh_camera *c
         err |= clSetKernelArg(k, 9, sizeof(cl_uint), &rows);
         if (err != CL_SUCCESS) return bvh_cl__fail(c, CL_INVALID_KERNEL_ARGS, "clSetKernelArg");
         err = clEnqueueNDRangeKernel(c->queue, k, 2, NULL, global, local, 0, NULL, &ev);
-        if (err != CL_SUCCESS) { clFinish(c->queue); return bvh_cl__fail(c, err, "clEnqueueNDRangeKernel"); }
+        if (err != CL_SUCCESS) {
+            clFinish(c->queue);
+            return bvh_cl__fail(c, err, "clEnqueueNDRangeKernel");
+        }
         for (i = 0; i < 3 && err == CL_SUCCESS; i++) {
             if (!dst[i]) continue;
             err = clEnqueueReadBuffer(c->queue, c->scratch[slot[i]], CL_FALSE, 0, (size_t)rows * w * elem[i],
                                       BVH_CL__CAST(char *, dst[i]) + (size_t)y0 * w * elem[i], 0, NULL, NULL);
         }
-        if (err == CL_SUCCESS) err = clFinish(c->queue);
-        else clFinish(c->queue);
+        if (err == CL_SUCCESS)
+            err = clFinish(c->queue);
+        else
+            clFinish(c->queue);
         bvh_cl__time(c, ev);
         if (err != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueReadBuffer");
     }

@@ -57,7 +57,7 @@
 /* ============================================================================================ */
 typedef struct bvh_cl_rayx {
     float3 o, inv;
-    int3 neg;            /* inv < 0: the near plane is the max plane on that axis */
+    int3 neg; /* inv < 0: the near plane is the max plane on that axis */
     float tmin;
     int kx, ky, kz;      /* watertight: kz = dominant axis, kx/ky swapped for d[kz] < 0 */
     float okx, oky, okz; /* the origin permuted like the axes */
@@ -70,8 +70,7 @@ BVH_CL_FN float bvh_cl_comp(float3 v, int k) { return k == 0 ? v.x : (k == 1 ? v
 BVH_CL_FN int bvh_cl_ray_setup(float3 o, float tmin, float3 d, float tmax, bvh_cl_rayx *rx) {
     float ax, ay, az, dkz;
     int t;
-    if (!(isfinite(o.x) && isfinite(o.y) && isfinite(o.z) && isfinite(d.x) && isfinite(d.y) && isfinite(d.z)))
-        return 0;
+    if (!(isfinite(o.x) && isfinite(o.y) && isfinite(o.z) && isfinite(d.x) && isfinite(d.y) && isfinite(d.z))) return 0;
     if (isnan(tmin) || isnan(tmax) || tmin > tmax) return 0;
     /* as bvh__ray_setup: subnormal components have no finite inverse and count as 0 */
     d.x = fabs(d.x) < FLT_MIN ? 0.0f : d.x;
@@ -84,12 +83,18 @@ BVH_CL_FN int bvh_cl_ray_setup(float3 o, float tmin, float3 d, float tmax, bvh_c
     rx->inv.z = d.z == 0.0f ? INFINITY : 1.0f / d.z;
     rx->neg = rx->inv < (float3)(0.0f);
     rx->tmin = tmin;
-    ax = fabs(d.x); ay = fabs(d.y); az = fabs(d.z);
+    ax = fabs(d.x);
+    ay = fabs(d.y);
+    az = fabs(d.z);
     rx->kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
     rx->kx = rx->kz == 2 ? 0 : rx->kz + 1;
     rx->ky = rx->kx == 2 ? 0 : rx->kx + 1;
     dkz = bvh_cl_comp(d, rx->kz);
-    if (dkz < 0.0f) { t = rx->kx; rx->kx = rx->ky; rx->ky = t; }
+    if (dkz < 0.0f) {
+        t = rx->kx;
+        rx->kx = rx->ky;
+        rx->ky = t;
+    }
     rx->sx = bvh_cl_comp(d, rx->kx) / dkz;
     rx->sy = bvh_cl_comp(d, rx->ky) / dkz;
     rx->sz = 1.0f / dkz;
@@ -174,7 +179,7 @@ BVH_CL_FN float bvh_cl_slab(const bvh_cl_rayx *r, float4 lo, float4 hi, float tf
     tn = a0.z > tn ? a0.z : tn;
     tf = a1.z < tf ? a1.z : tf;
     tf *= 1.0000004f; /* 1 + 2 gamma(3) */
-    { /* as bvh__slab: lower the entry by 2^-18 of the box's distances along the dominant axis */
+    {                 /* as bvh__slab: lower the entry by 2^-18 of the box's distances along the dominant axis */
         float k0 = fabs(r->kz == 0 ? a0.x : r->kz == 1 ? a0.y : a0.z);
         float k1 = fabs(r->kz == 0 ? a1.x : r->kz == 1 ? a1.y : a1.z);
         tn -= (k0 > k1 ? k0 : k1) * 0x1p-18f;
@@ -201,8 +206,10 @@ typedef struct bvh_cl_scene {
    outside the array (a corrupt tree: the traversal ends). */
 BVH_CL_FN int bvh_cl_children(const bvh_cl_scene *s, uint c, uint4 *lo0, uint4 *hi0, uint4 *lo1, uint4 *hi1) {
     if (c >= s->node_count - 1) return 0;
-    *lo0 = s->nodes[2 * c]; *hi0 = s->nodes[2 * c + 1];
-    *lo1 = s->nodes[2 * c + 2]; *hi1 = s->nodes[2 * c + 3];
+    *lo0 = s->nodes[2 * c];
+    *hi0 = s->nodes[2 * c + 1];
+    *lo1 = s->nodes[2 * c + 2];
+    *hi1 = s->nodes[2 * c + 3];
     return 1;
 }
 
@@ -230,8 +237,15 @@ BVH_CL_FN void bvh_cl_traverse(const bvh_cl_scene *s, const bvh_cl_rayx *rx, flo
                 if (!bvh_cl_tri_test(rx, s->tris + 9 * (size_t)k, best_t, &t, &u, &v)) continue;
                 prim = s->prims[k];
                 if (t == best_t && prim > res->prim) continue; /* ties: lowest index */
-                best_t = t; res->u = u; res->v = v; res->prim = prim; res->ref = k;
-                if (any) { done = 1; break; }
+                best_t = t;
+                res->u = u;
+                res->v = v;
+                res->prim = prim;
+                res->ref = k;
+                if (any) {
+                    done = 1;
+                    break;
+                }
             }
         } else {
             uint c = lo.w;
@@ -243,8 +257,17 @@ BVH_CL_FN void bvh_cl_traverse(const bvh_cl_scene *s, const bvh_cl_rayx *rx, flo
             nvis += 2;
             if (t0 != INFINITY || t1 != INFINITY) {
                 uint far = c + 1;
-                if (t1 < t0) { float tt = t0; t0 = t1; t1 = tt; lo = lo1; hi = hi1; far = c; }
-                else { lo = lo0; hi = hi0; }
+                if (t1 < t0) {
+                    float tt = t0;
+                    t0 = t1;
+                    t1 = tt;
+                    lo = lo1;
+                    hi = hi1;
+                    far = c;
+                } else {
+                    lo = lo0;
+                    hi = hi0;
+                }
                 if (t1 != INFINITY) {
                     if (sp == BVH_CL_STACK) break; /* a tree deeper than the validator allows */
                     stack_t[sp] = t1;
@@ -255,9 +278,16 @@ BVH_CL_FN void bvh_cl_traverse(const bvh_cl_scene *s, const bvh_cl_rayx *rx, flo
         }
         if (!descended && !done) {
             for (;;) { /* pop the next node still in reach of the current best */
-                if (!sp) { done = 1; break; }
+                if (!sp) {
+                    done = 1;
+                    break;
+                }
                 --sp;
-                if (stack_t[sp] <= best_t) { lo = s->nodes[2 * stack[sp]]; hi = s->nodes[2 * stack[sp] + 1]; break; }
+                if (stack_t[sp] <= best_t) {
+                    lo = s->nodes[2 * stack[sp]];
+                    hi = s->nodes[2 * stack[sp] + 1];
+                    break;
+                }
             }
         }
     }
@@ -269,10 +299,17 @@ BVH_CL_FN void bvh_cl_traverse(const bvh_cl_scene *s, const bvh_cl_rayx *rx, flo
 BVH_CL_FN void bvh_cl_trace(const bvh_cl_scene *s, float3 o, float tmin, float3 d, float tmax, int any,
                             bvh_cl_hitrec *res) {
     bvh_cl_rayx rx;
-    res->t = tmax; res->u = res->v = 0.0f; res->prim = BVH_CL_INVALID; res->ref = 0; res->visited = 0;
+    res->t = tmax;
+    res->u = res->v = 0.0f;
+    res->prim = BVH_CL_INVALID;
+    res->ref = 0;
+    res->visited = 0;
     if (!s->node_count || !bvh_cl_ray_setup(o, tmin, d, tmax, &rx)) return;
     bvh_cl_traverse(s, &rx, tmax, any, res);
-    if (res->prim == BVH_CL_INVALID) { res->t = tmax; res->u = res->v = 0.0f; }
+    if (res->prim == BVH_CL_INVALID) {
+        res->t = tmax;
+        res->u = res->v = 0.0f;
+    }
 }
 
 /* Ray i of a batch (origin, tmin, direction, tmax: 8 floats) traced into *res. */
@@ -281,7 +318,11 @@ void bvh_cl_trace_batch_ray(__global const uint4 *nodes, uint node_count, __glob
                             bvh_cl_hitrec *res) {
     bvh_cl_scene s;
     const float4 r0 = vload4(2 * (size_t)i, rays), r1 = vload4(2 * (size_t)i + 1, rays);
-    s.nodes = nodes; s.tris = tris; s.prims = prims; s.node_count = node_count; s.ref_count = ref_count;
+    s.nodes = nodes;
+    s.tris = tris;
+    s.prims = prims;
+    s.node_count = node_count;
+    s.ref_count = ref_count;
     bvh_cl_trace(&s, r0.xyz, r0.w, r1.xyz, r1.w, any, res);
 }
 
@@ -290,8 +331,8 @@ void bvh_cl_trace_batch_ray(__global const uint4 *nodes, uint node_count, __glob
 /* ============================================================================================ */
 /* Closest hit of rays[0 .. count) into hits (bvh_intersect_batch). */
 __kernel void bvh_intersect_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,
-                               __global const uint *prims, uint ref_count, __global const float *rays,
-                               __global uint4 *hits, uint count) {
+                                   __global const uint *prims, uint ref_count, __global const float *rays,
+                                   __global uint4 *hits, uint count) {
     uint i = (uint)get_global_id(0);
     bvh_cl_hitrec res;
     if (i >= count) return;
@@ -301,8 +342,8 @@ __kernel void bvh_intersect_kernel(__global const uint4 *nodes, uint node_count,
 
 /* Any hit of rays[0 .. count): occluded[i] = 1 if blocked (bvh_occluded_batch). */
 __kernel void bvh_occluded_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,
-                              __global const uint *prims, uint ref_count, __global const float *rays,
-                              __global uchar *occluded, uint count) {
+                                  __global const uint *prims, uint ref_count, __global const float *rays,
+                                  __global uchar *occluded, uint count) {
     uint i = (uint)get_global_id(0);
     bvh_cl_hitrec res;
     if (i >= count) return;
@@ -336,9 +377,8 @@ BVH_CL_FN uchar4 bvh_cl_shade(__global const float *tris, uint prim, uint ref, f
    hits shaded with a headlight, grey * (0.2 + 0.8 |dot(n, d)|), misses a vertical gradient;
    hits (bvh_hit); visited (nodes visited, as bvh_intersect_counted). */
 __kernel void bvh_frame_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,
-                           __global const uint *prims, uint ref_count, float16 cam, uint width, uint height,
-                           uint y0, uint rows, __global uchar *rgba, __global uint4 *hits,
-                           __global uint *visited) {
+                               __global const uint *prims, uint ref_count, float16 cam, uint width, uint height,
+                               uint y0, uint rows, __global uchar *rgba, __global uint4 *hits, __global uint *visited) {
     uint x = (uint)get_global_id(0), row = (uint)get_global_id(1), y = y0 + row;
     size_t pix = (size_t)row * width + x;
     bvh_cl_scene s;
@@ -346,14 +386,22 @@ __kernel void bvh_frame_kernel(__global const uint4 *nodes, uint node_count, __g
     float sx, sy, l;
     float3 d;
     if (x >= width || row >= rows) return;
-    s.nodes = nodes; s.tris = tris; s.prims = prims; s.node_count = node_count; s.ref_count = ref_count;
+    s.nodes = nodes;
+    s.tris = tris;
+    s.prims = prims;
+    s.node_count = node_count;
+    s.ref_count = ref_count;
     sx = 2.0f * ((float)x + 0.5f) / (float)width - 1.0f;
     sy = 1.0f - 2.0f * ((float)y + 0.5f) / (float)height;
     d.x = cam.s3 + sx * cam.s6 + sy * cam.s9;
     d.y = cam.s4 + sx * cam.s7 + sy * cam.sa;
     d.z = cam.s5 + sx * cam.s8 + sy * cam.sb;
     l = sqrt(d.x * d.x + d.y * d.y + d.z * d.z);
-    if (l > 0.0f) { d.x = d.x / l; d.y = d.y / l; d.z = d.z / l; }
+    if (l > 0.0f) {
+        d.x = d.x / l;
+        d.y = d.y / l;
+        d.z = d.z / l;
+    }
     bvh_cl_trace(&s, cam.s012, 0.0f, d, INFINITY, 0, &res);
     if (hits) hits[pix] = (uint4)(as_uint(res.t), as_uint(res.u), as_uint(res.v), res.prim);
     if (visited) visited[pix] = res.visited;
@@ -367,11 +415,11 @@ __kernel void bvh_frame_kernel(__global const uint4 *nodes, uint node_count, __g
    does not take their data-dependent loops across work-items. Here one work-item traces the
    4 x BVH_CL_PACKET_H pixels of a tile together (BVH_CL_PACKET = 4 BVH_CL_PACKET_H rays, 8 or
    16, set by the host): the rays are set up and every box test is done for all of them at once
-   in vectors of that width (a vector instruction or two per step), the node is entered when any ray of the packet reaches it, and
-   the triangles of a leaf are tested ray by ray with the scalar watertight test, for the rays
-   that reach the leaf. The slab test is bvh_cl_slab's, step for step, so every ray gets exactly
-   its one-ray hit (visiting a node more for some ray never changes a closest hit: the triangle
-   test alone decides). The node counts of a heat map are the one-ray kernel's. */
+   in vectors of that width (a vector instruction or two per step), the node is entered when any ray of the packet
+   reaches it, and the triangles of a leaf are tested ray by ray with the scalar watertight test, for the rays that
+   reach the leaf. The slab test is bvh_cl_slab's, step for step, so every ray gets exactly its one-ray hit (visiting a
+   node more for some ray never changes a closest hit: the triangle test alone decides). The node counts of a heat map
+   are the one-ray kernel's. */
 #ifndef BVH_CL_PACKET
 #define BVH_CL_PACKET 8
 #endif
@@ -466,7 +514,11 @@ BVH_CL_FN void bvh_cl_traverse8(const bvh_cl_scene *s, const bvh_cl_packet *p, c
                     if (!bvh_cl_tri_test(r, s->tris + 9 * (size_t)k, bl, &t, &tu, &tv)) continue;
                     pr = s->prims[k];
                     if (t == bl && pr > prim[l]) continue; /* ties: lowest index */
-                    bl = t; u[l] = tu; v[l] = tv; prim[l] = pr; ref[l] = k;
+                    bl = t;
+                    u[l] = tu;
+                    v[l] = tv;
+                    prim[l] = pr;
+                    ref[l] = k;
                 }
                 best[l] = bl;
             }
@@ -484,7 +536,15 @@ BVH_CL_FN void bvh_cl_traverse8(const bvh_cl_scene *s, const bvh_cl_packet *p, c
             if (h0 || h1) {
                 /* near child first: the one more of the packet's rays enter first */
                 int one = h1 && (!h0 || 2 * popcount(bvh_cl_bits(t1 < t0)) > BVH_CL_PACKET);
-                if (one) { lo = lo1; hi = hi1; te = t1; } else { lo = lo0; hi = hi0; te = t0; }
+                if (one) {
+                    lo = lo1;
+                    hi = hi1;
+                    te = t1;
+                } else {
+                    lo = lo0;
+                    hi = hi0;
+                    te = t0;
+                }
                 if (h0 && h1) {
                     if (sp == BVH_CL_STACK) return; /* a tree deeper than the validator allows */
                     stack_t[sp] = one ? t0 : t1;
@@ -498,7 +558,9 @@ BVH_CL_FN void bvh_cl_traverse8(const bvh_cl_scene *s, const bvh_cl_packet *p, c
                 if (!sp) return;
                 --sp;
                 if (any((stack_t[sp] != (bvh_pkf)(INFINITY)) & (stack_t[sp] <= bt))) {
-                    lo = s->nodes[2 * stack[sp]]; hi = s->nodes[2 * stack[sp] + 1]; te = stack_t[sp];
+                    lo = s->nodes[2 * stack[sp]];
+                    hi = s->nodes[2 * stack[sp] + 1];
+                    te = stack_t[sp];
                     break;
                 }
             }
@@ -523,44 +585,73 @@ BVH_CL_FN void bvh_cl_packet_setup(float3 o, bvh_pkf dx, bvh_pkf dy, bvh_pkf dz,
     dy = select(dy, (bvh_pkf)(0.0f), fabs(dy) < (bvh_pkf)(FLT_MIN));
     dz = select(dz, (bvh_pkf)(0.0f), fabs(dz) < (bvh_pkf)(FLT_MIN));
     ok &= (dx != (bvh_pkf)(0.0f)) | (dy != (bvh_pkf)(0.0f)) | (dz != (bvh_pkf)(0.0f));
-    p->ox = (bvh_pkf)(o.x); p->oy = (bvh_pkf)(o.y); p->oz = (bvh_pkf)(o.z);
+    p->ox = (bvh_pkf)(o.x);
+    p->oy = (bvh_pkf)(o.y);
+    p->oz = (bvh_pkf)(o.z);
     p->ix = select((bvh_pkf)(1.0f) / dx, inf, dx == (bvh_pkf)(0.0f));
     p->iy = select((bvh_pkf)(1.0f) / dy, inf, dy == (bvh_pkf)(0.0f));
     p->iz = select((bvh_pkf)(1.0f) / dz, inf, dz == (bvh_pkf)(0.0f));
-    p->nx = p->ix < (bvh_pkf)(0.0f); p->ny = p->iy < (bvh_pkf)(0.0f); p->nz = p->iz < (bvh_pkf)(0.0f);
-    ax = fabs(dx); ay = fabs(dy); az = fabs(dz);
+    p->nx = p->ix < (bvh_pkf)(0.0f);
+    p->ny = p->iy < (bvh_pkf)(0.0f);
+    p->nz = p->iz < (bvh_pkf)(0.0f);
+    ax = fabs(dx);
+    ay = fabs(dy);
+    az = fabs(dz);
     kz = select(select((bvh_pki)(2), (bvh_pki)(1), ay > az), select((bvh_pki)(2), (bvh_pki)(0), ax > az), ax > ay);
     kx = select(kz + 1, (bvh_pki)(0), kz == (bvh_pki)(2));
     ky = select(kx + 1, (bvh_pki)(0), kx == (bvh_pki)(2));
     dkz = select(select(dz, dy, kz == (bvh_pki)(1)), dx, kz == (bvh_pki)(0));
     sw = dkz < (bvh_pkf)(0.0f);
-    t = kx; kx = select(kx, ky, sw); ky = select(ky, t, sw);
+    t = kx;
+    kx = select(kx, ky, sw);
+    ky = select(ky, t, sw);
     dkx = select(select(dz, dy, kx == (bvh_pki)(1)), dx, kx == (bvh_pki)(0));
     dky = select(select(dz, dy, ky == (bvh_pki)(1)), dx, ky == (bvh_pki)(0));
-    sx = dkx / dkz; sy = dky / dkz; sz = (bvh_pkf)(1.0f) / dkz;
+    sx = dkx / dkz;
+    sy = dky / dkz;
+    sz = (bvh_pkf)(1.0f) / dkz;
     okx = select(select(p->oz, p->oy, kx == (bvh_pki)(1)), p->ox, kx == (bvh_pki)(0));
     oky = select(select(p->oz, p->oy, ky == (bvh_pki)(1)), p->ox, ky == (bvh_pki)(0));
     okz = select(select(p->oz, p->oy, kz == (bvh_pki)(1)), p->ox, kz == (bvh_pki)(0));
     /* lanes that are no ray: finite stand-ins that enter no box */
-    p->ix = select((bvh_pkf)(1.0f), p->ix, ok); p->iy = select((bvh_pkf)(1.0f), p->iy, ok);
+    p->ix = select((bvh_pkf)(1.0f), p->ix, ok);
+    p->iy = select((bvh_pkf)(1.0f), p->iy, ok);
     p->iz = select((bvh_pkf)(1.0f), p->iz, ok);
-    p->nx &= ok; p->ny &= ok; p->nz &= ok;
+    p->nx &= ok;
+    p->ny &= ok;
+    p->nz &= ok;
     p->tmin = select(inf, (bvh_pkf)(0.0f), ok);
     p->kz = select((bvh_pki)(0), kz, ok);
-    BVH_PK_STORE(p->ix, 0, a[0]); BVH_PK_STORE(p->iy, 0, a[1]); BVH_PK_STORE(p->iz, 0, a[2]);
-    BVH_PK_STORE(sx, 0, a[3]); BVH_PK_STORE(sy, 0, a[4]); BVH_PK_STORE(sz, 0, a[5]);
-    BVH_PK_STORE(okx, 0, a[6]); BVH_PK_STORE(oky, 0, a[7]); BVH_PK_STORE(okz, 0, a[8]);
-    BVH_PK_STORE(kx, 0, m[0]); BVH_PK_STORE(ky, 0, m[1]); BVH_PK_STORE(kz, 0, m[2]);
-    BVH_PK_STORE(p->nx, 0, m[3]); BVH_PK_STORE(p->ny, 0, m[4]); BVH_PK_STORE(p->nz, 0, m[5]);
+    BVH_PK_STORE(p->ix, 0, a[0]);
+    BVH_PK_STORE(p->iy, 0, a[1]);
+    BVH_PK_STORE(p->iz, 0, a[2]);
+    BVH_PK_STORE(sx, 0, a[3]);
+    BVH_PK_STORE(sy, 0, a[4]);
+    BVH_PK_STORE(sz, 0, a[5]);
+    BVH_PK_STORE(okx, 0, a[6]);
+    BVH_PK_STORE(oky, 0, a[7]);
+    BVH_PK_STORE(okz, 0, a[8]);
+    BVH_PK_STORE(kx, 0, m[0]);
+    BVH_PK_STORE(ky, 0, m[1]);
+    BVH_PK_STORE(kz, 0, m[2]);
+    BVH_PK_STORE(p->nx, 0, m[3]);
+    BVH_PK_STORE(p->ny, 0, m[4]);
+    BVH_PK_STORE(p->nz, 0, m[5]);
     BVH_PK_STORE(select(-inf, inf, ok), 0, best);
     for (l = 0; l < BVH_CL_PACKET; l++) {
         rx[l].o = o;
         rx[l].inv = (float3)(a[0][l], a[1][l], a[2][l]);
         rx[l].neg = (int3)(m[3][l], m[4][l], m[5][l]);
         rx[l].tmin = 0.0f;
-        rx[l].kx = m[0][l]; rx[l].ky = m[1][l]; rx[l].kz = m[2][l];
-        rx[l].sx = a[3][l]; rx[l].sy = a[4][l]; rx[l].sz = a[5][l];
-        rx[l].okx = a[6][l]; rx[l].oky = a[7][l]; rx[l].okz = a[8][l];
+        rx[l].kx = m[0][l];
+        rx[l].ky = m[1][l];
+        rx[l].kz = m[2][l];
+        rx[l].sx = a[3][l];
+        rx[l].sy = a[4][l];
+        rx[l].sz = a[5][l];
+        rx[l].okx = a[6][l];
+        rx[l].oky = a[7][l];
+        rx[l].okz = a[8][l];
     }
 }
 
@@ -568,8 +659,8 @@ BVH_CL_FN void bvh_cl_packet_setup(float3 o, bvh_pkf dx, bvh_pkf dy, bvh_pkf dz,
    pixels x = 4 gx .. 4 gx + 3 of rows BVH_CL_PACKET_H gy .. of the band; the same outputs as
    bvh_frame_kernel but no visited counts. */
 __kernel void bvh_frame_packet_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,
-                                      __global const uint *prims, uint ref_count, float16 cam, uint width,
-                                      uint height, uint y0, uint rows, __global uchar *rgba, __global uint4 *hits) {
+                                      __global const uint *prims, uint ref_count, float16 cam, uint width, uint height,
+                                      uint y0, uint rows, __global uchar *rgba, __global uint4 *hits) {
     uint gx = (uint)get_global_id(0), gy = (uint)get_global_id(1), l;
     bvh_cl_scene s;
     bvh_cl_rayx rx[BVH_CL_PACKET];
@@ -582,7 +673,11 @@ __kernel void bvh_frame_packet_kernel(__global const uint4 *nodes, uint node_cou
     bvh_pkf sx, sy, dx, dy, dz, ln;
     bvh_pki live;
     if (4 * gx >= width || BVH_CL_PACKET_H * gy >= rows) return;
-    s.nodes = nodes; s.tris = tris; s.prims = prims; s.node_count = node_count; s.ref_count = ref_count;
+    s.nodes = nodes;
+    s.tris = tris;
+    s.prims = prims;
+    s.node_count = node_count;
+    s.ref_count = ref_count;
     x8 = (bvh_pku)(4 * gx) + BVH_PK_ASU(BVH_PK_IOTA & (bvh_pki)(3));
     row8 = (bvh_pku)(BVH_CL_PACKET_H * gy) + BVH_PK_ASU(BVH_PK_IOTA >> (bvh_pki)(2));
     live = (x8 < (bvh_pku)(width)) & (row8 < (bvh_pku)(rows));
@@ -596,17 +691,27 @@ __kernel void bvh_frame_packet_kernel(__global const uint4 *nodes, uint node_cou
     dx = select(dx, dx / ln, ln > (bvh_pkf)(0.0f));
     dy = select(dy, dy / ln, ln > (bvh_pkf)(0.0f));
     dz = select(dz, dz / ln, ln > (bvh_pkf)(0.0f));
-    BVH_PK_STORE(dx, 0, dxl); BVH_PK_STORE(dy, 0, dyl); BVH_PK_STORE(dz, 0, dzl); BVH_PK_STORE(sy, 0, syl);
+    BVH_PK_STORE(dx, 0, dxl);
+    BVH_PK_STORE(dy, 0, dyl);
+    BVH_PK_STORE(dz, 0, dzl);
+    BVH_PK_STORE(sy, 0, syl);
     BVH_PK_STORE(live, 0, livel);
     bvh_cl_packet_setup(cam.s012, dx, dy, dz, live, &p, rx, best);
-    for (l = 0; l < BVH_CL_PACKET; l++) { u[l] = v[l] = 0.0f; prim[l] = BVH_CL_INVALID; ref[l] = 0; }
+    for (l = 0; l < BVH_CL_PACKET; l++) {
+        u[l] = v[l] = 0.0f;
+        prim[l] = BVH_CL_INVALID;
+        ref[l] = 0;
+    }
     if (node_count) bvh_cl_traverse8(&s, &p, rx, best, u, v, prim, ref);
     for (l = 0; l < BVH_CL_PACKET; l++) {
         uint x = 4 * gx + (l & 3), row = BVH_CL_PACKET_H * gy + (l >> 2);
         size_t pix = (size_t)row * width + x;
         float3 d = (float3)(dxl[l], dyl[l], dzl[l]);
         if (!livel[l]) continue;
-        if (prim[l] == BVH_CL_INVALID) { best[l] = INFINITY; u[l] = v[l] = 0.0f; }
+        if (prim[l] == BVH_CL_INVALID) {
+            best[l] = INFINITY;
+            u[l] = v[l] = 0.0f;
+        }
         if (hits) hits[pix] = (uint4)(as_uint(best[l]), as_uint(u[l]), as_uint(v[l]), prim[l]);
         if (rgba) vstore4(bvh_cl_shade(tris, prim[l], ref[l], d, syl[l]), pix, rgba);
     }

@@ -67,25 +67,41 @@ int main(int argc, char **argv) {
     float h;
     for (j = 0, i = 0; j < N * N; j++) { /* two triangles per cell */
         uint32_t a = (uint32_t)(j / N * (N + 1) + j % N), b = a + 1, c = a + N + 1, d = c + 1;
-        idx[i++] = a; idx[i++] = b; idx[i++] = d;
-        idx[i++] = a; idx[i++] = d; idx[i++] = c;
+        idx[i++] = a;
+        idx[i++] = b;
+        idx[i++] = d;
+        idx[i++] = a;
+        idx[i++] = d;
+        idx[i++] = c;
     }
     wave(0.0f);
     desc.triangles.positions = &v[0][0];
     desc.triangles.vertex_count = (N + 1) * (N + 1);
     desc.triangles.indices = idx;
     desc.triangles.triangle_count = N * N * 2;
-    if ((r = bvh_build(&tree, &desc)) != BVH_SUCCESS) { printf("build: %s\n", bvh_result_string(r)); return 1; }
+    if ((r = bvh_build(&tree, &desc)) != BVH_SUCCESS) {
+        printf("build: %s\n", bvh_result_string(r));
+        return 1;
+    }
     refit.triangles = desc.triangles; /* the same triangles; their vertices move */
     for (frame = 1; frame <= 30; frame++) {
         wave(0.2f * (float)frame);
-        if ((r = bvh_refit(&tree, &refit)) != BVH_SUCCESS) { printf("refit: %s\n", bvh_result_string(r)); return 1; }
+        if ((r = bvh_refit(&tree, &refit)) != BVH_SUCCESS) {
+            printf("refit: %s\n", bvh_result_string(r));
+            return 1;
+        }
         if (frame % 10 == 0) printf("frame %d: height at the centre %.4f\n", frame, (double)height_at_centre(&tree));
     }
     h = height_at_centre(&tree);
-    if ((r = tree_save_file(&tree, path)) != BVH_SUCCESS) { printf("save %s: %s\n", path, bvh_result_string(r)); return 1; }
+    if ((r = tree_save_file(&tree, path)) != BVH_SUCCESS) {
+        printf("save %s: %s\n", path, bvh_result_string(r));
+        return 1;
+    }
     bvh_free(&tree);
-    if ((r = tree_load_file(&loaded, path)) != BVH_SUCCESS) { printf("load %s: %s\n", path, bvh_result_string(r)); return 1; }
+    if ((r = tree_load_file(&loaded, path)) != BVH_SUCCESS) {
+        printf("load %s: %s\n", path, bvh_result_string(r));
+        return 1;
+    }
     printf("saved to and loaded from %s: height at the centre %.4f (%s)\n", path, (double)height_at_centre(&loaded),
            height_at_centre(&loaded) == h ? "the same" : "DIFFERENT");
     r = height_at_centre(&loaded) == h ? BVH_SUCCESS : BVH_ERROR_CORRUPT;

@@ -29,7 +29,10 @@ static void list_devices(void) {
     bvh_cl_device_info dev[16];
     uint32_t n = 0, i;
     bvh_cl_result r = bvh_cl_enumerate(dev, 16, &n);
-    if (r != BVH_CL_SUCCESS) { printf("OpenCL devices: none (%s)\n", bvh_cl_result_string(r)); return; }
+    if (r != BVH_CL_SUCCESS) {
+        printf("OpenCL devices: none (%s)\n", bvh_cl_result_string(r));
+        return;
+    }
     for (i = 0; i < n && i < 16; i++)
         printf("%u:%u  %s / %s\n     %s, %u compute units, max buffer %llu MB, memory %llu MB, %s%s\n",
                dev[i].platform_index, dev[i].device_index, dev[i].platform, dev[i].device, dev[i].version,
@@ -91,7 +94,10 @@ int main(void) {
     desc.triangles.vertex_count = 3 * n;
     desc.triangles.triangle_count = n;
     br = bvh_build(&tree, &desc);
-    if (br != BVH_SUCCESS) { printf("build: %s\n", bvh_result_string(br)); return 1; }
+    if (br != BVH_SUCCESS) {
+        printf("build: %s\n", bvh_result_string(br));
+        return 1;
+    }
     cam = bvh_camera_standard(bvh_tree_bounds(&tree), SIZE, SIZE);
 
     memset(&cd, 0, sizeof cd);
@@ -130,6 +136,8 @@ int main(void) {
     bvh_cl_tree_free(gpu);
     bvh_cl_destroy(cl);
     bvh_free(&tree);
-    free(v); free(hits); free(rgba);
+    free(v);
+    free(hits);
+    free(rgba);
     return failed || (r == BVH_CL_SUCCESS && same != SIZE * SIZE) ? 1 : 0;
 }

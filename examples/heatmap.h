@@ -74,7 +74,7 @@ int heatmap_text_width(const char *text, int scale);
 /* ============================================================================================ */
 /* Hand-picked points along an inferno-like path: rising lightness, hue from purple to yellow. */
 static const float heatmap__stops[][4] = {
-    {0.00f, 0, 0, 4},      {0.18f, 50, 10, 95},   {0.36f, 120, 28, 109}, {0.54f, 190, 55, 82},
+    {0.00f, 0, 0, 4},      {0.18f, 50, 10, 95},   {0.36f, 120, 28, 109},  {0.54f, 190, 55, 82},
     {0.70f, 237, 105, 37}, {0.85f, 251, 175, 20}, {1.00f, 252, 250, 165},
 };
 
@@ -85,7 +85,8 @@ void heatmap_color(float x, uint8_t rgb[3]) {
     int c;
     if (!(x > 0.0f)) x = 0.0f; /* also NaN */
     if (x > 1.0f) x = 1.0f;
-    for (i = 1; i < n - 1 && x > heatmap__stops[i][0]; i++) {}
+    for (i = 1; i < n - 1 && x > heatmap__stops[i][0]; i++) {
+    }
     a = heatmap__stops[i - 1];
     b = heatmap__stops[i];
     f = (x - a[0]) / (b[0] - a[0]);

@@ -49,7 +49,7 @@
 typedef struct rays_set {
     bvh_ray *diffuse; /* one per primary hit (with a normal), pixel order */
     size_t ndiffuse;
-    bvh_ray *shadow;  /* one per primary hit whose normal faces the light, pixel order */
+    bvh_ray *shadow; /* one per primary hit whose normal faces the light, pixel order */
     size_t nshadow;
 } rays_set;
 
@@ -84,7 +84,9 @@ static float rays__unit(uint32_t x) { return (float)(x >> 8) * (1.0f / 16777216.
 
 static bvh_vec3 rays__v(float x, float y, float z) {
     bvh_vec3 v;
-    v.x = x; v.y = y; v.z = z;
+    v.x = x;
+    v.y = y;
+    v.z = z;
     return v;
 }
 
@@ -99,8 +101,10 @@ static bvh_vec3 rays__cosine(bvh_vec3 n, float r1, float r2) {
     float r = sqrtf(r1), phi = 6.28318530718f * r2, a = r * cosf(phi), b = r * sinf(phi);
     float h = sqrtf(1.0f - r1 > 0.0f ? 1.0f - r1 : 0.0f), len;
     bvh_vec3 t, s;
-    if (fabsf(n.x) < 0.6f) t = rays__v(0.0f, n.z, -n.y); /* n x (1,0,0) */
-    else t = rays__v(-n.z, 0.0f, n.x);                   /* n x (0,1,0) */
+    if (fabsf(n.x) < 0.6f)
+        t = rays__v(0.0f, n.z, -n.y); /* n x (1,0,0) */
+    else
+        t = rays__v(-n.z, 0.0f, n.x); /* n x (0,1,0) */
     len = sqrtf(t.x * t.x + t.y * t.y + t.z * t.z);
     t = rays__v(t.x / len, t.y / len, t.z / len);
     s = rays__v(n.y * t.z - n.z * t.y, n.z * t.x - n.x * t.z, n.x * t.y - n.y * t.x);
@@ -129,7 +133,10 @@ int rays_make(const bvh_camera *cam, const bvh_hit *hits, const float *tris, bvh
         uint32_t k;
         if (h->prim == BVH_INVALID) continue;
         t = tris + 9 * (size_t)h->prim;
-        for (k = 0; k < 3; k++) { e1[k] = t[3 + k] - t[k]; e2[k] = t[6 + k] - t[k]; }
+        for (k = 0; k < 3; k++) {
+            e1[k] = t[3 + k] - t[k];
+            e2[k] = t[6 + k] - t[k];
+        }
         n[0] = e1[1] * e2[2] - e1[2] * e2[1];
         n[1] = e1[2] * e2[0] - e1[0] * e2[2];
         n[2] = e1[0] * e2[1] - e1[1] * e2[0];

@@ -52,24 +52,24 @@ typedef enum trace_kind { TRACE_AUTO, TRACE_CPU, TRACE_OPENCL } trace_kind;
 
 typedef struct options {
     const char *scene_spec;
-    const char *out;        /* image path or NULL */
-    const char *heatmap;    /* heat map path or NULL */
+    const char *out;     /* image path or NULL */
+    const char *heatmap; /* heat map path or NULL */
     bvh_builder builder;
     trace_kind trace;
-    uint32_t threads;       /* 0 = all online CPUs */
+    uint32_t threads; /* 0 = all online CPUs */
     uint32_t width, height;
-    uint32_t repeat;        /* builds timed; the median is reported */
-    uint32_t frames;        /* frames timed after the warm-up; the median is reported */
-    uint32_t heat_max;      /* top of the heat map's scale; 0 = the 99th percentile */
+    uint32_t repeat;   /* builds timed; the median is reported */
+    uint32_t frames;   /* frames timed after the warm-up; the median is reported */
+    uint32_t heat_max; /* top of the heat map's scale; 0 = the 99th percentile */
     int json;
 } options;
 
 typedef struct frame {
     uint32_t width, height;
     bvh_camera cam;
-    bvh_hit *hits;      /* CPU hits: width * height, row-major, row 0 at the top */
-    bvh_hit *cl_hits;   /* OpenCL hits, NULL when OpenCL is not used */
-    uint32_t *visited;  /* nodes visited per pixel (bvh_intersect_counted, or the frame kernel) */
+    bvh_hit *hits;     /* CPU hits: width * height, row-major, row 0 at the top */
+    bvh_hit *cl_hits;  /* OpenCL hits, NULL when OpenCL is not used */
+    uint32_t *visited; /* nodes visited per pixel (bvh_intersect_counted, or the frame kernel) */
 } frame;
 
 typedef struct report {
@@ -78,15 +78,15 @@ typedef struct report {
     uint64_t hits;
     uint32_t threads;
     bvh_stats stats;
-    int opencl;             /* the backend: 0 cpu, 1 opencl */
-    int disagree;           /* opencl: its hits are not the CPU's */
-    char device[128];       /* "cpu" or the OpenCL device's name */
-    double frame_ms;        /* median frame of the backend */
+    int opencl;       /* the backend: 0 cpu, 1 opencl */
+    int disagree;     /* opencl: its hits are not the CPU's */
+    char device[128]; /* "cpu" or the OpenCL device's name */
+    double frame_ms;  /* median frame of the backend */
     double cl_kernel_ms, cl_t_sum;
     uint64_t cl_hits;
     uint64_t diffuse_rays, diffuse_hits; /* examples/rays.h's sets from the CPU frame's hits */
     uint64_t shadow_rays, shadow_occluded;
-    double diffuse_ms, shadow_ms;        /* median of F passes on the CPU threads */
+    double diffuse_ms, shadow_ms; /* median of F passes on the CPU threads */
     double heat_mean;
     uint32_t heat_max, heat_scale;
 } report;
@@ -129,7 +129,10 @@ static void usage(FILE *f) {
 
 static int parse_image_path(const char *opt, const char *val, const char **out) {
     char err[512];
-    if (scene_check_image_path(val, err, sizeof err)) { fprintf(stderr, "render: %s: %s\n", opt, err); return 2; }
+    if (scene_check_image_path(val, err, sizeof err)) {
+        fprintf(stderr, "render: %s: %s\n", opt, err);
+        return 2;
+    }
     *out = val;
     return 0;
 }
@@ -138,8 +141,10 @@ static int parse_image_path(const char *opt, const char *val, const char **out) 
 static int parse_option(const char *a, const char *val, options *o) {
     if (strcmp(a, "--builder") == 0) {
         if (bvh_builder_from_name(val, &o->builder) != BVH_SUCCESS || o->builder == BVH_BUILDER_DEFAULT) {
-            fprintf(stderr, "render: unknown builder '%s' (top-down, bottom-up, sah-midpoint, ploc, "
-                            "ploc-parallel)\n", val);
+            fprintf(stderr,
+                    "render: unknown builder '%s' (top-down, bottom-up, sah-midpoint, ploc, "
+                    "ploc-parallel)\n",
+                    val);
             return 2;
         }
     } else if (strcmp(a, "--threads") == 0) {
@@ -149,14 +154,21 @@ static int parse_option(const char *a, const char *val, options *o) {
         }
     } else if (strcmp(a, "--size") == 0) {
         if (scene_parse_size(val, RENDER_MAX_PIXELS, &o->width, &o->height)) {
-            fprintf(stderr, "render: --size wants WxH (e.g. 800x600, at most 16384 a side and %u "
-                            "pixels), not '%s'\n", RENDER_MAX_PIXELS, val);
+            fprintf(stderr,
+                    "render: --size wants WxH (e.g. 800x600, at most 16384 a side and %u "
+                    "pixels), not '%s'\n",
+                    RENDER_MAX_PIXELS, val);
             return 2;
         }
     } else if (strcmp(a, "--trace") == 0) {
-        if (strcmp(val, "cpu") == 0) o->trace = TRACE_CPU;
-        else if (strcmp(val, "opencl") == 0) o->trace = TRACE_OPENCL;
-        else { fprintf(stderr, "render: --trace wants cpu or opencl, not '%s'\n", val); return 2; }
+        if (strcmp(val, "cpu") == 0)
+            o->trace = TRACE_CPU;
+        else if (strcmp(val, "opencl") == 0)
+            o->trace = TRACE_OPENCL;
+        else {
+            fprintf(stderr, "render: --trace wants cpu or opencl, not '%s'\n", val);
+            return 2;
+        }
     } else if (strcmp(a, "--frames") == 0) {
         if (scene_parse_u32(val, 1, RENDER_MAX_FRAMES, &o->frames, NULL)) {
             fprintf(stderr, "render: --frames wants a number from 1 to %u, not '%s'\n", RENDER_MAX_FRAMES, val);
@@ -164,8 +176,10 @@ static int parse_option(const char *a, const char *val, options *o) {
         }
     } else if (strcmp(a, "--heat-max") == 0) {
         if (scene_parse_u32(val, 0, 1000000, &o->heat_max, NULL)) {
-            fprintf(stderr, "render: --heat-max wants a node count from 0 (the 99th percentile) to 1000000, "
-                            "not '%s'\n", val);
+            fprintf(stderr,
+                    "render: --heat-max wants a node count from 0 (the 99th percentile) to 1000000, "
+                    "not '%s'\n",
+                    val);
             return 2;
         }
     } else if (strcmp(a, "--repeat") == 0) {
@@ -173,14 +187,16 @@ static int parse_option(const char *a, const char *val, options *o) {
             fprintf(stderr, "render: --repeat wants a number from 1 to 1000, not '%s'\n", val);
             return 2;
         }
-    } else if (strcmp(a, "--out") == 0) return parse_image_path(a, val, &o->out);
-    else if (strcmp(a, "--heatmap") == 0) return parse_image_path(a, val, &o->heatmap);
+    } else if (strcmp(a, "--out") == 0)
+        return parse_image_path(a, val, &o->out);
+    else if (strcmp(a, "--heatmap") == 0)
+        return parse_image_path(a, val, &o->heatmap);
     return 0;
 }
 
 /* 0: run; 1: --help printed; 2: bad command line (message printed) */
 static int parse_args(int argc, char **argv, options *o) {
-    static const char *const with_value[] = {"--builder", "--threads", "--size",    "--trace", "--frames",
+    static const char *const with_value[] = {"--builder", "--threads", "--size",     "--trace", "--frames",
                                              "--out",     "--heatmap", "--heat-max", "--repeat"};
     int i;
     size_t k;
@@ -195,21 +211,32 @@ static int parse_args(int argc, char **argv, options *o) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         int takes = 0;
         for (k = 0; k < sizeof with_value / sizeof with_value[0]; k++) takes |= strcmp(a, with_value[k]) == 0;
-        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) { usage(stdout); return 1; }
-        if (takes && !val) { fprintf(stderr, "render: %s needs a value (see --help)\n", a); return 2; }
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            usage(stdout);
+            return 1;
+        }
+        if (takes && !val) {
+            fprintf(stderr, "render: %s needs a value (see --help)\n", a);
+            return 2;
+        }
         if (takes) {
             if (parse_option(a, val, o)) return 2;
             i++;
-        } else if (strcmp(a, "--json") == 0) o->json = 1;
+        } else if (strcmp(a, "--json") == 0)
+            o->json = 1;
         else if (a[0] == '-' && a[1] != 0) {
             fprintf(stderr, "render: unknown option '%s' (see --help)\n", a);
             return 2;
         } else if (o->scene_spec) {
             fprintf(stderr, "render: one scene only ('%s' and '%s')\n", o->scene_spec, a);
             return 2;
-        } else o->scene_spec = a;
+        } else
+            o->scene_spec = a;
     }
-    if (!o->scene_spec) { fprintf(stderr, "render: no SCENE given (see --help)\n"); return 2; }
+    if (!o->scene_spec) {
+        fprintf(stderr, "render: no SCENE given (see --help)\n");
+        return 2;
+    }
     return 0;
 }
 
@@ -313,8 +340,10 @@ static void trace_counted(const bvh_tree *tree, frame *f, uint32_t threads) {
     for (t = 1; t < threads; t++) started[t] = pthread_create(&tid[t], NULL, counted_rows, &job[t]) == 0;
     counted_rows(&job[0]);
     for (t = 1; t < threads; t++) {
-        if (started[t]) pthread_join(tid[t], NULL);
-        else counted_rows(&job[t]);
+        if (started[t])
+            pthread_join(tid[t], NULL);
+        else
+            counted_rows(&job[t]);
     }
 }
 
@@ -326,7 +355,10 @@ static int trace_cpu(const bvh_tree *tree, frame *f, uint32_t threads, uint32_t 
     bvh_result res = BVH_SUCCESS;
     double times[RENDER_MAX_FRAMES];
     uint32_t x, y, k;
-    if (!rays) { fprintf(stderr, "render: out of memory for %zu rays\n", n); return 1; }
+    if (!rays) {
+        fprintf(stderr, "render: out of memory for %zu rays\n", n);
+        return 1;
+    }
     for (y = 0; y < f->height; y++)
         for (x = 0; x < f->width; x++) rays[i++] = bvh_camera_ray(&f->cam, x, y);
     for (k = 0; k < runs && res == BVH_SUCCESS; k++) {
@@ -335,7 +367,10 @@ static int trace_cpu(const bvh_tree *tree, frame *f, uint32_t threads, uint32_t 
         times[k] = scene_now_ms() - t0;
     }
     free(rays);
-    if (res != BVH_SUCCESS) { fprintf(stderr, "render: tracing failed: %s\n", bvh_result_string(res)); return 1; }
+    if (res != BVH_SUCCESS) {
+        fprintf(stderr, "render: tracing failed: %s\n", bvh_result_string(res));
+        return 1;
+    }
     *ms = scene_median(times, runs);
     return 0;
 }
@@ -421,8 +456,8 @@ static int gpu_open(gpu *g, const bvh_tree *tree, int required) {
     if (r == BVH_CL_ERROR_NOT_AVAILABLE)
         fprintf(stderr, "%sbuilt without OpenCL (BVH_HAVE_OPENCL)%s\n", pre, post);
     else if (r != BVH_CL_SUCCESS)
-        fprintf(stderr, "%sOpenCL cannot be used (%s%s%s)%s\n", pre, bvh_cl_result_string(r), log[0] ? ": " : "",
-                log, post);
+        fprintf(stderr, "%sOpenCL cannot be used (%s%s%s)%s\n", pre, bvh_cl_result_string(r), log[0] ? ": " : "", log,
+                post);
     if (r != BVH_CL_SUCCESS) {
         gpu_close(g);
         return 1;
@@ -463,7 +498,10 @@ static void hits_summary(const bvh_hit *h, size_t n, uint64_t *hits, double *t_s
     *hits = 0;
     *t_sum = 0.0;
     for (i = 0; i < n; i++)
-        if (h[i].prim != BVH_INVALID) { (*hits)++; *t_sum += (double)h[i].t; }
+        if (h[i].prim != BVH_INVALID) {
+            (*hits)++;
+            *t_sum += (double)h[i].t;
+        }
 }
 
 /* Pixels whose OpenCL hit is not the CPU's: another primitive, or another t (any bit on an exact
@@ -473,8 +511,8 @@ static size_t hits_differ(const frame *f, int exact, size_t *first) {
     for (i = 0; i < n; i++) {
         const bvh_hit *a = &f->hits[i], *b = &f->cl_hits[i];
         int same = a->prim == b->prim &&
-                   (a->prim == BVH_INVALID || (exact ? memcmp(&a->t, &b->t, sizeof a->t) == 0
-                                                     : fabsf(a->t - b->t) <= 1e-5f * fabsf(a->t)));
+                   (a->prim == BVH_INVALID ||
+                    (exact ? memcmp(&a->t, &b->t, sizeof a->t) == 0 : fabsf(a->t - b->t) <= 1e-5f * fabsf(a->t)));
         if (!same && !bad++) *first = i;
     }
     return bad;
@@ -484,10 +522,11 @@ static size_t hits_differ(const frame *f, int exact, size_t *first) {
 static int check_backends(const frame *f, const report *r, int exact) {
     size_t first = 0, bad = hits_differ(f, exact, &first);
     if (!bad && r->hits == r->cl_hits && (!exact || r->t_sum == r->cl_t_sum)) return 0;
-    fprintf(stderr, "render: !!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!\n"
-                    "render: !!! OpenCL and CPU DISAGREE: %zu of %zu pixels have another hit%s\n"
-                    "render: !!!   cpu    hits %llu  t_sum %.6f\n"
-                    "render: !!!   opencl hits %llu  t_sum %.6f\n",
+    fprintf(stderr,
+            "render: !!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!\n"
+            "render: !!! OpenCL and CPU DISAGREE: %zu of %zu pixels have another hit%s\n"
+            "render: !!!   cpu    hits %llu  t_sum %.6f\n"
+            "render: !!!   opencl hits %llu  t_sum %.6f\n",
             bad, (size_t)f->width * f->height, exact ? " (the device is exact: every bit must match)" : "",
             (unsigned long long)r->hits, r->t_sum, (unsigned long long)r->cl_hits, r->cl_t_sum);
     if (bad)
@@ -571,7 +610,8 @@ static void shade_frame(const frame *f, const bvh_hit *hits, const scene *s, uin
                 const float *t = s->v + 9 * (size_t)h->prim;
                 bvh_ray r = bvh_camera_ray(&f->cam, x, y);
                 float e1[3] = {t[3] - t[0], t[4] - t[1], t[5] - t[2]}, e2[3] = {t[6] - t[0], t[7] - t[1], t[8] - t[2]};
-                float n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+                float n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                              e1[0] * e2[1] - e1[1] * e2[0]};
                 float len = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
                 float d = len > 0.0f ? fabsf(n[0] * r.dir.x + n[1] * r.dir.y + n[2] * r.dir.z) / len : 0.0f;
                 c[0] = c[1] = c[2] = 0.9f * (0.1f + 0.9f * d);
@@ -587,7 +627,10 @@ static int write_frame(const frame *f, const scene *s, const char *path) {
     uint8_t *rgb = (uint8_t *)malloc((size_t)f->width * f->height * 3);
     char err[512];
     int rc;
-    if (!rgb) { fprintf(stderr, "render: out of memory for the image\n"); return 1; }
+    if (!rgb) {
+        fprintf(stderr, "render: out of memory for the image\n");
+        return 1;
+    }
     shade_frame(f, f->cl_hits ? f->cl_hits : f->hits, s, rgb); /* the backend's own hits */
     rc = scene_write_image(path, f->width, f->height, rgb, err, sizeof err);
     free(rgb);
@@ -601,10 +644,12 @@ static int write_heatmap(const frame *f, const report *r, const char *builder, c
     uint8_t *rgb = (uint8_t *)malloc((size_t)f->width * h * 3);
     char title[160], err[512];
     int rc;
-    if (!rgb) { fprintf(stderr, "render: out of memory for the heat map\n"); return 1; }
+    if (!rgb) {
+        fprintf(stderr, "render: out of memory for the heat map\n");
+        return 1;
+    }
     /* the longest title that fits the width with the smallest font */
-    snprintf(title, sizeof title, "%s: nodes visited per pixel, mean %.1f, max %u", builder, r->heat_mean,
-             r->heat_max);
+    snprintf(title, sizeof title, "%s: nodes visited per pixel, mean %.1f, max %u", builder, r->heat_mean, r->heat_max);
     if (heatmap_text_width(title, 1) > (int)f->width - 8)
         snprintf(title, sizeof title, "%s: mean %.1f, max %u", builder, r->heat_mean, r->heat_max);
     if (heatmap_text_width(title, 1) > (int)f->width - 8) snprintf(title, sizeof title, "%s", builder);
@@ -619,8 +664,10 @@ static int write_heatmap(const frame *f, const report *r, const char *builder, c
 /* == report ================================================================================== */
 /* ============================================================================================ */
 static void json_path(const char *path) {
-    if (path) scene_json_string(stdout, path);
-    else printf("null");
+    if (path)
+        scene_json_string(stdout, path);
+    else
+        printf("null");
 }
 
 static double mrays(const options *o, double ms) {
@@ -647,7 +694,8 @@ static void print_json(const options *o, const scene *s, const bvh_tree *tree, c
     if (r->opencl)
         printf("\"cl_mrays\":%.3f,\"cl_kernel_ms\":%.3f,\"cl_hits\":%llu,\"cl_t_sum\":%.6f,", mrays(o, r->frame_ms),
                r->cl_kernel_ms, (unsigned long long)r->cl_hits, r->cl_t_sum);
-    else printf("\"cl_mrays\":null,\"cl_kernel_ms\":null,\"cl_hits\":null,\"cl_t_sum\":null,");
+    else
+        printf("\"cl_mrays\":null,\"cl_kernel_ms\":null,\"cl_hits\":null,\"cl_t_sum\":null,");
     if (r->diffuse_ms > 0.0)
         printf("\"diffuse_rays\":%llu,\"diffuse_hits\":%llu,\"diffuse_ms\":%.3f,\"diffuse_mrays\":%.3f,"
                "\"shadow_rays\":%llu,\"shadow_occluded\":%llu,\"shadow_ms\":%.3f,\"shadow_mrays\":%.3f,",
@@ -657,8 +705,7 @@ static void print_json(const options *o, const scene *s, const bvh_tree *tree, c
     else
         printf("\"diffuse_rays\":null,\"diffuse_hits\":null,\"diffuse_ms\":null,\"diffuse_mrays\":null,"
                "\"shadow_rays\":null,\"shadow_occluded\":null,\"shadow_ms\":null,\"shadow_mrays\":null,");
-    printf("\"heat_mean\":%.3f,\"heat_max\":%u,\"heat_scale\":%u,\"image\":", r->heat_mean, r->heat_max,
-           r->heat_scale);
+    printf("\"heat_mean\":%.3f,\"heat_max\":%u,\"heat_scale\":%u,\"image\":", r->heat_mean, r->heat_max, r->heat_scale);
     json_path(o->out);
     printf(",\"heatmap\":");
     json_path(o->heatmap);
@@ -667,15 +714,18 @@ static void print_json(const options *o, const scene *s, const bvh_tree *tree, c
 
 static void print_report(const options *o, const scene *s, const bvh_tree *tree, const report *r) {
     double bpt = s->triangles ? (double)r->stats.bytes / s->triangles : 0.0;
-    if (o->json) { print_json(o, s, tree, r); return; }
+    if (o->json) {
+        print_json(o, s, tree, r);
+        return;
+    }
     printf("scene    %s: %u triangles", s->name, s->triangles);
     if (s->skipped) printf(" (%u non-triangle or bad faces dropped)", s->skipped);
     if (tree->excluded) printf(" (%u excluded: NaN/Inf)", tree->excluded);
     printf(", loaded in %.1f ms\n", r->load_ms);
     printf("builder  %s, threads %u\n", bvh_builder_name(o->builder), r->threads);
     printf("build    %.2f ms (median of %u)\n", r->build_ms, o->repeat);
-    printf("tree     valid; %u nodes, %u leaves, %u refs, max depth %u, max leaf %u\n", r->stats.nodes,
-           r->stats.leaves, r->stats.refs, r->stats.max_depth, r->stats.max_leaf_size);
+    printf("tree     valid; %u nodes, %u leaves, %u refs, max depth %u, max leaf %u\n", r->stats.nodes, r->stats.leaves,
+           r->stats.refs, r->stats.max_depth, r->stats.max_leaf_size);
     printf("memory   %.2f MB nodes+refs (%.1f bytes/triangle) + %.2f MB triangle copy\n",
            (double)r->stats.bytes / 1048576.0, bpt, (double)r->stats.triangle_bytes / 1048576.0);
     printf("SAH      %.4f (costs 1, 0, 1)\n", r->sah);
@@ -685,8 +735,8 @@ static void print_report(const options *o, const scene *s, const bvh_tree *tree,
            r->trace_ms, r->opencl ? "one frame" : "median", mrays(o, r->trace_ms));
     if (r->opencl)
         printf("opencl   %llu hits, t_sum %.6f (%s), %.2f ms (kernel %.2f ms), %.2f Mrays/s\n",
-               (unsigned long long)r->cl_hits, r->cl_t_sum, r->disagree ? "NOT the CPU's" : "the CPU's",
-               r->frame_ms, r->cl_kernel_ms, mrays(o, r->frame_ms));
+               (unsigned long long)r->cl_hits, r->cl_t_sum, r->disagree ? "NOT the CPU's" : "the CPU's", r->frame_ms,
+               r->cl_kernel_ms, mrays(o, r->frame_ms));
     if (r->diffuse_ms > 0.0) {
         bvh_vec3 L = rays_light();
         printf("diffuse  %llu rays (one per hit, cosine-weighted), %llu hits, %.2f ms (median, CPU), %.2f Mrays/s\n",
@@ -730,8 +780,7 @@ int main(int argc, char **argv) {
         scene_free(&s);
         return 1;
     }
-    rc = build_tree(&s, &o, &tree, &r.build_ms) || check_tree(&tree, &r) ||
-         frame_init(&f, &tree, o.width, o.height);
+    rc = build_tree(&s, &o, &tree, &r.build_ms) || check_tree(&tree, &r) || frame_init(&f, &tree, o.width, o.height);
     if (!rc) rc = trace(&o, &tree, &f, &r);
     if (!rc) rc = trace_sets(&s, &tree, &f, r.threads, o.frames, &r);
     if (!rc && o.out) rc = write_frame(&f, &s, o.out);

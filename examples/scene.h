@@ -95,8 +95,7 @@ const char *scene_spec_help(void);
 
 /* Writes width x height RGB8 pixels (row 0 at the top): PNG for *.png (needs BVH_HAVE_STB),
    binary PPM (P6) for *.ppm. 0 on success. */
-int scene_write_image(const char *path, uint32_t width, uint32_t height, const uint8_t *rgb, char *err,
-                      size_t errlen);
+int scene_write_image(const char *path, uint32_t width, uint32_t height, const uint8_t *rgb, char *err, size_t errlen);
 /* 0 when scene_write_image can write this path's format (checks the extension and PNG support
    only, not the file system): lets a program refuse --out before doing the work. */
 int scene_check_image_path(const char *path, char *err, size_t errlen);
@@ -226,12 +225,18 @@ static char *scene__read_file(const char *path, size_t *size, char *err, size_t 
     char *data = NULL;
     size_t cap = 0, n = 0, got = 1;
     int failed = 0;
-    if (!f) { scene__fail(err, errlen, "cannot open '%s': %s", path, strerror(errno)); return NULL; }
+    if (!f) {
+        scene__fail(err, errlen, "cannot open '%s': %s", path, strerror(errno));
+        return NULL;
+    }
     while (got && !failed) {
         if (cap - n < 65536) {
             size_t ncap = cap ? cap * 2 : (size_t)1 << 20;
             char *nd = (char *)realloc(data, ncap);
-            if (!nd) { failed = scene__fail(err, errlen, "'%s': out of memory", path); break; }
+            if (!nd) {
+                failed = scene__fail(err, errlen, "'%s': out of memory", path);
+                break;
+            }
             data = nd;
             cap = ncap;
         }
@@ -241,7 +246,10 @@ static char *scene__read_file(const char *path, size_t *size, char *err, size_t 
     if (!failed && ferror(f)) failed = scene__fail(err, errlen, "cannot read '%s': %s", path, strerror(errno));
     if (!failed && n == 0) failed = scene__fail(err, errlen, "'%s' is empty", path);
     fclose(f);
-    if (failed) { free(data); return NULL; }
+    if (failed) {
+        free(data);
+        return NULL;
+    }
     data[n] = 0;
     *size = n;
     return data;
@@ -255,8 +263,8 @@ static int scene__check_glb(const char *path, const char *data, size_t size, cha
     length = (uint32_t)(unsigned char)data[8] | (uint32_t)(unsigned char)data[9] << 8 |
              (uint32_t)(unsigned char)data[10] << 16 | (uint32_t)(unsigned char)data[11] << 24;
     if (length > size)
-        return scene__fail(err, errlen, "'%s': truncated GLB file (header says %u bytes, file has %zu)", path,
-                           length, size);
+        return scene__fail(err, errlen, "'%s': truncated GLB file (header says %u bytes, file has %zu)", path, length,
+                           size);
     return 0;
 }
 
@@ -271,8 +279,8 @@ typedef struct scene__ply_elem {
 } scene__ply_elem;
 
 static int scene__ply_type_size(const char *t, size_t n) {
-    static const char *const names[16] = {"char", "int8", "uchar", "uint8", "short", "int16", "ushort", "uint16",
-                                          "int", "int32", "uint", "uint32", "float", "float32", "double", "float64"};
+    static const char *const names[16] = {"char", "int8",  "uchar", "uint8",  "short", "int16",   "ushort", "uint16",
+                                          "int",  "int32", "uint",  "uint32", "float", "float32", "double", "float64"};
     static const int sizes[16] = {1, 1, 1, 1, 2, 2, 2, 2, 4, 4, 4, 4, 4, 4, 8, 8};
     int i;
     for (i = 0; i < 16; i++)
@@ -309,8 +317,8 @@ static int scene__ply_property(scene__ply_elem *e, const char *w[4], const size_
 
 /* Parses the header into el[]; returns the body, or NULL: truncated (*bad 0), malformed (1) or
    too big to check (2). */
-static const char *scene__ply_header(const char *data, const char *end, scene__ply_elem *el, uint32_t *ne,
-                                     int *format, int *bad) {
+static const char *scene__ply_header(const char *data, const char *end, scene__ply_elem *el, uint32_t *ne, int *format,
+                                     int *bad) {
     const char *p = data;
     while (p < end) {
         const char *eol = (const char *)memchr(p, '\n', (size_t)(end - p)), *w[4] = {NULL, NULL, NULL, NULL};
@@ -321,18 +329,29 @@ static const char *scene__ply_header(const char *data, const char *end, scene__p
         p = eol + 1;
         if (SCENE__WORD(0, "end_header")) return p;
         if (SCENE__WORD(0, "format")) {
-            *format = SCENE__WORD(1, "ascii") ? 0 : SCENE__WORD(1, "binary_little_endian") ? 1
-                    : SCENE__WORD(1, "binary_big_endian") ? 2 : -1;
+            *format = SCENE__WORD(1, "ascii")                  ? 0
+                      : SCENE__WORD(1, "binary_little_endian") ? 1
+                      : SCENE__WORD(1, "binary_big_endian")    ? 2
+                                                               : -1;
         } else if (SCENE__WORD(0, "element")) {
             scene__ply_elem *e = &el[*ne];
-            if (nw < 3) { *bad = 1; return NULL; }
-            if (*ne == 32) { *bad = 2; return NULL; }
+            if (nw < 3) {
+                *bad = 1;
+                return NULL;
+            }
+            if (*ne == 32) {
+                *bad = 2;
+                return NULL;
+            }
             memset(e, 0, sizeof *e);
             memcpy(e->name, w[1], len[1] < 31 ? len[1] : 31);
             e->count = strtoull(w[2], NULL, 10);
             (*ne)++;
         } else if (SCENE__WORD(0, "property")) {
-            if (!*ne) { *bad = 1; return NULL; }
+            if (!*ne) {
+                *bad = 1;
+                return NULL;
+            }
             if ((*bad = scene__ply_property(&el[*ne - 1], w, len, nw)) != 0) return NULL;
         }
     }
@@ -420,8 +439,14 @@ static int scene__obj_index(const char **p, size_t nverts, size_t *out) {
     if (end == *p) return 1;
     while (*end && !isspace((unsigned char)*end)) end++; /* skip /t/n */
     *p = end;
-    if (i > 0 && (size_t)i <= nverts) { *out = (size_t)i - 1; return 0; }
-    if (i < 0 && (size_t)(-(i + 1)) < nverts) { *out = nverts - 1 - (size_t)(-(i + 1)); return 0; }
+    if (i > 0 && (size_t)i <= nverts) {
+        *out = (size_t)i - 1;
+        return 0;
+    }
+    if (i < 0 && (size_t)(-(i + 1)) < nverts) {
+        *out = nverts - 1 - (size_t)(-(i + 1));
+        return 0;
+    }
     return 1;
 }
 
@@ -525,8 +550,8 @@ static int scene__check_assimp(const char *path, char *err, size_t errlen) {
                 rc = scene__fail(err, errlen, "'%s': face %u of mesh %u has no vertex indices", path, f, m);
             for (k = 0; !rc && k < face->mNumIndices; k++)
                 if (face->mIndices[k] >= mesh->mNumVertices)
-                    rc = scene__fail(err, errlen, "'%s': face %u of mesh %u uses vertex %u, the mesh has %u", path,
-                                     f, m, face->mIndices[k], mesh->mNumVertices);
+                    rc = scene__fail(err, errlen, "'%s': face %u of mesh %u uses vertex %u, the mesh has %u", path, f,
+                                     m, face->mIndices[k], mesh->mNumVertices);
         }
     }
     aiReleaseImport(s);
@@ -555,12 +580,18 @@ static int scene__load_assimp(const char *path, scene__buf *b, uint32_t *skipped
             int k, ok = face->mNumIndices == 3;
             for (k = 0; ok && k < 3; k++) {
                 unsigned i = face->mIndices[k];
-                if (i >= mesh->mNumVertices) { ok = 0; break; }
+                if (i >= mesh->mNumVertices) {
+                    ok = 0;
+                    break;
+                }
                 t[3 * k] = mesh->mVertices[i].x;
                 t[3 * k + 1] = mesh->mVertices[i].y;
                 t[3 * k + 2] = mesh->mVertices[i].z;
             }
-            if (!ok) { (*skipped)++; continue; }
+            if (!ok) {
+                (*skipped)++;
+                continue;
+            }
             scene__push(b, t, t + 3, t + 6); /* reserved above: cannot fail */
         }
     }
@@ -682,7 +713,10 @@ static int scene__gen_field(scene__buf *b, uint32_t k, char *err, size_t errlen)
                            "sudo apt-get install glmark2-data",
                            SCENE_BUNNY_PATH);
     fclose(probe);
-    if (scene__load_obj(SCENE_BUNNY_PATH, &bunny, &skipped, err, errlen)) { free(bunny.v); return 1; }
+    if (scene__load_obj(SCENE_BUNNY_PATH, &bunny, &skipped, err, errlen)) {
+        free(bunny.v);
+        return 1;
+    }
     for (j = 0; j < 9 * bunny.count; j++) {
         lo[j % 3] = fminf(lo[j % 3], bunny.v[j]);
         hi[j % 3] = fmaxf(hi[j % 3], bunny.v[j]);
@@ -711,16 +745,19 @@ typedef struct scene__shape {
     float r0, r1, ang, c[3];
 } scene__shape;
 
-static void scene__shape_point(const scene__shape *s, uint32_t i, uint32_t j, uint32_t nu, uint32_t nv,
-                               float out[3]) {
+static void scene__shape_point(const scene__shape *s, uint32_t i, uint32_t j, uint32_t nu, uint32_t nv, float out[3]) {
     float u = 2.0f * SCENE__PI * (float)(i % nu) / (float)nu, p[3];
     if (s->torus) {
         float w = 2.0f * SCENE__PI * (float)(j % nv) / (float)nv, rad = s->r0 + s->r1 * cosf(w);
-        p[0] = rad * cosf(u); p[1] = rad * sinf(u); p[2] = s->r1 * sinf(w);
+        p[0] = rad * cosf(u);
+        p[1] = rad * sinf(u);
+        p[2] = s->r1 * sinf(w);
     } else {
         float w = SCENE__PI * (float)j / (float)nv, sw = (j == 0 || j == nv) ? 0.0f : sinf(w);
         float cw = j == 0 ? 1.0f : j == nv ? -1.0f : cosf(w);
-        p[0] = s->r0 * sw * cosf(u); p[1] = s->r0 * cw; p[2] = -s->r0 * sw * sinf(u);
+        p[0] = s->r0 * sw * cosf(u);
+        p[1] = s->r0 * cw;
+        p[2] = -s->r0 * sw * sinf(u);
     }
     out[0] = s->c[0] + cosf(s->ang) * p[0] + sinf(s->ang) * p[2];
     out[1] = s->c[1] + p[1];
@@ -779,9 +816,12 @@ static int scene__generate(const char *spec, scene__buf *b, char *err, size_t er
     if (*end || errno || n == 0 || n > 0xFFFFFFFFull)
         return scene__fail(err, errlen, "bad scene '%s': COUNT must be a positive integer", spec);
 #define SCENE__IS(s) (len == sizeof(s) - 1 && memcmp(name, s, len) == 0)
-    if (SCENE__IS("random") || SCENE__IS("procedural") || SCENE__IS("spheres")) tris = (double)n;
-    else if (SCENE__IS("grid")) tris = 2.0 * (double)n * (double)n;
-    else if (SCENE__IS("field")) tris = 69666.0 * (double)n + 2;
+    if (SCENE__IS("random") || SCENE__IS("procedural") || SCENE__IS("spheres"))
+        tris = (double)n;
+    else if (SCENE__IS("grid"))
+        tris = 2.0 * (double)n * (double)n;
+    else if (SCENE__IS("field"))
+        tris = 69666.0 * (double)n + 2;
     else
         return scene__fail(err, errlen,
                            "unknown generator in '%s' (try gen:random:N, gen:field:K, gen:procedural:N, "
@@ -790,10 +830,14 @@ static int scene__generate(const char *spec, scene__buf *b, char *err, size_t er
     if (tris > (double)SCENE_MAX_GENERATED)
         return scene__fail(err, errlen, "'%s' would make %.0f triangles, above the limit of %u", spec, tris,
                            (unsigned)SCENE_MAX_GENERATED);
-    if (SCENE__IS("random")) rc = scene__gen_random(b, (uint32_t)n);
-    else if (SCENE__IS("grid")) rc = scene__gen_grid(b, (uint32_t)n);
-    else if (SCENE__IS("field")) return scene__gen_field(b, (uint32_t)n, err, errlen);
-    else rc = scene__gen_procedural(b, (uint32_t)n);
+    if (SCENE__IS("random"))
+        rc = scene__gen_random(b, (uint32_t)n);
+    else if (SCENE__IS("grid"))
+        rc = scene__gen_grid(b, (uint32_t)n);
+    else if (SCENE__IS("field"))
+        return scene__gen_field(b, (uint32_t)n, err, errlen);
+    else
+        rc = scene__gen_procedural(b, (uint32_t)n);
 #undef SCENE__IS
     return rc ? scene__fail(err, errlen, "'%s': out of memory", spec) : 0;
 }
@@ -809,11 +853,17 @@ int scene_load(const char *spec, scene *out, char *err, size_t errlen) {
     if (!out) return scene__fail(err, errlen, "scene_load: no output scene");
     memset(out, 0, sizeof *out);
     if (!spec || !*spec) return scene__fail(err, errlen, "no scene given");
-    if (strncmp(spec, "gen:", 4) == 0) rc = scene__generate(spec, &b, err, errlen);
-    else if (scene__has_ext(spec, ".tri")) rc = scene__load_tri(spec, &b, err, errlen);
-    else rc = scene__load_file(spec, &b, &skipped, err, errlen);
+    if (strncmp(spec, "gen:", 4) == 0)
+        rc = scene__generate(spec, &b, err, errlen);
+    else if (scene__has_ext(spec, ".tri"))
+        rc = scene__load_tri(spec, &b, err, errlen);
+    else
+        rc = scene__load_file(spec, &b, &skipped, err, errlen);
     if (!rc && b.count > 0xFFFFFFFFu) rc = scene__fail(err, errlen, "'%s': more than 2^32 triangles", spec);
-    if (rc) { free(b.v); return 1; }
+    if (rc) {
+        free(b.v);
+        return 1;
+    }
     out->v = b.v;
     out->triangles = (uint32_t)b.count;
     out->skipped = skipped;
@@ -834,9 +884,12 @@ bvh_aabb scene_bounds(const scene *s) {
     box.max.x = box.max.y = box.max.z = -HUGE_VALF;
     for (i = 0; s && s->v && i < 3 * (size_t)s->triangles; i++) {
         const float *p = s->v + 3 * i;
-        box.min.x = fminf(box.min.x, p[0]); box.max.x = fmaxf(box.max.x, p[0]);
-        box.min.y = fminf(box.min.y, p[1]); box.max.y = fmaxf(box.max.y, p[1]);
-        box.min.z = fminf(box.min.z, p[2]); box.max.z = fmaxf(box.max.z, p[2]);
+        box.min.x = fminf(box.min.x, p[0]);
+        box.max.x = fmaxf(box.max.x, p[0]);
+        box.min.y = fminf(box.min.y, p[1]);
+        box.max.y = fmaxf(box.max.y, p[1]);
+        box.min.z = fminf(box.min.z, p[2]);
+        box.max.z = fmaxf(box.max.z, p[2]);
     }
     return box;
 }
@@ -968,9 +1021,12 @@ void scene_json_string(FILE *f, const char *s) {
     fputc('"', f);
     for (; s && *s; s++) {
         unsigned char c = (unsigned char)*s;
-        if (c == '"' || c == '\\') fprintf(f, "\\%c", c);
-        else if (c < 0x20) fprintf(f, "\\u%04x", c);
-        else fputc(c, f);
+        if (c == '"' || c == '\\')
+            fprintf(f, "\\%c", c);
+        else if (c < 0x20)
+            fprintf(f, "\\u%04x", c);
+        else
+            fputc(c, f);
     }
     fputc('"', f);
 }

@@ -35,8 +35,8 @@ int main() {
         rays[2].dir.z = -1;      // away from both
         bvh_validation rep;
         if (!bvh_intersect(&tree, &ray, &hit) || hit.prim != 0 || hit.t != 1.0f ||
-            bvh_intersect_batch(&tree, rays.data(), hits.data(), rays.size(), 2) != BVH_SUCCESS ||
-            hits[0].prim != 0 || hits[1].prim != 1 || hits[1].t != 0.5f || hits[2].prim != BVH_INVALID ||
+            bvh_intersect_batch(&tree, rays.data(), hits.data(), rays.size(), 2) != BVH_SUCCESS || hits[0].prim != 0 ||
+            hits[1].prim != 1 || hits[1].t != 0.5f || hits[2].prim != BVH_INVALID ||
             bvh_validate(&tree, nullptr, &rep) != BVH_SUCCESS) {
             std::printf("%s: wrong answer (prim %u t %g, %s)\n", bvh_builder_name(desc.builder), hit.prim,
                         static_cast<double>(hit.t), rep.message);

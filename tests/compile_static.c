@@ -26,9 +26,12 @@ static int assert_failures;
 #define BVH_IMPLEMENTATION
 #include "bvh.h"
 
-#define CHECK(c)                                                                                            \
-    do {                                                                                                    \
-        if (!(c)) { printf("%s:%d: check failed: %s\n", __FILE__, __LINE__, #c); failures++; }              \
+#define CHECK(c)                                                                                                       \
+    do {                                                                                                               \
+        if (!(c)) {                                                                                                    \
+            printf("%s:%d: check failed: %s\n", __FILE__, __LINE__, #c);                                               \
+            failures++;                                                                                                \
+        }                                                                                                              \
     } while (0)
 
 int main(void) {
@@ -59,14 +62,16 @@ int main(void) {
     CHECK(par.node_count == ploc.node_count && par.ref_count == ploc.ref_count);
     CHECK(memcmp(par.nodes, ploc.nodes, ploc.node_count * sizeof(bvh_node)) == 0);
     CHECK(memcmp(par.prims, ploc.prims, ploc.ref_count * sizeof(uint32_t)) == 0);
-    CHECK(live_blocks == 8); /* nodes, references, triangles, the wide nodes with their packets of each tree: BVH_MALLOC */
+    CHECK(live_blocks ==
+          8); /* nodes, references, triangles, the wide nodes with their packets of each tree: BVH_MALLOC */
 
     CHECK(bvh_intersect(&par, &ray, &hit) == 1 && hit.prim == 0 && hit.t == 1.0f);
     CHECK(bvh_intersect_counted(&par, &ray, &hit, &visited) == 1 && visited >= 1);
     CHECK(bvh_occluded(&par, &ray) == 1);
     rays[0] = ray;
     rays[1] = ray;
-    rays[1].origin.x = 2.5f; rays[1].origin.y = 2.25f;
+    rays[1].origin.x = 2.5f;
+    rays[1].origin.y = 2.25f;
     CHECK(bvh_intersect_batch(&par, rays, hits, 2, 2) == BVH_SUCCESS && hits[0].prim == 0 && hits[1].prim == 2);
     CHECK(bvh_occluded_batch(&par, rays, occ, 2, 2) == BVH_SUCCESS && occ[0] == 1 && occ[1] == 1);
     CHECK(bvh_intersect_triangle(&ray, v + 9, v + 12, v + 15, &hit) == 1 && hit.t == 2.0f);
@@ -85,7 +90,8 @@ int main(void) {
     CHECK(fabsf(ray.dir.x * ray.dir.x + ray.dir.y * ray.dir.y + ray.dir.z * ray.dir.z - 1.0f) < 1e-5f);
     CHECK(memcmp(&ray.origin, &cam.eye, sizeof ray.origin) == 0);
 
-    CHECK(bvh_builder_from_name(bvh_builder_name(BVH_BUILDER_TOP_DOWN), &b) == BVH_SUCCESS && b == BVH_BUILDER_TOP_DOWN);
+    CHECK(bvh_builder_from_name(bvh_builder_name(BVH_BUILDER_TOP_DOWN), &b) == BVH_SUCCESS &&
+          b == BVH_BUILDER_TOP_DOWN);
     CHECK(strlen(bvh_result_string(BVH_ERROR_OUT_OF_MEMORY)) > 0);
     bvh_free(&ploc);
     bvh_free(&par);

@@ -3,6 +3,8 @@
 #   example, and its main is that example line for line (bvh.h's EXAMPLE section); build/boxes
 #   finds, tracing a box build with bvh_intersect_custom, the same sphere as brute force for every ray;
 #   build/animate refits a waving sheet, saves the tree to a file and loads it back.
+#   build/pathtrace renders its built-in scene (instances and spheres) into a real picture, the
+#   same bytes on 1 and 2 threads, and refuses a bad command line with status 2.
 # Usage: tests/examples.sh  (`make test` runs it after building both; BUILD=dir picks another
 #   build directory). Prints one line per failed check and a closing result line; exits 1 on failure.
 set -u
@@ -44,6 +46,25 @@ if [ "$rc" != 0 ] || ! grep -q '(the same)$' <<<"$out" || [ ! -s "$tmp/tree.bvh"
   fail "$build/animate: exit status $rc, printed: $out"
 fi
 rm -rf "$tmp"
+
+# pathtrace: the built-in scene at 64x64, 2 spp, as PPM (no PNG support needed): exit 0, a full
+# image that is not one flat colour, identical for 1 and 2 threads (per-pixel random sequences)
+tmp=$(mktemp -d) || exit 1
+trap 'rm -rf "$tmp"' EXIT
+checks=$((checks + 1))
+out=$("$build/pathtrace" --size 64x64 --spp 2 --threads 1 --out "$tmp/a.ppm" 2>&1)
+rc=$?
+pixels=$(tail -c $((64 * 64 * 3)) "$tmp/a.ppm" 2>/dev/null | od -An -v -tu1 -w3 | sort -u | wc -l)
+if [ "$rc" != 0 ] || [ "$(wc -c <"$tmp/a.ppm" 2>/dev/null)" != $((64 * 64 * 3 + 13)) ] || [ "$pixels" -lt 16 ]; then
+  fail "$build/pathtrace: exit status $rc, $pixels distinct colours, printed: $out"
+fi
+checks=$((checks + 1))
+"$build/pathtrace" --size 64x64 --spp 2 --threads 2 --out "$tmp/b.ppm" >/dev/null 2>&1
+cmp -s "$tmp/a.ppm" "$tmp/b.ppm" || fail "$build/pathtrace: the image on 2 threads differs from 1 thread's"
+checks=$((checks + 1))
+"$build/pathtrace" --spp 0 --out "$tmp/c.ppm" >/dev/null 2>&1
+rc=$?
+[ "$rc" = 2 ] || fail "$build/pathtrace --spp 0: exit status $rc, expected 2"
 
 echo "examples: $((checks - failed)) of $checks checks passed"
 [ "$failed" = 0 ]

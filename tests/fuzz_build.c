@@ -44,20 +44,26 @@
 
 #define FZ_MAX_RAYS 96
 
-#define FZ_CHECK(cond, ...)                                                                          \
-    do {                                                                                             \
-        if (!(cond)) {                                                                               \
-            fprintf(stderr, "fuzz_build: %s:%d: check failed: %s: ", __FILE__, __LINE__, #cond);      \
-            fprintf(stderr, __VA_ARGS__);                                                            \
-            fprintf(stderr, "\n");                                                                   \
-            __builtin_trap();                                                                        \
-        }                                                                                            \
+#define FZ_CHECK(cond, ...)                                                                                            \
+    do {                                                                                                               \
+        if (!(cond)) {                                                                                                 \
+            fprintf(stderr, "fuzz_build: %s:%d: check failed: %s: ", __FILE__, __LINE__, #cond);                       \
+            fprintf(stderr, __VA_ARGS__);                                                                              \
+            fprintf(stderr, "\n");                                                                                     \
+            __builtin_trap();                                                                                          \
+        }                                                                                                              \
     } while (0)
 
 /* == input reader: past the end every read gives zeros ====================================== */
-typedef struct fz_in { const uint8_t *p; size_t n, at; } fz_in;
+typedef struct fz_in {
+    const uint8_t *p;
+    size_t n, at;
+} fz_in;
 static uint8_t fz_u8(fz_in *in) { return in->at < in->n ? in->p[in->at++] : 0; }
-static uint16_t fz_u16(fz_in *in) { uint16_t a = fz_u8(in); return (uint16_t)(a | fz_u8(in) << 8); }
+static uint16_t fz_u16(fz_in *in) {
+    uint16_t a = fz_u8(in);
+    return (uint16_t)(a | fz_u8(in) << 8);
+}
 static float fz_raw(fz_in *in) {
     uint32_t b = 0;
     float f;
@@ -70,9 +76,12 @@ static float fz_raw(fz_in *in) {
 static float fz_coord(fz_in *in, int mode) {
     uint8_t t;
     switch (mode) {
-    case 0: return fz_raw(in);
-    case 1: return (float)(int8_t)fz_u8(in) * 0.25f;
-    case 2: return (float)(int16_t)fz_u16(in) * (1.0f / 256.0f);
+    case 0:
+        return fz_raw(in);
+    case 1:
+        return (float)(int8_t)fz_u8(in) * 0.25f;
+    case 2:
+        return (float)(int16_t)fz_u16(in) * (1.0f / 256.0f);
     default:
         t = fz_u8(in);
         return t >= 248 ? fz_raw(in) : (float)((int)t - 124) * 0.25f;
@@ -80,7 +89,9 @@ static float fz_coord(fz_in *in, int mode) {
 }
 
 /* == counting allocator that can fail one allocation ========================================= */
-typedef struct fz_alloc { long calls, live, fail_at; } fz_alloc;
+typedef struct fz_alloc {
+    long calls, live, fail_at;
+} fz_alloc;
 static void *fz_alloc_fn(size_t size, void *user) {
     fz_alloc *a = (fz_alloc *)user;
     long k = __atomic_fetch_add(&a->calls, 1, __ATOMIC_RELAXED);
@@ -98,13 +109,13 @@ static void fz_free_fn(void *p, void *user) {
 
 /* == the case built from the bytes =========================================================== */
 typedef struct fz_case {
-    bvh_build_desc desc;     /* options + triangles */
-    bvh_builder other;       /* second builder */
-    float *vbuf;             /* the caller's vertex buffer, exact size */
-    uint32_t *ibuf;          /* indices or NULL */
-    float *tris;             /* nt * 9 floats, fetched as bvh_build would (valid indices only) */
-    bvh_aabb *boxes;         /* per triangle; NaN box for a non-finite triangle */
-    uint32_t nt, bad;        /* triangles, triangles with a non-finite coordinate */
+    bvh_build_desc desc; /* options + triangles */
+    bvh_builder other;   /* second builder */
+    float *vbuf;         /* the caller's vertex buffer, exact size */
+    uint32_t *ibuf;      /* indices or NULL */
+    float *tris;         /* nt * 9 floats, fetched as bvh_build would (valid indices only) */
+    bvh_aabb *boxes;     /* per triangle; NaN box for a non-finite triangle */
+    uint32_t nt, bad;    /* triangles, triangles with a non-finite coordinate */
     int arg_err, idx_err, fail_alloc, batch, negative_tmin;
     fz_alloc alloc;
     bvh_ray rays[FZ_MAX_RAYS];
@@ -127,14 +138,19 @@ static void fz_parse_options(fz_in *in, fz_case *c, uint8_t *flags, uint8_t *ext
     bvh_build_desc *d = &c->desc;
     uint8_t b0 = fz_u8(in), b1 = fz_u8(in), lf, rad, th, st, fail;
     *flags = fz_u8(in);
-    lf = fz_u8(in); rad = fz_u8(in); th = fz_u8(in); st = fz_u8(in); fail = fz_u8(in);
+    lf = fz_u8(in);
+    rad = fz_u8(in);
+    th = fz_u8(in);
+    st = fz_u8(in);
+    fail = fz_u8(in);
     *nv = fz_u8(in);
     *nidx = fz_u8(in);
     c->nrays = fz_u8(in) % 16;
     *extra = fz_u8(in);
     d->builder = (bvh_builder)(1 + b0 % (BVH_BUILDER_COUNT - 1)); /* the table's rows after the default */
     c->other = (bvh_builder)(1 + b1 % (BVH_BUILDER_COUNT - 1));
-    if (c->other == d->builder) c->other = d->builder == BVH_BUILDER_PLOC ? BVH_BUILDER_PLOC_PARALLEL : BVH_BUILDER_PLOC;
+    if (c->other == d->builder)
+        c->other = d->builder == BVH_BUILDER_PLOC ? BVH_BUILDER_PLOC_PARALLEL : BVH_BUILDER_PLOC;
     d->skip_invalid = *flags & 1;
     d->max_leaf_size = (*extra & 4) ? fz_u16(in) : lf;
     d->ploc.radius = rad >= 240 ? 256u + (rad - 240u) % 3u : rad % 20u;
@@ -150,7 +166,11 @@ static void fz_parse_options(fz_in *in, fz_case *c, uint8_t *flags, uint8_t *ext
     d->triangles.stride = strides[st % 8];
     c->fail_alloc = (*flags & 0x80) != 0;
     c->alloc.fail_at = c->fail_alloc ? (long)fail : -1;
-    if (*extra & 1) { d->costs.interior = fz_raw(in); d->costs.leaf = fz_raw(in); d->costs.triangle = fz_raw(in); }
+    if (*extra & 1) {
+        d->costs.interior = fz_raw(in);
+        d->costs.leaf = fz_raw(in);
+        d->costs.triangle = fz_raw(in);
+    }
     if (*extra & 2) d->sah_midpoint.split_budget = fz_raw(in);
     c->batch = (*extra & 16) != 0;
     c->negative_tmin = (*extra & 64) != 0;
@@ -173,12 +193,17 @@ static void fz_parse_geometry(fz_in *in, fz_case *c, uint8_t flags, uint8_t extr
     for (i = 0; i < bytes / 4; i++) c->vbuf[i] = NAN;
     for (k = 0; k < nv; k++) {
         float *p = (float *)(void *)((char *)c->vbuf + (size_t)k * stride);
-        p[0] = fz_coord(in, mode); p[1] = fz_coord(in, mode); p[2] = fz_coord(in, mode);
+        p[0] = fz_coord(in, mode);
+        p[1] = fz_coord(in, mode);
+        p[2] = fz_coord(in, mode);
     }
     d->triangles.positions = c->vbuf;
     d->triangles.vertex_count = nv;
     c->nt = indexed ? nidx : nv / 3;
-    if (!indexed && (extra & 8) && c->nt) { c->nt++; c->idx_err = 1; } /* declares one more than the soup has */
+    if (!indexed && (extra & 8) && c->nt) {
+        c->nt++;
+        c->idx_err = 1;
+    } /* declares one more than the soup has */
     if (indexed) {
         c->ibuf = (uint32_t *)malloc(3 * (size_t)(c->nt ? c->nt : 1) * sizeof(uint32_t));
         FZ_CHECK(c->ibuf != NULL, "malloc");
@@ -210,7 +235,9 @@ static void fz_parse_geometry(fz_in *in, fz_case *c, uint8_t flags, uint8_t extr
         c->boxes[i] = bvh_aabb_empty();
         for (v = 0; v < 3; v++) {
             bvh_vec3 p;
-            p.x = t[3 * v]; p.y = t[3 * v + 1]; p.z = t[3 * v + 2];
+            p.x = t[3 * v];
+            p.y = t[3 * v + 1];
+            p.z = t[3 * v + 2];
             bvh_aabb_grow(&c->boxes[i], p);
         }
     }
@@ -220,9 +247,14 @@ static void fz_add_ray(fz_case *c, float ox, float oy, float oz, float dx, float
     bvh_ray *r;
     if (c->nrays >= FZ_MAX_RAYS) return;
     r = &c->rays[c->nrays++];
-    r->origin.x = ox; r->origin.y = oy; r->origin.z = oz;
-    r->dir.x = dx; r->dir.y = dy; r->dir.z = dz;
-    r->tmin = tmin; r->tmax = tmax;
+    r->origin.x = ox;
+    r->origin.y = oy;
+    r->origin.z = oz;
+    r->dir.x = dx;
+    r->dir.y = dy;
+    r->dir.z = dz;
+    r->tmin = tmin;
+    r->tmax = tmax;
 }
 /* Rays from the bytes, then fixed ones aimed at the finite triangles. */
 static void fz_parse_rays(fz_in *in, fz_case *c, int mode) {
@@ -246,7 +278,8 @@ static void fz_parse_rays(fz_in *in, fz_case *c, int mode) {
         float z0 = (i & 1) ? 0.0f : -0.0f, z1 = (i & 2) ? 0.0f : -0.0f;
         int axis = (int)(i % 3);
         if (!fz_finite9(t) || i % 2) continue;
-        fz_add_ray(c, cx + 1.25f, cy + 2.5f, cz - 3.75f, -1.25f, -2.5f, 3.75f, tmin0, BVH_INF); /* through the centroid */
+        fz_add_ray(c, cx + 1.25f, cy + 2.5f, cz - 3.75f, -1.25f, -2.5f, 3.75f, tmin0,
+                   BVH_INF); /* through the centroid */
         fz_add_ray(c, t[3] - 0.5f, t[4] + 2.0f, t[5] + 0.25f, 0.5f, -2.0f, -0.25f, tmin0, BVH_INF); /* through v1 */
         /* axis-parallel through v0's coordinates (origin on box planes), +0 / -0 elsewhere */
         fz_add_ray(c, axis == 0 ? t[0] - 4.0f : t[0], axis == 1 ? t[1] - 4.0f : t[1], axis == 2 ? t[2] - 4.0f : t[2],
@@ -266,7 +299,10 @@ static int fz_brute(const fz_case *c, const bvh_ray *ray, bvh_hit *best) {
     for (i = 0; i < c->nt; i++) {
         const float *t = c->tris + 9 * (size_t)i;
         if (!fz_finite9(t) || !bvh_intersect_triangle(ray, t, t + 3, t + 6, &h)) continue;
-        if (best->prim == BVH_INVALID || h.t < best->t) { *best = h; best->prim = i; }
+        if (best->prim == BVH_INVALID || h.t < best->t) {
+            *best = h;
+            best->prim = i;
+        }
     }
     return best->prim != BVH_INVALID;
 }
@@ -312,7 +348,8 @@ static void fz_check_rays(const fz_case *c, const bvh_tree *t) {
                  (double)want.u, (double)want.v);
         if (got != w || h.prim != want.prim) { /* print the triangles involved */
             uint32_t k, ids[2];
-            ids[0] = got ? h.prim : BVH_INVALID; ids[1] = w ? want.prim : BVH_INVALID;
+            ids[0] = got ? h.prim : BVH_INVALID;
+            ids[1] = w ? want.prim : BVH_INVALID;
             for (k = 0; k < 2; k++) {
                 const float *q = ids[k] < c->nt ? c->tris + 9 * (size_t)ids[k] : NULL;
                 if (q)
@@ -348,8 +385,8 @@ static void fz_check_tree(const fz_case *c, const bvh_tree *t) {
     FZ_CHECK(t->prim_count == c->nt && t->excluded == c->bad, "prims %u excluded %u, want %u %u", t->prim_count,
              t->excluded, c->nt, c->bad);
     FZ_CHECK(bvh_builder_get_info(t->builder, &info) == BVH_SUCCESS, "builder %d", (int)t->builder);
-    FZ_CHECK(info.splits_references ? t->ref_count >= c->nt - c->bad : t->ref_count == c->nt - c->bad,
-             "ref_count %u", t->ref_count);
+    FZ_CHECK(info.splits_references ? t->ref_count >= c->nt - c->bad : t->ref_count == c->nt - c->bad, "ref_count %u",
+             t->ref_count);
     {
         uint32_t lim = c->desc.max_leaf_size ? c->desc.max_leaf_size : info.max_leaf_size;
         FZ_CHECK(st.max_leaf_size <= lim, "%s: leaf of %u > %u", bvh_builder_name(t->builder), st.max_leaf_size, lim);
@@ -373,8 +410,10 @@ static bvh_result fz_build(fz_case *c, bvh_builder builder, bvh_tree *out) {
                      (r == BVH_ERROR_INVALID_GEOMETRY && geo_err) || (r == BVH_ERROR_OUT_OF_MEMORY && c->fail_alloc),
                  "%s: unexpected %s (arg %d idx %d geo %d alloc %d)", bvh_builder_name(builder), bvh_result_string(r),
                  c->arg_err, c->idx_err, geo_err, c->fail_alloc);
-        FZ_CHECK(out->nodes == NULL && out->prims == NULL && out->tris == NULL && out->node_count == 0, "tree not empty");
-        FZ_CHECK(c->alloc.live == 0, "%s: %ld blocks leaked by a failed build", bvh_builder_name(builder), c->alloc.live);
+        FZ_CHECK(out->nodes == NULL && out->prims == NULL && out->tris == NULL && out->node_count == 0,
+                 "tree not empty");
+        FZ_CHECK(c->alloc.live == 0, "%s: %ld blocks leaked by a failed build", bvh_builder_name(builder),
+                 c->alloc.live);
         return r;
     }
     FZ_CHECK(!c->arg_err && !c->idx_err && !geo_err, "%s: success on bad input (arg %d idx %d geo %d)",
@@ -427,7 +466,10 @@ int main(int argc, char **argv) {
         FILE *f = fopen(argv[i], "rb");
         static uint8_t buf[1 << 16];
         size_t n;
-        if (!f) { perror(argv[i]); return 2; }
+        if (!f) {
+            perror(argv[i]);
+            return 2;
+        }
         n = fread(buf, 1, sizeof buf, f);
         fclose(f);
         LLVMFuzzerTestOneInput(buf, n);
@@ -444,7 +486,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     bvh_tree a, b;
     bvh_result ra, rb;
     FZ_CHECK(c != NULL, "calloc");
-    in.p = data; in.n = size; in.at = 0;
+    in.p = data;
+    in.n = size;
+    in.at = 0;
     fz_parse_options(&in, c, &flags, &extra, &nv, &nidx);
     fz_parse_geometry(&in, c, flags, extra, nv, nidx);
     fz_parse_rays(&in, c, (flags >> 2) & 3);
@@ -461,7 +505,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     bvh_free(&a);
     bvh_free(&b);
     FZ_CHECK(c->alloc.live == 0, "%ld blocks live after bvh_free", c->alloc.live);
-    free(c->vbuf); free(c->ibuf); free(c->tris); free(c->boxes);
+    free(c->vbuf);
+    free(c->ibuf);
+    free(c->tris);
+    free(c->boxes);
     free(c);
     return 0;
 }

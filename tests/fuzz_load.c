@@ -32,17 +32,20 @@
 
 #include "tree_diff.h"
 
-#define FZ_CHECK(cond, ...)                                                                          \
-    do {                                                                                             \
-        if (!(cond)) {                                                                               \
-            fprintf(stderr, "fuzz_load: %s:%d: check failed: %s: ", __FILE__, __LINE__, #cond);       \
-            fprintf(stderr, __VA_ARGS__);                                                            \
-            fputc('\n', stderr);                                                                     \
-            abort();                                                                                 \
-        }                                                                                            \
+#define FZ_CHECK(cond, ...)                                                                                            \
+    do {                                                                                                               \
+        if (!(cond)) {                                                                                                 \
+            fprintf(stderr, "fuzz_load: %s:%d: check failed: %s: ", __FILE__, __LINE__, #cond);                        \
+            fprintf(stderr, __VA_ARGS__);                                                                              \
+            fputc('\n', stderr);                                                                                       \
+            abort();                                                                                                   \
+        }                                                                                                              \
     } while (0)
 
-typedef struct fz_alloc { long live; size_t largest, limit; } fz_alloc;
+typedef struct fz_alloc {
+    long live;
+    size_t largest, limit;
+} fz_alloc;
 static void *fz_alloc_fn(size_t size, void *user) {
     fz_alloc *a = (fz_alloc *)user;
     void *p;
@@ -56,7 +59,10 @@ static void fz_free_fn(void *p, void *user) {
     if (p) a->live--;
     free(p);
 }
-typedef struct fz_stream { const uint8_t *p; size_t size, pos, piece; } fz_stream;
+typedef struct fz_stream {
+    const uint8_t *p;
+    size_t size, pos, piece;
+} fz_stream;
 static size_t fz_read(void *user, void *data, size_t size) {
     fz_stream *s = (fz_stream *)user;
     size_t n = size < s->piece ? size : s->piece; /* short reads are the callback's right too */
@@ -71,7 +77,10 @@ static size_t fz_read(void *user, void *data, size_t size) {
     }
     return done;
 }
-typedef struct fz_buf { uint8_t *p; size_t size; } fz_buf;
+typedef struct fz_buf {
+    uint8_t *p;
+    size_t size;
+} fz_buf;
 static size_t fz_write(void *user, const void *data, size_t size) {
     fz_buf *b = (fz_buf *)user;
     uint8_t *q = (uint8_t *)realloc(b->p, b->size + size);
@@ -130,7 +139,9 @@ static void fz_after_success(bvh_tree *t) {
         ray.origin.x = b.min.x + f * (b.max.x - b.min.x);
         ray.origin.y = b.max.y + 1.0f;
         ray.origin.z = b.min.z + (1.0f - f) * (b.max.z - b.min.z);
-        ray.dir.x = 0.1f * f; ray.dir.y = -1.0f; ray.dir.z = 0.05f;
+        ray.dir.x = 0.1f * f;
+        ray.dir.y = -1.0f;
+        ray.dir.z = 0.05f;
         ray.tmin = 0.0f;
         ray.tmax = BVH_INF;
         (void)bvh_intersect(t, &ray, &hit);
@@ -187,7 +198,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     ld.threads = 2;
     ld.trace_width = (mode & 32) ? 8 : (mode & 64) ? 2 : 0;
     if (mode & 2) {
-        st.p = file; st.size = size; st.pos = 0; st.piece = 1 + ((mode >> 2) & 7);
+        st.p = file;
+        st.size = size;
+        st.pos = 0;
+        st.piece = 1 + ((mode >> 2) & 7);
         ld.read = fz_read;
         ld.user = &st;
         ld.max_bytes = 4 * size + 64; /* a stream: the caller's cap */
@@ -241,8 +255,12 @@ int main(int argc, char **argv) {
         v[i] = (float)(seed >> 8) / 16777216.0f * 4.0f + (float)(i / 9 % 4);
     }
     for (i = 0; i < 24; i++) {
-        boxes[i].min.x = v[9 * i]; boxes[i].min.y = v[9 * i + 1]; boxes[i].min.z = v[9 * i + 2];
-        boxes[i].max.x = v[9 * i] + 0.5f; boxes[i].max.y = v[9 * i + 1] + 0.25f; boxes[i].max.z = v[9 * i + 2] + 1.0f;
+        boxes[i].min.x = v[9 * i];
+        boxes[i].min.y = v[9 * i + 1];
+        boxes[i].min.z = v[9 * i + 2];
+        boxes[i].max.x = v[9 * i] + 0.5f;
+        boxes[i].max.y = v[9 * i + 1] + 0.25f;
+        boxes[i].max.z = v[9 * i + 2] + 1.0f;
     }
     for (b = 1; b < BVH_BUILDER_COUNT; b++) {
         uint32_t n;

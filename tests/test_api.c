@@ -34,8 +34,8 @@ static void result_strings(void **state) {
 }
 
 static void builder_names(void **state) {
-    static const char *const names[BVH_BUILDER_COUNT] = {"default", "top-down", "bottom-up", "sah-midpoint", "ploc",
-                                                         "ploc-parallel"};
+    static const char *const names[BVH_BUILDER_COUNT] = {"default",      "top-down", "bottom-up",
+                                                         "sah-midpoint", "ploc",     "ploc-parallel"};
     bvh_builder out;
     int b;
     (void)state;
@@ -78,8 +78,10 @@ static bvh_result build_expect(const bvh_build_desc *d, bvh_result want) {
     if (r != want)
         fail_msg("%s: got \"%s\", expected \"%s\"", bvh_builder_name(d->builder), bvh_result_string(r),
                  bvh_result_string(want));
-    if (r == BVH_SUCCESS) bvh_free(&t);
-    else assert_tree_empty(&t);
+    if (r == BVH_SUCCESS)
+        bvh_free(&t);
+    else
+        assert_tree_empty(&t);
     return r;
 }
 
@@ -104,43 +106,61 @@ static void build_argument_errors(void **state) {
         bvh_costs bad_costs[5] = {{-1, 0, 1}, {1, -0.5f, 1}, {1, 0, -1}, {NAN, 0, 1}, {1, BVH_INF, 1}};
         int k;
         build_expect(&ok, BVH_SUCCESS);
-        d = ok; d.triangles.stride = 8;
+        d = ok;
+        d.triangles.stride = 8;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.triangles.stride = 4;
+        d = ok;
+        d.triangles.stride = 4;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.triangles.stride = 12;
+        d = ok;
+        d.triangles.stride = 12;
         build_expect(&d, BVH_SUCCESS);
-        d = ok; d.triangles.positions = NULL;
+        d = ok;
+        d.triangles.positions = NULL;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.triangles.vertex_count = 3 * 50 - 1; /* a soup needs 3 vertices per triangle */
+        d = ok;
+        d.triangles.vertex_count = 3 * 50 - 1; /* a soup needs 3 vertices per triangle */
         build_expect(&d, BVH_ERROR_INDEX_OUT_OF_RANGE);
-        d = ok; d.max_leaf_size = 256;
+        d = ok;
+        d.max_leaf_size = 256;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.max_leaf_size = 255;
+        d = ok;
+        d.max_leaf_size = 255;
         build_expect(&d, BVH_SUCCESS);
-        d = ok; d.ploc.radius = 257;
+        d = ok;
+        d.ploc.radius = 257;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.trace_width = 3;
+        d = ok;
+        d.trace_width = 3;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.trace_width = 4;
+        d = ok;
+        d.trace_width = 4;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.trace_width = 8;
+        d = ok;
+        d.trace_width = 8;
         build_expect(&d, BVH_SUCCESS);
-        d = ok; d.trace_width = 2;
+        d = ok;
+        d.trace_width = 2;
         build_expect(&d, BVH_SUCCESS);
-        d = ok; d.sah_midpoint.split_budget = 1.5f;
+        d = ok;
+        d.sah_midpoint.split_budget = 1.5f;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.sah_midpoint.split_budget = NAN;
+        d = ok;
+        d.sah_midpoint.split_budget = NAN;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
         for (k = 0; k < 5; k++) {
-            d = ok; d.costs = bad_costs[k];
+            d = ok;
+            d.costs = bad_costs[k];
             build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
         }
-        d = ok; d.builder = BVH_BUILDER_COUNT;
+        d = ok;
+        d.builder = BVH_BUILDER_COUNT;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.builder = (bvh_builder)-1;
+        d = ok;
+        d.builder = (bvh_builder)-1;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
-        d = ok; d.box_count = 3; /* triangles and boxes at once */
+        d = ok;
+        d.box_count = 3; /* triangles and boxes at once */
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
         /* indexed: one index equal to vertex_count, or far beyond it */
         d = tu_scene_desc(&mesh, builder);
@@ -189,7 +209,8 @@ static void check_skip_invalid(const tu_scene *s, const uint8_t *bad, uint32_t n
         assert_int_equal(t.excluded, nbad);
         if (tu_builder(b) != BVH_BUILDER_SAH_MIDPOINT) assert_int_equal(t.ref_count, s->tri_count - nbad);
         for (k = 0; k < t.ref_count; k++)
-            if (bad[t.prims[k]]) fail_msg("%s: excluded triangle %u is in the tree", bvh_builder_name(t.builder), t.prims[k]);
+            if (bad[t.prims[k]])
+                fail_msg("%s: excluded triangle %u is in the tree", bvh_builder_name(t.builder), t.prims[k]);
         assert_no_hit_on(&t, tris, s->tri_count, bad);
         bvh_free(&t);
     }
@@ -218,7 +239,10 @@ static void invalid_geometry(void **state) {
     v = s.indices[3 * 40 + 2];
     tu_vertex(&s, v)[2] = NAN;
     for (i = 0; i < s.tri_count; i++)
-        if (s.indices[3 * i] == v || s.indices[3 * i + 1] == v || s.indices[3 * i + 2] == v) { bad[i] = 1; nbad++; }
+        if (s.indices[3 * i] == v || s.indices[3 * i + 1] == v || s.indices[3 * i + 2] == v) {
+            bad[i] = 1;
+            nbad++;
+        }
     assert_true(nbad >= 3);
     check_skip_invalid(&s, bad, nbad);
     free(bad);
@@ -266,7 +290,10 @@ static void zero_triangles(void **state) {
         bvh_aabb bounds;
         memset(&d, 0, sizeof d);
         d.builder = b < TU_BUILDER_COUNT ? tu_builder(b) : BVH_BUILDER_DEFAULT;
-        if (b & 1) { d.triangles.positions = dummy; d.triangles.vertex_count = 1; }
+        if (b & 1) {
+            d.triangles.positions = dummy;
+            d.triangles.vertex_count = 1;
+        }
         assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
         assert_int_equal(t.node_count, 0);
         assert_int_equal(t.ref_count, 0);
@@ -331,7 +358,8 @@ static void box_input(void **state) {
         assert_int_equal(t.prim_count, n);
         if (bvh_validate(&t, boxes, &rep) != BVH_SUCCESS)
             fail_msg("%s: box tree: %s (node %u)", bvh_builder_name(t.builder), rep.message, rep.node);
-        assert_int_equal(bvh_validate(&t, NULL, &rep), BVH_ERROR_INVALID_ARGUMENT); /* nothing to check leaves against */
+        assert_int_equal(bvh_validate(&t, NULL, &rep),
+                         BVH_ERROR_INVALID_ARGUMENT); /* nothing to check leaves against */
         assert_int_equal(bvh_get_stats(&t, &st), BVH_SUCCESS);
         assert_int_equal(st.triangle_bytes, 0);
         assert_true(st.bytes == (size_t)st.nodes * 32 + (size_t)st.refs * 4);
@@ -362,7 +390,9 @@ static void box_input(void **state) {
             d.skip_invalid = 1;
             assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
             assert_int_equal(t.excluded, 3);
-            boxes[3] = keep[0]; boxes[50] = keep[1]; boxes[399] = keep[2];
+            boxes[3] = keep[0];
+            boxes[50] = keep[1];
+            boxes[399] = keep[2];
             if (bvh_validate(&t, boxes, &rep) != BVH_SUCCESS)
                 fail_msg("%s: box tree with skipped boxes: %s", bvh_builder_name(t.builder), rep.message);
             for (i = 0; i < t.ref_count; i++) assert_true(t.prims[i] != 3 && t.prims[i] != 50 && t.prims[i] != 399);
@@ -378,7 +408,9 @@ static void box_input(void **state) {
 }
 
 /* == allocation failures ========================================================================== */
-typedef struct counting { long calls, fail_at, live; } counting;
+typedef struct counting {
+    long calls, fail_at, live;
+} counting;
 static void *counting_alloc(size_t size, void *user) {
     counting *c = (counting *)user;
     void *p;
@@ -425,15 +457,17 @@ static void failing_allocator(void **state) {
         assert_int_equal(c.live, 0);
         for (k = 1; k <= total; k++) {
             bvh_result r;
-            c.calls = 0; c.live = 0; c.fail_at = k;
+            c.calls = 0;
+            c.live = 0;
+            c.fail_at = k;
             memset(&t, 0x5a, sizeof t);
             r = bvh_build(&t, &d);
             if (r != BVH_ERROR_OUT_OF_MEMORY)
                 fail_msg("%s: allocation %ld of %ld failing: got \"%s\"", bvh_builder_name(tu_builder(b)), k, total,
                          bvh_result_string(r));
             if (c.live != 0)
-                fail_msg("%s: allocation %ld of %ld failing: %ld allocations leaked", bvh_builder_name(tu_builder(b)), k,
-                         total, c.live);
+                fail_msg("%s: allocation %ld of %ld failing: %ld allocations leaked", bvh_builder_name(tu_builder(b)),
+                         k, total, c.live);
             assert_tree_empty(&t);
             bvh_free(&t);
             assert_int_equal(c.live, 0);
@@ -547,24 +581,29 @@ static void failing_allocator_after_build(void **state) {
     d.allocator = counting_allocator(&c);
     assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
     /* validator */
-    c.calls = 0; c.fail_at = 0;
+    c.calls = 0;
+    c.fail_at = 0;
     assert_int_equal(bvh_validate(&t, NULL, &rep), BVH_SUCCESS);
     calls = c.calls;
     for (k = 1; k <= calls; k++) {
         long live = c.live;
-        c.calls = 0; c.fail_at = k;
+        c.calls = 0;
+        c.fail_at = k;
         assert_int_equal(bvh_validate(&t, NULL, &rep), BVH_ERROR_OUT_OF_MEMORY);
         assert_int_equal(c.live, live);
     }
     /* batch tracing on 2 threads */
-    c.calls = 0; c.fail_at = 0;
+    c.calls = 0;
+    c.fail_at = 0;
     assert_int_equal(bvh_intersect_batch(&t, rays, hits, 1024, 2), BVH_SUCCESS);
     calls = c.calls;
     for (k = 1; k <= calls; k++) {
         long live = c.live;
-        c.calls = 0; c.fail_at = k;
+        c.calls = 0;
+        c.fail_at = k;
         assert_int_equal(bvh_intersect_batch(&t, rays, hits, 1024, 2), BVH_ERROR_OUT_OF_MEMORY);
-        c.calls = 0; c.fail_at = k;
+        c.calls = 0;
+        c.fail_at = k;
         assert_int_equal(bvh_occluded_batch(&t, rays, occ, 1024, 2), BVH_ERROR_OUT_OF_MEMORY);
         assert_int_equal(c.live, live);
     }
@@ -727,7 +766,11 @@ static bvh_tree copy_tree(const bvh_tree *t, uint32_t extra_nodes) {
     return c;
 }
 static void free_copy(bvh_tree *c) {
-    free(c->nodes); free(c->prims); free(c->tris); free(c->nodes8); free(c->tri4);
+    free(c->nodes);
+    free(c->prims);
+    free(c->tris);
+    free(c->nodes8);
+    free(c->tri4);
     memset(c, 0, sizeof *c);
 }
 /* bvh_validate reports the corruption with a message; the copy is freed. */
@@ -765,8 +808,14 @@ static uint32_t inner_interior(const bvh_tree *t, uint32_t *pair) {
     for (i = 0; i < t->node_count; i++) {
         const bvh_node *p = &t->nodes[i];
         if (p->count) continue;
-        if (!t->nodes[p->index].count) { *pair = p->index; return p->index; }
-        if (!t->nodes[p->index + 1].count) { *pair = p->index; return p->index + 1; }
+        if (!t->nodes[p->index].count) {
+            *pair = p->index;
+            return p->index;
+        }
+        if (!t->nodes[p->index + 1].count) {
+            *pair = p->index;
+            return p->index + 1;
+        }
     }
     fail_msg("no interior node below the root");
     return 0;
@@ -776,13 +825,17 @@ static uint32_t inner_interior(const bvh_tree *t, uint32_t *pair) {
 static void child_before_parent(void **state) {
     static const bvh_aabb boxes[3] = {{{0, 0, 0}, {1, 1, 1}}, {{2, 0, 0}, {3, 1, 1}}, {{4, 0, 0}, {5, 1, 1}}};
     /* in order: root -> (leaf prim 2, interior -> (leaf prim 0, leaf prim 1)) */
-    static const bvh_node in_order[5] = {
-        {{0, 0, 0}, 1, {5, 1, 1}, 0}, {{4, 0, 0}, 0, {5, 1, 1}, 1}, {{0, 0, 0}, 3, {3, 1, 1}, 0},
-        {{0, 0, 0}, 1, {1, 1, 1}, 1}, {{2, 0, 0}, 2, {3, 1, 1}, 1}};
+    static const bvh_node in_order[5] = {{{0, 0, 0}, 1, {5, 1, 1}, 0},
+                                         {{4, 0, 0}, 0, {5, 1, 1}, 1},
+                                         {{0, 0, 0}, 3, {3, 1, 1}, 0},
+                                         {{0, 0, 0}, 1, {1, 1, 1}, 1},
+                                         {{2, 0, 0}, 2, {3, 1, 1}, 1}};
     /* the same tree with the interior pair's leaves stored before it: root -> (3, 4), 4 -> (1, 2) */
-    static const bvh_node reversed[5] = {
-        {{0, 0, 0}, 3, {5, 1, 1}, 0}, {{0, 0, 0}, 1, {1, 1, 1}, 1}, {{2, 0, 0}, 2, {3, 1, 1}, 1},
-        {{4, 0, 0}, 0, {5, 1, 1}, 1}, {{0, 0, 0}, 1, {3, 1, 1}, 0}};
+    static const bvh_node reversed[5] = {{{0, 0, 0}, 3, {5, 1, 1}, 0},
+                                         {{0, 0, 0}, 1, {1, 1, 1}, 1},
+                                         {{2, 0, 0}, 2, {3, 1, 1}, 1},
+                                         {{4, 0, 0}, 0, {5, 1, 1}, 1},
+                                         {{0, 0, 0}, 1, {3, 1, 1}, 0}};
     uint32_t prims[3] = {2, 0, 1};
     bvh_node nodes[5];
     bvh_tree t;
@@ -855,14 +908,20 @@ static void corrupted_trees(void **state) {
         /* a cycle: an interior node's children are its own pair. All boxes are made the root's
            first, so that the cycle is the only defect. */
         c = copy_tree(&t, 0);
-        for (i = 0; i < c.node_count; i++) { c.nodes[i].min = c.nodes[0].min; c.nodes[i].max = c.nodes[0].max; }
+        for (i = 0; i < c.node_count; i++) {
+            c.nodes[i].min = c.nodes[0].min;
+            c.nodes[i].max = c.nodes[0].max;
+        }
         assert_int_equal(bvh_validate(&c, NULL, &rep), BVH_SUCCESS);
         x = inner_interior(&c, &pair);
         c.nodes[x].index = pair;
         expect_broken(&c, "cycle (own pair as children)");
 
         c = copy_tree(&t, 0); /* a cycle back to the root */
-        for (i = 0; i < c.node_count; i++) { c.nodes[i].min = c.nodes[0].min; c.nodes[i].max = c.nodes[0].max; }
+        for (i = 0; i < c.node_count; i++) {
+            c.nodes[i].min = c.nodes[0].min;
+            c.nodes[i].max = c.nodes[0].max;
+        }
         x = inner_interior(&c, &pair);
         c.nodes[x].index = 0;
         expect_broken(&c, "cycle (root as child)");
@@ -915,8 +974,10 @@ static void corrupted_trees(void **state) {
         c.nodes8[0].min[2][1] = NAN;
         expect_invalid(&c, "8-wide NaN");
         c = copy_tree(&t, 0); /* a slot pointing back at the root (a cycle), or a leaf past the end */
-        if (c.nodes8[0].count[0]) c.nodes8[0].child[0] = c.tri4_count;
-        else c.nodes8[0].child[0] = 0;
+        if (c.nodes8[0].count[0])
+            c.nodes8[0].child[0] = c.tri4_count;
+        else
+            c.nodes8[0].child[0] = 0;
         expect_invalid(&c, c.nodes8[0].count[0] ? "8-wide leaf past the end" : "8-wide cycle to the root");
         for (i = 0; i < t.node8_count * 8; i++) /* a leaf slot */
             if (t.nodes8[i / 8].count[i % 8]) break;
@@ -958,14 +1019,19 @@ static void make_chain(uint32_t levels, bvh_tree *t) {
     assert_true(t->nodes && t->prims && t->tris);
     for (k = 0; k < n; k++) {
         float *v = t->tris + 9 * (size_t)k;
-        tu_set3(v, 0, 0, (float)k); tu_set3(v + 3, 1, 0, (float)k); tu_set3(v + 6, 0, 1, (float)k);
+        tu_set3(v, 0, 0, (float)k);
+        tu_set3(v + 3, 1, 0, (float)k);
+        tu_set3(v + 6, 0, 1, (float)k);
         t->prims[k] = k;
     }
     for (k = 0; k + 1 < n; k++) { /* interior node at 2k: children 2k + 1 (leaf k) and 2k + 2 */
-        t->nodes[2 * k].index = 2 * k + 1; t->nodes[2 * k].count = 0;
-        t->nodes[2 * k + 1].index = k; t->nodes[2 * k + 1].count = 1;
+        t->nodes[2 * k].index = 2 * k + 1;
+        t->nodes[2 * k].count = 0;
+        t->nodes[2 * k + 1].index = k;
+        t->nodes[2 * k + 1].count = 1;
     }
-    t->nodes[2 * (n - 1)].index = n - 1; t->nodes[2 * (n - 1)].count = 1;
+    t->nodes[2 * (n - 1)].index = n - 1;
+    t->nodes[2 * (n - 1)].count = 1;
     for (k = 0; k < 2 * n - 1; k++) {
         uint32_t first = t->nodes[k].count ? t->nodes[k].index : k / 2;
         t->nodes[k].min = tu_v3(0, 0, (float)first);

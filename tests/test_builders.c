@@ -19,15 +19,19 @@ static void check_stats(const tu_scene *s, const bvh_tree *t, uint32_t max_leaf)
     const char *name = bvh_builder_name(t->builder);
     assert_int_equal(bvh_get_stats(t, &st), BVH_SUCCESS);
     for (i = 0; i < t->node_count; i++)
-        if (t->nodes[i].count) { leaves++; refs += t->nodes[i].count; }
+        if (t->nodes[i].count) {
+            leaves++;
+            refs += t->nodes[i].count;
+        }
     if (st.nodes != t->node_count || st.refs != t->ref_count || st.leaves != leaves || refs != t->ref_count ||
         st.bytes != (size_t)st.nodes * 32 + (size_t)st.refs * 4 || st.triangle_bytes != (size_t)st.refs * 36 ||
         (t->node_count && st.leaves * 2 - 1 != st.nodes) || st.max_depth > BVH_MAX_DEPTH ||
         st.max_leaf_size > max_leaf || (t->node_count && (st.max_depth < 1 || st.max_leaf_size < 1)))
-        fail_msg("%s/%s: stats nodes %u leaves %u (walk %u) refs %u (leaf sum %u, tree %u) depth %u max leaf %u (limit %u) "
-                 "bytes %zu triangle bytes %zu",
-                 s->name, name, st.nodes, st.leaves, leaves, st.refs, refs, t->ref_count, st.max_depth,
-                 st.max_leaf_size, max_leaf, st.bytes, st.triangle_bytes);
+        fail_msg(
+            "%s/%s: stats nodes %u leaves %u (walk %u) refs %u (leaf sum %u, tree %u) depth %u max leaf %u (limit %u) "
+            "bytes %zu triangle bytes %zu",
+            s->name, name, st.nodes, st.leaves, leaves, st.refs, refs, t->ref_count, st.max_depth, st.max_leaf_size,
+            max_leaf, st.bytes, st.triangle_bytes);
 }
 
 /* Fields, triangle copy and root box of a tree built from scene s. */
@@ -40,8 +44,10 @@ static void check_tree(const tu_scene *s, const float *tris, const bvh_aabb *box
     assert_int_equal(t->prim_count, s->tri_count);
     assert_int_equal(t->excluded, 0);
     assert_non_null(t->tris);
-    if (b == BVH_BUILDER_SAH_MIDPOINT) assert_true(t->ref_count >= s->tri_count); /* it may split references */
-    else assert_int_equal(t->ref_count, s->tri_count);
+    if (b == BVH_BUILDER_SAH_MIDPOINT)
+        assert_true(t->ref_count >= s->tri_count); /* it may split references */
+    else
+        assert_int_equal(t->ref_count, s->tri_count);
     if (bvh_validate(t, boxes, &rep) != BVH_SUCCESS)
         fail_msg("%s/%s: bvh_validate with caller boxes: %s (node %u)", s->name, name, rep.message, rep.node);
     for (k = 0; k < t->ref_count; k++)
@@ -61,7 +67,10 @@ static void every_builder_valid(void **state) {
     float *tris;
     bvh_aabb *boxes;
     uint32_t i;
-    if (!tu_scene_make(id, &s)) { skip(); return; }
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
     tris = tu_scene_tris(&s);
     boxes = (bvh_aabb *)malloc(s.tri_count * sizeof *boxes);
     assert_non_null(boxes);
@@ -78,7 +87,8 @@ static void every_builder_valid(void **state) {
             d.threads = threads[th];
             tu_build_valid(&s, &d, &again);
             diff = tree_diff(&t, &again);
-            if (diff) fail_msg("%s/%s: %s differ on %u threads", s.name, bvh_builder_name(tu_builder(b)), diff, threads[th]);
+            if (diff)
+                fail_msg("%s/%s: %s differ on %u threads", s.name, bvh_builder_name(tu_builder(b)), diff, threads[th]);
             bvh_free(&again);
         }
         bvh_free(&t);
@@ -97,7 +107,10 @@ static void builders_agree(void **state) {
     bvh_ray *rays;
     bvh_hit *first, h;
     size_t i, count[TU_BUILDER_COUNT], differ[TU_BUILDER_COUNT];
-    if (!tu_scene_make(id, &s)) { skip(); return; }
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
     rays = (bvh_ray *)malloc(RAYS * sizeof *rays);
     first = (bvh_hit *)malloc(RAYS * sizeof *first);
     assert_true(rays && first);
@@ -127,7 +140,9 @@ static void builders_agree(void **state) {
         assert_int_equal(count[b], count[0]);
         assert_int_equal(differ[b], 0);
     }
-    free(rays); free(first); free(tris);
+    free(rays);
+    free(first);
+    free(tris);
     tu_scene_free(&s);
 }
 
@@ -164,7 +179,10 @@ static void ploc_parallel_equals_ploc(void **state) {
     int id = tu_state_id(state);
     tu_scene s;
     bvh_build_desc d;
-    if (!tu_scene_make(id, &s)) { skip(); return; }
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
     d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
     ploc_parallel_same_tree(&s, &d);
     tu_scene_free(&s);
@@ -190,7 +208,9 @@ static void ploc_parallel_equals_ploc_options(void **state) {
         ploc_parallel_same_tree(&s, &d);
     }
     d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
-    d.costs.interior = 2.0f; d.costs.leaf = 0.5f; d.costs.triangle = 3.0f;
+    d.costs.interior = 2.0f;
+    d.costs.leaf = 0.5f;
+    d.costs.triangle = 3.0f;
     ploc_parallel_same_tree(&s, &d);
     tu_scene_free(&s);
     tu_scene_grid(&s);
@@ -229,10 +249,17 @@ static void ploc_top_variants(void **state) {
         bvh_hit *want = (bvh_hit *)malloc(RAYS * sizeof *want);
         double sah[sizeof tops / sizeof tops[0]];
         assert_true(rays && want);
-        if (scene == 0) tu_scene_random(&s, 6000, 0x544f50ULL);
-        else if (scene == 1) tu_scene_grid(&s);
-        else if (scene == 2) tu_scene_duplicates(&s);
-        else if (!tu_scene_bunny(&s)) { free(rays); free(want); continue; }
+        if (scene == 0)
+            tu_scene_random(&s, 6000, 0x544f50ULL);
+        else if (scene == 1)
+            tu_scene_grid(&s);
+        else if (scene == 2)
+            tu_scene_duplicates(&s);
+        else if (!tu_scene_bunny(&s)) {
+            free(rays);
+            free(want);
+            continue;
+        }
         tris = tu_scene_tris(&s);
         tu_make_rays(tris, s.tri_count, 0x746f70ULL + (uint64_t)scene, rays, RAYS);
         tu_oracle_run(tris, s.tri_count, rays, RAYS, want); /* brute force, once per scene */
@@ -250,7 +277,9 @@ static void ploc_top_variants(void **state) {
             if (k > 0) assert_true(sah[k] <= sah[0] * 1.001);
         }
         if (scene == 0) assert_true(sah[4] < sah[0] * 0.99); /* the default top is taken and better */
-        free(rays); free(want); free(tris);
+        free(rays);
+        free(want);
+        free(tris);
         tu_scene_free(&s);
     }
 }
@@ -299,15 +328,18 @@ static void memory_budget(void **state) {
             }
             bvh_free(&t);
             if (z == 0) ploc_parallel_same_tree(&s, &d);
-            print_message("random:%-6u budget %10u: %.2f bytes/tri, SAH %.4f\n", sizes[z], budgets[k], bytes[k], sah[k]);
+            print_message("random:%-6u budget %10u: %.2f bytes/tri, SAH %.4f\n", sizes[z], budgets[k], bytes[k],
+                          sah[k]);
         }
-        assert_true(bytes[0] > 40.0);                      /* the budget has something to do */
+        assert_true(bytes[0] > 40.0); /* the budget has something to do */
         assert_true(bytes[1] <= 40.0 && bytes[1] >= 0.99 * 40.0 - 0.01);
         assert_true(bytes[2] <= 60.0 && bytes[2] > bytes[1]);
         assert_true(bytes[3] <= bytes[1]);
         assert_true(sah[1] >= sah[0] && sah[1] <= 1.06 * sah[0]); /* a bounded price for the bytes */
         assert_true(sah[2] <= sah[1]);
-        free(rays); free(want); free(tris);
+        free(rays);
+        free(want);
+        free(tris);
         tu_scene_free(&s);
     }
     { /* leaves of one triangle cannot fit in 40 bytes: the tree is then the unbudgeted one */
@@ -323,7 +355,8 @@ static void memory_budget(void **state) {
         assert_int_equal(a.node_count, 2 * s.tri_count - 1);
         assert_int_equal(a.node_count, b.node_count);
         assert_memory_equal(a.nodes, b.nodes, a.node_count * sizeof(bvh_node));
-        bvh_free(&a); bvh_free(&b);
+        bvh_free(&a);
+        bvh_free(&b);
         tu_scene_free(&s);
     }
 }
@@ -336,8 +369,10 @@ static void leaf_sizes(void **state) {
     (void)state;
     for (scene = 0; scene < 2; scene++) {
         tu_scene s;
-        if (scene == 0) tu_scene_random(&s, 1000, 0x4c454146ULL);
-        else tu_scene_duplicates(&s);
+        if (scene == 0)
+            tu_scene_random(&s, 1000, 0x4c454146ULL);
+        else
+            tu_scene_duplicates(&s);
         for (b = 0; b < TU_BUILDER_COUNT; b++)
             for (k = 0; k < sizeof leaf / sizeof leaf[0]; k++) {
                 bvh_tree t;
@@ -396,11 +431,16 @@ static void options_build_valid(void **state) {
    top digit (one scatter, then each range in cache), one top digit (on several threads, the LSD
    passes instead), three top digits (ranges over a quarter: LSD on several threads), few
    distinct keys (ties), all equal; sizes around the insertion-sort threshold and larger. */
-typedef struct sort_job { bvh__sort *s; } sort_job;
+typedef struct sort_job {
+    bvh__sort *s;
+} sort_job;
 static void sort_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__radix_sort_team(((sort_job *)arg)->s, tid, nt, team);
 }
-typedef struct sort_pair { uint64_t key; uint32_t val; } sort_pair;
+typedef struct sort_pair {
+    uint64_t key;
+    uint32_t val;
+} sort_pair;
 static int sort_pair_cmp(const void *a, const void *b) {
     const sort_pair *x = (const sort_pair *)a, *y = (const sort_pair *)b;
     if (x->key != y->key) return x->key < y->key ? -1 : 1;
@@ -409,11 +449,16 @@ static int sort_pair_cmp(const void *a, const void *b) {
 static uint64_t sort_key(tu_rng *r, int pattern) {
     uint64_t lo = (uint64_t)tu_u32(r) << 32 | tu_u32(r);
     switch (pattern) {
-    case 0: return lo >> 1;                                                   /* 63 random bits */
-    case 1: return (uint64_t)0x5a5 << 52 | (lo & (((uint64_t)1 << 52) - 1)); /* one top digit */
-    case 2: return (uint64_t)(1 + tu_below(r, 3)) << 53 | (lo >> 20);         /* three top digits */
-    case 3: return (uint64_t)tu_below(r, 5) << 40 | tu_below(r, 3);           /* few distinct keys */
-    default: return 42;                                                       /* all equal */
+    case 0:
+        return lo >> 1; /* 63 random bits */
+    case 1:
+        return (uint64_t)0x5a5 << 52 | (lo & (((uint64_t)1 << 52) - 1)); /* one top digit */
+    case 2:
+        return (uint64_t)(1 + tu_below(r, 3)) << 53 | (lo >> 20); /* three top digits */
+    case 3:
+        return (uint64_t)tu_below(r, 5) << 40 | tu_below(r, 3); /* few distinct keys */
+    default:
+        return 42; /* all equal */
     }
 }
 static void morton_sort_alone(void **state) {
@@ -448,7 +493,12 @@ static void morton_sort_alone(void **state) {
                 for (i = 0; i < n; i++)
                     if (s.keys[i] != want[i].key || s.vals[i] != want[i].val)
                         fail_msg("pattern %d, %zu keys, %u threads: position %zu differs", pattern, n, nt, i);
-                free(want); free(s.keys); free(s.keys_tmp); free(s.vals); free(s.vals_tmp); free(s.hist);
+                free(want);
+                free(s.keys);
+                free(s.keys_tmp);
+                free(s.vals);
+                free(s.vals_tmp);
+                free(s.hist);
             }
 }
 

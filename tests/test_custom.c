@@ -19,7 +19,9 @@
 #define DUPLICATES 300 /* spheres SPHERES - DUPLICATES .. SPHERES - 1 repeat the first ones */
 #define SPHERE_RAYS 6000
 
-typedef struct sphere { float c[3], r; } sphere;
+typedef struct sphere {
+    float c[3], r;
+} sphere;
 
 /* The nearest t in [tmin, tmax] on the sphere (the far root from inside it); u = the number of
    calls, so that a test sees the callback ran. */
@@ -46,11 +48,15 @@ static int hit_sphere(const bvh_ray *ray, uint32_t i, void *user, bvh_hit *hit) 
 static int brute(const bvh_custom_desc *cd, uint32_t n, const bvh_ray *ray, bvh_hit *best) {
     bvh_ray r = *ray;
     uint32_t i;
-    best->t = ray->tmax; best->u = best->v = 0.0f; best->prim = BVH_INVALID;
+    best->t = ray->tmax;
+    best->u = best->v = 0.0f;
+    best->prim = BVH_INVALID;
     if (r.tmin > r.tmax || !(r.dir.x != 0.0f || r.dir.y != 0.0f || r.dir.z != 0.0f)) return 0;
     for (i = 0; i < n; i++) {
         bvh_hit h;
-        h.t = r.tmax; h.u = h.v = 0.0f; h.prim = i;
+        h.t = r.tmax;
+        h.u = h.v = 0.0f;
+        h.prim = i;
         if (!cd->intersect(&r, i, cd->user, &h)) continue;
         if (!(h.t >= r.tmin && h.t <= r.tmax && h.t < BVH_INF)) continue;
         if (h.t == r.tmax && best->prim != BVH_INVALID) continue;
@@ -68,7 +74,9 @@ static void make_spheres(sphere *s, bvh_aabb *boxes, uint32_t n) {
         if (i >= n - DUPLICATES) {
             s[i] = s[i - (n - DUPLICATES)];
         } else {
-            s[i].c[0] = tu_range(&r, -10, 10); s[i].c[1] = tu_range(&r, -10, 10); s[i].c[2] = tu_range(&r, -10, 10);
+            s[i].c[0] = tu_range(&r, -10, 10);
+            s[i].c[1] = tu_range(&r, -10, 10);
+            s[i].c[2] = tu_range(&r, -10, 10);
             s[i].r = tu_range(&r, 0.05f, 0.6f);
         }
         boxes[i].min = tu_v3(s[i].c[0] - s[i].r, s[i].c[1] - s[i].r, s[i].c[2] - s[i].r);
@@ -96,13 +104,18 @@ static void make_sphere_rays(const sphere *s, uint32_t n, bvh_ray *rays, size_t 
             ray->dir = tu_sub(tu_v3(t->c[0], t->c[1], t->c[2]), ray->origin);
             if (i % 10 == 1) ray->tmax = 1.0f;
             break;
-        case 2: ray->dir = tu_axis_dir(&r, (int)tu_below(&r, 3)); break;
-        case 3: ray->origin = tu_v3(t->c[0], t->c[1], t->c[2]); break;
+        case 2:
+            ray->dir = tu_axis_dir(&r, (int)tu_below(&r, 3));
+            break;
+        case 3:
+            ray->origin = tu_v3(t->c[0], t->c[1], t->c[2]);
+            break;
         case 4:
             ray->tmax = tu_range(&r, 0.0f, 20.0f);
             if (tu_u32(&r) & 1) ray->tmin = tu_range(&r, 0.0f, ray->tmax);
             break;
-        default: break;
+        default:
+            break;
         }
     }
 }
@@ -151,8 +164,8 @@ static void spheres_exact(void **state) {
             int want_found = want[i].prim != BVH_INVALID;
             if (found == want_found && same_hit(&h, &want[i]) && blocked == want_found) continue;
             if (bad++ < 4) {
-                print_error("%s: ray %zu: custom %d occluded %d brute force %d\n", bvh_builder_name(d.builder), i, found,
-                            blocked, want_found);
+                print_error("%s: ray %zu: custom %d occluded %d brute force %d\n", bvh_builder_name(d.builder), i,
+                            found, blocked, want_found);
                 tu_print_ray(&rays[i]);
                 tu_print_hit("bvh", &h);
                 tu_print_hit("brute force", &want[i]);
@@ -169,7 +182,10 @@ static void spheres_exact(void **state) {
         assert_int_equal(bvh_intersect(&tree, &rays[0], got), 0);
         bvh_free(&tree);
     }
-    free(rays); free(want); free(got); free(occ);
+    free(rays);
+    free(want);
+    free(got);
+    free(occ);
 }
 
 /* A callback that reports nonsense: t outside [tmin, tmax], NaN, +inf, a t beyond tmax; none of
@@ -177,11 +193,20 @@ static void spheres_exact(void **state) {
 static int hit_liar(const bvh_ray *ray, uint32_t i, void *user, bvh_hit *hit) {
     int r = hit_sphere(ray, i, user, hit);
     switch (i % 5) {
-    case 0: hit->t = NAN; return 1;
-    case 1: hit->t = ray->tmin - 1.0f; return 1;
-    case 2: hit->t = BVH_INF; return 1;
-    case 3: hit->t = ray->tmax * 2.0f + 1.0f; return 1;
-    default: return r;
+    case 0:
+        hit->t = NAN;
+        return 1;
+    case 1:
+        hit->t = ray->tmin - 1.0f;
+        return 1;
+    case 2:
+        hit->t = BVH_INF;
+        return 1;
+    case 3:
+        hit->t = ray->tmax * 2.0f + 1.0f;
+        return 1;
+    default:
+        return r;
     }
 }
 static void bad_callback_t_ignored(void **state) {
@@ -225,7 +250,10 @@ static void triangle_tree_by_callback(void **state) {
     float *tris;
     bvh_ray rays[3000];
     bvh_custom_desc cd;
-    if (!tu_scene_make(id, &s)) { skip(); return; }
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
     tris = tu_scene_tris(&s);
     tu_make_rays(tris, s.tri_count, 0x435553ULL, rays, 3000);
     cd.intersect = hit_triangle;
@@ -317,7 +345,12 @@ static void make_ball(tu_scene *s, float scale, float centre, uint32_t n) {
         for (i = 0; i < 2 * n; i++) {
             uint32_t a = j * (2 * n + 1) + i, b = a + 1, c = a + 2 * n + 1, d = c + 1;
             uint32_t *q = s->indices + 3 * (size_t)t;
-            q[0] = a; q[1] = c; q[2] = b; q[3] = b; q[4] = c; q[5] = d;
+            q[0] = a;
+            q[1] = c;
+            q[2] = b;
+            q[3] = b;
+            q[4] = c;
+            q[5] = d;
             t += 2;
         }
     s->tri_count = t;
@@ -329,7 +362,8 @@ static float dot3(bvh_vec3 a, bvh_vec3 b) { return a.x * b.x + a.y * b.y + a.z *
    hemisphere the hit side faces. The ball is convex, so any hit of such a ray is the surface
    hitting itself. */
 static void offset_no_self_hits(void **state) {
-    static const float scales[][2] = {{1, 0}, {1, 1e3f}, {1, 1e5f}, {100, 1e5f}, {1e-3f, 0}, {1e-3f, 1}, {1e-4f, 1e-2f}};
+    static const float scales[][2] = {{1, 0},     {1, 1e3f},  {1, 1e5f},     {100, 1e5f},
+                                      {1e-3f, 0}, {1e-3f, 1}, {1e-4f, 1e-2f}};
     size_t k, raw_total = 0;
     (void)state;
     for (k = 0; k < sizeof scales / sizeof scales[0]; k++) {
@@ -349,8 +383,8 @@ static void offset_no_self_hits(void **state) {
             dir = scaled(dir, 1.0f / sqrtf(dot3(dir, dir))); /* the origin outside the ball */
             /* from 3 radii away toward a point well inside */
             ray.origin = tu_v3(c + 3.0f * sc * dir.x, c + 3.0f * sc * dir.y, c + 3.0f * sc * dir.z);
-            ray.dir = tu_sub(tu_v3(c + 0.5f * sc * target.x, c + 0.5f * sc * target.y, c + 0.5f * sc * target.z),
-                             ray.origin);
+            ray.dir =
+                tu_sub(tu_v3(c + 0.5f * sc * target.x, c + 0.5f * sc * target.y, c + 0.5f * sc * target.z), ray.origin);
             ray.tmin = 0.0f;
             ray.tmax = BVH_INF;
             if (!bvh_intersect(&tree, &ray, &h)) continue;
@@ -418,7 +452,10 @@ static void hit_surface(void **state) {
     mesh.vertex_count = 4;
     mesh.indices = idx;
     mesh.triangle_count = 2;
-    h.prim = 0; h.t = 1.0f; h.u = 0.25f; h.v = 0.5f;
+    h.prim = 0;
+    h.t = 1.0f;
+    h.u = 0.25f;
+    h.v = 0.5f;
     assert_int_equal(bvh_hit_surface(&mesh, &h, &p, &n), BVH_SUCCESS);
     assert_true(p.x == 0.5f && p.y == 2.0f && p.z == 0.0f);
     assert_true(n.x == 0.0f && n.y == 0.0f && n.z == 1.0f);

@@ -32,8 +32,7 @@ static char g_dir[64];
 
 /* Four vertices of the unit square in z = 0, then `nfaces` faces, each "count i0 i1 ..." (ASCII:
    the words as given; binary: a uchar count and int indices). */
-static void write_ply(const char *name, int binary, int nfaces, const char *const *faces, char *path,
-                      size_t pathlen) {
+static void write_ply(const char *name, int binary, int nfaces, const char *const *faces, char *path, size_t pathlen) {
     static const float v[12] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0};
     FILE *f;
     int i;
@@ -45,14 +44,19 @@ static void write_ply(const char *name, int binary, int nfaces, const char *cons
             "element face %d\nproperty list uchar int vertex_indices\nend_header\n",
             binary ? "binary_little_endian" : "ascii", nfaces);
     for (i = 0; i < 4; i++) {
-        if (binary) assert_int_equal(fwrite(v + 3 * i, sizeof(float), 3, f), 3);
-        else fprintf(f, "%g %g %g\n", (double)v[3 * i], (double)v[3 * i + 1], (double)v[3 * i + 2]);
+        if (binary)
+            assert_int_equal(fwrite(v + 3 * i, sizeof(float), 3, f), 3);
+        else
+            fprintf(f, "%g %g %g\n", (double)v[3 * i], (double)v[3 * i + 1], (double)v[3 * i + 2]);
     }
     for (i = 0; i < nfaces; i++) {
         const char *p = faces[i];
         char *end;
         long long w = strtoll(p, &end, 10);
-        if (!binary) { fprintf(f, "%s\n", p); continue; }
+        if (!binary) {
+            fprintf(f, "%s\n", p);
+            continue;
+        }
         assert_true(end != p);
         fputc((int)(unsigned char)w, f); /* the count, as a uchar: -1 is 255 */
         for (p = end; (w = strtoll(p, &end, 10)), end != p; p = end) {
@@ -67,7 +71,10 @@ static void write_ply(const char *name, int binary, int nfaces, const char *cons
 static void expect_refused(const char *path) {
     pid_t pid;
     int status = 0;
-    if (!scene_can_use_assimp()) { skip(); return; }
+    if (!scene_can_use_assimp()) {
+        skip();
+        return;
+    }
     fflush(NULL);
     pid = fork();
     assert_true(pid >= 0);
@@ -94,14 +101,14 @@ static void expect_refused(const char *path) {
 }
 
 /* One test per fault, ASCII and binary: name, then the faces. */
-#define LD_BAD_TEST(fn, ...)                                                                                \
-    static void fn(void **state) {                                                                          \
-        char path[128];                                                                                     \
-        const char *const faces[] = {__VA_ARGS__};                                                          \
-        int binary = *state != NULL;                                                                        \
-        write_ply(binary ? #fn ".bin.ply" : #fn ".ply", binary, (int)(sizeof faces / sizeof faces[0]), faces, \
-                  path, sizeof path);                                                                       \
-        expect_refused(path);                                                                               \
+#define LD_BAD_TEST(fn, ...)                                                                                           \
+    static void fn(void **state) {                                                                                     \
+        char path[128];                                                                                                \
+        const char *const faces[] = {__VA_ARGS__};                                                                     \
+        int binary = *state != NULL;                                                                                   \
+        write_ply(binary ? #fn ".bin.ply" : #fn ".ply", binary, (int)(sizeof faces / sizeof faces[0]), faces, path,    \
+                  sizeof path);                                                                                        \
+        expect_refused(path);                                                                                          \
     }
 LD_BAD_TEST(test_face_without_indices, "3 0 1 2", "0")
 LD_BAD_TEST(test_negative_index_count, "-1 0 1 2")
@@ -126,7 +133,10 @@ static void expect_loaded(const char *path, uint32_t triangles, uint32_t skipped
     scene s;
     char err[512];
     bvh_aabb box;
-    if (!scene_can_use_assimp()) { skip(); return; }
+    if (!scene_can_use_assimp()) {
+        skip();
+        return;
+    }
     if (scene_load(path, &s, err, sizeof err) != 0) fail_msg("%s: %s", path, err);
     assert_int_equal(s.triangles, triangles);
     assert_int_equal(s.skipped, skipped);
@@ -194,10 +204,16 @@ static int ld_setup(void **state) {
     return mkdtemp(g_dir) ? 0 : -1;
 }
 static int ld_teardown(void **state) {
-    static const char *const names[] = {
-        "test_face_without_indices", "test_negative_index_count", "test_quad_index_out_of_range",
-        "test_quad_index_negative", "test_quad_index_huge", "test_pentagon_index_out_of_range",
-        "test_triangle_index_out_of_range", "truncated", "quad", "line"};
+    static const char *const names[] = {"test_face_without_indices",
+                                        "test_negative_index_count",
+                                        "test_quad_index_out_of_range",
+                                        "test_quad_index_negative",
+                                        "test_quad_index_huge",
+                                        "test_pentagon_index_out_of_range",
+                                        "test_triangle_index_out_of_range",
+                                        "truncated",
+                                        "quad",
+                                        "line"};
     static const char *const tri[] = {"good.tri", "bad-magic.tri", "short.tri"};
     char path[128];
     size_t i;
@@ -216,15 +232,21 @@ static int ld_teardown(void **state) {
 }
 
 /* Each test twice: state NULL writes ASCII, non-NULL binary little-endian. */
-#define LD_BOTH(f) {#f "/ascii", f, NULL, NULL, NULL}, {#f "/binary", f, NULL, NULL, (void *)1}
+#define LD_BOTH(f)                                                                                                     \
+    {#f "/ascii", f, NULL, NULL, NULL}, { #f "/binary", f, NULL, NULL, (void *)1 }
 
 int main(void) {
     const struct CMUnitTest tests[] = {
-        LD_BOTH(test_face_without_indices),       LD_BOTH(test_negative_index_count),
-        LD_BOTH(test_quad_index_out_of_range),    LD_BOTH(test_quad_index_negative),
-        LD_BOTH(test_quad_index_huge),            LD_BOTH(test_pentagon_index_out_of_range),
-        LD_BOTH(test_triangle_index_out_of_range), LD_BOTH(test_truncated_faces),
-        LD_BOTH(test_good_quad),                  LD_BOTH(test_good_triangle_and_line),
+        LD_BOTH(test_face_without_indices),
+        LD_BOTH(test_negative_index_count),
+        LD_BOTH(test_quad_index_out_of_range),
+        LD_BOTH(test_quad_index_negative),
+        LD_BOTH(test_quad_index_huge),
+        LD_BOTH(test_pentagon_index_out_of_range),
+        LD_BOTH(test_triangle_index_out_of_range),
+        LD_BOTH(test_truncated_faces),
+        LD_BOTH(test_good_quad),
+        LD_BOTH(test_good_triangle_and_line),
         cmocka_unit_test(test_tri_soup),
     };
     return cmocka_run_group_tests(tests, ld_setup, ld_teardown);

@@ -59,7 +59,15 @@ typedef struct oc_scene {
 enum { SC_RANDOM, SC_QUADS, SC_HUGE, SC_ONE, SC_TWO, SC_THREE, SC_EMPTY, SC_COUNT };
 
 static void oc_tri(float *t, float a, float b, float c, float d, float e, float f, float g, float h, float i) {
-    t[0] = a; t[1] = b; t[2] = c; t[3] = d; t[4] = e; t[5] = f; t[6] = g; t[7] = h; t[8] = i;
+    t[0] = a;
+    t[1] = b;
+    t[2] = c;
+    t[3] = d;
+    t[4] = e;
+    t[5] = f;
+    t[6] = g;
+    t[7] = h;
+    t[8] = i;
 }
 
 /* an axis-aligned unit quad (two triangles sharing the diagonal) on plane `axis` = w at (a, b) */
@@ -107,10 +115,15 @@ static int oc_scene_make(int id, oc_scene *s) {
             for (j = 0; j < 9; j++) s->v[9 * i + j] = c[j % 3] + oc_range(&rng, -0.05f, 0.05f);
         }
         break;
-    case SC_THREE: oc_tri(s->v + 18, 0, 0, 2, 1, 0, 2, 1, 1, 2); /* fall through */
-    case SC_TWO: oc_tri(s->v + 9, 0, 0, 1, 1, 0, 1, 0, 1, 1);    /* fall through */
-    case SC_ONE: oc_tri(s->v, 0, 0, 0, 1, 0, 0, 0, 1, 0); break;
-    default: break;
+    case SC_THREE:
+        oc_tri(s->v + 18, 0, 0, 2, 1, 0, 2, 1, 1, 2); /* fall through */
+    case SC_TWO:
+        oc_tri(s->v + 9, 0, 0, 1, 1, 0, 1, 0, 1, 1); /* fall through */
+    case SC_ONE:
+        oc_tri(s->v, 0, 0, 0, 1, 0, 0, 0, 1, 0);
+        break;
+    default:
+        break;
     }
     return 1;
 }
@@ -120,11 +133,19 @@ static bvh_aabb oc_bounds(const oc_scene *s) {
     uint32_t i;
     for (i = 0; i < 3 * s->n; i++) {
         bvh_vec3 p;
-        p.x = s->v[3 * i]; p.y = s->v[3 * i + 1]; p.z = s->v[3 * i + 2];
+        p.x = s->v[3 * i];
+        p.y = s->v[3 * i + 1];
+        p.z = s->v[3 * i + 2];
         bvh_aabb_grow(&b, p);
     }
-    if (!s->n) { b.min.x = b.min.y = b.min.z = -1; b.max.x = b.max.y = b.max.z = 1; }
-    if (b.max.x - b.min.x > 8) { b.min.x = b.min.y = b.min.z = -3; b.max.x = b.max.y = b.max.z = 3; } /* huge */
+    if (!s->n) {
+        b.min.x = b.min.y = b.min.z = -1;
+        b.max.x = b.max.y = b.max.z = 1;
+    }
+    if (b.max.x - b.min.x > 8) {
+        b.min.x = b.min.y = b.min.z = -3;
+        b.max.x = b.max.y = b.max.z = 3;
+    } /* huge */
     return b;
 }
 
@@ -172,21 +193,41 @@ static void oc_rays(const oc_scene *s, bvh_ray *r, size_t count, uint64_t seed) 
                                            : (t[a] + t[3 + a] + t[6 + a]) / 3.0f;
                 d[a] = target - o[a];
             }
-            if (kind == 7) { tmin = oc_range(&rng, 0, 0.9f); tmax = oc_range(&rng, tmin, 1.2f); }
+            if (kind == 7) {
+                tmin = oc_range(&rng, 0, 0.9f);
+                tmax = oc_range(&rng, tmin, 1.2f);
+            }
         } else if (kind == 8) {
             d[oc_rand(&rng) % 3] = (oc_rand(&rng) & 1) ? 0.0f : -0.0f;
         } else if (kind == 9) {
             switch ((i / 10) % 6) {
-            case 0: o[oc_rand(&rng) % 3] = NAN; break;
-            case 1: d[0] = d[1] = d[2] = 0.0f; break;
-            case 2: tmin = 2.0f; tmax = 1.0f; break;
-            case 3: d[oc_rand(&rng) % 3] = BVH_INF; break;
-            case 4: tmax = NAN; break;
-            default: o[oc_rand(&rng) % 3] = -BVH_INF; break;
+            case 0:
+                o[oc_rand(&rng) % 3] = NAN;
+                break;
+            case 1:
+                d[0] = d[1] = d[2] = 0.0f;
+                break;
+            case 2:
+                tmin = 2.0f;
+                tmax = 1.0f;
+                break;
+            case 3:
+                d[oc_rand(&rng) % 3] = BVH_INF;
+                break;
+            case 4:
+                tmax = NAN;
+                break;
+            default:
+                o[oc_rand(&rng) % 3] = -BVH_INF;
+                break;
             }
         }
-        r[i].origin.x = o[0]; r[i].origin.y = o[1]; r[i].origin.z = o[2];
-        r[i].dir.x = d[0]; r[i].dir.y = d[1]; r[i].dir.z = d[2];
+        r[i].origin.x = o[0];
+        r[i].origin.y = o[1];
+        r[i].origin.z = o[2];
+        r[i].dir.x = d[0];
+        r[i].dir.y = d[1];
+        r[i].dir.z = d[2];
         r[i].tmin = tmin;
         r[i].tmax = tmax;
     }
@@ -209,12 +250,11 @@ static int oc_hit_equal(const bvh_ray *r, const bvh_hit *a, const bvh_hit *b) {
 
 static void oc_print_case(const char *what, const oc_scene *s, bvh_builder b, size_t i, const bvh_ray *r,
                           const bvh_hit *cpu, const bvh_hit *gpu) {
-    print_error("%s/%s/%s: ray %zu o=(%a %a %a) d=(%a %a %a) [%a, %a]\n", what, s->name,
-                bvh_builder_name(b), i, r->origin.x, r->origin.y, r->origin.z, r->dir.x, r->dir.y,
-                r->dir.z, r->tmin, r->tmax);
+    print_error("%s/%s/%s: ray %zu o=(%a %a %a) d=(%a %a %a) [%a, %a]\n", what, s->name, bvh_builder_name(b), i,
+                r->origin.x, r->origin.y, r->origin.z, r->dir.x, r->dir.y, r->dir.z, r->tmin, r->tmax);
     if (cpu && gpu)
-        print_error("  cpu prim %u t %a u %a v %a | opencl prim %u t %a u %a v %a\n", cpu->prim, cpu->t, cpu->u,
-                    cpu->v, gpu->prim, gpu->t, gpu->u, gpu->v);
+        print_error("  cpu prim %u t %a u %a v %a | opencl prim %u t %a u %a v %a\n", cpu->prim, cpu->t, cpu->u, cpu->v,
+                    gpu->prim, gpu->t, gpu->u, gpu->v);
 }
 
 /* Traces rays on both sides; returns mismatches (closest and any). */
@@ -241,9 +281,12 @@ static size_t oc_compare(const char *what, const oc_scene *s, bvh_builder b, con
     return bad;
 }
 
-#define NEED_DEVICE()                                                                                        \
-    do {                                                                                                     \
-        if (!g_cl) { skip(); return; }                                                                       \
+#define NEED_DEVICE()                                                                                                  \
+    do {                                                                                                               \
+        if (!g_cl) {                                                                                                   \
+            skip();                                                                                                    \
+            return;                                                                                                    \
+        }                                                                                                              \
     } while (0)
 
 /* ============================================================================================ */
@@ -299,7 +342,11 @@ static void hits_equal_cpu(void **state) {
         bvh_free(&t);
     }
     if (s.n >= 1000) assert_true(hits > (size_t)(BVH_BUILDER_PLOC_PARALLEL * RAYS / 10)); /* rays do hit */
-    free(rays); free(rays2); free(cpu); free(cpu2); free(s.v);
+    free(rays);
+    free(rays2);
+    free(cpu);
+    free(cpu2);
+    free(s.v);
     assert_int_equal(bad, 0);
 }
 
@@ -362,7 +409,12 @@ static void frame_equals_cpu(void **state) {
         bvh_cl_tree_free(g);
         bvh_free(&t);
     }
-    free(rgba); free(hits); free(vis); free(rgba2); free(hits2); free(s.v);
+    free(rgba);
+    free(hits);
+    free(vis);
+    free(rgba2);
+    free(hits2);
+    free(s.v);
     assert_int_equal(bad, 0);
 }
 
@@ -417,12 +469,22 @@ static void small_allocations_split_work(void **state) {
     assert_memory_equal(ra, rb, 4 * w * h);
     assert_memory_equal(va, vb, 4 * w * h);
     /* packets (no visited) in bands of 5 rows (4 KiB / 50 pixels / 16 bytes): tiles cut by bands */
-    memset(fb, 0, sizeof(bvh_hit) * w * h); memset(rb, 0, 4 * w * h);
+    memset(fb, 0, sizeof(bvh_hit) * w * h);
+    memset(rb, 0, 4 * w * h);
     assert_int_equal(bvh_cl_render_frame(g_small, &cam, rb, fb, NULL), BVH_CL_SUCCESS);
     assert_memory_equal(fa, fb, sizeof(bvh_hit) * w * h);
     assert_memory_equal(ra, rb, 4 * w * h);
-    bvh_cl_tree_free(g); bvh_cl_tree_free(g_small); bvh_cl_destroy(c);
-    bvh_free(&t); free(s.v); free(fa); free(fb); free(ra); free(rb); free(va); free(vb);
+    bvh_cl_tree_free(g);
+    bvh_cl_tree_free(g_small);
+    bvh_cl_destroy(c);
+    bvh_free(&t);
+    free(s.v);
+    free(fa);
+    free(fb);
+    free(ra);
+    free(rb);
+    free(va);
+    free(vb);
 }
 
 /* desc.frame_rays: 1 (a ray per work-item), 8 and 16 (4 x 2 and 4 x 4 pixel packets) give the
@@ -463,7 +525,8 @@ static void frame_rays_option(void **state) {
         assert_memory_equal(h1, h8, sizeof(bvh_hit) * w * h);
         assert_memory_equal(r1, r8, 4 * w * h);
         assert_int_equal(bvh_cl_upload(c16, &t, &g16), BVH_CL_SUCCESS);
-        memset(h8, 0, sizeof(bvh_hit) * w * h); memset(r8, 0, 4 * w * h);
+        memset(h8, 0, sizeof(bvh_hit) * w * h);
+        memset(r8, 0, 4 * w * h);
         assert_int_equal(bvh_cl_render_frame(g16, &cam, r8, h8, NULL), BVH_CL_SUCCESS);
         assert_memory_equal(h1, h8, sizeof(bvh_hit) * w * h);
         assert_memory_equal(r1, r8, 4 * w * h);
@@ -472,14 +535,23 @@ static void frame_rays_option(void **state) {
             bvh_hit cpu;
             bvh_intersect(&t, &ray, &cpu);
             nhit += cpu.prim != BVH_INVALID;
-            if (!oc_hit_equal(&ray, &cpu, &h8[i])) fail_msg("builder %d pixel %zu: packet hit differs from the CPU", b, i);
+            if (!oc_hit_equal(&ray, &cpu, &h8[i]))
+                fail_msg("builder %d pixel %zu: packet hit differs from the CPU", b, i);
         }
         assert_true(nhit > 0);
-        bvh_cl_tree_free(g1); bvh_cl_tree_free(g8); bvh_cl_tree_free(g16);
+        bvh_cl_tree_free(g1);
+        bvh_cl_tree_free(g8);
+        bvh_cl_tree_free(g16);
         bvh_free(&t);
     }
-    bvh_cl_destroy(c1); bvh_cl_destroy(c8); bvh_cl_destroy(c16);
-    free(r1); free(r8); free(h1); free(h8); free(s.v);
+    bvh_cl_destroy(c1);
+    bvh_cl_destroy(c8);
+    bvh_cl_destroy(c16);
+    free(r1);
+    free(r8);
+    free(h1);
+    free(h8);
+    free(s.v);
 }
 
 static void buffer_too_large(void **state) {
@@ -500,11 +572,15 @@ static void buffer_too_large(void **state) {
     assert_int_equal(bvh_cl_upload(c, &t1, &g), BVH_CL_SUCCESS);
     cam = bvh_camera_standard(bvh_tree_bounds(&t1), 100, 10); /* one row of hits: 1600 bytes */
     assert_int_equal(bvh_cl_render_frame(g, &cam, NULL, hit, NULL), BVH_CL_ERROR_BUFFER_TOO_LARGE);
-    bvh_cl_tree_free(g); bvh_cl_destroy(c);
+    bvh_cl_tree_free(g);
+    bvh_cl_destroy(c);
     assert_int_equal(oc_create(&c, NULL, NULL, NULL, 16, g_log, sizeof g_log), BVH_CL_SUCCESS);
     assert_int_equal(bvh_cl_upload(c, &t1, &g), BVH_CL_ERROR_BUFFER_TOO_LARGE); /* one node: 32 bytes */
     bvh_cl_destroy(c);
-    bvh_free(&t); bvh_free(&t1); free(s.v); free(one.v);
+    bvh_free(&t);
+    bvh_free(&t1);
+    free(s.v);
+    free(one.v);
 }
 
 static void bad_kernel_source(void **state) {
@@ -512,15 +588,15 @@ static void bad_kernel_source(void **state) {
     char log[2048] = "";
     (void)state;
     NEED_DEVICE();
-    assert_int_equal(oc_create(&c, NULL, "__kernel void bvh_intersect_kernel(__global float *x) { x[0] = y; }",
-                               NULL, 0, log, sizeof log),
+    assert_int_equal(oc_create(&c, NULL, "__kernel void bvh_intersect_kernel(__global float *x) { x[0] = y; }", NULL, 0,
+                               log, sizeof log),
                      BVH_CL_ERROR_BUILD_FAILED);
     assert_null(c);
     assert_true(strlen(log) > 0);
     /* compiles, but lacks the kernels */
-    assert_int_equal(oc_create(&c, NULL, "__kernel void other(__global float *x) { x[0] = 1.0f; }", NULL, 0, log,
-                               sizeof log),
-                     BVH_CL_ERROR_BUILD_FAILED);
+    assert_int_equal(
+        oc_create(&c, NULL, "__kernel void other(__global float *x) { x[0] = 1.0f; }", NULL, 0, log, sizeof log),
+        BVH_CL_ERROR_BUILD_FAILED);
     assert_true(strlen(log) > 0);
     assert_int_equal(oc_create(&c, NULL, NULL, "no/such/dir/trace.cl", 0, log, sizeof log),
                      BVH_CL_ERROR_KERNEL_NOT_FOUND);
@@ -549,8 +625,10 @@ static void no_platform_or_device(void **state) {
     setenv("BVH_CL_DEVICE", "0:0", 1);
     assert_int_equal(oc_create(&c, NULL, NULL, NULL, 0, log, sizeof log), BVH_CL_SUCCESS);
     bvh_cl_destroy(c);
-    if (saved) setenv("BVH_CL_DEVICE", saved, 1);
-    else unsetenv("BVH_CL_DEVICE");
+    if (saved)
+        setenv("BVH_CL_DEVICE", saved, 1);
+    else
+        unsetenv("BVH_CL_DEVICE");
     free(saved);
 }
 
@@ -592,7 +670,9 @@ static void invalid_arguments(void **state) {
 
 /* The host allocator of bvh_cl_desc (bvh.h's bvh_allocator): a half pair is refused, and a whole
    one gets every block of the context and its trees back. */
-typedef struct oc_counting { long live, calls; } oc_counting;
+typedef struct oc_counting {
+    long live, calls;
+} oc_counting;
 static void *oc_alloc(size_t size, void *user) {
     oc_counting *c = (oc_counting *)user;
     c->live++;
@@ -656,7 +736,8 @@ static int group_teardown(void **state) {
     return 0;
 }
 
-#define SCENE_TEST(name, fn, id) {name, fn, NULL, NULL, (void *)(intptr_t)(id)}
+#define SCENE_TEST(name, fn, id)                                                                                       \
+    { name, fn, NULL, NULL, (void *)(intptr_t)(id) }
 
 int main(void) {
     const struct CMUnitTest tests[] = {

@@ -20,9 +20,9 @@
 
 /* == pools =================================================================================== */
 typedef struct pool_state {
-    int order;        /* 0: serial on the caller; 1: reversed, 2: shuffled, on `workers` pthreads */
+    int order; /* 0: serial on the caller; 1: reversed, 2: shuffled, on `workers` pthreads */
     uint32_t workers;
-    uint32_t runs;    /* calls of run */
+    uint32_t runs; /* calls of run */
     uint64_t seed;
 } pool_state;
 typedef struct pool_job {
@@ -64,7 +64,11 @@ static void pool_run(void *user, uint32_t count, bvh_task_fn task, void *arg) {
             order[k] = t;
         }
     }
-    j.task = task; j.arg = arg; j.order = order; j.count = count; j.next = 0;
+    j.task = task;
+    j.arg = arg;
+    j.order = order;
+    j.count = count;
+    j.next = 0;
     pthread_mutex_init(&j.mutex, NULL);
     for (w = 0; w < s->workers && w < 8; w++) assert_int_equal(pthread_create(&th[w], NULL, pool_worker, &j), 0);
     while (w-- > 0) pthread_join(th[w], NULL);
@@ -74,7 +78,9 @@ static void pool_run(void *user, uint32_t count, bvh_task_fn task, void *arg) {
 static const char *const pool_names[] = {"serial", "reversed", "shuffled"};
 
 /* == a counting allocator ==================================================================== */
-typedef struct count_alloc { long live; } count_alloc;
+typedef struct count_alloc {
+    long live;
+} count_alloc;
 static void *ca_alloc(size_t size, void *user) {
     ((count_alloc *)user)->live++;
     return malloc(size);
@@ -102,7 +108,9 @@ static void pool_same_tree(void **state) {
                 pool_state ps;
                 const char *diff;
                 memset(&ps, 0, sizeof ps);
-                ps.order = h; ps.workers = 3; ps.seed = 7 + k;
+                ps.order = h;
+                ps.workers = 3;
+                ps.seed = 7 + k;
                 d.pool.run = pool_run;
                 d.pool.user = &ps;
                 d.threads = tasks[k];
@@ -137,8 +145,11 @@ static void pool_same_tree_options(void **state) {
         d.threads = 3;
         assert_int_equal(bvh_build(&ref, &d), BVH_SUCCESS);
         memset(&ps, 0, sizeof ps);
-        ps.order = 2; ps.workers = 4; ps.seed = 99;
-        d.pool.run = pool_run; d.pool.user = &ps;
+        ps.order = 2;
+        ps.workers = 4;
+        ps.seed = 99;
+        d.pool.run = pool_run;
+        d.pool.user = &ps;
         d.threads = 5;
         assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
         diff = tree_diff(&ref, &t);
@@ -174,9 +185,12 @@ static void pool_batch_same_hits(void **state) {
         pool_state ps;
         bvh_batch_desc bd;
         memset(&ps, 0, sizeof ps);
-        ps.order = h; ps.workers = 3; ps.seed = 5;
+        ps.order = h;
+        ps.workers = 3;
+        ps.seed = 5;
         memset(&bd, 0, sizeof bd);
-        bd.pool.run = pool_run; bd.pool.user = &ps;
+        bd.pool.run = pool_run;
+        bd.pool.user = &ps;
         memset(hits, 0xab, count * sizeof *hits);
         memset(occ, 0xab, count);
         assert_int_equal(bvh_intersect_batch_ex(&t, rays, hits, count, &bd), BVH_SUCCESS);
@@ -192,7 +206,11 @@ static void pool_batch_same_hits(void **state) {
     bvh_free(&t);
     free(tris);
     tu_scene_free(&s);
-    free(rays); free(ref); free(hits); free(oref); free(occ);
+    free(rays);
+    free(ref);
+    free(hits);
+    free(oref);
+    free(occ);
 }
 
 /* == progress and cancel ===================================================================== */
@@ -200,8 +218,8 @@ typedef struct prog_state {
     uint32_t calls, cancel_at; /* cancel_at: return nonzero at that call (1-based), 0 never */
     uint32_t ones;             /* calls with fraction 1 */
     float last;
-    int rising;                /* every fraction in [0, 1] and >= the one before */
-    double t_last, max_gap;    /* seconds */
+    int rising;             /* every fraction in [0, 1] and >= the one before */
+    double t_last, max_gap; /* seconds */
 } prog_state;
 static double now_s(void) {
     struct timespec ts;
@@ -244,12 +262,18 @@ static void progress_cancel_every_call(void **state) {
             bvh_tree t;
             uint32_t total, k, step;
             memset(&ps, 0, sizeof ps);
-            ps.order = 1; ps.workers = 2;
-            if (pooled) { d.pool.run = pool_run; d.pool.user = &ps; }
+            ps.order = 1;
+            ps.workers = 2;
+            if (pooled) {
+                d.pool.run = pool_run;
+                d.pool.user = &ps;
+            }
             d.threads = 2;
             d.progress = on_progress;
             d.progress_user = &p;
-            d.allocator.alloc = ca_alloc; d.allocator.free = ca_free; d.allocator.user = &ca;
+            d.allocator.alloc = ca_alloc;
+            d.allocator.free = ca_free;
+            d.allocator.user = &ca;
             prog_init(&p, 0);
             assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
             if (!p.rising || p.ones != 1 || p.last != 1.0f || p.calls < 3)
@@ -268,10 +292,17 @@ static void progress_cancel_every_call(void **state) {
                 if (r != BVH_ERROR_CANCELLED)
                     fail_msg("%s (pool %d): cancel at call %u of %u gave %s", bvh_builder_name(builder), pooled, k,
                              total, bvh_result_string(r));
-                if (p.calls != k) fail_msg("%s: called again (%u times) after the cancel at %u", bvh_builder_name(builder), p.calls, k);
-                assert_null(t.nodes); assert_null(t.prims); assert_null(t.tris); assert_null(t.nodes8);
+                if (p.calls != k)
+                    fail_msg("%s: called again (%u times) after the cancel at %u", bvh_builder_name(builder), p.calls,
+                             k);
+                assert_null(t.nodes);
+                assert_null(t.prims);
+                assert_null(t.tris);
+                assert_null(t.nodes8);
                 assert_int_equal(t.node_count, 0);
-                if (ca.live != 0) fail_msg("%s (pool %d): cancel at %u leaked %ld blocks", bvh_builder_name(builder), pooled, k, ca.live);
+                if (ca.live != 0)
+                    fail_msg("%s (pool %d): cancel at %u leaked %ld blocks", bvh_builder_name(builder), pooled, k,
+                             ca.live);
             }
             /* a cancel returned with the final 1 is too late: the build stands */
             prog_init(&p, total);
@@ -339,7 +370,8 @@ static void progress_cadence(void **state) {
         print_message("%-14s %3u calls in %6.1f ms, longest gap %5.1f ms\n", bvh_builder_name(builder), p.calls,
                       1e3 * took, 1e3 * p.max_gap);
         if (p.calls < s.tri_count / 65536 + 3) fail_msg("%s: only %u calls", bvh_builder_name(builder), p.calls);
-        if (!POOL_SANITIZED && p.max_gap > 0.25) fail_msg("%s: %.1f ms between calls", bvh_builder_name(builder), 1e3 * p.max_gap);
+        if (!POOL_SANITIZED && p.max_gap > 0.25)
+            fail_msg("%s: %.1f ms between calls", bvh_builder_name(builder), 1e3 * p.max_gap);
         bvh_free(&t);
     }
     tu_scene_free(&s);

@@ -85,14 +85,16 @@ static size_t rf_camera_diffuse(const float *tris, uint32_t n, uint64_t seed, bv
         bvh_vec3 d = tu_sphere_dir(&r);
         if (tu_brute(tris, n, &rays[i], &h)) {
             const float *t = tris + 9 * (size_t)h.prim;
-            bvh_vec3 e1 = tu_v3(t[3] - t[0], t[4] - t[1], t[5] - t[2]), e2 = tu_v3(t[6] - t[0], t[7] - t[1], t[8] - t[2]);
+            bvh_vec3 e1 = tu_v3(t[3] - t[0], t[4] - t[1], t[5] - t[2]),
+                     e2 = tu_v3(t[6] - t[0], t[7] - t[1], t[8] - t[2]);
             bvh_vec3 nrm = tu_v3(e1.y * e2.z - e1.z * e2.y, e1.z * e2.x - e1.x * e2.z, e1.x * e2.y - e1.y * e2.x);
             float len = sqrtf(nrm.x * nrm.x + nrm.y * nrm.y + nrm.z * nrm.z), off = 1e-4f * diag;
             if (len > 0.0f && fp_finite(len)) nrm = tu_v3(nrm.x / len, nrm.y / len, nrm.z / len);
             if (nrm.x * ray.dir.x + nrm.y * ray.dir.y + nrm.z * ray.dir.z > 0.0f) nrm = tu_v3(-nrm.x, -nrm.y, -nrm.z);
             if (d.x * nrm.x + d.y * nrm.y + d.z * nrm.z < 0.0f) d = tu_v3(-d.x, -d.y, -d.z);
-            ray.origin = tu_v3(ray.origin.x + h.t * ray.dir.x + off * nrm.x, ray.origin.y + h.t * ray.dir.y + off * nrm.y,
-                               ray.origin.z + h.t * ray.dir.z + off * nrm.z);
+            ray.origin =
+                tu_v3(ray.origin.x + h.t * ray.dir.x + off * nrm.x, ray.origin.y + h.t * ray.dir.y + off * nrm.y,
+                      ray.origin.z + h.t * ray.dir.z + off * nrm.z);
         }
         ray.dir = d;
         if (!fp_finite(ray.origin.x) || !fp_finite(ray.origin.y) || !fp_finite(ray.origin.z)) ray.origin = cam.eye;
@@ -115,7 +117,8 @@ static size_t rf_compare(const tu_scene *s, const bvh_tree *t, const bvh_ray *ra
             bvh_occluded(t, &rays[i]) == want_found)
             continue;
         if (bad++ < MAX_REPORTS) {
-            print_error("%s/%s (%s): ray %zu differs from the brute force\n", s->name, bvh_builder_name(t->builder), what, i);
+            print_error("%s/%s (%s): ray %zu differs from the brute force\n", s->name, bvh_builder_name(t->builder),
+                        what, i);
             tu_print_ray(&rays[i]);
             tu_print_hit("bvh", &h);
             tu_print_hit("brute force", &want[i]);
@@ -135,7 +138,10 @@ static void refit_exact(void **state) {
     bvh_ray *rays;
     bvh_hit *want;
     size_t count, bad = 0;
-    if (!tu_scene_make(id, &s)) { skip(); return; }
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
     rf_deform(&s, &moved, 0.8);
     tris = tu_scene_tris(&moved);
     rays = (bvh_ray *)malloc((RF_RAYS + 2 * RF_CAMERA * RF_CAMERA) * sizeof *rays);
@@ -162,20 +168,26 @@ static void refit_exact(void **state) {
             rd.threads = 3;
             assert_int_equal(bvh_refit(&t3, &rd), BVH_SUCCESS);
             rf_valid(&t, NULL, s.name);
-            if ((diff = tree_diff(&t, &t3)) != NULL) fail_msg("%s/%s: refit on 1 and 3 threads: %s differs", s.name, info.name, diff);
+            if ((diff = tree_diff(&t, &t3)) != NULL)
+                fail_msg("%s/%s: refit on 1 and 3 threads: %s differs", s.name, info.name, diff);
             bad += rf_compare(&moved, &t, rays, want, count, w ? "binary" : "8-wide");
             /* twice in a row (the grouping is the build's, not the last refit's), then back */
             assert_int_equal(bvh_refit(&t, &rd), BVH_SUCCESS);
-            if ((diff = tree_diff(&t, &t3)) != NULL) fail_msg("%s/%s: a second refit changed %s", s.name, info.name, diff);
+            if ((diff = tree_diff(&t, &t3)) != NULL)
+                fail_msg("%s/%s: a second refit changed %s", s.name, info.name, diff);
             rd = rf_desc(&s, 2);
             assert_int_equal(bvh_refit(&t, &rd), BVH_SUCCESS);
             rf_valid(&t, NULL, s.name);
             if (!info.splits_references && (diff = tree_diff(&t, &orig)) != NULL)
                 fail_msg("%s/%s: refitted back, %s differs from the build's", s.name, info.name, diff);
-            bvh_free(&t); bvh_free(&t3); bvh_free(&orig);
+            bvh_free(&t);
+            bvh_free(&t3);
+            bvh_free(&orig);
         }
     }
-    free(rays); free(want); free(tris);
+    free(rays);
+    free(want);
+    free(tris);
     tu_scene_free(&moved);
     tu_scene_free(&s);
     assert_int_equal(bad, 0);
@@ -249,7 +261,10 @@ static void refit_boxes(void **state) {
 }
 
 /* A counting allocator whose allocations fail from number fail_at on (-1: never). */
-typedef struct rf_alloc { long calls, live, fail_at; size_t largest; } rf_alloc;
+typedef struct rf_alloc {
+    long calls, live, fail_at;
+    size_t largest;
+} rf_alloc;
 static void *rf_alloc_fn(size_t size, void *user) {
     rf_alloc *a = (rf_alloc *)user;
     void *p;
@@ -291,7 +306,9 @@ static void refit_errors(void **state) {
     d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
     d.allocator = rf_allocator(&a, -1);
     assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
-    d.allocator.alloc = NULL; d.allocator.free = NULL; d.allocator.user = NULL;
+    d.allocator.alloc = NULL;
+    d.allocator.free = NULL;
+    d.allocator.user = NULL;
     assert_int_equal(bvh_build(&orig, &d), BVH_SUCCESS);
     rd = rf_desc(&moved, 1);
     assert_int_equal(bvh_refit(NULL, &rd), BVH_ERROR_INVALID_ARGUMENT);
@@ -369,7 +386,11 @@ static void refit_errors(void **state) {
 }
 
 /* == save and load ============================================================================ */
-typedef struct rf_buf { unsigned char *data; size_t size, cap, pos; long fail_after; } rf_buf;
+typedef struct rf_buf {
+    unsigned char *data;
+    size_t size, cap, pos;
+    long fail_after;
+} rf_buf;
 static size_t rf_write(void *user, const void *data, size_t size) {
     rf_buf *b = (rf_buf *)user;
     if (b->fail_after >= 0 && b->size + size > (size_t)b->fail_after) return 0;
@@ -416,7 +437,8 @@ static bvh_result rf_load(bvh_tree *t, const unsigned char *data, size_t size, b
     d.read = rf_read;
     d.user = &b;
     r2 = bvh_load(&t2, &d);
-    if (r != r2) fail_msg("bvh_load from memory: %s, through a callback: %s", bvh_result_string(r), bvh_result_string(r2));
+    if (r != r2)
+        fail_msg("bvh_load from memory: %s, through a callback: %s", bvh_result_string(r), bvh_result_string(r2));
     if (r == BVH_SUCCESS && tree_diff(t, &t2)) fail_msg("memory and callback loads differ: %s", tree_diff(t, &t2));
     if (r != BVH_SUCCESS) assert_null(t->nodes);
     bvh_free(&t2);
@@ -429,7 +451,10 @@ static void save_load_round_trip(void **state) {
     int id = tu_state_id(state), b;
     tu_scene s;
     bvh_load_desc ld;
-    if (!tu_scene_make(id, &s)) { skip(); return; }
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
     memset(&ld, 0, sizeof ld);
     for (b = 0; b < TU_BUILDER_COUNT; b++) {
         int w;
@@ -443,7 +468,8 @@ static void save_load_round_trip(void **state) {
             buf = rf_save(&t);
             ld.threads = 2;
             assert_int_equal(rf_load(&u, buf.data, buf.size, ld), BVH_SUCCESS);
-            if ((diff = tree_diff(&t, &u)) != NULL) fail_msg("%s/%s: loaded tree: %s differs", s.name, bvh_builder_name(d.builder), diff);
+            if ((diff = tree_diff(&t, &u)) != NULL)
+                fail_msg("%s/%s: loaded tree: %s differs", s.name, bvh_builder_name(d.builder), diff);
             assert_int_equal(u.builder, t.builder);
             bvh_free(&u);
             ld.trace_width = w ? 8 : 2; /* the other layout than saved */
@@ -456,7 +482,7 @@ static void save_load_round_trip(void **state) {
             free(buf.data);
         }
     }
-    {   /* refitted, saved, loaded: the hits of the refitted tree */
+    { /* refitted, saved, loaded: the hits of the refitted tree */
         tu_scene moved;
         bvh_tree t, u;
         bvh_refit_desc rd;
@@ -476,8 +502,12 @@ static void save_load_round_trip(void **state) {
         assert_int_equal(rf_load(&u, buf.data, buf.size, ld), BVH_SUCCESS);
         assert_null(tree_diff_ex(&t, &u, 1));
         assert_int_equal(rf_compare(&moved, &u, rays, want, RF_RAYS, "loaded after refit"), 0);
-        bvh_free(&t); bvh_free(&u);
-        free(buf.data); free(tris); free(rays); free(want);
+        bvh_free(&t);
+        bvh_free(&u);
+        free(buf.data);
+        free(tris);
+        free(rays);
+        free(want);
         tu_scene_free(&moved);
     }
     tu_scene_free(&s);
@@ -510,7 +540,9 @@ static void save_load_kinds(void **state) {
     assert_null(tree_diff(&t, &u));
     assert_null(u.tris);
     rf_valid(&u, boxes, "boxes");
-    bvh_free(&t); bvh_free(&u); free(buf.data);
+    bvh_free(&t);
+    bvh_free(&u);
+    free(buf.data);
     /* skip_invalid: excluded primitives stay out */
     tu_vertex(&s, 7)[1] = NAN;
     d = tu_scene_desc(&s, BVH_BUILDER_BOTTOM_UP);
@@ -520,7 +552,9 @@ static void save_load_kinds(void **state) {
     assert_int_equal(rf_load(&u, buf.data, buf.size, ld), BVH_SUCCESS);
     assert_null(tree_diff(&t, &u));
     assert_int_equal(u.excluded, 1);
-    bvh_free(&t); bvh_free(&u); free(buf.data);
+    bvh_free(&t);
+    bvh_free(&u);
+    free(buf.data);
     /* empty trees: no primitives, and all excluded */
     memset(&d, 0, sizeof d);
     assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
@@ -528,7 +562,9 @@ static void save_load_kinds(void **state) {
     assert_int_equal(buf.size, 64);
     assert_int_equal(rf_load(&u, buf.data, buf.size, ld), BVH_SUCCESS);
     assert_int_equal(u.node_count, 0);
-    bvh_free(&t); bvh_free(&u); free(buf.data);
+    bvh_free(&t);
+    bvh_free(&u);
+    free(buf.data);
     /* a write callback that fails: BVH_ERROR_IO at every point */
     d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
     d.skip_invalid = 1;
@@ -622,9 +658,15 @@ static void load_damaged(void **state) {
     assert_int_equal(rf_load(&u, copy, buf.size, ld), BVH_ERROR_CORRUPT);
     /* hostile sizes behind a valid header checksum: refused before any allocation */
     {
-        static const uint32_t counts[][4] = { /* nodes, refs, prims, excluded */
-            {0xffffffffu, 0x7fffffffu, 0x40000000u, 0}, {2047u, 1024u, 1024u, 0}, {1u << 31, 1u << 30, 1u << 30, 0},
-            {3, 2, 2, 3}, {4, 2, 2, 0}, {0, 0, 5, 0}, {1, 0, 0, 0}, {1, 5, 2, 0}};
+        static const uint32_t counts[][4] = {/* nodes, refs, prims, excluded */
+                                             {0xffffffffu, 0x7fffffffu, 0x40000000u, 0},
+                                             {2047u, 1024u, 1024u, 0},
+                                             {1u << 31, 1u << 30, 1u << 30, 0},
+                                             {3, 2, 2, 3},
+                                             {4, 2, 2, 0},
+                                             {0, 0, 5, 0},
+                                             {1, 0, 0, 0},
+                                             {1, 5, 2, 0}};
         for (i = 0; i < sizeof counts / sizeof counts[0]; i++) {
             bvh_result r;
             memcpy(copy, buf.data, buf.size);
@@ -638,7 +680,8 @@ static void load_damaged(void **state) {
             rf_reseal(copy, 0);
             a.largest = 0;
             r = rf_load(&u, copy, buf.size, ld);
-            if (r != BVH_ERROR_CORRUPT && r != BVH_ERROR_TRUNCATED) fail_msg("hostile counts %zu: %s", i, bvh_result_string(r));
+            if (r != BVH_ERROR_CORRUPT && r != BVH_ERROR_TRUNCATED)
+                fail_msg("hostile counts %zu: %s", i, bvh_result_string(r));
             if (a.largest > buf.size) fail_msg("hostile counts %zu: an allocation of %zu bytes", i, a.largest);
             assert_int_equal(a.live, 0);
         }
@@ -660,12 +703,25 @@ static void load_damaged(void **state) {
         prims = (uint32_t *)(void *)(nodes + h.node_count);
         tris = (float *)(void *)(prims + h.ref_count);
         switch (i) {
-        case 0: nodes[0].index = 0; break;                       /* a cycle */
-        case 1: prims[3] = h.prim_count; break;                  /* a reference out of range */
-        case 2: tris[5] = NAN; break;                            /* a NaN vertex */
-        case 3: nodes[1].max.x = nodes[0].max.x + 1.0f; break;   /* a child outside its parent */
-        case 4: nodes[0].count = 300; nodes[0].index = 0; break; /* a leaf too large */
-        default: nodes[h.node_count - 1].min.y = NAN; break;     /* a NaN box */
+        case 0:
+            nodes[0].index = 0;
+            break; /* a cycle */
+        case 1:
+            prims[3] = h.prim_count;
+            break; /* a reference out of range */
+        case 2:
+            tris[5] = NAN;
+            break; /* a NaN vertex */
+        case 3:
+            nodes[1].max.x = nodes[0].max.x + 1.0f;
+            break; /* a child outside its parent */
+        case 4:
+            nodes[0].count = 300;
+            nodes[0].index = 0;
+            break; /* a leaf too large */
+        default:
+            nodes[h.node_count - 1].min.y = NAN;
+            break; /* a NaN box */
         }
         rf_reseal(copy, 1);
         r = rf_load(&u, copy, buf.size, ld);
@@ -685,7 +741,8 @@ static void load_damaged(void **state) {
             bvh_result r;
             ld.allocator = rf_allocator(&a, k);
             r = bvh_load(&u, &ld);
-            if (r != BVH_SUCCESS && r != BVH_ERROR_OUT_OF_MEMORY) fail_msg("allocation %ld failed: %s", k, bvh_result_string(r));
+            if (r != BVH_SUCCESS && r != BVH_ERROR_OUT_OF_MEMORY)
+                fail_msg("allocation %ld failed: %s", k, bvh_result_string(r));
             bvh_free(&u);
             assert_int_equal(a.live, 0);
         }

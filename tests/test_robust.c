@@ -61,7 +61,11 @@ static void *rb_track_alloc(size_t size, void *user) {
     if (rb_nblocks == rb_capblocks) {
         size_t cap = rb_capblocks ? 2 * rb_capblocks : 256;
         void **b = (void **)realloc(rb_blocks, cap * sizeof(void *));
-        if (!b) { pthread_mutex_unlock(&rb_mutex); free(p); return NULL; }
+        if (!b) {
+            pthread_mutex_unlock(&rb_mutex);
+            free(p);
+            return NULL;
+        }
         rb_blocks = b;
         rb_capblocks = cap;
     }
@@ -75,7 +79,10 @@ static void rb_track_free(void *p, void *user) {
     if (!p) return;
     pthread_mutex_lock(&rb_mutex);
     for (i = rb_nblocks; i-- > 0;)
-        if (rb_blocks[i] == p) { rb_blocks[i] = rb_blocks[--rb_nblocks]; break; }
+        if (rb_blocks[i] == p) {
+            rb_blocks[i] = rb_blocks[--rb_nblocks];
+            break;
+        }
     pthread_mutex_unlock(&rb_mutex);
     free(p);
 }
@@ -102,12 +109,21 @@ static int rb_group_teardown(void **state) {
 }
 
 /* == deterministic RNG (xorshift64*) ========================================================= */
-typedef struct rb_rng { uint64_t s; } rb_rng;
+typedef struct rb_rng {
+    uint64_t s;
+} rb_rng;
 static uint32_t rb_u32(rb_rng *r) {
-    r->s ^= r->s >> 12; r->s ^= r->s << 25; r->s ^= r->s >> 27;
+    r->s ^= r->s >> 12;
+    r->s ^= r->s << 25;
+    r->s ^= r->s >> 27;
     return (uint32_t)((r->s * 0x2545F4914F6CDD1DULL) >> 32);
 }
-static rb_rng rb_rng_make(uint64_t seed) { rb_rng r; r.s = seed * 0x9E3779B97F4A7C15ULL + 1; rb_u32(&r); return r; }
+static rb_rng rb_rng_make(uint64_t seed) {
+    rb_rng r;
+    r.s = seed * 0x9E3779B97F4A7C15ULL + 1;
+    rb_u32(&r);
+    return r;
+}
 static float rb_unit(rb_rng *r) { return (float)(rb_u32(r) >> 8) * (1.0f / 16777216.0f); }
 static float rb_range(rb_rng *r, float lo, float hi) { return lo + (hi - lo) * rb_unit(r); }
 static uint32_t rb_below(rb_rng *r, uint32_t n) { return (uint32_t)(((uint64_t)rb_u32(r) * n) >> 32); }
@@ -141,12 +157,22 @@ static void rb_scene_expand(rb_scene *s) {
         }
 }
 static void rb_scene_free(rb_scene *s) {
-    rb_xfree(s->pos); rb_xfree(s->idx); rb_xfree(s->tris);
+    rb_xfree(s->pos);
+    rb_xfree(s->idx);
+    rb_xfree(s->tris);
     memset(s, 0, sizeof *s);
 }
 static void rb_set_tri(float *p, float ax, float ay, float az, float bx, float by, float bz, float cx, float cy,
                        float cz) {
-    p[0] = ax; p[1] = ay; p[2] = az; p[3] = bx; p[4] = by; p[5] = bz; p[6] = cx; p[7] = cy; p[8] = cz;
+    p[0] = ax;
+    p[1] = ay;
+    p[2] = az;
+    p[3] = bx;
+    p[4] = by;
+    p[5] = bz;
+    p[6] = cx;
+    p[7] = cy;
+    p[8] = cz;
 }
 /* n random triangles of edge up to `size` with centres in [lo, hi]^3. */
 static void rb_scene_random(rb_scene *s, uint32_t n, float lo, float hi, float size, uint64_t seed) {
@@ -155,7 +181,9 @@ static void rb_scene_random(rb_scene *s, uint32_t n, float lo, float hi, float s
     rb_scene_soup(s, n);
     for (i = 0; i < n; i++) {
         float c[3];
-        c[0] = rb_range(&r, lo, hi); c[1] = rb_range(&r, lo, hi); c[2] = rb_range(&r, lo, hi);
+        c[0] = rb_range(&r, lo, hi);
+        c[1] = rb_range(&r, lo, hi);
+        c[2] = rb_range(&r, lo, hi);
         for (k = 0; k < 9; k++) s->pos[9 * i + k] = c[k % 3] + rb_range(&r, -0.5f, 0.5f) * size;
     }
     rb_scene_expand(s);
@@ -195,8 +223,10 @@ static void rb_check_tree(const bvh_tree *t, uint32_t prims, uint32_t excluded, 
     assert_int_equal(t->prim_count, prims);
     assert_int_equal(t->excluded, excluded);
     assert_int_equal(bvh_builder_get_info(t->builder, &info), BVH_SUCCESS);
-    if (!info.splits_references) assert_int_equal(t->ref_count, prims - excluded);
-    else assert_true(t->ref_count >= prims - excluded && t->ref_count <= 2 * (prims - excluded)); /* budget <= 1 */
+    if (!info.splits_references)
+        assert_int_equal(t->ref_count, prims - excluded);
+    else
+        assert_true(t->ref_count >= prims - excluded && t->ref_count <= 2 * (prims - excluded)); /* budget <= 1 */
 }
 /* bvh_sah is finite and non-negative for any tree over finite input. */
 static void rb_check_sah(const bvh_tree *t, const char *what) {
@@ -205,7 +235,8 @@ static void rb_check_sah(const bvh_tree *t, const char *what) {
     assert_int_equal(bvh_sah(t, NULL, &sah), BVH_SUCCESS);
     if (!fp_finite(sah) || sah < 0.0) fail_msg("%s (%s): SAH %g", what, bvh_builder_name(t->builder), sah);
     assert_int_equal(bvh_sah(t, &k, &sah), BVH_SUCCESS);
-    if (!fp_finite(sah) || sah < 0.0) fail_msg("%s (%s): SAH %g with costs (1, 0.5, 2)", what, bvh_builder_name(t->builder), sah);
+    if (!fp_finite(sah) || sah < 0.0)
+        fail_msg("%s (%s): SAH %g with costs (1, 0.5, 2)", what, bvh_builder_name(t->builder), sah);
 }
 
 /* Closest hit over every finite triangle of the scene, lowest index first at equal t. */
@@ -218,7 +249,10 @@ static int rb_brute(const rb_scene *s, const bvh_ray *ray, bvh_hit *best) {
     for (i = 0; i < s->nt; i++) {
         const float *p = s->tris + 9 * (size_t)i;
         if (!rb_finite9(p) || !bvh_intersect_triangle(ray, p, p + 3, p + 6, &h)) continue;
-        if (best->prim == BVH_INVALID || h.t < best->t) { *best = h; best->prim = i; }
+        if (best->prim == BVH_INVALID || h.t < best->t) {
+            *best = h;
+            best->prim = i;
+        }
     }
     return best->prim != BVH_INVALID;
 }
@@ -234,11 +268,11 @@ static void rb_fail_ray(const char *what, const bvh_tree *t, const bvh_ray *ray,
     if ((unsigned)t->builder < BVH_BUILDER_COUNT) rb_mismatch_builders[t->builder] = bvh_builder_name(t->builder);
     if (rb_printed++ >= 4) return;
     print_error("%s (%s) %s: ray o=(%a %a %a) d=(%a %a %a) t=[%a %a]: tree %d prim %u t=%a u=%a v=%a, brute force "
-             "prim %u t=%a u=%a v=%a",
-             what, bvh_builder_name(t->builder), call, (double)ray->origin.x, (double)ray->origin.y,
-             (double)ray->origin.z, (double)ray->dir.x, (double)ray->dir.y, (double)ray->dir.z, (double)ray->tmin,
-             (double)ray->tmax, got, h->prim, (double)h->t, (double)h->u, (double)h->v, want->prim, (double)want->t,
-             (double)want->u, (double)want->v);
+                "prim %u t=%a u=%a v=%a",
+                what, bvh_builder_name(t->builder), call, (double)ray->origin.x, (double)ray->origin.y,
+                (double)ray->origin.z, (double)ray->dir.x, (double)ray->dir.y, (double)ray->dir.z, (double)ray->tmin,
+                (double)ray->tmax, got, h->prim, (double)h->t, (double)h->u, (double)h->v, want->prim, (double)want->t,
+                (double)want->u, (double)want->v);
     print_error("\n");
 }
 static void rb_reset_mismatches(void) {
@@ -280,10 +314,19 @@ static void rb_check_ray(const char *what, const bvh_tree *t, const rb_scene *s,
 }
 
 /* == rays ==================================================================================== */
-static bvh_vec3 rb_v3(float x, float y, float z) { bvh_vec3 v; v.x = x; v.y = y; v.z = z; return v; }
+static bvh_vec3 rb_v3(float x, float y, float z) {
+    bvh_vec3 v;
+    v.x = x;
+    v.y = y;
+    v.z = z;
+    return v;
+}
 static bvh_ray rb_ray(bvh_vec3 o, bvh_vec3 d, float tmin, float tmax) {
     bvh_ray r;
-    r.origin = o; r.dir = d; r.tmin = tmin; r.tmax = tmax;
+    r.origin = o;
+    r.dir = d;
+    r.tmin = tmin;
+    r.tmax = tmax;
     return r;
 }
 static bvh_aabb rb_bounds(const rb_scene *s) {
@@ -291,8 +334,13 @@ static bvh_aabb rb_bounds(const rb_scene *s) {
     uint32_t i, k;
     for (i = 0; i < s->nt; i++)
         if (rb_finite9(s->tris + 9 * (size_t)i))
-            for (k = 0; k < 3; k++) bvh_aabb_grow(&b, rb_v3(s->tris[9 * i + 3 * k], s->tris[9 * i + 3 * k + 1], s->tris[9 * i + 3 * k + 2]));
-    if (b.min.x > b.max.x) { b.min = rb_v3(-1, -1, -1); b.max = rb_v3(1, 1, 1); }
+            for (k = 0; k < 3; k++)
+                bvh_aabb_grow(&b,
+                              rb_v3(s->tris[9 * i + 3 * k], s->tris[9 * i + 3 * k + 1], s->tris[9 * i + 3 * k + 2]));
+    if (b.min.x > b.max.x) {
+        b.min = rb_v3(-1, -1, -1);
+        b.max = rb_v3(1, 1, 1);
+    }
     return b;
 }
 static float rb_coord(rb_rng *r, const bvh_aabb *b, int a) {
@@ -317,7 +365,10 @@ static int rb_vertex(rb_rng *r, const rb_scene *s, float out[3]) {
 static bvh_ray rb_gen_ray(rb_rng *r, const rb_scene *s, const bvh_aabb *b, int kind) {
     float o[3], d[3], v[3];
     int a;
-    for (a = 0; a < 3; a++) { o[a] = rb_coord(r, b, a); d[a] = rb_range(r, -1, 1); }
+    for (a = 0; a < 3; a++) {
+        o[a] = rb_coord(r, b, a);
+        d[a] = rb_range(r, -1, 1);
+    }
     if ((kind == 1 || kind == 2 || kind == 5) && rb_vertex(r, s, v)) {
         if (kind != 2) { /* a point inside some triangle */
             const float *p = s->tris + 9 * (size_t)rb_below(r, s->nt);
@@ -460,7 +511,10 @@ static void test_two_identical(void **state) {
 }
 
 /* 100,000 copies of one triangle: every centroid and Morton code equal. */
-typedef struct rb_copies { const rb_scene *s; bvh_builder b; } rb_copies;
+typedef struct rb_copies {
+    const rb_scene *s;
+    bvh_builder b;
+} rb_copies;
 static int rb_copies_child(void *arg) {
     const rb_copies *c = (const rb_copies *)arg;
     bvh_build_desc d = rb_desc(c->s, c->b);
@@ -490,7 +544,8 @@ static void test_100k_copies(void **state) {
     RB_FOR_EACH_BUILDER(b) {
         rb_copies c;
         char what[64];
-        c.s = &s; c.b = b;
+        c.s = &s;
+        c.b = b;
         snprintf(what, sizeof what, "100,000 copies, %s", bvh_builder_name(b));
         rb_watchdog(what, 20, rb_copies_child, &c);
     }
@@ -507,15 +562,20 @@ static void test_degenerate_only(void **state) {
     rb_scene_soup(&s, 600);
     for (i = 0; i < s.nt; i++) {
         float *p = s.pos + 9 * (size_t)i, o[3], d[3];
-        for (k = 0; k < 3; k++) { o[k] = (float)((int)rb_below(&r, 21) - 10); d[k] = (float)((int)rb_below(&r, 7) - 3); }
+        for (k = 0; k < 3; k++) {
+            o[k] = (float)((int)rb_below(&r, 21) - 10);
+            d[k] = (float)((int)rb_below(&r, 7) - 3);
+        }
         if (i % 5 == 4) d[rb_below(&r, 3)] = 0.0f, d[rb_below(&r, 3)] = 0.0f; /* often axis-parallel */
         for (k = 0; k < 3; k++) {
             float f1 = i % 3 == 0 ? 0.0f : 1.0f, f2 = i % 3 == 0 ? 0.0f : i % 3 == 1 ? 2.0f : 1.0f;
-            p[k] = o[k]; p[3 + k] = o[k] + f1 * d[k]; p[6 + k] = o[k] + f2 * d[k]; /* point, line, repeated */
+            p[k] = o[k];
+            p[3 + k] = o[k] + f1 * d[k];
+            p[6 + k] = o[k] + f2 * d[k]; /* point, line, repeated */
         }
     }
     rb_scene_expand(&s);
-    {   /* the brute force (bvh_intersect_triangle) hits nothing: counted, reported at the end */
+    { /* the brute force (bvh_intersect_triangle) hits nothing: counted, reported at the end */
         rb_rng q = rb_rng_make(8);
         bvh_aabb b = rb_bounds(&s);
         bvh_hit h;
@@ -552,7 +612,8 @@ static void rb_check_refused(const rb_scene *s, bvh_result expect, const char *w
         bvh_tree t;
         bvh_result r = bvh_build(&t, &d);
         if (r != expect)
-            fail_msg("%s (%s): got %s, want %s", what, bvh_builder_name(b), bvh_result_string(r), bvh_result_string(expect));
+            fail_msg("%s (%s): got %s, want %s", what, bvh_builder_name(b), bvh_result_string(r),
+                     bvh_result_string(expect));
         assert_null(t.nodes);
         assert_null(t.prims);
         assert_null(t.tris);
@@ -592,10 +653,19 @@ static void test_nan_shared_vertex(void **state) {
     s.nt = 2 * 5 * 5;
     s.pos = (float *)rb_xcalloc(3 * (size_t)s.nv, sizeof(float));
     s.idx = (uint32_t *)rb_xcalloc(3 * (size_t)s.nt, sizeof(uint32_t));
-    for (i = 0; i < s.nv; i++) { s.pos[3 * i] = (float)(i % 6); s.pos[3 * i + 1] = (float)(i / 6); s.pos[3 * i + 2] = 0.25f * (float)(i % 5); }
+    for (i = 0; i < s.nv; i++) {
+        s.pos[3 * i] = (float)(i % 6);
+        s.pos[3 * i + 1] = (float)(i / 6);
+        s.pos[3 * i + 2] = 0.25f * (float)(i % 5);
+    }
     for (i = 0; i < 25; i++) {
         uint32_t v = (i / 5) * 6 + i % 5, *q = s.idx + 6 * i;
-        q[0] = v; q[1] = v + 1; q[2] = v + 7; q[3] = v; q[4] = v + 7; q[5] = v + 6;
+        q[0] = v;
+        q[1] = v + 1;
+        q[2] = v + 7;
+        q[3] = v;
+        q[4] = v + 7;
+        q[5] = v + 6;
     }
     s.pos[3 * 14 + 1] = NAN; /* vertex 14 (x 2, y 2) is in triangles of three cells, 6 triangles */
     rb_scene_expand(&s);
@@ -672,7 +742,8 @@ static void test_one_plane(void **state) {
         assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
         rb_check_sah(&t, "one plane");
         for (i = 0; i < 600; i++) { /* rays in the plane (dz = +-0, oz = +-0) and straight down */
-            float x = rb_range(&r, -12, 12), y = rb_range(&r, -12, 12), dx = rb_range(&r, -1, 1), dy = rb_range(&r, -1, 1);
+            float x = rb_range(&r, -12, 12), y = rb_range(&r, -12, 12), dx = rb_range(&r, -1, 1),
+                  dy = rb_range(&r, -1, 1);
             bvh_ray in = rb_ray(rb_v3(x, y, i & 1 ? 0.0f : -0.0f), rb_v3(dx, dy, i & 2 ? 0.0f : -0.0f), 0, BVH_INF);
             bvh_ray down = rb_ray(rb_v3(x, y, 3), rb_v3(i & 1 ? 0.0f : -0.0f, i & 2 ? 0.0f : -0.0f, -1), 0, BVH_INF);
             rb_check_ray("one plane, in-plane ray", &t, &s, &in);
@@ -681,12 +752,13 @@ static void test_one_plane(void **state) {
         bvh_free(&t);
     }
     rb_expect_no_mismatch("one plane, in-plane and perpendicular rays", 5 * 1200);
-    {   /* all on one line: the root has zero area */
+    { /* all on one line: the root has zero area */
         rb_scene l;
         bvh_tree t;
         bvh_build_desc d;
         rb_scene_soup(&l, 64);
-        for (i = 0; i < l.nt; i++) rb_set_tri(l.pos + 9 * i, (float)i, 0, 0, (float)i + 0.5f, 0, 0, (float)i + 1.0f, 0, 0);
+        for (i = 0; i < l.nt; i++)
+            rb_set_tri(l.pos + 9 * i, (float)i, 0, 0, (float)i + 0.5f, 0, 0, (float)i + 1.0f, 0, 0);
         rb_scene_expand(&l);
         RB_FOR_EACH_BUILDER(b) {
             d = rb_desc(&l, b);
@@ -897,7 +969,8 @@ static void test_hit_is_finite(void **state) {
     rb_scene_soup(&s, 1);
     rb_set_tri(s.pos, 0x1.0208p-113f, 0x1p-139f, 0x1.0008p-119f, -0x1.020208p+113f, 0x1.08p-31f, 0, 0, 0, 0);
     rb_scene_expand(&s);
-    if (bvh_intersect_triangle(&ray, s.tris, s.tris + 3, s.tris + 6, &h) && !(fp_finite(h.t) && fp_finite(h.u) && fp_finite(h.v)))
+    if (bvh_intersect_triangle(&ray, s.tris, s.tris + 3, s.tris + 6, &h) &&
+        !(fp_finite(h.t) && fp_finite(h.u) && fp_finite(h.v)))
         fail_msg("bvh_intersect_triangle: hit at t=%a u=%a v=%a", (double)h.t, (double)h.u, (double)h.v);
     RB_FOR_EACH_BUILDER(b) {
         bvh_build_desc d = rb_desc(&s, b);
@@ -918,8 +991,8 @@ static void test_hit_is_finite(void **state) {
 static void test_far_origin_false_hit(void **state) {
     rb_scene s;
     bvh_builder b;
-    bvh_ray ray = rb_ray(rb_v3(-0x1.4eff4p+40f, 0x1.4p+1f, -0x1.1efe1ap+111f), rb_v3(-0x1.4p+0f, -0x1.4p+1f, 0x1.ep+1f), 0,
-                         BVH_INF);
+    bvh_ray ray = rb_ray(rb_v3(-0x1.4eff4p+40f, 0x1.4p+1f, -0x1.1efe1ap+111f), rb_v3(-0x1.4p+0f, -0x1.4p+1f, 0x1.ep+1f),
+                         0, BVH_INF);
     bvh_hit h;
     (void)state;
     rb_scene_soup(&s, 2);
@@ -945,7 +1018,8 @@ static void rb_expect(bvh_build_desc d, bvh_result want, const char *what) {
     bvh_tree t;
     bvh_result r = bvh_build(&t, &d);
     if (r != want)
-        fail_msg("%s (%s): got %s, want %s", what, bvh_builder_name(d.builder), bvh_result_string(r), bvh_result_string(want));
+        fail_msg("%s (%s): got %s, want %s", what, bvh_builder_name(d.builder), bvh_result_string(r),
+                 bvh_result_string(want));
     if (r == BVH_SUCCESS) {
         rb_check_tree(&t, t.prim_count, t.excluded, what);
     } else {
@@ -989,7 +1063,10 @@ static void test_bad_stride(void **state) {
     (void)state;
     rb_scene_random(&s, 30, -1, 1, 1, 91);
     wide = (float *)rb_xcalloc(s.nv, 16);
-    for (i = 0; i < s.nv; i++) { memcpy(wide + 4 * i, s.pos + 3 * i, 12); wide[4 * i + 3] = NAN; }
+    for (i = 0; i < s.nv; i++) {
+        memcpy(wide + 4 * i, s.pos + 3 * i, 12);
+        wide[4 * i + 3] = NAN;
+    }
     RB_FOR_EACH_BUILDER(b) {
         bvh_build_desc d = rb_desc(&s, b);
         size_t st;
@@ -1038,7 +1115,9 @@ static void test_too_many_primitives(void **state) {
             rb_expect(d, BVH_ERROR_TOO_MANY_PRIMITIVES, "huge box count");
         }
     }
-    rb_xfree(one); rb_xfree(idx); rb_xfree(box);
+    rb_xfree(one);
+    rb_xfree(idx);
+    rb_xfree(box);
 }
 static void test_options(void **state) {
     rb_scene s;
@@ -1049,41 +1128,104 @@ static void test_options(void **state) {
         bvh_build_desc base = rb_desc(&s, b), d;
         bvh_tree t;
         bvh_stats st;
-        d = base; d.max_leaf_size = 0; rb_expect(d, BVH_SUCCESS, "max_leaf_size 0 (default)");
-        d = base; d.max_leaf_size = 1; rb_expect(d, BVH_SUCCESS, "max_leaf_size 1");
-        d = base; d.max_leaf_size = 255; rb_expect(d, BVH_SUCCESS, "max_leaf_size 255");
+        d = base;
+        d.max_leaf_size = 0;
+        rb_expect(d, BVH_SUCCESS, "max_leaf_size 0 (default)");
+        d = base;
+        d.max_leaf_size = 1;
+        rb_expect(d, BVH_SUCCESS, "max_leaf_size 1");
+        d = base;
+        d.max_leaf_size = 255;
+        rb_expect(d, BVH_SUCCESS, "max_leaf_size 255");
         assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
         assert_int_equal(bvh_get_stats(&t, &st), BVH_SUCCESS);
         assert_true(st.max_leaf_size <= 255);
         bvh_free(&t);
-        d = base; d.max_leaf_size = 256; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "max_leaf_size 256");
-        d = base; d.max_leaf_size = UINT32_MAX; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "max_leaf_size 2^32-1");
-        d = base; d.ploc.radius = 0; rb_expect(d, BVH_SUCCESS, "ploc_radius 0 (default)");
-        d = base; d.ploc.radius = 1; rb_expect(d, BVH_SUCCESS, "ploc_radius 1");
-        d = base; d.ploc.radius = 256; rb_expect(d, BVH_SUCCESS, "ploc_radius 256");
-        d = base; d.ploc.radius = 257; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "ploc_radius 257");
-        d = base; d.threads = 0; rb_expect(d, BVH_SUCCESS, "threads 0 (all CPUs)");
-        d = base; d.threads = 10000; rb_expect(d, BVH_SUCCESS, "threads 10000 (clamped to 256)");
-        d = base; d.costs.interior = -1; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "negative interior cost");
-        d = base; d.costs.leaf = -0.5f; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "negative leaf cost");
-        d = base; d.costs.triangle = -1e-30f; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "negative triangle cost");
-        d = base; d.costs.interior = NAN; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "NaN interior cost");
-        d = base; d.costs.triangle = NAN; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "NaN triangle cost");
-        d = base; d.costs.leaf = -INFINITY; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "-Inf leaf cost");
-        d = base; d.costs.interior = 2; d.costs.leaf = 1; d.costs.triangle = 0.25f;
+        d = base;
+        d.max_leaf_size = 256;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "max_leaf_size 256");
+        d = base;
+        d.max_leaf_size = UINT32_MAX;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "max_leaf_size 2^32-1");
+        d = base;
+        d.ploc.radius = 0;
+        rb_expect(d, BVH_SUCCESS, "ploc_radius 0 (default)");
+        d = base;
+        d.ploc.radius = 1;
+        rb_expect(d, BVH_SUCCESS, "ploc_radius 1");
+        d = base;
+        d.ploc.radius = 256;
+        rb_expect(d, BVH_SUCCESS, "ploc_radius 256");
+        d = base;
+        d.ploc.radius = 257;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "ploc_radius 257");
+        d = base;
+        d.threads = 0;
+        rb_expect(d, BVH_SUCCESS, "threads 0 (all CPUs)");
+        d = base;
+        d.threads = 10000;
+        rb_expect(d, BVH_SUCCESS, "threads 10000 (clamped to 256)");
+        d = base;
+        d.costs.interior = -1;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "negative interior cost");
+        d = base;
+        d.costs.leaf = -0.5f;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "negative leaf cost");
+        d = base;
+        d.costs.triangle = -1e-30f;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "negative triangle cost");
+        d = base;
+        d.costs.interior = NAN;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "NaN interior cost");
+        d = base;
+        d.costs.triangle = NAN;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "NaN triangle cost");
+        d = base;
+        d.costs.leaf = -INFINITY;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "-Inf leaf cost");
+        d = base;
+        d.costs.interior = 2;
+        d.costs.leaf = 1;
+        d.costs.triangle = 0.25f;
         rb_expect(d, BVH_SUCCESS, "positive costs");
-        d = base; d.costs.interior = 0; d.costs.leaf = 0; d.costs.triangle = 1e-3f; rb_expect(d, BVH_SUCCESS, "zero interior cost");
-        d = base; d.sah_midpoint.split_budget = NAN; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget NaN");
-        d = base; d.sah_midpoint.split_budget = 1.0001f; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget > 1");
-        d = base; d.sah_midpoint.split_budget = INFINITY; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget Inf");
-        d = base; d.sah_midpoint.split_budget = 1.0f; rb_expect(d, BVH_SUCCESS, "split_budget 1");
-        d = base; d.sah_midpoint.split_budget = -1.0f; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget -1");
-        d = base; d.sah_midpoint.split_budget = -0.0f; rb_expect(d, BVH_SUCCESS, "split_budget -0 (default)");
-        d = base; d.sah_midpoint.split_budget = BVH_OFF; rb_expect(d, BVH_SUCCESS, "split_budget BVH_OFF (no splits)");
-        d = base; d.sah_midpoint.split_budget = 2147483520.0f; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget below BVH_OFF");
-        d = base; d.sah_midpoint.bins = BVH_OFF; rb_expect(d, BVH_SUCCESS, "sah bins BVH_OFF (mid-point only)");
-        d = base; d.sah_midpoint.bins = 65; rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "sah bins 65");
-        d = base; d.sah_midpoint.split_budget = 1e-7f; rb_expect(d, BVH_SUCCESS, "split_budget tiny");
+        d = base;
+        d.costs.interior = 0;
+        d.costs.leaf = 0;
+        d.costs.triangle = 1e-3f;
+        rb_expect(d, BVH_SUCCESS, "zero interior cost");
+        d = base;
+        d.sah_midpoint.split_budget = NAN;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget NaN");
+        d = base;
+        d.sah_midpoint.split_budget = 1.0001f;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget > 1");
+        d = base;
+        d.sah_midpoint.split_budget = INFINITY;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget Inf");
+        d = base;
+        d.sah_midpoint.split_budget = 1.0f;
+        rb_expect(d, BVH_SUCCESS, "split_budget 1");
+        d = base;
+        d.sah_midpoint.split_budget = -1.0f;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget -1");
+        d = base;
+        d.sah_midpoint.split_budget = -0.0f;
+        rb_expect(d, BVH_SUCCESS, "split_budget -0 (default)");
+        d = base;
+        d.sah_midpoint.split_budget = BVH_OFF;
+        rb_expect(d, BVH_SUCCESS, "split_budget BVH_OFF (no splits)");
+        d = base;
+        d.sah_midpoint.split_budget = 2147483520.0f;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "split_budget below BVH_OFF");
+        d = base;
+        d.sah_midpoint.bins = BVH_OFF;
+        rb_expect(d, BVH_SUCCESS, "sah bins BVH_OFF (mid-point only)");
+        d = base;
+        d.sah_midpoint.bins = 65;
+        rb_expect(d, BVH_ERROR_INVALID_ARGUMENT, "sah bins 65");
+        d = base;
+        d.sah_midpoint.split_budget = 1e-7f;
+        rb_expect(d, BVH_SUCCESS, "split_budget tiny");
     }
     {
         bvh_build_desc d = rb_desc(&s, BVH_BUILDER_PLOC);
@@ -1122,7 +1264,9 @@ static bvh_allocator rb_allocator(rb_alloc *a, long fail_at) {
     atomic_store(&a->calls, 0);
     atomic_store(&a->live, 0);
     a->fail_at = fail_at;
-    al.alloc = rb_alloc_fn; al.free = rb_free_fn; al.user = a;
+    al.alloc = rb_alloc_fn;
+    al.free = rb_free_fn;
+    al.user = a;
     return al;
 }
 /* Fails allocation k of a build for every k below the count of a successful build. */
@@ -1147,20 +1291,21 @@ static void rb_fail_every_allocation(const rb_scene *s, bvh_builder b, int skip_
         if (r == BVH_SUCCESS) {
             rb_check_tree(&t, s->nt, t.excluded, what);
         } else if (r != BVH_ERROR_OUT_OF_MEMORY) {
-            fail_msg("%s (%s): allocation %ld of %ld failed: %s", what, bvh_builder_name(b), k, total, bvh_result_string(r));
+            fail_msg("%s (%s): allocation %ld of %ld failed: %s", what, bvh_builder_name(b), k, total,
+                     bvh_result_string(r));
         } else {
             assert_null(t.nodes);
             assert_null(t.prims);
             assert_null(t.tris);
             assert_null(t.nodes8);
             if (atomic_load(&a.live) != 0)
-                fail_msg("%s (%s): allocation %ld of %ld failed: %ld blocks leaked", what, bvh_builder_name(b), k, total,
-                         (long)atomic_load(&a.live));
+                fail_msg("%s (%s): allocation %ld of %ld failed: %ld blocks leaked", what, bvh_builder_name(b), k,
+                         total, (long)atomic_load(&a.live));
         }
         bvh_free(&t);
         if (atomic_load(&a.live) != 0)
-            fail_msg("%s (%s): allocation %ld of %ld failed: %ld blocks live after bvh_free", what, bvh_builder_name(b), k,
-                     total, (long)atomic_load(&a.live));
+            fail_msg("%s (%s): allocation %ld of %ld failed: %ld blocks live after bvh_free", what, bvh_builder_name(b),
+                     k, total, (long)atomic_load(&a.live));
     }
 }
 /* The geometric chain of test_ploc_chain (defined below): makes bvh__emit rebuild for depth. */
@@ -1178,7 +1323,7 @@ static void test_allocation_failure(void **state) {
         rb_fail_every_allocation(&chain, b, 0, 2, "chain (depth rebuild)");
     }
     rb_fail_every_allocation(&s, BVH_BUILDER_PLOC_PARALLEL, 1, 1, "ploc-parallel, one thread");
-    {   /* bvh_validate and batch tracing allocate through the tree's allocator too */
+    { /* bvh_validate and batch tracing allocate through the tree's allocator too */
         rb_alloc a;
         bvh_build_desc d = rb_desc(&s, BVH_BUILDER_PLOC);
         bvh_tree t;
@@ -1186,7 +1331,8 @@ static void test_allocation_failure(void **state) {
         bvh_hit *hits = (bvh_hit *)rb_xcalloc(1024, sizeof(bvh_hit));
         long k, base;
         uint32_t i;
-        for (i = 0; i < 1024; i++) rays[i] = rb_ray(rb_v3(0, 0, -9), rb_v3(0.001f * (float)i - 0.5f, 0.3f, 1), 0, BVH_INF);
+        for (i = 0; i < 1024; i++)
+            rays[i] = rb_ray(rb_v3(0, 0, -9), rb_v3(0.001f * (float)i - 0.5f, 0.3f, 1), 0, BVH_INF);
         d.skip_invalid = 1;
         d.allocator = rb_allocator(&a, -1);
         assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
@@ -1235,20 +1381,31 @@ static void rb_handmade_make(rb_handmade *h, uint32_t depth) {
         bvh_node *x = &h->nodes[i];
         uint32_t leaf = i == n - 1 ? depth - 1 : (i - 1) / 2;
         if (i == n - 1 || (i & 1)) {
-            x->min = rb_v3((float)leaf, 0, 0); x->max = rb_v3((float)leaf + 1, 1, 0);
-            x->index = leaf; x->count = 1;
+            x->min = rb_v3((float)leaf, 0, 0);
+            x->max = rb_v3((float)leaf + 1, 1, 0);
+            x->index = leaf;
+            x->count = 1;
         } else {
-            x->min = h->nodes[i + 1].min; x->max = h->nodes[i + 2].max;
-            x->index = i + 1; x->count = 0;
+            x->min = h->nodes[i + 1].min;
+            x->max = h->nodes[i + 2].max;
+            x->index = i + 1;
+            x->count = 0;
         }
     }
     memset(&h->tree, 0, sizeof h->tree);
-    h->tree.nodes = h->nodes; h->tree.node_count = n;
-    h->tree.prims = h->prims; h->tree.ref_count = depth;
-    h->tree.tris = h->tris; h->tree.prim_count = depth;
+    h->tree.nodes = h->nodes;
+    h->tree.node_count = n;
+    h->tree.prims = h->prims;
+    h->tree.ref_count = depth;
+    h->tree.tris = h->tris;
+    h->tree.prim_count = depth;
     h->tree.builder = BVH_BUILDER_TOP_DOWN;
 }
-static void rb_handmade_free(rb_handmade *h) { rb_xfree(h->nodes); rb_xfree(h->prims); rb_xfree(h->tris); }
+static void rb_handmade_free(rb_handmade *h) {
+    rb_xfree(h->nodes);
+    rb_xfree(h->prims);
+    rb_xfree(h->tris);
+}
 static void test_handmade_deep_tree(void **state) {
     rb_handmade h;
     bvh_validation rep;
@@ -1267,16 +1424,21 @@ static void test_handmade_deep_tree(void **state) {
             assert_int_equal(bvh_validate(&h.tree, NULL, &rep), BVH_ERROR_INVALID_TREE);
             assert_non_null(strstr(rep.message, "deeper"));
             r = bvh_get_stats(&h.tree, &st); /* not a validator: may refuse, or report the depth */
-            if (r == BVH_SUCCESS) assert_int_equal(st.max_depth, depth);
-            else assert_int_equal(r, BVH_ERROR_INVALID_TREE);
+            if (r == BVH_SUCCESS)
+                assert_int_equal(st.max_depth, depth);
+            else
+                assert_int_equal(r, BVH_ERROR_INVALID_TREE);
         }
-        {   /* traversal must stay in bounds even on the rejected tree */
+        { /* traversal must stay in bounds even on the rejected tree */
             uint32_t l;
             bvh_hit hit;
             for (l = 0; l < depth; l++) {
                 bvh_ray ray = rb_ray(rb_v3((float)l + 0.25f, 0.25f, -1), rb_v3(0, 0, 1), 0, BVH_INF);
                 int got = bvh_intersect(&h.tree, &ray, &hit);
-                if (depth <= BVH_MAX_DEPTH) { assert_int_equal(got, 1); assert_int_equal(hit.prim, l); }
+                if (depth <= BVH_MAX_DEPTH) {
+                    assert_int_equal(got, 1);
+                    assert_int_equal(hit.prim, l);
+                }
             }
         }
         rb_handmade_free(&h);
@@ -1300,15 +1462,34 @@ static void test_handmade_broken_trees(void **state) {
     for (k = 0; k < 9; k++) {
         rb_handmade_make(&h, 6);
         switch (k) {
-        case 0: h.nodes[0].index = 0; break;                   /* a cycle to the root */
-        case 1: h.nodes[2].index = 1; break;                   /* a node reached twice */
-        case 2: h.nodes[4].index = h.tree.node_count - 1; break; /* child index past the end */
-        case 3: h.nodes[4].index = UINT32_MAX; break;
-        case 4: h.nodes[1].index = 5; h.nodes[1].count = 2; break; /* leaf range past the end */
-        case 5: h.nodes[1].count = UINT32_MAX; break;
-        case 6: h.prims[2] = 99; break;                        /* reference out of range */
-        case 7: h.prims[2] = 3; break;                         /* primitive twice, one missing */
-        default: h.nodes[3].max.x = NAN; break;                /* NaN box */
+        case 0:
+            h.nodes[0].index = 0;
+            break; /* a cycle to the root */
+        case 1:
+            h.nodes[2].index = 1;
+            break; /* a node reached twice */
+        case 2:
+            h.nodes[4].index = h.tree.node_count - 1;
+            break; /* child index past the end */
+        case 3:
+            h.nodes[4].index = UINT32_MAX;
+            break;
+        case 4:
+            h.nodes[1].index = 5;
+            h.nodes[1].count = 2;
+            break; /* leaf range past the end */
+        case 5:
+            h.nodes[1].count = UINT32_MAX;
+            break;
+        case 6:
+            h.prims[2] = 99;
+            break; /* reference out of range */
+        case 7:
+            h.prims[2] = 3;
+            break; /* primitive twice, one missing */
+        default:
+            h.nodes[3].max.x = NAN;
+            break; /* NaN box */
         }
         if (bvh_validate(&h.tree, NULL, &rep) != BVH_ERROR_INVALID_TREE) fail_msg("defect %d not found", k);
         rb_handmade_free(&h);
@@ -1370,7 +1551,8 @@ static void test_ploc_chain_time(void **state) {
     RB_FOR_EACH_BUILDER(b) {
         rb_copies c;
         char what[80];
-        c.s = &s; c.b = b;
+        c.s = &s;
+        c.b = b;
         snprintf(what, sizeof what, "32,768 nested triangles, %s", bvh_builder_name(b));
         rb_watchdog(what, 5, rb_nested_child, &c);
     }
@@ -1383,9 +1565,14 @@ static void rb_same_tree(const bvh_tree *a, const bvh_tree *b, const char *what)
     if (diff) fail_msg("%s: ploc-parallel's tree differs from ploc's in %s", what, diff);
 }
 static void rb_threads_scene(rb_scene *s, int which) {
-    if (which == 0) rb_scene_random(s, 20000, -10, 10, 1, 121);
-    else if (which == 1) { rb_scene_random(s, 3000, -10, 10, 1, 122); s->pos[9 * 5] = NAN; rb_scene_expand(s); }
-    else if (which == 2) rb_scene_chain(s, 200, 1.25f);
+    if (which == 0)
+        rb_scene_random(s, 20000, -10, 10, 1, 121);
+    else if (which == 1) {
+        rb_scene_random(s, 3000, -10, 10, 1, 122);
+        s->pos[9 * 5] = NAN;
+        rb_scene_expand(s);
+    } else if (which == 2)
+        rb_scene_chain(s, 200, 1.25f);
     else {
         uint32_t i;
         rb_scene_soup(s, 5000); /* duplicates: ties everywhere */
@@ -1449,7 +1636,8 @@ static void test_threads_batch(void **state) {
         assert_int_equal(bvh_occluded_batch(&t, rays, occ, n, th), BVH_SUCCESS);
         for (i = 0; i < n; i++) {
             int got = bvh_intersect(&t, &rays[i], &h);
-            if (hits[i].prim != h.prim || (got && hits[i].t != h.t)) fail_msg("batch ray %u differs (%u threads)", i, th);
+            if (hits[i].prim != h.prim || (got && hits[i].t != h.t))
+                fail_msg("batch ray %u differs (%u threads)", i, th);
             assert_int_equal(occ[i], (uint8_t)bvh_occluded(&t, &rays[i]));
         }
     }
@@ -1458,7 +1646,9 @@ static void test_threads_batch(void **state) {
     assert_int_equal(bvh_occluded_batch(&t, rays, NULL, 10, 4), BVH_ERROR_INVALID_ARGUMENT);
     bvh_free(&t);
     rb_scene_free(&s);
-    rb_xfree(rays); rb_xfree(hits); rb_xfree(occ);
+    rb_xfree(rays);
+    rb_xfree(hits);
+    rb_xfree(occ);
 }
 
 int main(void) {

@@ -33,7 +33,9 @@ static bvh_tree tree_of(bvh_node *nodes, uint32_t node_count, uint32_t *prims, u
 static double sah(const bvh_tree *t, float ci, float cl, float ct) {
     bvh_costs c;
     double out = -1.0;
-    c.interior = ci; c.leaf = cl; c.triangle = ct;
+    c.interior = ci;
+    c.leaf = cl;
+    c.triangle = ct;
     assert_int_equal(bvh_sah(t, &c, &out), BVH_SUCCESS);
     return out;
 }
@@ -140,11 +142,15 @@ static void empty_tree_and_errors(void **state) {
     t = tree_of(n, 1, prims, 1);
     assert_int_equal(bvh_sah(NULL, NULL, &out), BVH_ERROR_INVALID_ARGUMENT);
     assert_int_equal(bvh_sah(&t, NULL, NULL), BVH_ERROR_INVALID_ARGUMENT);
-    c.interior = 1; c.leaf = -1; c.triangle = 1;
+    c.interior = 1;
+    c.leaf = -1;
+    c.triangle = 1;
     assert_int_equal(bvh_sah(&t, &c, &out), BVH_ERROR_INVALID_ARGUMENT);
-    c.leaf = 0; c.interior = NAN;
+    c.leaf = 0;
+    c.interior = NAN;
     assert_int_equal(bvh_sah(&t, &c, &out), BVH_ERROR_INVALID_ARGUMENT);
-    c.interior = 1; c.triangle = BVH_INF;
+    c.interior = 1;
+    c.triangle = BVH_INF;
     assert_int_equal(bvh_sah(&t, &c, &out), BVH_ERROR_INVALID_ARGUMENT);
 }
 
@@ -161,7 +167,10 @@ static double reference_sah(const bvh_tree *t, double ci, double cl, double ct) 
         const bvh_node *n = &t->nodes[stack[--sp]];
         double dx = (double)n->max.x - n->min.x, dy = (double)n->max.y - n->min.y, dz = (double)n->max.z - n->min.z;
         double a = root > 0.0 ? (dx * dy + dy * dz + dz * dx) / root : 1.0;
-        if (n->count) { total += a * (cl + ct * n->count); continue; }
+        if (n->count) {
+            total += a * (cl + ct * n->count);
+            continue;
+        }
         total += a * ci;
         stack[sp++] = n->index;
         stack[sp++] = n->index + 1;
@@ -176,9 +185,12 @@ static void built_trees_agree_with_reference(void **state) {
     (void)state;
     for (scene = 0; scene < 3; scene++) {
         tu_scene s;
-        if (scene == 0) tu_scene_random(&s, 2000, 0x534148ULL);
-        else if (scene == 1) tu_scene_grid(&s);
-        else tu_scene_strided32(&s);
+        if (scene == 0)
+            tu_scene_random(&s, 2000, 0x534148ULL);
+        else if (scene == 1)
+            tu_scene_grid(&s);
+        else
+            tu_scene_strided32(&s);
         for (b = 0; b < TU_BUILDER_COUNT; b++) {
             bvh_tree t;
             tu_build(&s, tu_builder(b), &t);
@@ -206,13 +218,17 @@ static void ploc_collapse_never_worse(void **state) {
     int k, scene;
     (void)state;
     for (scene = 0; scene < 2; scene++) {
-        if (scene == 0) tu_scene_random(&s, 3000, 0x434f4cULL);
-        else tu_scene_strided32(&s);
+        if (scene == 0)
+            tu_scene_random(&s, 3000, 0x434f4cULL);
+        else
+            tu_scene_strided32(&s);
         for (k = 0; k < 4; k++) {
             bvh_tree flat, collapsed;
             bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
             double a, b;
-            d.costs.interior = costs[k][0]; d.costs.leaf = costs[k][1]; d.costs.triangle = costs[k][2];
+            d.costs.interior = costs[k][0];
+            d.costs.leaf = costs[k][1];
+            d.costs.triangle = costs[k][2];
             d.ploc.max_bytes_per_prim = BVH_OFF;
             d.max_leaf_size = 1;
             tu_build_valid(&s, &d, &flat);

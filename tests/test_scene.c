@@ -30,13 +30,23 @@ static void make_transform(tu_rng *r, float m[12], float spread) {
     float sc[3] = {tu_range(r, 0.5f, 2.0f), tu_range(r, 0.5f, 2.0f), tu_range(r, 0.5f, 2.0f)};
     float R[9];
     int i, j;
-    x = a.x / l; y = a.y / l; z = a.z / l;
-    R[0] = c + x * x * C; R[1] = x * y * C - z * s; R[2] = x * z * C + y * s;
-    R[3] = y * x * C + z * s; R[4] = c + y * y * C; R[5] = y * z * C - x * s;
-    R[6] = z * x * C - y * s; R[7] = z * y * C + x * s; R[8] = c + z * z * C;
+    x = a.x / l;
+    y = a.y / l;
+    z = a.z / l;
+    R[0] = c + x * x * C;
+    R[1] = x * y * C - z * s;
+    R[2] = x * z * C + y * s;
+    R[3] = y * x * C + z * s;
+    R[4] = c + y * y * C;
+    R[5] = y * z * C - x * s;
+    R[6] = z * x * C - y * s;
+    R[7] = z * y * C + x * s;
+    R[8] = c + z * z * C;
     for (i = 0; i < 3; i++)
         for (j = 0; j < 3; j++) m[4 * i + j] = R[3 * i + j] * sc[j];
-    m[3] = tu_range(r, -spread, spread); m[7] = tu_range(r, -spread, spread); m[11] = tu_range(r, -spread, spread);
+    m[3] = tu_range(r, -spread, spread);
+    m[7] = tu_range(r, -spread, spread);
+    m[11] = tu_range(r, -spread, spread);
 }
 
 static void world_make(world *w) {
@@ -87,19 +97,29 @@ static int brute(const world *w, const bvh_scene *sc, const bvh_ray *ray, uint32
         local = bvh_ray_transform(&r, sc->inverse + 12 * (size_t)i);
         if (!tu_brute(w->tris[w->mesh_of[i]], w->mesh[w->mesh_of[i]].tri_count, &local, &h)) continue;
         if (best->instance != BVH_INVALID && !(h.t < r.tmax)) continue;
-        best->t = h.t; best->u = h.u; best->v = h.v; best->prim = h.prim;
-        best->instance = i; best->id = w->inst[i].id;
+        best->t = h.t;
+        best->u = h.u;
+        best->v = h.v;
+        best->prim = h.prim;
+        best->instance = i;
+        best->id = w->inst[i].id;
         r.tmax = h.t;
     }
     return best->instance != BVH_INVALID;
 }
 /* The world normal computed here: object normal in double by the inverse transpose. */
 static bvh_vec3 expected_normal(const world *w, const bvh_scene *sc, const bvh_scene_hit *h) {
-    const float *t = w->tris[w->mesh_of[h->instance]] + 9 * (size_t)h->prim, *inv = sc->inverse + 12 * (size_t)h->instance;
+    const float *t = w->tris[w->mesh_of[h->instance]] + 9 * (size_t)h->prim,
+                *inv = sc->inverse + 12 * (size_t)h->instance;
     double e1[3], e2[3], n[3], o[3], l;
     int k;
-    for (k = 0; k < 3; k++) { e1[k] = (double)t[3 + k] - t[k]; e2[k] = (double)t[6 + k] - t[k]; }
-    n[0] = e1[1] * e2[2] - e1[2] * e2[1]; n[1] = e1[2] * e2[0] - e1[0] * e2[2]; n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    for (k = 0; k < 3; k++) {
+        e1[k] = (double)t[3 + k] - t[k];
+        e2[k] = (double)t[6 + k] - t[k];
+    }
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
     for (k = 0; k < 3; k++) o[k] = inv[k] * n[0] + inv[4 + k] * n[1] + inv[8 + k] * n[2];
     l = sqrt(o[0] * o[0] + o[1] * o[1] + o[2] * o[2]);
     return tu_v3((float)(o[0] / l), (float)(o[1] / l), (float)(o[2] / l));
@@ -119,9 +139,15 @@ static void make_world_rays(const world *w, const bvh_scene *sc, bvh_ray *rays, 
         rays[i].tmin = 0.0f;
         rays[i].tmax = BVH_INF;
         switch (i % 4) {
-        case 0: rays[i].dir = tu_sphere_dir(&r); break;
-        case 1: rays[i].dir = tu_sub(target, rays[i].origin); break; /* at an instance's origin */
-        case 2: rays[i].dir = tu_axis_dir(&r, (int)tu_below(&r, 3)); break;
+        case 0:
+            rays[i].dir = tu_sphere_dir(&r);
+            break;
+        case 1:
+            rays[i].dir = tu_sub(target, rays[i].origin);
+            break; /* at an instance's origin */
+        case 2:
+            rays[i].dir = tu_axis_dir(&r, (int)tu_below(&r, 3));
+            break;
         default:
             rays[i].dir = tu_sub(target, rays[i].origin);
             rays[i].tmax = tu_range(&r, 0.5f, 1.2f);
@@ -174,7 +200,8 @@ static void scenes_exact(void **state) {
         }
         for (i = 0; i < SCENE_RAYS; i++) {
             bvh_scene_hit h;
-            int found = bvh_scene_intersect(&sc, &rays[i], masks[i], &h), occ = bvh_scene_occluded(&sc, &rays[i], masks[i]);
+            int found = bvh_scene_intersect(&sc, &rays[i], masks[i], &h),
+                occ = bvh_scene_occluded(&sc, &rays[i], masks[i]);
             int ok = found == (want[i].instance != BVH_INVALID) && occ == found && h.instance == want[i].instance &&
                      h.prim == want[i].prim && h.id == want[i].id;
             if (ok && found) {
@@ -185,9 +212,10 @@ static void scenes_exact(void **state) {
             }
             if (ok) continue;
             if (bad++ < 4) {
-                print_error("bottom %s top %s ray %zu mask %x: found %d occluded %d; instance %u/%u prim %u/%u t %a/%a\n",
-                            bvh_builder_name(bb), bvh_builder_name(tb), i, masks[i], found, occ, h.instance,
-                            want[i].instance, h.prim, want[i].prim, (double)h.t, (double)want[i].t);
+                print_error(
+                    "bottom %s top %s ray %zu mask %x: found %d occluded %d; instance %u/%u prim %u/%u t %a/%a\n",
+                    bvh_builder_name(bb), bvh_builder_name(tb), i, masks[i], found, occ, h.instance, want[i].instance,
+                    h.prim, want[i].prim, (double)h.t, (double)want[i].t);
                 tu_print_ray(&rays[i]);
             }
         }
@@ -219,8 +247,10 @@ static void masks_select(void **state) {
     inst[0].transform[0] = inst[0].transform[5] = inst[0].transform[10] = 1.0f; /* at z = 0 */
     inst[1] = inst[0];
     inst[1].transform[11] = 5.0f; /* at z = 5, behind */
-    inst[0].mask = 1; inst[0].id = 10;
-    inst[1].mask = 2; inst[1].id = 20;
+    inst[0].mask = 1;
+    inst[0].id = 10;
+    inst[1].mask = 2;
+    inst[1].id = 20;
     memset(&sd, 0, sizeof sd);
     sd.instances = inst;
     sd.instance_count = 2;
@@ -243,7 +273,10 @@ static void masks_select(void **state) {
     bvh_free(&mesh);
 }
 
-static void my_free(void *p, void *user) { (void)user; free(p); }
+static void my_free(void *p, void *user) {
+    (void)user;
+    free(p);
+}
 static void scene_errors(void **state) {
     float v[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
     bvh_aabb box = {{0, 0, 0}, {1, 1, 1}};
@@ -314,7 +347,9 @@ static void scene_errors(void **state) {
 }
 
 /* An allocator that fails from its k-th call on, and counts what is live. */
-typedef struct failing { int left, live; } failing;
+typedef struct failing {
+    int left, live;
+} failing;
 static void *f_alloc(size_t n, void *user) {
     failing *f = (failing *)user;
     void *p;

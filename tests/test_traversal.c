@@ -5,8 +5,9 @@
    the hit distance and just below it; bvh_occluded equals "a closest hit exists";
    bvh_intersect_counted equals bvh_intersect; the batch calls on 1, 2, 3, 8 and all threads equal
    the single-ray calls. bvh_intersect and bvh_occluded are checked on the default 8-wide copy and
-   on a binary-only tree (trace_width 2); bvh_intersect_counted always walks the binary nodes. The same on the rays a renderer
-   traces from surfaces (bounce rays on and just off a triangle, shadow rays, grazing rays). Also: invalid rays miss, and a tree exactly BVH_MAX_DEPTH deep traces. */
+   on a binary-only tree (trace_width 2); bvh_intersect_counted always walks the binary nodes. The same on the rays a
+   renderer traces from surfaces (bounce rays on and just off a triangle, shadow rays, grazing rays). Also: invalid rays
+   miss, and a tree exactly BVH_MAX_DEPTH deep traces. */
 #define BVH_IMPLEMENTATION
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
@@ -61,7 +62,10 @@ static void exact_hits(void **state) {
     bvh_hit *want, *want2;
     size_t n2, bad = 0, hits = 0, i;
     bvh_tree trees[TU_BUILDER_COUNT];
-    if (!tu_scene_make(id, &s)) { skip(); return; }
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
     tris = tu_scene_tris(&s);
     rays = (bvh_ray *)malloc(TU_RAYS * sizeof *rays);
     rays2 = (bvh_ray *)malloc(TU_RAYS * sizeof *rays2);
@@ -82,20 +86,26 @@ static void exact_hits(void **state) {
         tu_build(&s, tu_builder(b), &trees[b]);
         assert_non_null(trees[b].nodes8); /* the default: 8-wide traversal (counted: binary) */
         bad_b = compare(&s, &trees[b], rays, want, TU_RAYS) + compare(&s, &trees[b], rays2, want2, n2);
-        if (bad_b) print_error("%s/%s: %zu of %zu rays differ from the brute force\n", s.name,
-                               bvh_builder_name(tu_builder(b)), bad_b, TU_RAYS + n2);
+        if (bad_b)
+            print_error("%s/%s: %zu of %zu rays differ from the brute force\n", s.name, bvh_builder_name(tu_builder(b)),
+                        bad_b, TU_RAYS + n2);
         bad += bad_b;
         d.trace_width = 2; /* binary traversal only */
         tu_build_valid(&s, &d, &bin);
         assert_null(bin.nodes8);
         bad_b = compare(&s, &bin, rays, want, TU_RAYS) + compare(&s, &bin, rays2, want2, n2);
-        if (bad_b) print_error("%s/%s, trace_width 2: %zu of %zu rays differ from the brute force\n", s.name,
-                               bvh_builder_name(tu_builder(b)), bad_b, TU_RAYS + n2);
+        if (bad_b)
+            print_error("%s/%s, trace_width 2: %zu of %zu rays differ from the brute force\n", s.name,
+                        bvh_builder_name(tu_builder(b)), bad_b, TU_RAYS + n2);
         bad += bad_b;
         bvh_free(&bin);
     }
     for (b = 0; b < TU_BUILDER_COUNT; b++) bvh_free(&trees[b]);
-    free(rays); free(rays2); free(want); free(want2); free(tris);
+    free(rays);
+    free(rays2);
+    free(want);
+    free(want2);
+    free(tris);
     tu_scene_free(&s);
     assert_int_equal(bad, 0);
 }
@@ -134,8 +144,8 @@ static void renderer_rays(const float *tris, uint32_t n, uint64_t seed, bvh_ray 
         side = d.x * nrm.x + d.y * nrm.y + d.z * nrm.z;
         if (i % 4 == 1) {
             float off = side < 0.0f ? -1e-4f * diag : 1e-4f * diag;
-            rays[i].origin = tu_v3(rays[i].origin.x + off * nrm.x, rays[i].origin.y + off * nrm.y,
-                                   rays[i].origin.z + off * nrm.z);
+            rays[i].origin =
+                tu_v3(rays[i].origin.x + off * nrm.x, rays[i].origin.y + off * nrm.y, rays[i].origin.z + off * nrm.z);
         }
         if (i % 4 == 2) d = light;
         if (i % 4 == 3) /* the drawn direction less its normal part */
@@ -147,7 +157,8 @@ static void renderer_rays(const float *tris, uint32_t n, uint64_t seed, bvh_ray 
         /* a triangle whose normal overflows gives no surface ray: draw another (the test code is
            also built with -ffast-math, where the overflow can reach the origin as a NaN) */
         if (!(fp_finite(rays[i].origin.x) && fp_finite(rays[i].origin.y) && fp_finite(rays[i].origin.z) &&
-              fp_finite(d.x) && fp_finite(d.y) && fp_finite(d.z)) && retries++ < 1000)
+              fp_finite(d.x) && fp_finite(d.y) && fp_finite(d.z)) &&
+            retries++ < 1000)
             i--;
     }
 }
@@ -160,7 +171,10 @@ static void exact_renderer_hits(void **state) {
     bvh_ray *rays;
     bvh_hit *want;
     size_t bad = 0;
-    if (!tu_scene_make(id, &s)) { skip(); return; }
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
     tris = tu_scene_tris(&s);
     rays = (bvh_ray *)malloc(TU_RAYS * sizeof *rays);
     want = (bvh_hit *)malloc(TU_RAYS * sizeof *want);
@@ -176,8 +190,9 @@ static void exact_renderer_hits(void **state) {
             d.trace_width = w ? 2 : 0;
             tu_build_valid(&s, &d, &t);
             bad_b = compare(&s, &t, rays, want, TU_RAYS);
-            if (bad_b) print_error("%s/%s, trace_width %d: %zu of %d renderer rays differ from the brute force\n",
-                                   s.name, bvh_builder_name(tu_builder(b)), w ? 2 : 4, bad_b, TU_RAYS);
+            if (bad_b)
+                print_error("%s/%s, trace_width %d: %zu of %d renderer rays differ from the brute force\n", s.name,
+                            bvh_builder_name(tu_builder(b)), w ? 2 : 4, bad_b, TU_RAYS);
             bad += bad_b;
             bvh_free(&t);
         }
@@ -200,7 +215,10 @@ static void batch_equals_single(void **state) {
     bvh_ray *rays;
     bvh_hit *single, *batch;
     uint8_t *occ, *occ_single;
-    if (!tu_scene_make(id, &s)) { skip(); return; }
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
     rays = (bvh_ray *)malloc(count * sizeof *rays);
     single = (bvh_hit *)malloc(count * sizeof *single);
     batch = (bvh_hit *)malloc(count * sizeof *batch);
@@ -237,7 +255,12 @@ static void batch_equals_single(void **state) {
         assert_int_equal(bvh_occluded_batch(&t, rays, occ, 0, 8), BVH_SUCCESS);
         bvh_free(&t);
     }
-    free(rays); free(single); free(batch); free(occ); free(occ_single); free(tris);
+    free(rays);
+    free(single);
+    free(batch);
+    free(occ);
+    free(occ_single);
+    free(tris);
     tu_scene_free(&s);
 }
 
@@ -258,8 +281,9 @@ static void invalid_rays_miss(void **state) {
     for (k = 0; k < 8; k++) bad[k] = good;
     bad[0].origin.x = NAN;
     bad[1].dir.y = NAN;
-    bad[2].dir.z = 0.0f;                 /* zero direction */
-    bad[3].tmin = 2.0f; bad[3].tmax = 1.0f; /* tmin > tmax */
+    bad[2].dir.z = 0.0f; /* zero direction */
+    bad[3].tmin = 2.0f;
+    bad[3].tmax = 1.0f; /* tmin > tmax */
     bad[4].origin.z = -BVH_INF;
     bad[5].tmin = NAN;
     bad[6].tmax = NAN;
@@ -282,7 +306,8 @@ static void invalid_rays_miss(void **state) {
     /* the tmin <= t <= tmax boundaries are inclusive, and a miss reports t = tmax */
     good.tmin = good.tmax = 1.0f;
     assert_int_equal(bvh_intersect(&t, &good, &h), 1);
-    good.tmax = nextafterf(1.0f, 0.0f); good.tmin = 0.0f;
+    good.tmax = nextafterf(1.0f, 0.0f);
+    good.tmin = 0.0f;
     assert_int_equal(bvh_intersect(&t, &good, &h), 0);
     assert_true(h.t == good.tmax);
     assert_int_equal(h.prim, BVH_INVALID);
@@ -298,22 +323,30 @@ static void chain_tree(uint32_t levels, bvh_tree *t, bvh_node *nodes, uint32_t *
     memset(t, 0, sizeof *t);
     for (k = 0; k < n; k++) {
         float *v = tris + 9 * (size_t)k, z = (float)k;
-        tu_set3(v, 0, 0, z); tu_set3(v + 3, 1, 0, z); tu_set3(v + 6, 0, 1, z);
+        tu_set3(v, 0, 0, z);
+        tu_set3(v + 3, 1, 0, z);
+        tu_set3(v + 6, 0, 1, z);
         prims[k] = k;
     }
     /* interior node i (depth i + 1) at 2i, children at 2i + 1 (leaf of triangle i) and 2i + 2 */
     for (k = 0; k + 1 < n; k++) {
-        nodes[2 * k].index = 2 * k + 1; nodes[2 * k].count = 0;
-        nodes[2 * k + 1].index = k; nodes[2 * k + 1].count = 1;
+        nodes[2 * k].index = 2 * k + 1;
+        nodes[2 * k].count = 0;
+        nodes[2 * k + 1].index = k;
+        nodes[2 * k + 1].count = 1;
     }
-    nodes[2 * (n - 1)].index = n - 1; nodes[2 * (n - 1)].count = 1;
+    nodes[2 * (n - 1)].index = n - 1;
+    nodes[2 * (n - 1)].count = 1;
     for (k = 2 * n - 1; k-- > 0;) { /* boxes bottom-up: a node's box spans the triangles at and below it */
         uint32_t first = nodes[k].count ? nodes[k].index : k / 2;
         nodes[k].min = tu_v3(0, 0, (float)first);
         nodes[k].max = tu_v3(1, 1, nodes[k].count ? (float)first : (float)(n - 1));
     }
-    t->nodes = nodes; t->node_count = 2 * n - 1;
-    t->prims = prims; t->ref_count = n; t->prim_count = n;
+    t->nodes = nodes;
+    t->node_count = 2 * n - 1;
+    t->prims = prims;
+    t->ref_count = n;
+    t->prim_count = n;
     t->tris = tris;
     t->builder = BVH_BUILDER_TOP_DOWN;
 }
@@ -335,11 +368,13 @@ static void max_depth_tree_traces(void **state) {
     assert_int_equal(bvh_intersect(&t, &ray, &h), 1);
     assert_int_equal(h.prim, L - 1);
     assert_true(h.t == 1000.0f - (float)(L - 1));
-    ray.dir.z = 1.0f; ray.origin.z = -0.5f; /* from below: the root's left leaf, the least deep */
+    ray.dir.z = 1.0f;
+    ray.origin.z = -0.5f; /* from below: the root's left leaf, the least deep */
     assert_int_equal(bvh_intersect(&t, &ray, &h), 1);
     assert_int_equal(h.prim, 0);
     assert_int_equal(bvh_occluded(&t, &ray), 1);
-    ray.dir.z = -1.0f; ray.origin.z = (float)L / 2 + 0.5f; /* from the middle, down */
+    ray.dir.z = -1.0f;
+    ray.origin.z = (float)L / 2 + 0.5f; /* from the middle, down */
     assert_int_equal(bvh_intersect(&t, &ray, &h), 1);
     assert_int_equal(h.prim, L / 2);
 }

@@ -44,19 +44,21 @@ TU_FN uint32_t tu_default_leaf(bvh_builder b) {
 #define TU_STATE(id) ((void *)(uintptr_t)((id) + 1))
 TU_FN int tu_state_id(void **state) { return (int)((uintptr_t)*state - 1); }
 /* A cmocka test named "function/label" that runs on scene `id`. */
-#define TU_SCENE_TEST(f, id, label) {#f "/" label, f, NULL, NULL, TU_STATE(id)}
+#define TU_SCENE_TEST(f, id, label)                                                                                    \
+    { #f "/" label, f, NULL, NULL, TU_STATE(id) }
 /* The same, once per scene (the bunny last). */
-#define TU_EVERY_SCENE(f)                                                                                   \
-    TU_SCENE_TEST(f, TU_SCENE_RANDOM, "random"), TU_SCENE_TEST(f, TU_SCENE_GRID, "grid"),                  \
-    TU_SCENE_TEST(f, TU_SCENE_HUGE, "huge"), TU_SCENE_TEST(f, TU_SCENE_ONE, "1-triangle"),                 \
-    TU_SCENE_TEST(f, TU_SCENE_TWO, "2-triangles"), TU_SCENE_TEST(f, TU_SCENE_THREE, "3-triangles"),        \
-    TU_SCENE_TEST(f, TU_SCENE_STRIDED32, "indexed-stride-32"),                                             \
-    TU_SCENE_TEST(f, TU_SCENE_STRIDED16, "soup-stride-16"),                                                \
-    TU_SCENE_TEST(f, TU_SCENE_DUPLICATES, "duplicates"), TU_SCENE_TEST(f, TU_SCENE_CHAIN, "chain"),        \
-    TU_SCENE_TEST(f, TU_SCENE_BUNNY, "bunny")
+#define TU_EVERY_SCENE(f)                                                                                              \
+    TU_SCENE_TEST(f, TU_SCENE_RANDOM, "random"), TU_SCENE_TEST(f, TU_SCENE_GRID, "grid"),                              \
+        TU_SCENE_TEST(f, TU_SCENE_HUGE, "huge"), TU_SCENE_TEST(f, TU_SCENE_ONE, "1-triangle"),                         \
+        TU_SCENE_TEST(f, TU_SCENE_TWO, "2-triangles"), TU_SCENE_TEST(f, TU_SCENE_THREE, "3-triangles"),                \
+        TU_SCENE_TEST(f, TU_SCENE_STRIDED32, "indexed-stride-32"),                                                     \
+        TU_SCENE_TEST(f, TU_SCENE_STRIDED16, "soup-stride-16"), TU_SCENE_TEST(f, TU_SCENE_DUPLICATES, "duplicates"),   \
+        TU_SCENE_TEST(f, TU_SCENE_CHAIN, "chain"), TU_SCENE_TEST(f, TU_SCENE_BUNNY, "bunny")
 
 /* == deterministic RNG (PCG32, O'Neill 2014) ================================================ */
-typedef struct tu_rng { uint64_t state, inc; } tu_rng;
+typedef struct tu_rng {
+    uint64_t state, inc;
+} tu_rng;
 
 TU_FN uint32_t tu_u32(tu_rng *r) {
     uint64_t old = r->state;
@@ -84,10 +86,10 @@ TU_FN uint32_t tu_below(tu_rng *r, uint32_t n) { return (uint32_t)(((uint64_t)tu
    (x, y, z first, then anything), optional indices. */
 typedef struct tu_scene {
     char name[32];
-    float *data;           /* vertex_count vertices of stride bytes */
-    size_t stride;         /* bytes between vertices; 0 = 12 */
+    float *data;   /* vertex_count vertices of stride bytes */
+    size_t stride; /* bytes between vertices; 0 = 12 */
     uint32_t vertex_count;
-    uint32_t *indices;     /* 3 per triangle, NULL for a soup */
+    uint32_t *indices; /* 3 per triangle, NULL for a soup */
     uint32_t tri_count;
 } tu_scene;
 
@@ -121,7 +123,9 @@ TU_FN bvh_aabb tu_tri_box(const float *t) {
     int k;
     for (k = 0; k < 3; k++) {
         bvh_vec3 p;
-        p.x = t[3 * k]; p.y = t[3 * k + 1]; p.z = t[3 * k + 2];
+        p.x = t[3 * k];
+        p.y = t[3 * k + 1];
+        p.z = t[3 * k + 2];
         bvh_aabb_grow(&b, p);
     }
     return b;
@@ -166,7 +170,11 @@ TU_FN void tu_scene_alloc(tu_scene *s, const char *name, uint32_t vertex_count, 
         assert_non_null(s->indices);
     }
 }
-TU_FN void tu_set3(float *p, float x, float y, float z) { p[0] = x; p[1] = y; p[2] = z; }
+TU_FN void tu_set3(float *p, float x, float y, float z) {
+    p[0] = x;
+    p[1] = y;
+    p[2] = z;
+}
 
 /* n small random triangles (edges up to ~1) in the cube [-10, 10]^3, a soup. */
 TU_FN void tu_scene_random(tu_scene *s, uint32_t n, uint64_t seed) {
@@ -192,16 +200,28 @@ TU_FN void tu_grid_plane(tu_scene *s, uint32_t *vbase, uint32_t *tbase, int axis
     for (j = 0; j <= nv; j++)
         for (i = 0; i <= nu; i++) {
             float *p = tu_vertex(s, b + j * (nu + 1) + i);
-            p[axis] = w; p[au] = (float)i * h; p[av] = (float)j * h;
+            p[axis] = w;
+            p[au] = (float)i * h;
+            p[av] = (float)j * h;
         }
     for (j = 0; j < nv; j++)
         for (i = 0; i < nu; i++) {
             uint32_t v00 = b + j * (nu + 1) + i, v10 = v00 + 1, v01 = v00 + nu + 1, v11 = v01 + 1;
             uint32_t *t = s->indices + 3 * (size_t)*tbase;
             if ((i + j) & 1) {
-                t[0] = v00; t[1] = v10; t[2] = v11; t[3] = v00; t[4] = v11; t[5] = v01;
+                t[0] = v00;
+                t[1] = v10;
+                t[2] = v11;
+                t[3] = v00;
+                t[4] = v11;
+                t[5] = v01;
             } else {
-                t[0] = v00; t[1] = v10; t[2] = v01; t[3] = v10; t[4] = v11; t[5] = v01;
+                t[0] = v00;
+                t[1] = v10;
+                t[2] = v01;
+                t[3] = v10;
+                t[4] = v11;
+                t[5] = v01;
             }
             *tbase += 2;
         }
@@ -213,7 +233,8 @@ TU_FN void tu_scene_grid(tu_scene *s) {
     uint32_t nv = 4 * 17 * 17 + 5 * 17 * 7, nt = 4 * 16 * 16 * 2 + 5 * 16 * 6 * 2, vb = 0, tb = 0, k;
     tu_scene_alloc(s, "grid", nv, 0, 3 * nt);
     for (k = 0; k < 4; k++) tu_grid_plane(s, &vb, &tb, 2, (float)k, 16, 16, 0.5f); /* z = 0..3, x,y in [0,8] */
-    for (k = 0; k < 5; k++) tu_grid_plane(s, &vb, &tb, 0, 2.0f * (float)k, 16, 6, 0.5f); /* x = 0..8, y in [0,8], z in [0,3] */
+    for (k = 0; k < 5; k++)
+        tu_grid_plane(s, &vb, &tb, 0, 2.0f * (float)k, 16, 6, 0.5f); /* x = 0..8, y in [0,8], z in [0,3] */
     assert_int_equal(vb, nv);
     assert_int_equal(tb, nt);
     s->tri_count = nt;
@@ -231,8 +252,8 @@ TU_FN void tu_scene_huge(tu_scene *s) {
 /* 1, 2 or 3 triangles: one; a quad (two triangles sharing an edge); the same triangle twice
    (exact ties) and a third one behind them. */
 TU_FN void tu_scene_few(tu_scene *s, uint32_t n) {
-    static const float v[] = {0, 0, 0, 1, 0, 0, 0, 1, 0,  1, 0, 0, 1, 1, 0, 0, 1, 0,
-                              0, 0, 0, 1, 0, 0, 0, 1, 0,  -1, -1, 1, 2, -1, 1, -1, 2, 1};
+    static const float v[] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 1,  0,  0, 1, 1,  0, 0,  1, 0,
+                              0, 0, 0, 1, 0, 0, 0, 1, 0, -1, -1, 1, 2, -1, 1, -1, 2, 1};
     static const uint32_t quad[] = {0, 1, 2, 3, 4, 5};
     static const uint32_t twice[] = {0, 1, 2, 6, 7, 8, 9, 10, 11};
     char name[32];
@@ -261,7 +282,12 @@ TU_FN void tu_scene_strided32(tu_scene *s) {
         for (i = 0; i < n; i++) {
             uint32_t v00 = j * (n + 1) + i, v10 = v00 + 1, v01 = v00 + n + 1, v11 = v01 + 1;
             uint32_t *q = s->indices + 3 * (size_t)t;
-            q[0] = v00; q[1] = v10; q[2] = v11; q[3] = v00; q[4] = v11; q[5] = v01;
+            q[0] = v00;
+            q[1] = v10;
+            q[2] = v11;
+            q[3] = v00;
+            q[4] = v11;
+            q[5] = v01;
             t += 2;
         }
     s->tri_count = t;
@@ -295,7 +321,10 @@ TU_FN void tu_scene_duplicates(tu_scene *s) {
         float *p = tu_vertex(s, 3 * t), *q = tu_vertex(&base, 3 * (j % 48));
         memcpy(p, q, 9 * sizeof(float));
         memcpy(p + 3, j & 1 ? q : q + 3, 3 * sizeof(float)); /* odd: a segment, even: v1 twice */
-        if (j % 4 == 0) { memcpy(p + 3, q, 3 * sizeof(float)); memcpy(p + 6, q, 3 * sizeof(float)); } /* a point */
+        if (j % 4 == 0) {
+            memcpy(p + 3, q, 3 * sizeof(float));
+            memcpy(p + 6, q, 3 * sizeof(float));
+        } /* a point */
     }
     for (j = 0; j < 300; j++, t++) memcpy(tu_vertex(s, 3 * t), tu_vertex(&base, 3 * 48), 9 * sizeof(float));
     s->tri_count = t;
@@ -327,7 +356,10 @@ TU_FN void *tu_grow(void *buf, size_t *cap, size_t need, size_t elem, int *ok) {
     if (need <= c) return buf;
     while (c < need) c = c ? 2 * c : 1024;
     p = realloc(buf, c * elem);
-    if (!p) { *ok = 0; return buf; }
+    if (!p) {
+        *ok = 0;
+        return buf;
+    }
     *cap = c;
     return p;
 }
@@ -362,9 +394,15 @@ TU_FN int tu_load_obj(const char *path, tu_scene *s) {
                 while (*p == ' ' || *p == '\t') p++;
                 if (*p == 0 || *p == '\n' || *p == '\r') break;
                 i = strtol(p, &e, 10);
-                if (e == p || np == 64) { ok = 0; break; }
+                if (e == p || np == 64) {
+                    ok = 0;
+                    break;
+                }
                 i = i < 0 ? (long)(vn / 3) + i : i - 1; /* to 0-based */
-                if (i < 0 || (size_t)i >= vn / 3) { ok = 0; break; }
+                if (i < 0 || (size_t)i >= vn / 3) {
+                    ok = 0;
+                    break;
+                }
                 poly[np++] = i;
                 p = e;
                 while (*p && *p != ' ' && *p != '\t' && *p != '\n' && *p != '\r') p++; /* skip /vt/vn */
@@ -373,12 +411,18 @@ TU_FN int tu_load_obj(const char *path, tu_scene *s) {
             for (k = 1; ok && k + 1 < np; k++) {
                 idx = (uint32_t *)tu_grow(idx, &icap, in + 3, sizeof(uint32_t), &ok);
                 if (!ok) break;
-                idx[in++] = (uint32_t)poly[0]; idx[in++] = (uint32_t)poly[k]; idx[in++] = (uint32_t)poly[k + 1];
+                idx[in++] = (uint32_t)poly[0];
+                idx[in++] = (uint32_t)poly[k];
+                idx[in++] = (uint32_t)poly[k + 1];
             }
         }
     }
     fclose(f);
-    if (!ok || in == 0) { free(v); free(idx); return 0; }
+    if (!ok || in == 0) {
+        free(v);
+        free(idx);
+        return 0;
+    }
     memset(s, 0, sizeof *s);
     snprintf(s->name, sizeof s->name, "bunny");
     s->data = v;
@@ -400,24 +444,56 @@ TU_FN int tu_scene_bunny(tu_scene *s) {
 
 /* The scenes every property test runs on; TU_SCENE_BUNNY may be unavailable (returns 0). */
 enum {
-    TU_SCENE_RANDOM, TU_SCENE_GRID, TU_SCENE_HUGE, TU_SCENE_ONE, TU_SCENE_TWO, TU_SCENE_THREE,
-    TU_SCENE_STRIDED32, TU_SCENE_STRIDED16, TU_SCENE_DUPLICATES, TU_SCENE_CHAIN, TU_SCENE_BUNNY,
+    TU_SCENE_RANDOM,
+    TU_SCENE_GRID,
+    TU_SCENE_HUGE,
+    TU_SCENE_ONE,
+    TU_SCENE_TWO,
+    TU_SCENE_THREE,
+    TU_SCENE_STRIDED32,
+    TU_SCENE_STRIDED16,
+    TU_SCENE_DUPLICATES,
+    TU_SCENE_CHAIN,
+    TU_SCENE_BUNNY,
     TU_SCENE_COUNT
 };
 TU_FN int tu_scene_make(int id, tu_scene *s) {
     switch (id) {
-    case TU_SCENE_RANDOM: tu_scene_random(s, 3000, 0x52414e44ULL); return 1;
-    case TU_SCENE_GRID: tu_scene_grid(s); return 1;
-    case TU_SCENE_HUGE: tu_scene_huge(s); return 1;
-    case TU_SCENE_ONE: tu_scene_few(s, 1); return 1;
-    case TU_SCENE_TWO: tu_scene_few(s, 2); return 1;
-    case TU_SCENE_THREE: tu_scene_few(s, 3); return 1;
-    case TU_SCENE_STRIDED32: tu_scene_strided32(s); return 1;
-    case TU_SCENE_STRIDED16: tu_scene_strided16(s); return 1;
-    case TU_SCENE_DUPLICATES: tu_scene_duplicates(s); return 1;
-    case TU_SCENE_CHAIN: tu_scene_chain(s); return 1;
-    case TU_SCENE_BUNNY: return tu_scene_bunny(s);
-    default: fail_msg("no scene %d", id); return 0;
+    case TU_SCENE_RANDOM:
+        tu_scene_random(s, 3000, 0x52414e44ULL);
+        return 1;
+    case TU_SCENE_GRID:
+        tu_scene_grid(s);
+        return 1;
+    case TU_SCENE_HUGE:
+        tu_scene_huge(s);
+        return 1;
+    case TU_SCENE_ONE:
+        tu_scene_few(s, 1);
+        return 1;
+    case TU_SCENE_TWO:
+        tu_scene_few(s, 2);
+        return 1;
+    case TU_SCENE_THREE:
+        tu_scene_few(s, 3);
+        return 1;
+    case TU_SCENE_STRIDED32:
+        tu_scene_strided32(s);
+        return 1;
+    case TU_SCENE_STRIDED16:
+        tu_scene_strided16(s);
+        return 1;
+    case TU_SCENE_DUPLICATES:
+        tu_scene_duplicates(s);
+        return 1;
+    case TU_SCENE_CHAIN:
+        tu_scene_chain(s);
+        return 1;
+    case TU_SCENE_BUNNY:
+        return tu_scene_bunny(s);
+    default:
+        fail_msg("no scene %d", id);
+        return 0;
     }
 }
 
@@ -427,8 +503,7 @@ TU_FN int tu_scene_make(int id, tu_scene *s) {
 TU_FN void tu_build_valid(const tu_scene *s, bvh_build_desc *d, bvh_tree *t) {
     bvh_validation rep;
     bvh_result r = bvh_build(t, d);
-    if (r != BVH_SUCCESS)
-        fail_msg("%s/%s: bvh_build: %s", s->name, bvh_builder_name(d->builder), bvh_result_string(r));
+    if (r != BVH_SUCCESS) fail_msg("%s/%s: bvh_build: %s", s->name, bvh_builder_name(d->builder), bvh_result_string(r));
     r = bvh_validate(t, NULL, &rep);
     if (r != BVH_SUCCESS)
         fail_msg("%s/%s: bvh_validate: %s (node %u)", s->name, bvh_builder_name(d->builder), rep.message, rep.node);
@@ -445,7 +520,9 @@ TU_FN void tu_build(const tu_scene *s, bvh_builder b, bvh_tree *t) {
    with a non-finite coordinate are skipped, as skip_invalid leaves them out of the tree. */
 TU_FN int tu_brute(const float *tris, uint32_t n, const bvh_ray *ray, bvh_hit *best) {
     uint32_t i;
-    best->t = ray->tmax; best->u = best->v = 0.0f; best->prim = BVH_INVALID;
+    best->t = ray->tmax;
+    best->u = best->v = 0.0f;
+    best->prim = BVH_INVALID;
     for (i = 0; i < n; i++) {
         const float *t = tris + 9 * (size_t)i;
         bvh_hit h;
@@ -474,7 +551,9 @@ typedef struct tu_oracle {
     float *groups;   /* 6 per group of TU_GROUP consecutive entries of `order` */
     double scale;    /* largest finite coordinate magnitude */
 } tu_oracle;
-typedef struct tu_keyed { uint32_t key, id; } tu_keyed;
+typedef struct tu_keyed {
+    uint32_t key, id;
+} tu_keyed;
 TU_FN int tu_keyed_cmp(const void *a, const void *b) {
     const tu_keyed *x = (const tu_keyed *)a, *y = (const tu_keyed *)b;
     return x->key != y->key ? (x->key < y->key ? -1 : 1) : (x->id < y->id ? -1 : x->id > y->id);
@@ -553,7 +632,11 @@ TU_FN int tu_segment_meets(const float *bx, const float *org, const float *dir, 
             if (o0 < lo || o0 > hi) return 0;
         } else {
             double t0 = (lo - o0) * inv[a], t1 = (hi - o0) * inv[a];
-            if (t0 > t1) { double x = t0; t0 = t1; t1 = x; }
+            if (t0 > t1) {
+                double x = t0;
+                t0 = t1;
+                t1 = x;
+            }
             tmin = t0 > tmin ? t0 : tmin;
             tmax = t1 < tmax ? t1 : tmax;
             if (!(tmin <= tmax)) return 0;
@@ -566,7 +649,9 @@ TU_FN int tu_brute_culled(const tu_oracle *o, const bvh_ray *ray, bvh_hit *best)
     double inv[3], pad = o->scale;
     uint32_t g, i;
     int a;
-    best->t = ray->tmax; best->u = best->v = 0.0f; best->prim = BVH_INVALID;
+    best->t = ray->tmax;
+    best->u = best->v = 0.0f;
+    best->prim = BVH_INVALID;
     for (a = 0; a < 3; a++) {
         if (!fp_finite(org[a]) || !fp_finite(dir[a])) return 0; /* bvh_intersect_triangle refuses it */
         inv[a] = dir[a] != 0.0f ? 1.0 / (double)dir[a] : 0.0;
@@ -591,7 +676,11 @@ TU_FN int tu_brute_culled(const tu_oracle *o, const bvh_ray *ray, bvh_hit *best)
     return best->prim != BVH_INVALID;
 }
 
-TU_FN uint32_t tu_fbits(float f) { uint32_t u; memcpy(&u, &f, sizeof u); return u; }
+TU_FN uint32_t tu_fbits(float f) {
+    uint32_t u;
+    memcpy(&u, &f, sizeof u);
+    return u;
+}
 /* Hits equal: same primitive and bitwise-same t, u, v (the same watertight test computes them). */
 TU_FN int tu_hit_equal(const bvh_hit *a, const bvh_hit *b) {
     return a->prim == b->prim && tu_fbits(a->t) == tu_fbits(b->t) && tu_fbits(a->u) == tu_fbits(b->u) &&
@@ -631,7 +720,13 @@ TU_FN void tu_oracle_run(const float *tris, uint32_t n, const bvh_ray *rays, siz
 }
 
 /* == rays ==================================================================================== */
-TU_FN bvh_vec3 tu_v3(float x, float y, float z) { bvh_vec3 v; v.x = x; v.y = y; v.z = z; return v; }
+TU_FN bvh_vec3 tu_v3(float x, float y, float z) {
+    bvh_vec3 v;
+    v.x = x;
+    v.y = y;
+    v.z = z;
+    return v;
+}
 TU_FN float tu_signed_zero(tu_rng *r) { return (tu_u32(r) & 1) ? -0.0f : 0.0f; }
 TU_FN bvh_vec3 tu_point_in(tu_rng *r, bvh_aabb b, float grow) {
     float gx = (b.max.x - b.min.x) * grow, gy = (b.max.y - b.min.y) * grow, gz = (b.max.z - b.min.z) * grow;
@@ -651,7 +746,10 @@ TU_FN bvh_vec3 tu_some_vertex(tu_rng *r, const float *tris, uint32_t n) {
     for (;;) {
         uint32_t i = tu_below(r, n);
         const float *t = tris + 9 * (size_t)i;
-        if (tu_finite9(t)) { t += 3 * tu_below(r, 3); return tu_v3(t[0], t[1], t[2]); }
+        if (tu_finite9(t)) {
+            t += 3 * tu_below(r, 3);
+            return tu_v3(t[0], t[1], t[2]);
+        }
     }
 }
 /* A random point on a random finite triangle. */
@@ -660,7 +758,10 @@ TU_FN bvh_vec3 tu_some_point(tu_rng *r, const float *tris, uint32_t n) {
         const float *t = tris + 9 * (size_t)tu_below(r, n);
         float a = tu_unit(r), b = tu_unit(r);
         if (!tu_finite9(t)) continue;
-        if (a + b > 1.0f) { a = 1.0f - a; b = 1.0f - b; }
+        if (a + b > 1.0f) {
+            a = 1.0f - a;
+            b = 1.0f - b;
+        }
         return tu_v3(t[0] + a * (t[3] - t[0]) + b * (t[6] - t[0]), t[1] + a * (t[4] - t[1]) + b * (t[7] - t[1]),
                      t[2] + a * (t[5] - t[2]) + b * (t[8] - t[2]));
     }

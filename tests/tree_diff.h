@@ -12,10 +12,10 @@
    structure_only, the binary nodes and references alone (a tree built from the triangles' boxes
    against one built from the triangles). */
 static inline const char *tree_diff_ex(const bvh_tree *a, const bvh_tree *b, int structure_only) {
-#define TREE_DIFF_ARRAY(field, count, size)                                                                    \
-    do {                                                                                                       \
-        if ((a->field == NULL) != (b->field == NULL)) return #field " (one is NULL)";                         \
-        if (a->field && (size_t)(count) && memcmp(a->field, b->field, (size_t)(count) * (size)) != 0) return #field; \
+#define TREE_DIFF_ARRAY(field, count, size)                                                                            \
+    do {                                                                                                               \
+        if ((a->field == NULL) != (b->field == NULL)) return #field " (one is NULL)";                                  \
+        if (a->field && (size_t)(count) && memcmp(a->field, b->field, (size_t)(count) * (size)) != 0) return #field;   \
     } while (0)
     if (a->node_count != b->node_count) return "node_count";
     if (a->ref_count != b->ref_count) return "ref_count";

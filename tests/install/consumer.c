@@ -30,8 +30,8 @@ int main(void) {
         printf("consumer: wrong hit: triangle %u at t=%g\n", hit.prim, hit.t);
         return 1;
     }
-    printf("consumer: bvh %d.%d.%d: hit triangle %u at t=%g\n", BVH_VERSION_MAJOR, BVH_VERSION_MINOR,
-           BVH_VERSION_PATCH, hit.prim, hit.t);
+    printf("consumer: bvh %d.%d.%d: hit triangle %u at t=%g\n", BVH_VERSION_MAJOR, BVH_VERSION_MINOR, BVH_VERSION_PATCH,
+           hit.prim, hit.t);
     cd.log = log;
     cd.log_size = sizeof log;
     cr = bvh_cl_create(&cl, &cd);

@@ -6122,35 +6122,28 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
     if (nt < 1) nt = 1;
     return bvh__team_run(&tree->allocator, nt, bvh__batch_fn, &b);
 }
+/* The four batch calls: the output the call writes (hits or occluded) must be given when there
+   are rays; desc NULL = threads 0 (all CPUs) and no pool. */
+static bvh_result bvh__batch_call(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occluded,
+                                  size_t count, uint32_t threads, const bvh_thread_pool *pool) {
+    if (!hits && !occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__batch_run(tree, rays, hits, occluded, count, threads, pool);
+}
 BVH_API bvh_result bvh_intersect_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
                                        uint32_t threads) {
-    if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__batch_run(tree, rays, hits, NULL, count, threads, NULL);
+    return bvh__batch_call(tree, rays, hits, NULL, count, threads, NULL);
 }
 BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
                                       uint32_t threads) {
-    if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__batch_run(tree, rays, NULL, occluded, count, threads, NULL);
+    return bvh__batch_call(tree, rays, NULL, occluded, count, threads, NULL);
 }
 BVH_API bvh_result bvh_intersect_batch_ex(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
                                           const bvh_batch_desc *desc) {
-    bvh_batch_desc zero;
-    if (!desc) {
-        memset(&zero, 0, sizeof zero);
-        desc = &zero;
-    }
-    if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__batch_run(tree, rays, hits, NULL, count, desc->threads, &desc->pool);
+    return bvh__batch_call(tree, rays, hits, NULL, count, desc ? desc->threads : 0, desc ? &desc->pool : NULL);
 }
 BVH_API bvh_result bvh_occluded_batch_ex(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
                                          const bvh_batch_desc *desc) {
-    bvh_batch_desc zero;
-    if (!desc) {
-        memset(&zero, 0, sizeof zero);
-        desc = &zero;
-    }
-    if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__batch_run(tree, rays, NULL, occluded, count, desc->threads, &desc->pool);
+    return bvh__batch_call(tree, rays, NULL, occluded, count, desc ? desc->threads : 0, desc ? &desc->pool : NULL);
 }
 
 /* ============================================================================================ */

@@ -1549,6 +1549,13 @@ static void bvh_cl__time(bvh_cl_context *c, cl_event ev) {
         c->kernel_ms += (double)(b - a) * 1e-6;
     clReleaseEvent(ev);
 }
+/* After non-blocking reads that returned err: waits for the queue even when one failed (so that
+   none is left writing into the caller's memory), times ev, and returns the first error. */
+static cl_int bvh_cl__finish_reads(bvh_cl_context *c, cl_int err, cl_event ev) {
+    const cl_int fin = clFinish(c->queue);
+    bvh_cl__time(c, ev);
+    return err != CL_SUCCESS ? err : fin;
+}
 
 static size_t bvh_cl__round_up(size_t n, size_t m) { return (n + m - 1) / m * m; }
 
@@ -1589,12 +1596,7 @@ static bvh_cl_result bvh_cl__batch(bvh_cl_tree *t, const bvh_ray *rays, void *ou
         /* a non-blocking read and clFinish: PoCL's blocking read spins on a core the kernel needs */
         err = clEnqueueReadBuffer(c->queue, c->scratch[BVH_CL__S_OUT], CL_FALSE, 0, n * out_elem,
                                   BVH_CL__CAST(char *, out) + i * out_elem, 0, NULL, NULL);
-        if (err == CL_SUCCESS)
-            err = clFinish(c->queue);
-        else
-            clFinish(c->queue);
-        bvh_cl__time(c, ev);
-        if (err != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueReadBuffer");
+        if ((err = bvh_cl__finish_reads(c, err, ev)) != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueReadBuffer");
     }
     return BVH_CL_SUCCESS;
 }
@@ -1683,12 +1685,7 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *t, const bvh_camera *c
             err = clEnqueueReadBuffer(c->queue, c->scratch[slot[i]], CL_FALSE, 0, (size_t)rows * w * elem[i],
                                       BVH_CL__CAST(char *, dst[i]) + (size_t)y0 * w * elem[i], 0, NULL, NULL);
         }
-        if (err == CL_SUCCESS)
-            err = clFinish(c->queue);
-        else
-            clFinish(c->queue);
-        bvh_cl__time(c, ev);
-        if (err != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueReadBuffer");
+        if ((err = bvh_cl__finish_reads(c, err, ev)) != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueReadBuffer");
     }
     return BVH_CL_SUCCESS;
 }

@@ -230,25 +230,25 @@ EMB_API int emb_quality_from_name(const char *s, emb_quality *out) {
 /* ---- stubs: Embree not compiled in --------------------------------------------------------- */
 EMB_API int emb_available(void) { return 0; }
 EMB_API const char *emb_version(void) { return "none"; }
+/* The stubs' answer: a result of `size` bytes zeroed, with the reason in its message. */
+static int emb__unavailable(void *result, size_t size, char *message) {
+    if (result) {
+        memset(result, 0, size);
+        emb__msg(message, "Embree not installed");
+    }
+    return EMB_ERR_UNAVAILABLE;
+}
 EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *d, emb_scene_result *o) {
     (void)v;
     (void)n;
     (void)d;
-    if (o) {
-        memset(o, 0, sizeof *o);
-        emb__msg(o->message, "Embree not installed");
-    }
-    return EMB_ERR_UNAVAILABLE;
+    return emb__unavailable(o, sizeof *o, o ? o->message : NULL);
 }
 EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *d, emb_sah_result *o) {
     (void)v;
     (void)n;
     (void)d;
-    if (o) {
-        memset(o, 0, sizeof *o);
-        emb__msg(o->message, "Embree not installed");
-    }
-    return EMB_ERR_UNAVAILABLE;
+    return emb__unavailable(o, sizeof *o, o ? o->message : NULL);
 }
 EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, char *message) {
     (void)quality;

@@ -5898,46 +5898,42 @@ BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit
     return bvh__trace8_base(tree, ray, hit, any);
 }
 
-static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, uint32_t *visited) {
+/* == the binary traversal with a leaf step ===================================================== */
+/* One loop for every kind of primitive a binary tree can hold: it culls nodes by the best t so
+   far (ray->tmax, which only decreases) and hands each reference of a leaf it reaches to a leaf
+   step, which tests the primitive, keeps the best hit by its own rule and lowers ray->tmax to it.
+   Triangles of a binary-only tree (trace_width 2, bvh_intersect_counted), custom primitives and
+   instances plug in here; the 8-wide traversal is the default triangle path. Visiting order:
+   near child first. */
+/* Tests reference `ref` of the tree, primitive `prim` (the caller's index, tree.prims[ref]);
+   returns 1 when it took a hit as the new best and set ray->tmax to its t (ties: ray->tmax
+   unchanged). rx is the ray as the slab test has it (a triangle step adds the shear). */
+typedef int (*bvh__leaf_step)(void *ctx, bvh_ray *ray, bvh__rayx *rx, uint32_t ref, uint32_t prim);
+
+/* Returns 1 if a leaf step took a hit; any: stops at the first. The caller's ray is copied:
+   the steps see it with tmax lowered to the best t. visited, when given, gets the number of
+   nodes whose box was tested. Inlined, so that each step is called directly. */
+BVH__INLINE int bvh__trace_leaves(const bvh_tree *tree, const bvh_ray *ray_in, int any, bvh__leaf_step step, void *ctx,
+                                  uint32_t *visited) {
     bvh__rayx rx;
-    int sheared = 0;
-    uint32_t stack[BVH_MAX_DEPTH + 2], sp = 0, best_prim = BVH_INVALID, nvis = 0;
-    float stack_t[BVH_MAX_DEPTH + 2], best_t, best_u = 0.0f, best_v = 0.0f;
-    const bvh_node *nodes, *node;
-    if (hit) {
-        hit->t = ray ? ray->tmax : BVH_INF;
-        hit->u = hit->v = 0.0f;
-        hit->prim = BVH_INVALID;
-    }
-    if (visited) *visited = 0;
-    if (!tree || !ray || !tree->node_count || !tree->tris) return 0;
-    if (tree->nodes8 && !visited) return bvh__traverse8(tree, ray, hit, any);
-    if (!bvh__ray_setup(ray, &rx)) return 0;
-    best_t = ray->tmax;
-    nodes = tree->nodes;
-    node = nodes;
-    nvis = 1;
-    if (bvh__slab(&rx, node, best_t) == BVH_INF) goto out;
+    bvh_ray ray = *ray_in;
+    uint32_t stack[BVH_MAX_DEPTH + 2], sp = 0, nvis = 1;
+    float stack_t[BVH_MAX_DEPTH + 2];
+    const bvh_node *nodes = tree->nodes, *node = nodes;
+    int found = 0;
+    if (!tree->node_count || !bvh__ray_setup(&ray, &rx)) return 0;
+    if (bvh__slab(&rx, node, ray.tmax) == BVH_INF) goto out;
     for (;;) {
         if (node->count) {
             uint32_t k, end = node->index + node->count;
-            if (!sheared) {
-                bvh__ray_shear(&rx);
-                sheared = 1;
-            }
             for (k = node->index; k < end; k++) {
-                float t, u, v;
-                if (!bvh__tri_test(&rx, tree->tris + 9 * (size_t)k, best_t, &t, &u, &v)) continue;
-                if (t == best_t && tree->prims[k] > best_prim) continue; /* ties: lowest index */
-                best_t = t;
-                best_u = u;
-                best_v = v;
-                best_prim = tree->prims[k];
+                if (!step(ctx, &ray, &rx, k, tree->prims[k])) continue;
+                found = 1;
                 if (any) goto out;
             }
         } else {
             const bvh_node *c0 = &nodes[node->index], *c1 = c0 + 1;
-            float t0 = bvh__slab(&rx, c0, best_t), t1 = bvh__slab(&rx, c1, best_t);
+            float t0 = bvh__slab(&rx, c0, ray.tmax), t1 = bvh__slab(&rx, c1, ray.tmax);
             nvis += 2;
             if (t0 != BVH_INF || t1 != BVH_INF) {
                 if (t1 < t0) {
@@ -5950,7 +5946,7 @@ static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
                 }
                 node = c0;
                 if (t1 != BVH_INF) {
-                    if (sp == BVH_MAX_DEPTH + 2) goto out; /* a tree deeper than the validator allows */
+                    if (sp == BVH_MAX_DEPTH + 2) goto out; /* deeper than the validator allows */
                     stack_t[sp] = t1;
                     stack[sp++] = (uint32_t)(c1 - nodes);
                 }
@@ -5960,7 +5956,7 @@ static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
         for (;;) { /* pop the next node still in reach of the current best */
             if (!sp) goto out;
             --sp;
-            if (stack_t[sp] <= best_t) {
+            if (stack_t[sp] <= ray.tmax) {
                 node = &nodes[stack[sp]];
                 break;
             }
@@ -5968,12 +5964,52 @@ static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
     }
 out:
     if (visited) *visited = nvis;
-    if (best_prim == BVH_INVALID) return 0;
+    return found;
+}
+
+/* The triangle step: the watertight test, the shear made at the first leaf; ties in t go to
+   the lowest primitive index. */
+typedef struct bvh__tri_ctx {
+    const bvh_tree *tree;
+    int sheared;
+    bvh__best best;
+} bvh__tri_ctx;
+static int bvh__tri_step(void *arg, bvh_ray *ray, bvh__rayx *rx, uint32_t ref, uint32_t prim) {
+    bvh__tri_ctx *c = BVH__CAST(bvh__tri_ctx *, arg);
+    float t, u, v;
+    if (!c->sheared) {
+        bvh__ray_shear(rx);
+        c->sheared = 1;
+    }
+    if (!bvh__tri_test(rx, c->tree->tris + 9 * (size_t)ref, ray->tmax, &t, &u, &v)) return 0;
+    if (t == ray->tmax && prim > c->best.prim) return 0; /* ties: lowest index */
+    c->best.t = ray->tmax = t;
+    c->best.u = u;
+    c->best.v = v;
+    c->best.prim = prim;
+    return 1;
+}
+static int bvh__traverse(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, uint32_t *visited) {
+    bvh__tri_ctx c;
     if (hit) {
-        hit->t = best_t;
-        hit->u = best_u;
-        hit->v = best_v;
-        hit->prim = best_prim;
+        hit->t = ray ? ray->tmax : BVH_INF;
+        hit->u = hit->v = 0.0f;
+        hit->prim = BVH_INVALID;
+    }
+    if (visited) *visited = 0;
+    if (!tree || !ray || !tree->node_count || !tree->tris) return 0;
+    if (tree->nodes8 && !visited) return bvh__traverse8(tree, ray, hit, any);
+    c.tree = tree;
+    c.sheared = 0;
+    c.best.t = ray->tmax;
+    c.best.u = c.best.v = 0.0f;
+    c.best.prim = BVH_INVALID;
+    if (!bvh__trace_leaves(tree, ray, any, bvh__tri_step, &c, visited)) return 0;
+    if (hit) {
+        hit->t = c.best.t;
+        hit->u = c.best.u;
+        hit->v = c.best.v;
+        hit->prim = c.best.prim;
     }
     return 1;
 }
@@ -6086,101 +6122,33 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
     if (nt < 1) nt = 1;
     return bvh__team_run(&tree->allocator, nt, bvh__batch_fn, &b);
 }
+/* The four batch calls: the output the call writes (hits or occluded) must be given when there
+   are rays; desc NULL = threads 0 (all CPUs) and no pool. */
+static bvh_result bvh__batch_call(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occluded,
+                                  size_t count, uint32_t threads, const bvh_thread_pool *pool) {
+    if (!hits && !occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__batch_run(tree, rays, hits, occluded, count, threads, pool);
+}
 BVH_API bvh_result bvh_intersect_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
                                        uint32_t threads) {
-    if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__batch_run(tree, rays, hits, NULL, count, threads, NULL);
+    return bvh__batch_call(tree, rays, hits, NULL, count, threads, NULL);
 }
 BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
                                       uint32_t threads) {
-    if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__batch_run(tree, rays, NULL, occluded, count, threads, NULL);
+    return bvh__batch_call(tree, rays, NULL, occluded, count, threads, NULL);
 }
 BVH_API bvh_result bvh_intersect_batch_ex(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
                                           const bvh_batch_desc *desc) {
-    bvh_batch_desc zero;
-    if (!desc) {
-        memset(&zero, 0, sizeof zero);
-        desc = &zero;
-    }
-    if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__batch_run(tree, rays, hits, NULL, count, desc->threads, &desc->pool);
+    return bvh__batch_call(tree, rays, hits, NULL, count, desc ? desc->threads : 0, desc ? &desc->pool : NULL);
 }
 BVH_API bvh_result bvh_occluded_batch_ex(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
                                          const bvh_batch_desc *desc) {
-    bvh_batch_desc zero;
-    if (!desc) {
-        memset(&zero, 0, sizeof zero);
-        desc = &zero;
-    }
-    if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__batch_run(tree, rays, NULL, occluded, count, desc->threads, &desc->pool);
+    return bvh__batch_call(tree, rays, NULL, occluded, count, desc ? desc->threads : 0, desc ? &desc->pool : NULL);
 }
 
 /* ============================================================================================ */
-/* == custom primitives: the binary traversal with a leaf step ================================== */
-/* One loop for every kind of primitive a binary tree can hold: it culls nodes by the best t so
-   far (ray->tmax, which only decreases) and hands each reference of a leaf it reaches to a leaf
-   step, which tests the primitive, keeps the best hit by its own rule and lowers ray->tmax to it.
-   User primitives (a callback) plug in here; the one-mesh triangle path keeps its own loops
-   (bvh__traverse and the 8-wide traversal), which this adds no work to. Visiting order: near
-   child first, as bvh__traverse. */
+/* == custom primitives: the caller's test as the leaf step of bvh__trace_leaves ================ */
 /* ============================================================================================ */
-/* Tests primitive `prim` (the caller's index); returns 1 when it took a hit as the new best and
-   set ray->tmax to its t (ties: ray->tmax unchanged). */
-typedef int (*bvh__leaf_step)(void *ctx, bvh_ray *ray, uint32_t prim);
-
-/* Returns 1 if a leaf step took a hit; any: stops at the first. The caller's ray is copied:
-   the steps see it with tmax lowered to the best t. */
-static int bvh__trace_leaves(const bvh_tree *tree, const bvh_ray *ray_in, int any, bvh__leaf_step step, void *ctx) {
-    bvh__rayx rx;
-    bvh_ray ray = *ray_in;
-    uint32_t stack[BVH_MAX_DEPTH + 2], sp = 0;
-    float stack_t[BVH_MAX_DEPTH + 2];
-    const bvh_node *nodes = tree->nodes, *node = nodes;
-    int found = 0;
-    if (!tree->node_count || !bvh__ray_setup(&ray, &rx)) return 0;
-    if (bvh__slab(&rx, node, ray.tmax) == BVH_INF) return 0;
-    for (;;) {
-        if (node->count) {
-            uint32_t k, end = node->index + node->count;
-            for (k = node->index; k < end; k++) {
-                if (!step(ctx, &ray, tree->prims[k])) continue;
-                found = 1;
-                if (any) return 1;
-            }
-        } else {
-            const bvh_node *c0 = &nodes[node->index], *c1 = c0 + 1;
-            float t0 = bvh__slab(&rx, c0, ray.tmax), t1 = bvh__slab(&rx, c1, ray.tmax);
-            if (t0 != BVH_INF || t1 != BVH_INF) {
-                if (t1 < t0) {
-                    const bvh_node *tc = c0;
-                    float tt = t0;
-                    c0 = c1;
-                    c1 = tc;
-                    t0 = t1;
-                    t1 = tt;
-                }
-                node = c0;
-                if (t1 != BVH_INF) {
-                    if (sp == BVH_MAX_DEPTH + 2) return found; /* deeper than the validator allows */
-                    stack_t[sp] = t1;
-                    stack[sp++] = (uint32_t)(c1 - nodes);
-                }
-                continue;
-            }
-        }
-        for (;;) { /* pop the next node still in reach of the current best */
-            if (!sp) return found;
-            --sp;
-            if (stack_t[sp] <= ray.tmax) {
-                node = &nodes[stack[sp]];
-                break;
-            }
-        }
-    }
-}
-
 typedef struct bvh__custom_ctx {
     const bvh_custom_desc *custom;
     bvh_hit best; /* prim BVH_INVALID until a hit is taken */
@@ -6188,9 +6156,11 @@ typedef struct bvh__custom_ctx {
 /* The callback's hit is taken if its t is in [tmin, tmax] (NaN and +inf never are) and, at
    t == tmax, only from a lower index than the best's: ties go to the lowest index whatever the
    visiting order. Before any hit, best.prim is BVH_INVALID, above every index. */
-static int bvh__custom_step(void *arg, bvh_ray *ray, uint32_t prim) {
+static int bvh__custom_step(void *arg, bvh_ray *ray, bvh__rayx *rx, uint32_t ref, uint32_t prim) {
     bvh__custom_ctx *c = BVH__CAST(bvh__custom_ctx *, arg);
     bvh_hit h;
+    (void)rx;
+    (void)ref;
     h.t = ray->tmax;
     h.u = h.v = 0.0f;
     h.prim = prim;
@@ -6210,7 +6180,8 @@ static int bvh__trace_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *
     c.best.t = ray ? ray->tmax : BVH_INF;
     c.best.u = c.best.v = 0.0f;
     c.best.prim = BVH_INVALID;
-    if (tree && ray && custom && custom->intersect) found = bvh__trace_leaves(tree, ray, any, bvh__custom_step, &c);
+    if (tree && ray && custom && custom->intersect)
+        found = bvh__trace_leaves(tree, ray, any, bvh__custom_step, &c, NULL);
     if (hit) *hit = c.best;
     return found;
 }
@@ -6548,11 +6519,13 @@ typedef struct bvh__scene_ctx {
     uint32_t instance; /* the best hit's, BVH_INVALID until one is taken */
     bvh_hit hit;       /* its hit in the bottom-level tree (t is world t) */
 } bvh__scene_ctx;
-static int bvh__instance_step(void *arg, bvh_ray *ray, uint32_t inst) {
+static int bvh__instance_step(void *arg, bvh_ray *ray, bvh__rayx *rx, uint32_t ref, uint32_t inst) {
     bvh__scene_ctx *c = BVH__CAST(bvh__scene_ctx *, arg);
     const bvh_instance *in = &c->scene->instances[inst];
     bvh_ray local;
     bvh_hit h;
+    (void)rx;
+    (void)ref;
     if (!(in->mask & c->mask)) return 0;
     local = bvh_ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
     if (c->any) return bvh_occluded(in->tree, &local);
@@ -6594,7 +6567,7 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
     c.mask = mask;
     c.any = (uint32_t)any;
     c.instance = BVH_INVALID;
-    if (scene && ray && mask) found = bvh__trace_leaves(&scene->top, ray, any, bvh__instance_step, &c);
+    if (scene && ray && mask) found = bvh__trace_leaves(&scene->top, ray, any, bvh__instance_step, &c, NULL);
     if (!hit) return found;
     hit->t = ray ? ray->tmax : BVH_INF;
     hit->u = hit->v = 0.0f;

@@ -230,25 +230,25 @@ EMB_API int emb_quality_from_name(const char *s, emb_quality *out) {
 /* ---- stubs: Embree not compiled in --------------------------------------------------------- */
 EMB_API int emb_available(void) { return 0; }
 EMB_API const char *emb_version(void) { return "none"; }
+/* The stubs' answer: a result of `size` bytes zeroed, with the reason in its message. */
+static int emb__unavailable(void *result, size_t size, char *message) {
+    if (result) {
+        memset(result, 0, size);
+        emb__msg(message, "Embree not installed");
+    }
+    return EMB_ERR_UNAVAILABLE;
+}
 EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *d, emb_scene_result *o) {
     (void)v;
     (void)n;
     (void)d;
-    if (o) {
-        memset(o, 0, sizeof *o);
-        emb__msg(o->message, "Embree not installed");
-    }
-    return EMB_ERR_UNAVAILABLE;
+    return emb__unavailable(o, sizeof *o, o ? o->message : NULL);
 }
 EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *d, emb_sah_result *o) {
     (void)v;
     (void)n;
     (void)d;
-    if (o) {
-        memset(o, 0, sizeof *o);
-        emb__msg(o->message, "Embree not installed");
-    }
-    return EMB_ERR_UNAVAILABLE;
+    return emb__unavailable(o, sizeof *o, o ? o->message : NULL);
 }
 EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, char *message) {
     (void)quality;
@@ -294,6 +294,14 @@ EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint
 }
 EMB_API void emb_builder_close(emb_builder *b) { (void)b; }
 #else
+/* The start of an entry: the result zeroed, its message "ok", the description copied (NULL: all
+   zero, the defaults). */
+static void emb__start(void *out, size_t out_size, char *message, void *d, const void *desc, size_t d_size) {
+    memset(out, 0, out_size);
+    emb__msg(message, "ok");
+    memset(d, 0, d_size);
+    if (desc) memcpy(d, desc, d_size);
+}
 /* ---- Embree ------------------------------------------------------------------------------- */
 #include <embree3/rtcore.h>
 #include <pthread.h>
@@ -695,12 +703,7 @@ EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *de
     int st = EMB_OK;
 
     if (!out) return EMB_ERR_ARGUMENT;
-    memset(out, 0, sizeof *out);
-    emb__msg(out->message, "ok");
-    if (desc)
-        d = *desc;
-    else
-        memset(&d, 0, sizeof d);
+    emb__start(out, sizeof *out, out->message, &d, desc, sizeof d);
     if ((!v && n) || n > EMB__MAX_TRIANGLES || (int)d.quality < 0 || d.quality >= EMB_QUALITY_COUNT) {
         emb__msg(out->message, "invalid argument (vertices NULL, too many triangles or bad quality)");
         return EMB_ERR_ARGUMENT;
@@ -1025,12 +1028,7 @@ EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *desc, em
     int st = EMB_OK;
 
     if (!out) return EMB_ERR_ARGUMENT;
-    memset(out, 0, sizeof *out);
-    emb__msg(out->message, "ok");
-    if (desc)
-        d = *desc;
-    else
-        memset(&d, 0, sizeof d);
+    emb__start(out, sizeof *out, out->message, &d, desc, sizeof d);
     if (!d.max_leaf) d.max_leaf = 8;
     if ((!v && n) || n > EMB__MAX_TRIANGLES || (int)d.quality < 0 || d.quality >= EMB_QUALITY_COUNT ||
         d.max_leaf > RTC_BUILD_MAX_PRIMITIVES_PER_LEAF || !(d.split_factor == d.split_factor) ||

@@ -865,43 +865,43 @@ static const char *const bvh_cl__source[] = {
 "    }\n",
 "}\n",
 "\n",
-"/* Ray i of a batch (origin, tmin, direction, tmax: 8 floats) traced into *res. */\n",
-"void bvh_cl_trace_batch_ray(__global const uint4 *nodes, uint node_count, __global const float *tris,\n",
-"                            __global const uint *prims, uint ref_count, __global const float *rays, uint i, int any,\n",
-"                            bvh_cl_hitrec *res) {\n",
+"/* The tree's buffers as every kernel takes them first (cl/bvh_cl.h sets them as arguments 0-4). */\n",
+"#define BVH_CL_TREE_ARGS                                                                                               \\\n",
+"    __global const uint4 *nodes, uint node_count, __global const float *tris, __global const uint *prims, uint ref_count\n",
+"\n",
+"/* The work-item's ray of a batch (origin, tmin, direction, tmax: 8 floats) traced into *res;\n",
+"   0 for a work-item past the batch's count (nothing traced). */\n",
+"int bvh_cl_trace_batch_ray(BVH_CL_TREE_ARGS, __global const float *rays, uint count, int any, bvh_cl_hitrec *res) {\n",
+"    const uint i = (uint)get_global_id(0);\n",
 "    bvh_cl_scene s;\n",
-"    const float4 r0 = vload4(2 * (size_t)i, rays), r1 = vload4(2 * (size_t)i + 1, rays);\n",
+"    float4 r0, r1;\n",
+"    if (i >= count) return 0;\n",
+"    r0 = vload4(2 * (size_t)i, rays);\n",
+"    r1 = vload4(2 * (size_t)i + 1, rays);\n",
 "    s.nodes = nodes;\n",
 "    s.tris = tris;\n",
 "    s.prims = prims;\n",
 "    s.node_count = node_count;\n",
 "    s.ref_count = ref_count;\n",
 "    bvh_cl_trace(&s, r0.xyz, r0.w, r1.xyz, r1.w, any, res);\n",
+"    return 1;\n",
 "}\n",
 "\n",
 "/* ============================================================================================ */\n",
 "/* == kernels =================================================================================== */\n",
 "/* ============================================================================================ */\n",
 "/* Closest hit of rays[0 .. count) into hits (bvh_intersect_batch). */\n",
-"__kernel void bvh_intersect_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,\n",
-"                                   __global const uint *prims, uint ref_count, __global const float *rays,\n",
-"                                   __global uint4 *hits, uint count) {\n",
-"    uint i = (uint)get_global_id(0);\n",
+"__kernel void bvh_intersect_kernel(BVH_CL_TREE_ARGS, __global const float *rays, __global uint4 *hits, uint count) {\n",
 "    bvh_cl_hitrec res;\n",
-"    if (i >= count) return;\n",
-"    bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, i, 0, &res);\n",
-"    hits[i] = (uint4)(as_uint(res.t), as_uint(res.u), as_uint(res.v), res.prim);\n",
+"    if (bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, count, 0, &res))\n",
+"        hits[get_global_id(0)] = (uint4)(as_uint(res.t), as_uint(res.u), as_uint(res.v), res.prim);\n",
 "}\n",
 "\n",
 "/* Any hit of rays[0 .. count): occluded[i] = 1 if blocked (bvh_occluded_batch). */\n",
-"__kernel void bvh_occluded_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,\n",
-"                                  __global const uint *prims, uint ref_count, __global const float *rays,\n",
-"                                  __global uchar *occluded, uint count) {\n",
-"    uint i = (uint)get_global_id(0);\n",
+"__kernel void bvh_occluded_kernel(BVH_CL_TREE_ARGS, __global const float *rays, __global uchar *occluded, uint count) {\n",
 "    bvh_cl_hitrec res;\n",
-"    if (i >= count) return;\n",
-"    bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, i, 1, &res);\n",
-"    occluded[i] = res.prim != BVH_CL_INVALID ? (uchar)1 : (uchar)0;\n",
+"    if (bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, count, 1, &res))\n",
+"        occluded[get_global_id(0)] = res.prim != BVH_CL_INVALID ? (uchar)1 : (uchar)0;\n",
 "}\n",
 "\n",
 "/* The colour of a frame's pixel (ray direction d, sy as in bvh_frame_kernel): a hit grey by a\n",
@@ -929,9 +929,8 @@ static const char *const bvh_cl__source[] = {
 "   Outputs (each may be NULL), indexed from the first row of the band: rgba (4 bytes per pixel):\n",
 "   hits shaded with a headlight, grey * (0.2 + 0.8 |dot(n, d)|), misses a vertical gradient;\n",
 "   hits (bvh_hit); visited (nodes visited, as bvh_intersect_counted). */\n",
-"__kernel void bvh_frame_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,\n",
-"                               __global const uint *prims, uint ref_count, float16 cam, uint width, uint height,\n",
-"                               uint y0, uint rows, __global uchar *rgba, __global uint4 *hits, __global uint *visited) {\n",
+"__kernel void bvh_frame_kernel(BVH_CL_TREE_ARGS, float16 cam, uint width, uint height, uint y0, uint rows,\n",
+"                               __global uchar *rgba, __global uint4 *hits, __global uint *visited) {\n",
 "    uint x = (uint)get_global_id(0), row = (uint)get_global_id(1), y = y0 + row;\n",
 "    size_t pix = (size_t)row * width + x;\n",
 "    bvh_cl_scene s;\n",
@@ -1211,9 +1210,8 @@ static const char *const bvh_cl__source[] = {
 "/* bvh_frame_kernel with a 4 x BVH_CL_PACKET_H pixel tile per work-item: work-item (gx, gy) traces\n",
 "   pixels x = 4 gx .. 4 gx + 3 of rows BVH_CL_PACKET_H gy .. of the band; the same outputs as\n",
 "   bvh_frame_kernel but no visited counts. */\n",
-"__kernel void bvh_frame_packet_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,\n",
-"                                      __global const uint *prims, uint ref_count, float16 cam, uint width, uint height,\n",
-"                                      uint y0, uint rows, __global uchar *rgba, __global uint4 *hits) {\n",
+"__kernel void bvh_frame_packet_kernel(BVH_CL_TREE_ARGS, float16 cam, uint width, uint height, uint y0, uint rows,\n",
+"                                      __global uchar *rgba, __global uint4 *hits) {\n",
 "    uint gx = (uint)get_global_id(0), gy = (uint)get_global_id(1), l;\n",
 "    bvh_cl_scene s;\n",
 "    bvh_cl_rayx rx[BVH_CL_PACKET];\n",
@@ -1549,6 +1547,13 @@ static void bvh_cl__time(bvh_cl_context *c, cl_event ev) {
         c->kernel_ms += (double)(b - a) * 1e-6;
     clReleaseEvent(ev);
 }
+/* After non-blocking reads that returned err: waits for the queue even when one failed (so that
+   none is left writing into the caller's memory), times ev, and returns the first error. */
+static cl_int bvh_cl__finish_reads(bvh_cl_context *c, cl_int err, cl_event ev) {
+    const cl_int fin = clFinish(c->queue);
+    bvh_cl__time(c, ev);
+    return err != CL_SUCCESS ? err : fin;
+}
 
 static size_t bvh_cl__round_up(size_t n, size_t m) { return (n + m - 1) / m * m; }
 
@@ -1589,12 +1594,7 @@ static bvh_cl_result bvh_cl__batch(bvh_cl_tree *t, const bvh_ray *rays, void *ou
         /* a non-blocking read and clFinish: PoCL's blocking read spins on a core the kernel needs */
         err = clEnqueueReadBuffer(c->queue, c->scratch[BVH_CL__S_OUT], CL_FALSE, 0, n * out_elem,
                                   BVH_CL__CAST(char *, out) + i * out_elem, 0, NULL, NULL);
-        if (err == CL_SUCCESS)
-            err = clFinish(c->queue);
-        else
-            clFinish(c->queue);
-        bvh_cl__time(c, ev);
-        if (err != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueReadBuffer");
+        if ((err = bvh_cl__finish_reads(c, err, ev)) != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueReadBuffer");
     }
     return BVH_CL_SUCCESS;
 }
@@ -1683,12 +1683,7 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *t, const bvh_camera *c
             err = clEnqueueReadBuffer(c->queue, c->scratch[slot[i]], CL_FALSE, 0, (size_t)rows * w * elem[i],
                                       BVH_CL__CAST(char *, dst[i]) + (size_t)y0 * w * elem[i], 0, NULL, NULL);
         }
-        if (err == CL_SUCCESS)
-            err = clFinish(c->queue);
-        else
-            clFinish(c->queue);
-        bvh_cl__time(c, ev);
-        if (err != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueReadBuffer");
+        if ((err = bvh_cl__finish_reads(c, err, ev)) != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueReadBuffer");
     }
     return BVH_CL_SUCCESS;
 }

@@ -312,43 +312,43 @@ BVH_CL_FN void bvh_cl_trace(const bvh_cl_scene *s, float3 o, float tmin, float3 
     }
 }
 
-/* Ray i of a batch (origin, tmin, direction, tmax: 8 floats) traced into *res. */
-void bvh_cl_trace_batch_ray(__global const uint4 *nodes, uint node_count, __global const float *tris,
-                            __global const uint *prims, uint ref_count, __global const float *rays, uint i, int any,
-                            bvh_cl_hitrec *res) {
+/* The tree's buffers as every kernel takes them first (cl/bvh_cl.h sets them as arguments 0-4). */
+#define BVH_CL_TREE_ARGS                                                                                               \
+    __global const uint4 *nodes, uint node_count, __global const float *tris, __global const uint *prims, uint ref_count
+
+/* The work-item's ray of a batch (origin, tmin, direction, tmax: 8 floats) traced into *res;
+   0 for a work-item past the batch's count (nothing traced). */
+int bvh_cl_trace_batch_ray(BVH_CL_TREE_ARGS, __global const float *rays, uint count, int any, bvh_cl_hitrec *res) {
+    const uint i = (uint)get_global_id(0);
     bvh_cl_scene s;
-    const float4 r0 = vload4(2 * (size_t)i, rays), r1 = vload4(2 * (size_t)i + 1, rays);
+    float4 r0, r1;
+    if (i >= count) return 0;
+    r0 = vload4(2 * (size_t)i, rays);
+    r1 = vload4(2 * (size_t)i + 1, rays);
     s.nodes = nodes;
     s.tris = tris;
     s.prims = prims;
     s.node_count = node_count;
     s.ref_count = ref_count;
     bvh_cl_trace(&s, r0.xyz, r0.w, r1.xyz, r1.w, any, res);
+    return 1;
 }
 
 /* ============================================================================================ */
 /* == kernels =================================================================================== */
 /* ============================================================================================ */
 /* Closest hit of rays[0 .. count) into hits (bvh_intersect_batch). */
-__kernel void bvh_intersect_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,
-                                   __global const uint *prims, uint ref_count, __global const float *rays,
-                                   __global uint4 *hits, uint count) {
-    uint i = (uint)get_global_id(0);
+__kernel void bvh_intersect_kernel(BVH_CL_TREE_ARGS, __global const float *rays, __global uint4 *hits, uint count) {
     bvh_cl_hitrec res;
-    if (i >= count) return;
-    bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, i, 0, &res);
-    hits[i] = (uint4)(as_uint(res.t), as_uint(res.u), as_uint(res.v), res.prim);
+    if (bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, count, 0, &res))
+        hits[get_global_id(0)] = (uint4)(as_uint(res.t), as_uint(res.u), as_uint(res.v), res.prim);
 }
 
 /* Any hit of rays[0 .. count): occluded[i] = 1 if blocked (bvh_occluded_batch). */
-__kernel void bvh_occluded_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,
-                                  __global const uint *prims, uint ref_count, __global const float *rays,
-                                  __global uchar *occluded, uint count) {
-    uint i = (uint)get_global_id(0);
+__kernel void bvh_occluded_kernel(BVH_CL_TREE_ARGS, __global const float *rays, __global uchar *occluded, uint count) {
     bvh_cl_hitrec res;
-    if (i >= count) return;
-    bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, i, 1, &res);
-    occluded[i] = res.prim != BVH_CL_INVALID ? (uchar)1 : (uchar)0;
+    if (bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, count, 1, &res))
+        occluded[get_global_id(0)] = res.prim != BVH_CL_INVALID ? (uchar)1 : (uchar)0;
 }
 
 /* The colour of a frame's pixel (ray direction d, sy as in bvh_frame_kernel): a hit grey by a
@@ -376,9 +376,8 @@ BVH_CL_FN uchar4 bvh_cl_shade(__global const float *tris, uint prim, uint ref, f
    Outputs (each may be NULL), indexed from the first row of the band: rgba (4 bytes per pixel):
    hits shaded with a headlight, grey * (0.2 + 0.8 |dot(n, d)|), misses a vertical gradient;
    hits (bvh_hit); visited (nodes visited, as bvh_intersect_counted). */
-__kernel void bvh_frame_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,
-                               __global const uint *prims, uint ref_count, float16 cam, uint width, uint height,
-                               uint y0, uint rows, __global uchar *rgba, __global uint4 *hits, __global uint *visited) {
+__kernel void bvh_frame_kernel(BVH_CL_TREE_ARGS, float16 cam, uint width, uint height, uint y0, uint rows,
+                               __global uchar *rgba, __global uint4 *hits, __global uint *visited) {
     uint x = (uint)get_global_id(0), row = (uint)get_global_id(1), y = y0 + row;
     size_t pix = (size_t)row * width + x;
     bvh_cl_scene s;
@@ -658,9 +657,8 @@ BVH_CL_FN void bvh_cl_packet_setup(float3 o, bvh_pkf dx, bvh_pkf dy, bvh_pkf dz,
 /* bvh_frame_kernel with a 4 x BVH_CL_PACKET_H pixel tile per work-item: work-item (gx, gy) traces
    pixels x = 4 gx .. 4 gx + 3 of rows BVH_CL_PACKET_H gy .. of the band; the same outputs as
    bvh_frame_kernel but no visited counts. */
-__kernel void bvh_frame_packet_kernel(__global const uint4 *nodes, uint node_count, __global const float *tris,
-                                      __global const uint *prims, uint ref_count, float16 cam, uint width, uint height,
-                                      uint y0, uint rows, __global uchar *rgba, __global uint4 *hits) {
+__kernel void bvh_frame_packet_kernel(BVH_CL_TREE_ARGS, float16 cam, uint width, uint height, uint y0, uint rows,
+                                      __global uchar *rgba, __global uint4 *hits) {
     uint gx = (uint)get_global_id(0), gy = (uint)get_global_id(1), l;
     bvh_cl_scene s;
     bvh_cl_rayx rx[BVH_CL_PACKET];

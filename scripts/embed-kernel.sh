@@ -11,12 +11,16 @@ end='/* == end of kernel source == */'
 grep -qxF "$begin" cl/bvh_cl.h && grep -qxF "$end" cl/bvh_cl.h || {
   echo "embed-kernel: cl/bvh_cl.h lacks the kernel source markers" >&2; exit 1; }
 tmp=$(mktemp)
-trap 'rm -f "$tmp"' EXIT
+lines=$(mktemp)
+trap 'rm -f "$tmp" "$lines"' EXIT
+# each line as a C string: backslashes and quotes escaped (by sed: awk's gsub differs between
+# awks on backslashes), then a newline
+sed -e 's/\\/\\\\/g' -e 's/"/\\"/g' -e 's/^/"/' -e 's/$/\\n",/' cl/trace.cl >"$lines"
 awk -v begin="$begin" -v end="$end" '
-  FNR == NR { gsub(/\\/, "\\\\"); gsub(/"/, "\\\""); src[++n] = $0; next }
+  FNR == NR { src[++n] = $0; next }
   $0 == begin { print; print "static const char *const bvh_cl__source[] = {";
-                for (i = 1; i <= n; i++) print "\"" src[i] "\\n\",";
+                for (i = 1; i <= n; i++) print src[i];
                 print "};"; skip = 1; next }
   $0 == end { skip = 0 }
-  !skip' cl/trace.cl cl/bvh_cl.h >"$tmp"
+  !skip' "$lines" cl/bvh_cl.h >"$tmp"
 cat "$tmp" >"$out"

@@ -302,6 +302,9 @@ static void device_available(void **state) {
     }
     if (ci && strcmp(ci, "true") == 0)
         fail_msg("CI=true and no OpenCL device: %s (%s)", bvh_cl_result_string(g_create_result), g_log);
+    /* a device was there but the kernel did not build: the kernel is broken, not the machine */
+    if (g_create_result == BVH_CL_ERROR_BUILD_FAILED || g_create_result == BVH_CL_ERROR_KERNEL_NOT_FOUND)
+        fail_msg("the kernel does not build: %s (%s)", bvh_cl_result_string(g_create_result), g_log);
     print_message("no OpenCL device, skipping: %s (%s)\n", bvh_cl_result_string(g_create_result), g_log);
     skip();
 }

@@ -6327,7 +6327,7 @@ BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit
    the tree has one). The best hit keeps the instance, the mesh's triangle and t; the normal of
    the final hit is computed from the tree's copy of the triangle (tree.tris, in reference order),
    found by a map from triangle to reference that the scene makes once per distinct
-   bottom-level tree (a walk to find it again cost more than the trace on a bunny). */
+   bottom-level tree (walking the tree again to find it would cost about as much as the trace). */
 /* ============================================================================================ */
 BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]) {
     bvh_ray r = *ray;

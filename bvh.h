@@ -6567,6 +6567,9 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
     c.mask = mask;
     c.any = (uint32_t)any;
     c.instance = BVH_INVALID;
+    c.hit.t = BVH_INF; /* set by the step that takes a hit; written here for compilers that cannot see it */
+    c.hit.u = c.hit.v = 0.0f;
+    c.hit.prim = BVH_INVALID;
     if (scene && ray && mask) found = bvh__trace_leaves(&scene->top, ray, any, bvh__instance_step, &c, NULL);
     if (!hit) return found;
     hit->t = ray ? ray->tmax : BVH_INF;

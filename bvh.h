@@ -4789,18 +4789,17 @@ BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
     rx->kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
     return 1;
 }
+/* kx, ky: the two axes after kz in cyclic order, swapped when d[kz] < 0 so that the winding is
+   kept; [d[kz] < 0][kz], looked up: a branch on a random direction is a random branch. */
+static const unsigned char bvh__kxy[2][3][2] = {{{1, 2}, {2, 0}, {0, 1}}, {{2, 1}, {0, 2}, {1, 0}}};
 /* The rest of the watertight set-up (Woop et al.): the other two axes and the shear. Only the
    triangle test needs it, so the traversals make it when a ray first reaches a leaf: most rays
    of a frame miss after a box or two, and save its three divisions. */
 BVH__INLINE void bvh__ray_shear(bvh__rayx *rx) {
     const float *d = rx->d;
-    rx->kx = rx->kz == 2 ? 0 : rx->kz + 1;
-    rx->ky = rx->kx == 2 ? 0 : rx->kx + 1;
-    if (d[rx->kz] < 0.0f) {
-        int t = rx->kx;
-        rx->kx = rx->ky;
-        rx->ky = t;
-    }
+    const unsigned char *k = bvh__kxy[d[rx->kz] < 0.0f][rx->kz];
+    rx->kx = k[0];
+    rx->ky = k[1];
     rx->sx = d[rx->kx] / d[rx->kz];
     rx->sy = d[rx->ky] / d[rx->kz];
     rx->sz = rx->inv[rx->kz]; /* 1 / d[kz], made by the set-up */
@@ -4949,10 +4948,12 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
    subtree of at most BVH__SLOT_REFS references: a node whose slots would all be such small
    leaves is a dependent load and 256 bytes for little culling, while a leaf of four packets is
    two passes of the AVX2 packet test on lines side by side, and its packets are fuller (a slot
-   leaves at most three lanes empty, whatever its size). The child boxes are the binary nodes' boxes,
-   bit for bit, and the slab test below is the binary one lane by lane, so the argument that no box
-   culls a hit the brute-force loop finds holds as it is; the packet test is bvh__tri_test lane by
-   lane. The numbering depends on the tree alone, never on the thread count. */
+   leaves at most three lanes empty, whatever its size). Slots left free once only leaf slots
+   remain are not wasted: leaf slots are opened into their two children where that lowers the
+   expected cost of the packet tests (bvh__wide_gain) without adding a packet. The child boxes are the binary nodes'
+   boxes, bit for bit, and the slab test below is the binary one lane by lane, so the argument that no box culls a hit
+   the brute-force loop finds holds as it is; the packet test is bvh__tri_test lane by lane. The numbering depends on
+   the tree alone, never on the thread count. */
 #define BVH__PACKET 4u     /* triangles per packet */
 #define BVH__SLOT_REFS 16u /* a binary subtree of at most this many references is one leaf slot */
 typedef struct bvh__wide_src {
@@ -5014,6 +5015,44 @@ static float bvh__wide_area(const bvh__wide_src *s, uint32_t b) {
     if (s->replay) return s->role[b] == BVH__ROLE_HEAD ? -1.0f : 1.0f; /* the build opened all others */
     return bvh_aabb_area(bvh__node_box(&s->nodes[b]));
 }
+/* Expected cost of a leaf slot of r references for a ray that enters its box: the leaf's set-up
+   and one pass of the AVX2 test per two packets, in thirds of a pass. */
+static float bvh__wide_leaf_cost(uint32_t r) {
+    return 1.0f + 3.0f * (float)((r + 2u * BVH__PACKET - 1u) / (2u * BVH__PACKET));
+}
+static uint32_t bvh__wide_count_packets(uint32_t r) { return (r + BVH__PACKET - 1u) / BVH__PACKET; }
+/* What opening leaf slot b into its two children saves (area x cost; <= 0: nothing), when the
+   children need no more packets than b (the layout's memory stays that of the build's slots). */
+static float bvh__wide_gain(const bvh__wide_src *s, uint32_t b) {
+    const bvh_node *n = &s->nodes[b], *l, *r;
+    if (n->count) return 0.0f;
+    l = &s->nodes[n->index];
+    r = l + 1;
+    if (bvh__wide_count_packets(s->sub[n->index]) + bvh__wide_count_packets(s->sub[n->index + 1]) >
+        bvh__wide_count_packets(s->sub[b]))
+        return 0.0f;
+    return bvh_aabb_area(bvh__node_box(n)) * bvh__wide_leaf_cost(s->sub[b]) -
+           bvh_aabb_area(bvh__node_box(l)) * bvh__wide_leaf_cost(s->sub[n->index]) -
+           bvh_aabb_area(bvh__node_box(r)) * bvh__wide_leaf_cost(s->sub[n->index + 1]);
+}
+/* Free slots of a wide node whose slots are all leaves: the leaf slot whose opening saves most is
+   opened while one does (no node and no packet is added). */
+static uint32_t bvh__wide_open_slots(const bvh__wide_src *s, uint32_t out[BVH__W], uint32_t k) {
+    while (k < BVH__W) {
+        uint32_t i, best = 0;
+        float g, bg = 0.0f;
+        for (i = 0; i < k; i++)
+            if ((g = bvh__wide_gain(s, out[i])) > bg) {
+                bg = g;
+                best = i;
+            }
+        if (bg <= 0.0f) break;
+        out[k] = s->nodes[out[best]].index + 1;
+        out[best] = s->nodes[out[best]].index;
+        k++;
+    }
+    return k;
+}
 static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t out[BVH__W]) {
     uint32_t k = 2, i, best;
     float area[BVH__W];
@@ -5031,6 +5070,7 @@ static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t ou
         area[best] = bvh__wide_area(s, out[best]);
         k++;
     }
+    if (!s->replay) k = bvh__wide_open_slots(s, out, k);
     return k;
 }
 /* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
@@ -5495,8 +5535,9 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
     uint32_t q;
     int found = 0;
     for (q = 0; q < np; q += 2, p += 2) {
-        const bvh_tri4 *p1 = q + 1 < np ? p + 1 : p;
-        const unsigned lanes = q + 1 < np ? 0xffu : 0x0fu;
+        const uint32_t two = q + 1 < np; /* 0: an odd last packet, its copy's lanes masked off */
+        const bvh_tri4 *p1 = p + two;
+        const unsigned lanes = 0x0fu | (0xf0u & (0u - two));
         /* named registers, not arrays: an array indexed in a loop the compiler does not unroll
            lives in memory */
         __m256 x0, y0, z0, x1, y1, z1, x2, y2, z2, U, V, W, ft, det, neg, pos, T, ok, tn, tf, slack;
@@ -5626,25 +5667,25 @@ typedef struct bvh__ray8 {
    only when the slab test is the SSE one (sse). */
 /* kz (the dominant axis, first of equals in the order z, y, x as bvh__ray_setup picks it) from
    the three comparisons |dx| > |dy|, |dx| > |dz|, |dy| > |dz| as bits 0-2, looked up rather than
-   branched on: a diffuse ray's direction is random, and so would the branches be. bvh__axes: the
-   axes in the slab test's order, kz last (its distances give the slack). */
+   branched on: a diffuse ray's direction is random, and so would the branches be. */
 static const unsigned char bvh__kz[8] = {2, 2, 2, 0, 1, 2, 1, 0};
-static const unsigned char bvh__axes[3][3] = {{1, 2, 0}, {0, 2, 1}, {0, 1, 2}};
 BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int sse) {
     const __m128 o = _mm_loadu_ps(&ray->origin.x), d0 = _mm_loadu_ps(&ray->dir.x); /* xyz, tmin / tmax */
     const __m128 absm = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)), inf = _mm_set1_ps(BVH_INF);
-    const __m128 ad = _mm_and_ps(d0, absm);
+    const __m128 zero = _mm_setzero_ps(), ad0 = _mm_and_ps(d0, absm);
     /* a subnormal component counts as +0, as in bvh__ray_setup */
-    const __m128 d = _mm_andnot_ps(_mm_cmplt_ps(ad, _mm_set1_ps(FLT_MIN)), d0);
+    const __m128 d = _mm_andnot_ps(_mm_cmplt_ps(ad0, _mm_set1_ps(FLT_MIN)), d0), ad = _mm_and_ps(d, absm);
     const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), d); /* 1 / +0 = +inf */
     const unsigned finite =
-        (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmplt_ps(_mm_and_ps(o, absm), inf), _mm_cmplt_ps(ad, inf)));
-    const unsigned neg = (unsigned)_mm_movemask_ps(_mm_cmplt_ps(inv, _mm_setzero_ps()));
-    float fo[4], fd[4], fi[4], ax, ay, az;
-    const unsigned char *order;
-    int a;
+        (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmplt_ps(_mm_and_ps(o, absm), inf), _mm_cmplt_ps(ad0, inf)));
+    const unsigned neg = (unsigned)_mm_movemask_ps(_mm_cmplt_ps(inv, zero));
+    /* |dx| > |dy|, |dx| > |dz|, |dy| > |dz| as bits 0-2 */
+    const unsigned gt = (unsigned)_mm_movemask_ps(
+        _mm_cmpgt_ps(_mm_shuffle_ps(ad, ad, _MM_SHUFFLE(3, 1, 0, 0)), _mm_shuffle_ps(ad, ad, _MM_SHUFFLE(3, 2, 2, 1))));
+    float fo[4], fd[4], fi[4];
+    int a, k[3];
     if ((finite & 7u) != 7u || ray->tmin != ray->tmin || ray->tmax != ray->tmax || ray->tmin > ray->tmax) return 0;
-    if ((_mm_movemask_ps(_mm_cmpeq_ps(d, _mm_setzero_ps())) & 7) == 7) return 0;
+    if ((_mm_movemask_ps(_mm_cmpeq_ps(d, zero)) & 7) == 7) return 0;
     _mm_storeu_ps(fo, o);
     _mm_storeu_ps(fd, d);
     _mm_storeu_ps(fi, inv);
@@ -5654,17 +5695,18 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
         rx->inv[a] = fi[a];
     }
     rx->tmin = ray->tmin;
-    ax = fabsf(fd[0]);
-    ay = fabsf(fd[1]);
-    az = fabsf(fd[2]);
-    rx->kz = bvh__kz[(ax > ay) | (ax > az) << 1 | (ay > az) << 2];
-    order = bvh__axes[rx->kz];
+    k[2] = rx->kz = bvh__kz[gt & 7u];
+    k[0] = rx->kx = bvh__kxy[neg >> k[2] & 1u][k[2]][0];
+    k[1] = rx->ky = bvh__kxy[neg >> k[2] & 1u][k[2]][1];
+    /* the slab tests' axes in the order kx, ky, kz (kz last: its distances give the slack), the
+       inverse negated: (o - b) * -inv is (b - o) * inv, bit for bit but for the sign of a zero,
+       and lets b be read by the subtraction itself */
     for (a = 0; a < 3; a++) {
-        const int k = order[a], n = (int)(neg >> k & 1u);
-        q->so[a] = fo[k];
-        q->sinv[a] = fi[k];
-        q->near8[a] = 8 * k + 24 * n;
-        q->far8[a] = 8 * k + 24 - 24 * n;
+        const int n = (int)(neg >> k[a] & 1u);
+        q->so[a] = fo[k[a]];
+        q->sinv[a] = -fi[k[a]];
+        q->near8[a] = 8 * k[a] + 24 * n;
+        q->far8[a] = 8 * k[a] + 24 - 24 * n;
     }
     q->stmin = rx->tmin;
     if (sse) {
@@ -5679,12 +5721,12 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
 /* bvh__slab_t on the four slots of a node whose box arrays start at f (slot 0 or 4); bit i of the
    result: slot i entered before tfar, *tn their entry distances. */
 BVH__INLINE unsigned bvh__slab4q(const bvh__ray8 *q, const float *f, __m128 tfar, __m128 *tn_out) {
-    const __m128 t0a = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near8[0]), q->o[0]), q->inv[0]);
-    const __m128 t1a = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far8[0]), q->o[0]), q->inv[0]);
-    const __m128 t0b = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near8[1]), q->o[1]), q->inv[1]);
-    const __m128 t1b = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far8[1]), q->o[1]), q->inv[1]);
-    const __m128 t0c = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->near8[2]), q->o[2]), q->inv[2]);
-    const __m128 t1c = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(f + q->far8[2]), q->o[2]), q->inv[2]);
+    const __m128 t0a = _mm_mul_ps(_mm_sub_ps(q->o[0], _mm_loadu_ps(f + q->near8[0])), q->inv[0]);
+    const __m128 t1a = _mm_mul_ps(_mm_sub_ps(q->o[0], _mm_loadu_ps(f + q->far8[0])), q->inv[0]);
+    const __m128 t0b = _mm_mul_ps(_mm_sub_ps(q->o[1], _mm_loadu_ps(f + q->near8[1])), q->inv[1]);
+    const __m128 t1b = _mm_mul_ps(_mm_sub_ps(q->o[1], _mm_loadu_ps(f + q->far8[1])), q->inv[1]);
+    const __m128 t0c = _mm_mul_ps(_mm_sub_ps(q->o[2], _mm_loadu_ps(f + q->near8[2])), q->inv[2]);
+    const __m128 t1c = _mm_mul_ps(_mm_sub_ps(q->o[2], _mm_loadu_ps(f + q->far8[2])), q->inv[2]);
     const __m128 inf = _mm_set1_ps(BVH_INF);
     /* _mm_max_ps(a, b) is a > b ? a : b and _mm_min_ps(a, b) is a < b ? a : b: the scalar
        selects, NaN included */
@@ -5719,12 +5761,12 @@ __attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh
     const __m256 oa = _mm256_broadcast_ss(&q->so[0]), ob = _mm256_broadcast_ss(&q->so[1]);
     const __m256 oc = _mm256_broadcast_ss(&q->so[2]), ia = _mm256_broadcast_ss(&q->sinv[0]);
     const __m256 ib = _mm256_broadcast_ss(&q->sinv[1]), ic = _mm256_broadcast_ss(&q->sinv[2]);
-    const __m256 t0a = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->near8[0]), oa), ia);
-    const __m256 t1a = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->far8[0]), oa), ia);
-    const __m256 t0b = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->near8[1]), ob), ib);
-    const __m256 t1b = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->far8[1]), ob), ib);
-    const __m256 t0c = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->near8[2]), oc), ic);
-    const __m256 t1c = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(f + q->far8[2]), oc), ic);
+    const __m256 t0a = _mm256_mul_ps(_mm256_sub_ps(oa, _mm256_loadu_ps(f + q->near8[0])), ia);
+    const __m256 t1a = _mm256_mul_ps(_mm256_sub_ps(oa, _mm256_loadu_ps(f + q->far8[0])), ia);
+    const __m256 t0b = _mm256_mul_ps(_mm256_sub_ps(ob, _mm256_loadu_ps(f + q->near8[1])), ib);
+    const __m256 t1b = _mm256_mul_ps(_mm256_sub_ps(ob, _mm256_loadu_ps(f + q->far8[1])), ib);
+    const __m256 t0c = _mm256_mul_ps(_mm256_sub_ps(oc, _mm256_loadu_ps(f + q->near8[2])), ic);
+    const __m256 t1c = _mm256_mul_ps(_mm256_sub_ps(oc, _mm256_loadu_ps(f + q->far8[2])), ic);
     const __m256 inf = _mm256_set1_ps(BVH_INF);
     __m256 tn = _mm256_max_ps(t0a, _mm256_broadcast_ss(&q->stmin)), tf = _mm256_min_ps(t1a, inf), slack;
     tn = _mm256_max_ps(t0b, tn);
@@ -5755,10 +5797,12 @@ typedef struct bvh__ray8 {
 /* Slot i of node n onto the stack. Its lines are asked for now, so that they arrive while the
    nearer children are being tested (the nearest child is read at once: asking for it gains
    nothing). */
-BVH__INLINE void bvh__push8(const bvh_tree *tree, const bvh_node8 *n, unsigned i, const float *tn, bvh__entry8 *stack,
-                            uint32_t *sp) {
+BVH__INLINE void bvh__push8(const bvh_node8 *nodes, const bvh_tri4 *tri4, const bvh_node8 *n, unsigned i,
+                            const float *tn, bvh__entry8 *stack, uint32_t *sp) {
     const uint32_t c = n->child[i], k = n->count[i];
-    const char *a = k ? (const char *)(tree->tri4 + c) : (const char *)(tree->nodes8 + c);
+    /* a select, not a branch: leaves and nodes alternate at random */
+    const uintptr_t leaf = (uintptr_t)0 - (uintptr_t)(k != 0);
+    const char *a = (const char *)(((uintptr_t)(tri4 + c) & leaf) | ((uintptr_t)(nodes + c) & ~leaf));
     BVH__PREFETCH(a);
     BVH__PREFETCH(a + 64);
     BVH__PREFETCH(a + 128);
@@ -5775,9 +5819,11 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                                     int any, int isa) {
     bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
     uint32_t sp = 0, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first packet */
-    int sheared = 0;
     bvh__best best;
-    const bvh_node8 *nodes = tree->nodes8;
+    const bvh_node8 *const nodes = tree->nodes8;
+    const bvh_tri4 *const tri4 = tree->tri4;
+    int sheared = 0;
+    float tbest = tmax; /* best.t, kept in a register: best itself lives in memory for the leaf test */
     best.t = tmax;
     best.u = best.v = 0.0f;
     best.prim = BVH_INVALID;
@@ -5789,7 +5835,7 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
             unsigned m, i0, i1;
             /* the children's line, asked for now: it is read only once the boxes are tested */
             BVH__PREFETCH(n->child);
-            m = BVH__SLAB8(n, best.t, tn);
+            m = BVH__SLAB8(n, tbest, tn);
             if (m) {
                 i0 = BVH__CTZ(m);
                 m &= m - 1;
@@ -5807,13 +5853,13 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                         i0 = i1;
                         i1 = x;
                     }
-                    bvh__push8(tree, n, i1, tn, stack, &sp);
+                    bvh__push8(nodes, tri4, n, i1, tn, stack, &sp);
                 } else if (any) { /* any hit: in slot order */
                     m |= 1u << i1;
                     while (m) {
                         i1 = BVH__CTZ(m);
                         m &= m - 1;
-                        bvh__push8(tree, n, i1, tn, stack, &sp);
+                        bvh__push8(nodes, tri4, n, i1, tn, stack, &sp);
                     }
                 } else { /* three or more: insertion by entry distance, nearest first */
                     uint32_t idx[BVH__W], k = 2, j;
@@ -5827,7 +5873,7 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                         k++;
                     }
                     for (j = k - 1; j > 0; j--) /* farthest at the bottom */
-                        bvh__push8(tree, n, idx[j], tn, stack, &sp);
+                        bvh__push8(nodes, tri4, n, idx[j], tn, stack, &sp);
                     i0 = idx[0];
                 }
                 cur = n->child[i0];
@@ -5839,12 +5885,15 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                 bvh__ray_shear(rx);
                 sheared = 1;
             }
-            if (BVH__PACKETS(rx, tree->tri4 + cur, lc, &best, any) && any) goto out;
+            if (BVH__PACKETS(rx, tri4 + cur, lc, &best, any)) {
+                if (any) goto out;
+                tbest = best.t;
+            }
         }
         for (;;) { /* pop the next node still in reach of the current best */
             if (!sp) goto out;
             --sp;
-            if (stack[sp].t <= best.t) {
+            if (stack[sp].t <= tbest) {
                 cur = stack[sp].child;
                 lc = stack[sp].count;
                 break;
@@ -5881,21 +5930,25 @@ BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *h
     return 0;
 }
 #ifdef BVH__AVX2
-__attribute__((target("avx2"))) static int bvh__trace8_avx2(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit,
-                                                            int any) {
-    return bvh__trace8(tree, ray, hit, any, 1);
+__attribute__((target("avx2"), flatten)) static int bvh__closest8_avx2(const bvh_tree *tree, const bvh_ray *ray,
+                                                                       bvh_hit *hit) {
+    return bvh__trace8(tree, ray, hit, 0, 1);
+}
+__attribute__((target("avx2"), flatten)) static int bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray) {
+    return bvh__trace8(tree, ray, NULL, 1, 1);
 }
 #endif
-static int bvh__trace8_base(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
-    return bvh__trace8(tree, ray, hit, any, 0);
+static int bvh__closest8_base(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit) {
+    return bvh__trace8(tree, ray, hit, 0, 0);
 }
+static int bvh__any8_base(const bvh_tree *tree, const bvh_ray *ray) { return bvh__trace8(tree, ray, NULL, 1, 0); }
 /* The wide traversal for the single-ray calls and the batches: tree->nodes8 is set only on a
    tree with triangles and nodes (bvh__make_wide), which is all bvh__traverse checks first. */
 BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
 #ifdef BVH__AVX2
-    if (bvh__have_avx2()) return bvh__trace8_avx2(tree, ray, hit, any);
+    if (bvh__have_avx2()) return any ? bvh__any8_avx2(tree, ray) : bvh__closest8_avx2(tree, ray, hit);
 #endif
-    return bvh__trace8_base(tree, ray, hit, any);
+    return any ? bvh__any8_base(tree, ray) : bvh__closest8_base(tree, ray, hit);
 }
 
 /* == the binary traversal with a leaf step ===================================================== */

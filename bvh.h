@@ -4757,12 +4757,13 @@ BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
    (the whole line is inside the slab). Near child first; any-hit stops at the first hit. */
 /* ============================================================================================ */
 typedef struct bvh__rayx {
-    float o[3], d[3], inv[3], tmin;
-    int near[3];           /* float offset in a node of the near plane on each axis: 0..2 min, 4..6 max */
-    int near8[3], far8[3]; /* the same in a bvh_node8 (slot 0): 0, 8, 16 min, 24, 32, 40 max */
-    int kx, ky, kz;        /* watertight: kz = dominant axis (bvh__ray_setup); kx, ky and the shear */
-    float sx, sy, sz;      /* sx, sy, sz are made by bvh__ray_shear before the first triangle test */
+    float o[3], d[3], inv[3], tmin; /* side by side: bvh__ray8_start copies them at once */
+    int near[3];                    /* float offset in a node of the near plane on each axis: 0..2 min, 4..6 max */
+    int near8[3], far8[3];          /* the same in a bvh_node8 (slot 0): 0, 8, 16 min, 24, 32, 40 max */
+    int kx, ky, kz;                 /* watertight: kz = dominant axis (bvh__ray_setup); kx, ky and the shear */
+    float sx, sy, sz;               /* sx, sy, sz are made by bvh__ray_shear before the first triangle test */
 } bvh__rayx;
+typedef char bvh__rayx_packed[offsetof(bvh__rayx, tmin) == 9 * sizeof(float) ? 1 : -1];
 
 BVH__INLINE int bvh__ray_setup(const bvh_ray *ray, bvh__rayx *rx) {
     const float *o = &ray->origin.x, *d = &ray->dir.x;
@@ -5669,6 +5670,16 @@ typedef struct bvh__ray8 {
    the three comparisons |dx| > |dy|, |dx| > |dz|, |dy| > |dz| as bits 0-2, looked up rather than
    branched on: a diffuse ray's direction is random, and so would the branches be. */
 static const unsigned char bvh__kz[8] = {2, 2, 2, 0, 1, 2, 1, 0};
+/* Slab-test axis a of q from ray axis k (odi: bvh__rayx's o, d, inv), the inverse negated:
+   (o - b) * -inv is (b - o) * inv, bit for bit but for the sign of a zero, and lets the slab test
+   read b by the subtraction itself. */
+BVH__INLINE void bvh__ray8_axis(bvh__ray8 *q, int a, int k, unsigned neg, const float *odi) {
+    const int n = (int)(neg >> k & 1u);
+    q->so[a] = odi[k];
+    q->sinv[a] = -odi[6 + k];
+    q->near8[a] = 8 * k + 24 * n;
+    q->far8[a] = 8 * k + 24 - 24 * n;
+}
 BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int sse) {
     const __m128 o = _mm_loadu_ps(&ray->origin.x), d0 = _mm_loadu_ps(&ray->dir.x); /* xyz, tmin / tmax */
     const __m128 absm = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)), inf = _mm_set1_ps(BVH_INF);
@@ -5682,32 +5693,24 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     /* |dx| > |dy|, |dx| > |dz|, |dy| > |dz| as bits 0-2 */
     const unsigned gt = (unsigned)_mm_movemask_ps(
         _mm_cmpgt_ps(_mm_shuffle_ps(ad, ad, _MM_SHUFFLE(3, 1, 0, 0)), _mm_shuffle_ps(ad, ad, _MM_SHUFFLE(3, 2, 2, 1))));
-    float fo[4], fd[4], fi[4];
-    int a, k[3];
+    float odi[12];
+    int a;
     if ((finite & 7u) != 7u || ray->tmin != ray->tmin || ray->tmax != ray->tmax || ray->tmin > ray->tmax) return 0;
     if ((_mm_movemask_ps(_mm_cmpeq_ps(d, zero)) & 7) == 7) return 0;
-    _mm_storeu_ps(fo, o);
-    _mm_storeu_ps(fd, d);
-    _mm_storeu_ps(fi, inv);
-    for (a = 0; a < 3; a++) {
-        rx->o[a] = fo[a];
-        rx->d[a] = fd[a];
-        rx->inv[a] = fi[a];
-    }
-    rx->tmin = ray->tmin;
-    k[2] = rx->kz = bvh__kz[gt & 7u];
-    k[0] = rx->kx = bvh__kxy[neg >> k[2] & 1u][k[2]][0];
-    k[1] = rx->ky = bvh__kxy[neg >> k[2] & 1u][k[2]][1];
-    /* the slab tests' axes in the order kx, ky, kz (kz last: its distances give the slack), the
-       inverse negated: (o - b) * -inv is (b - o) * inv, bit for bit but for the sign of a zero,
-       and lets b be read by the subtraction itself */
-    for (a = 0; a < 3; a++) {
-        const int n = (int)(neg >> k[a] & 1u);
-        q->so[a] = fo[k[a]];
-        q->sinv[a] = -fi[k[a]];
-        q->near8[a] = 8 * k[a] + 24 * n;
-        q->far8[a] = 8 * k[a] + 24 - 24 * n;
-    }
+    /* o, d, inv and tmin are side by side in bvh__rayx: three stores of four lanes, each fourth
+       lane overwritten by the next store (through a local: the struct's arrays are three long) */
+    _mm_storeu_ps(odi, o);
+    _mm_storeu_ps(odi + 3, d);
+    _mm_storeu_ps(odi + 6, inv);
+    odi[9] = ray->tmin;
+    memcpy(rx, odi, sizeof odi[0] * 10);
+    rx->kz = bvh__kz[gt & 7u];
+    rx->kx = bvh__kxy[neg >> rx->kz & 1u][rx->kz][0];
+    rx->ky = bvh__kxy[neg >> rx->kz & 1u][rx->kz][1];
+    /* the slab tests' axes in the order kx, ky, kz (kz last: its distances give the slack) */
+    bvh__ray8_axis(q, 0, rx->kx, neg, odi);
+    bvh__ray8_axis(q, 1, rx->ky, neg, odi);
+    bvh__ray8_axis(q, 2, rx->kz, neg, odi);
     q->stmin = rx->tmin;
     if (sse) {
         for (a = 0; a < 3; a++) {

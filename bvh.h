@@ -104,6 +104,11 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.7.0  (in progress) The 8-wide layout fills free slots: leaf slots are opened into their
+            children where the packet tests' expected cost falls and no packet is added (the
+            same memory; different tree.nodes8 and tree.tri4 contents than 0.6.0, the same
+            hits). Closest and any hit run as separate functions, with fewer mispredicted
+            branches per incoherent ray.
      0.6.0  The public surface made regular. Builder-specific options moved into nested structs,
             zero still the default (the same trees): desc.ploc_radius -> desc.ploc.radius,
             desc.ploc_top -> desc.ploc.top, desc.max_bytes_per_prim ->

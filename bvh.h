@@ -5383,6 +5383,8 @@ BVH__INLINE unsigned bvh__slab8(const bvh__rayx *r, const bvh_node8 *n, float tf
 typedef struct bvh__best {
     float t, u, v;
     uint32_t prim;
+    const bvh_tri4 *pk; /* the wide traversal's: the hit's packet and lane (its vertices, in cache) */
+    uint32_t lane;
 } bvh__best;
 typedef struct bvh__entry8 {
     uint32_t child, count;
@@ -5495,6 +5497,8 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
         if (any) {
             b->t = bvh__lane_f(ft, BVH__CTZ(m));
             b->prim = p->prim[BVH__CTZ(m)];
+            b->pk = p;
+            b->lane = BVH__CTZ(m);
             return 1;
         }
         while (m) { /* the nearest lane; ties in t: the lowest primitive index */
@@ -5506,6 +5510,8 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
             b->u = bvh__lane_f(V, i) / d;
             b->v = bvh__lane_f(W, i) / d;
             b->prim = p->prim[i];
+            b->pk = p;
+            b->lane = i;
             found = 1;
         }
     }
@@ -5618,6 +5624,8 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
             const unsigned i = BVH__CTZ(m);
             b->t = bvh__lane8(ft, i);
             b->prim = (i < 4 ? p : p1)->prim[i & 3u];
+            b->pk = i < 4 ? p : p1;
+            b->lane = i & 3u;
             return 1;
         }
         while (m) { /* the nearest lane; ties in t: the lowest primitive index */
@@ -5630,6 +5638,8 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
             b->u = bvh__lane8(V, i) / d;
             b->v = bvh__lane8(W, i) / d;
             b->prim = prim;
+            b->pk = i < 4 ? p : p1;
+            b->lane = i & 3u;
             found = 1;
         }
     }
@@ -5651,6 +5661,8 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
             b->u = u;
             b->v = v;
             b->prim = p->prim[i];
+            b->pk = p;
+            b->lane = (uint32_t)i;
             found = 1;
             if (any) return 1;
         }
@@ -5824,7 +5836,7 @@ BVH__INLINE void bvh__push8(const bvh_node8 *nodes, const bvh_tri4 *tri4, const 
    constant: the loop is compiled once for each): 0 SSE or plain C, 1 AVX2 (the slab test in one
    pass, the leaf test on eight lanes). */
 BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
-                                    int any, int isa) {
+                                    bvh__best *loc, int any, int isa) {
     bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
     uint32_t sp = 0, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first packet */
     bvh__best best;
@@ -5835,6 +5847,8 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
     best.t = tmax;
     best.u = best.v = 0.0f;
     best.prim = BVH_INVALID;
+    best.pk = NULL;
+    best.lane = 0;
     (void)q;
     for (;;) {
         if (!lc) { /* an interior node: test its children */
@@ -5917,18 +5931,21 @@ out:
         hit->v = best.v;
         hit->prim = best.prim;
     }
+    if (loc) *loc = best;
     return 1;
 }
 /* The ray's set-up and the loop in one function for each slab test, so that a ray that misses
    after a node or two pays one call, and its set-up is not passed on through memory. hit, when given,
-   gets the miss record (t = tmax, prim BVH_INVALID) where no triangle is hit, as bvh__traverse. */
-BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any, int isa) {
+   gets the miss record (t = tmax, prim BVH_INVALID) where no triangle is hit, as bvh__traverse;
+   loc, when given, the hit's packet and lane too (untouched on a miss). */
+BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc, int any, int isa) {
     bvh__rayx rx;
     bvh__ray8 q;
 #ifdef BVH__SSE
-    if (bvh__ray8_start(ray, &rx, &q, !isa) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, isa)) return 1;
+    if (bvh__ray8_start(ray, &rx, &q, !isa) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, loc, any, isa))
+        return 1;
 #else
-    if (bvh__ray_setup(ray, &rx) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, any, isa)) return 1;
+    if (bvh__ray_setup(ray, &rx) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, loc, any, isa)) return 1;
 #endif
     if (hit) {
         hit->t = ray->tmax;
@@ -5939,24 +5956,27 @@ BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *h
 }
 #ifdef BVH__AVX2
 __attribute__((target("avx2"), flatten)) static int bvh__closest8_avx2(const bvh_tree *tree, const bvh_ray *ray,
-                                                                       bvh_hit *hit) {
-    return bvh__trace8(tree, ray, hit, 0, 1);
+                                                                       bvh_hit *hit, bvh__best *loc) {
+    return bvh__trace8(tree, ray, hit, loc, 0, 1);
 }
 __attribute__((target("avx2"), flatten)) static int bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray) {
-    return bvh__trace8(tree, ray, NULL, 1, 1);
+    return bvh__trace8(tree, ray, NULL, NULL, 1, 1);
 }
 #endif
-static int bvh__closest8_base(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit) {
-    return bvh__trace8(tree, ray, hit, 0, 0);
+static int bvh__closest8_base(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc) {
+    return bvh__trace8(tree, ray, hit, loc, 0, 0);
 }
-static int bvh__any8_base(const bvh_tree *tree, const bvh_ray *ray) { return bvh__trace8(tree, ray, NULL, 1, 0); }
+static int bvh__any8_base(const bvh_tree *tree, const bvh_ray *ray) { return bvh__trace8(tree, ray, NULL, NULL, 1, 0); }
 /* The wide traversal for the single-ray calls and the batches: tree->nodes8 is set only on a
    tree with triangles and nodes (bvh__make_wide), which is all bvh__traverse checks first. */
-BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+BVH__INLINE int bvh__traverse8_at(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc, int any) {
 #ifdef BVH__AVX2
-    if (bvh__have_avx2()) return any ? bvh__any8_avx2(tree, ray) : bvh__closest8_avx2(tree, ray, hit);
+    if (bvh__have_avx2()) return any ? bvh__any8_avx2(tree, ray) : bvh__closest8_avx2(tree, ray, hit, loc);
 #endif
-    return any ? bvh__any8_base(tree, ray) : bvh__closest8_base(tree, ray, hit);
+    return any ? bvh__any8_base(tree, ray) : bvh__closest8_base(tree, ray, hit, loc);
+}
+BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
+    return bvh__traverse8_at(tree, ray, hit, NULL, any);
 }
 
 /* == the binary traversal with a leaf step ===================================================== */
@@ -6579,33 +6599,47 @@ typedef struct bvh__scene_ctx {
     uint32_t mask, any;
     uint32_t instance; /* the best hit's, BVH_INVALID until one is taken */
     bvh_hit hit;       /* its hit in the bottom-level tree (t is world t) */
+    bvh__best at;      /* its packet and lane (pk NULL: a tree without the wide layout) */
 } bvh__scene_ctx;
 static int bvh__instance_step(void *arg, bvh_ray *ray, bvh__rayx *rx, uint32_t ref, uint32_t inst) {
     bvh__scene_ctx *c = BVH__CAST(bvh__scene_ctx *, arg);
     const bvh_instance *in = &c->scene->instances[inst];
     bvh_ray local;
     bvh_hit h;
+    bvh__best at;
     (void)rx;
     (void)ref;
     if (!(in->mask & c->mask)) return 0;
     local = bvh_ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
     if (c->any) return bvh_occluded(in->tree, &local);
-    if (!bvh_intersect(in->tree, &local, &h)) return 0;
+    memset(&at, 0, sizeof at);
+    if (in->tree->nodes8 && in->tree->tris) { /* the packet keeps the hit's vertices for the normal */
+        if (!bvh__traverse8_at(in->tree, &local, &h, &at, 0)) return 0;
+    } else if (!bvh_intersect(in->tree, &local, &h))
+        return 0;
     if (h.t == ray->tmax && inst > c->instance) return 0; /* ties: the lowest instance */
     c->instance = inst;
     c->hit = h;
+    c->at = at;
     ray->tmax = h.t;
     return 1;
 }
-/* The world normal of the best hit: M^-T times the object-space normal, normalised. */
+/* The world normal of the best hit: M^-T times the object-space normal, normalised. The vertices
+   come from the hit's packet, which the traversal has just read (the same floats as tree.tris),
+   rather than from tree.tris through the primitive's reference: two cache misses a hit. */
 static bvh_vec3 bvh__scene_normal(const bvh_scene *scene, const bvh__scene_ctx *c) {
     const float *inv = scene->inverse + 12 * (size_t)c->instance, *t;
-    const bvh_tree *tree = scene->instances[c->instance].tree;
-    uint32_t ref = scene->ref_of_prim[scene->ref_base[scene->mesh[c->instance]] + c->hit.prim];
     double e1[3], e2[3], n[3], w[3], l;
     bvh_vec3 out = {0.0f, 0.0f, 0.0f};
+    float v[9];
     int k;
-    t = tree->tris + 9 * (size_t)ref;
+    if (c->at.pk) {
+        for (k = 0; k < 9; k++) v[k] = c->at.pk->v[k / 3][k % 3][c->at.lane];
+        t = v;
+    } else {
+        const bvh_tree *tree = scene->instances[c->instance].tree;
+        t = tree->tris + 9 * (size_t)scene->ref_of_prim[scene->ref_base[scene->mesh[c->instance]] + c->hit.prim];
+    }
     for (k = 0; k < 3; k++) {
         e1[k] = (double)t[3 + k] - t[k];
         e2[k] = (double)t[6 + k] - t[k];
@@ -6631,6 +6665,7 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
     c.hit.t = BVH_INF; /* set by the step that takes a hit; written here for compilers that cannot see it */
     c.hit.u = c.hit.v = 0.0f;
     c.hit.prim = BVH_INVALID;
+    memset(&c.at, 0, sizeof c.at);
     if (scene && ray && mask) found = bvh__trace_leaves(&scene->top, ray, any, bvh__instance_step, &c, NULL);
     if (!hit) return found;
     hit->t = ray ? ray->tmax : BVH_INF;

@@ -338,19 +338,9 @@ static void progress_small_builds(void **state) {
 }
 
 /* How often: on 200K random triangles, every builder calls at least once per 65536 primitives
-   of input (counted against the work, not the clock) and, as a loose check on this busy
-   machine, never leaves 250 ms between calls (the figure is printed); not under the sanitizers,
-   which slow some loops tenfold. */
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-#define POOL_SANITIZED 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-#define POOL_SANITIZED 1
-#endif
-#endif
-#ifndef POOL_SANITIZED
-#define POOL_SANITIZED 0
-#endif
+   of input, counted against the work. The longest gap in wall-clock time is printed, never
+   checked: a test cannot own the clock of a shared CI machine (a loaded one saw 298 ms in a
+   build whose gaps are 20 ms when quiet). */
 static void progress_cadence(void **state) {
     tu_scene s;
     int b;
@@ -370,8 +360,6 @@ static void progress_cadence(void **state) {
         print_message("%-14s %3u calls in %6.1f ms, longest gap %5.1f ms\n", bvh_builder_name(builder), p.calls,
                       1e3 * took, 1e3 * p.max_gap);
         if (p.calls < s.tri_count / 65536 + 3) fail_msg("%s: only %u calls", bvh_builder_name(builder), p.calls);
-        if (!POOL_SANITIZED && p.max_gap > 0.25)
-            fail_msg("%s: %.1f ms between calls", bvh_builder_name(builder), 1e3 * p.max_gap);
         bvh_free(&t);
     }
     tu_scene_free(&s);

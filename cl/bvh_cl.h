@@ -4,7 +4,9 @@
      Uploads a bvh_tree (nodes, reference-ordered triangles, primitive ids) to an OpenCL device as
      it is, and traces ray batches (closest hit, any hit) and whole camera frames there with the
      kernels of cl/trace.cl. The hits are those of bvh_intersect: same primitive, same t (to the
-     bit on devices with correctly rounded division and fp64, such as PoCL on a CPU).
+     bit on devices with correctly rounded division and fp64, such as PoCL on a CPU). Two-level
+     scenes (bvh_scene: instances of bottom-level trees) go up and are traced the same way, with
+     bvh_scene_intersect's hits (instance, id, triangle, t, u, v, world normal) and ray masks.
 
    HOW TO INCLUDE
      In exactly ONE .c file, after bvh.h:
@@ -29,6 +31,10 @@
          bvh_camera cam = bvh_camera_standard(bvh_tree_bounds(&tree), 640, 480);
          if (r == BVH_CL_SUCCESS) r = bvh_cl_render_frame(gpu, &cam, rgba, NULL, NULL);
          bvh_cl_tree_free(gpu);
+         bvh_cl_scene *gs;                    // a scene from bvh_scene_build, likewise
+         r = bvh_cl_scene_upload(cl, &scene, &gs);
+         if (r == BVH_CL_SUCCESS) r = bvh_cl_scene_intersect(gs, rays, ~0u, scene_hits, ray_count);
+         bvh_cl_scene_free(gs);
          bvh_cl_destroy(cl);
 
    CONFIGURATION (define before including the implementation)
@@ -52,8 +58,9 @@
      returns are listed beside its prototype.
 
    THREADS
-     No global state. A context and its trees must be used by one thread at a time (they share a
-     command queue and scratch buffers); use one context per thread to trace concurrently.
+     No global state. A context and its trees and scenes must be used by one thread at a time
+     (they share a command queue and scratch buffers); use one context per thread to trace
+     concurrently.
 
    LICENSE
      MIT, like bvh.h.
@@ -148,7 +155,7 @@ BVH_CL_API bvh_cl_result bvh_cl_enumerate(bvh_cl_device_info *out, uint32_t capa
    SUCCESS; ARGUMENT: ctx NULL, frame_rays out of range, a bad device string, a half allocator
    pair; NO_PLATFORM; NO_DEVICE; KERNEL_NOT_FOUND; BUILD_FAILED; OUT_OF_RESOURCES; OPENCL. */
 BVH_CL_API bvh_cl_result bvh_cl_create(bvh_cl_context **ctx, const bvh_cl_desc *desc);
-BVH_CL_API void bvh_cl_destroy(bvh_cl_context *ctx); /* free its trees first; NULL is ignored */
+BVH_CL_API void bvh_cl_destroy(bvh_cl_context *ctx); /* free its trees and scenes first; NULL is ignored */
 /* SUCCESS; ARGUMENT. */
 BVH_CL_API bvh_cl_result bvh_cl_get_info(const bvh_cl_context *ctx, bvh_cl_device_info *out);
 /* The compiler's log of the successful build (warnings), "" if none. */
@@ -641,6 +648,11 @@ static const char *const bvh_cl__source[] = {
 "     prims   tree.prims: original triangle id per reference\n",
 "     rays    bvh_ray[]: origin xyz, tmin, dir xyz, tmax (32 bytes, read as two float4)\n",
 "     hits    bvh_hit[]: t, u, v, prim (16 bytes), written as one uint4 (float bits, then the id)\n",
+"   A two-level scene (bvh_scene, see bvh_cl_scene below) adds: the top-level tree's nodes and prims\n",
+"   (instance indices; no triangles); the distinct bottom-level trees' nodes, tris and prims, one\n",
+"   tree after the other, with meshes[] = (first node, nodes, first reference, references) per\n",
+"   tree; per instance its world-to-object 3x4 (bvh_scene.inverse) and (mask, id, tree, 0); scene\n",
+"   hits are bvh_scene_hit (36 bytes: t, u, v, instance, id, prim, normal xyz).\n",
 "\n",
 "   SEMANTICS: those of bvh.h (section \"traversal\"), statement for statement: watertight triangle\n",
 "   test (Woop, Benthin & Wald 2013) in float with the exact fallback on zero edge functions, ties in t to the\n",
@@ -648,6 +660,9 @@ static const char *const bvh_cl__source[] = {
 "   components get an inverse of +inf, the near plane is chosen by the sign of the inverse, the NaN\n",
 "   of an origin on a slab plane is dropped by the order of the comparisons), near child first,\n",
 "   invalid rays (NaN, non-finite origin or direction, zero direction, tmin > tmax) miss.\n",
+"   Scenes: those of bvh_scene_intersect (bvh.h, section \"instances\"): the ray moved into each\n",
+"   instance's space by bvh_ray_transform's operations, ties to the lowest instance then triangle,\n",
+"   the world normal computed in double as bvh__scene_normal does.\n",
 "   Hits equal the CPU's to the bit when the host builds with -cl-fp32-correctly-rounded-divide-sqrt\n",
 "   and the device has cl_khr_fp64 (bvh_cl.h does both when it can); FP_CONTRACT is off so that\n",
 "   no compiler fuses a*b-c*d into an fma the CPU code does not do. Without cl_khr_fp64 the edge\n",
@@ -655,7 +670,8 @@ static const char *const bvh_cl__source[] = {
 "\n",
 "   OPTIONS (-D from the host)\n",
 "     BVH_MAX_DEPTH   the host's value (64); the private stack holds BVH_MAX_DEPTH + 2 entries, like\n",
-"                     the CPU's, and a traversal that would overflow it stops (never writes past it).\n",
+"                     the CPU's (twice that for a scene, whose two levels share it), and a traversal\n",
+"                     that would overflow it stops (never writes past it).\n",
 "*/\n",
 "#pragma OPENCL FP_CONTRACT OFF\n",
 "#ifdef cl_khr_fp64\n",

@@ -10,6 +10,11 @@
      prims   tree.prims: original triangle id per reference
      rays    bvh_ray[]: origin xyz, tmin, dir xyz, tmax (32 bytes, read as two float4)
      hits    bvh_hit[]: t, u, v, prim (16 bytes), written as one uint4 (float bits, then the id)
+   A two-level scene (bvh_scene, see bvh_cl_scene below) adds: the top-level tree's nodes and prims
+   (instance indices; no triangles); the distinct bottom-level trees' nodes, tris and prims, one
+   tree after the other, with meshes[] = (first node, nodes, first reference, references) per
+   tree; per instance its world-to-object 3x4 (bvh_scene.inverse) and (mask, id, tree, 0); scene
+   hits are bvh_scene_hit (36 bytes: t, u, v, instance, id, prim, normal xyz).
 
    SEMANTICS: those of bvh.h (section "traversal"), statement for statement: watertight triangle
    test (Woop, Benthin & Wald 2013) in float with the exact fallback on zero edge functions, ties in t to the
@@ -17,6 +22,9 @@
    components get an inverse of +inf, the near plane is chosen by the sign of the inverse, the NaN
    of an origin on a slab plane is dropped by the order of the comparisons), near child first,
    invalid rays (NaN, non-finite origin or direction, zero direction, tmin > tmax) miss.
+   Scenes: those of bvh_scene_intersect (bvh.h, section "instances"): the ray moved into each
+   instance's space by bvh_ray_transform's operations, ties to the lowest instance then triangle,
+   the world normal computed in double as bvh__scene_normal does.
    Hits equal the CPU's to the bit when the host builds with -cl-fp32-correctly-rounded-divide-sqrt
    and the device has cl_khr_fp64 (bvh_cl.h does both when it can); FP_CONTRACT is off so that
    no compiler fuses a*b-c*d into an fma the CPU code does not do. Without cl_khr_fp64 the edge
@@ -24,7 +32,8 @@
 
    OPTIONS (-D from the host)
      BVH_MAX_DEPTH   the host's value (64); the private stack holds BVH_MAX_DEPTH + 2 entries, like
-                     the CPU's, and a traversal that would overflow it stops (never writes past it).
+                     the CPU's (twice that for a scene, whose two levels share it), and a traversal
+                     that would overflow it stops (never writes past it).
 */
 #pragma OPENCL FP_CONTRACT OFF
 #ifdef cl_khr_fp64

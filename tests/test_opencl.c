@@ -9,6 +9,14 @@
    for the standard camera. Batches and frames split to fit a small max_alloc give the same
    results. Error paths: bad kernel source, missing kernel file, buffer too large, platform or
    device index out of range (also through $BVH_CL_DEVICE), bad arguments.
+   Two-level scenes: five meshes (one empty) under 40 instances (rotations, non-uniform scales, a
+   mirror, a shear, a far one, an exact twin for ties, four masks), every builder at the bottom
+   and on top: bvh_cl_scene_intersect equals bvh_scene_intersect field for field (instance, id,
+   triangle, t, u, v, normal; bit for bit on an exact device) and bvh_cl_scene_occluded equals
+   bvh_scene_occluded, for rays from inside and outside, at vertices and edges, grazing along
+   edges, axis-parallel, cut at the hit, invalid, under four masks (0 included); empty scenes,
+   an instance of an empty tree, one mesh under the identity (the one-level hits), small
+   buffers; bad arguments; the caller's allocator gets every block back.
    Without an OpenCL device the tests skip, except under CI=true, where the first one fails.
    The kernel is read from cl/trace.cl: run from the repository root. */
 #define BVH_IMPLEMENTATION
@@ -697,6 +705,12 @@ static void caller_allocator(void **state) {
     bvh_tree t;
     bvh_ray ray = {{0.2f, 0.2f, -1}, 0, {0, 0, 1}, BVH_INF};
     bvh_hit hit;
+    bvh_instance inst[2];
+    bvh_scene_desc sd;
+    bvh_scene sc;
+    bvh_cl_scene *gs = NULL;
+    bvh_scene_hit sh;
+    long calls;
     (void)state;
     NEED_DEVICE();
     memset(&d, 0, sizeof d);
@@ -716,6 +730,24 @@ static void caller_allocator(void **state) {
     assert_int_equal(bvh_cl_intersect(g, &ray, &hit, 1), BVH_CL_SUCCESS);
     assert_int_equal(hit.prim, 0);
     bvh_cl_tree_free(g);
+    /* a scene of two instances of the tree: its blocks too */
+    memset(inst, 0, sizeof inst);
+    inst[0].tree = inst[1].tree = &t;
+    inst[0].transform[0] = inst[0].transform[5] = inst[0].transform[10] = 1.0f;
+    inst[0].mask = inst[1].mask = ~0u;
+    inst[1] = inst[0];
+    inst[1].transform[11] = 1.0f;
+    memset(&sd, 0, sizeof sd);
+    sd.instances = inst;
+    sd.instance_count = 2;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+    calls = count.calls;
+    assert_int_equal(bvh_cl_scene_upload(c, &sc, &gs), BVH_CL_SUCCESS);
+    assert_true(count.calls > calls);
+    assert_int_equal(bvh_cl_scene_intersect(gs, &ray, ~0u, &sh, 1), BVH_CL_SUCCESS);
+    assert_int_equal(sh.instance, 0);
+    bvh_cl_scene_free(gs);
+    bvh_scene_free(&sc);
     bvh_cl_destroy(c);
     bvh_free(&t);
     assert_true(count.calls >= 2); /* the context and the tree at least */

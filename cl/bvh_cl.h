@@ -1624,8 +1624,11 @@ static bvh_cl_result bvh_cl__build(bvh_cl_context *c, const bvh_cl_desc *desc) {
         len = strlen(src);
         c->program = clCreateProgramWithSource(c->context, 1, &src, &len, &err);
     } else { /* the kernel this header holds */
+        const char *const *held = bvh_cl__source;
+        const char **lines;
+        memcpy(&lines, &held, sizeof lines); /* drops const (C++ refuses the cast): OpenCL only reads */
         c->program = clCreateProgramWithSource(c->context, (cl_uint)(sizeof bvh_cl__source / sizeof bvh_cl__source[0]),
-                                               BVH_CL__CAST(const char **, bvh_cl__source), NULL, &err);
+                                               lines, NULL, &err);
     }
     bvh_cl__free(&c->al, file);
     if (err != CL_SUCCESS) {

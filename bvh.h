@@ -109,6 +109,15 @@
             same memory; different tree.nodes8 and tree.tri4 contents than 0.6.0, the same
             hits). Closest and any hit run as separate functions, with fewer mispredicted
             branches per incoherent ray.
+            cl/bvh_cl.h 0.4.0 (in progress): two-level scenes on OpenCL. bvh_cl_scene_upload
+            copies a bvh_scene (top-level tree, instances, each distinct bottom-level tree once)
+            to the device, bvh_cl_scene_free releases it; bvh_cl_scene_intersect /
+            bvh_cl_scene_occluded trace batches with one mask per call and give
+            bvh_scene_intersect's bvh_scene_hit (instance, id, triangle, t, u, v, world normal),
+            to the bit on an exact device. trace.cl's one traversal loop gained a level switch (a
+            top-level leaf hands its instances to it), shared with the one-level kernels.
+            examples/pathtrace.c --trace opencl|auto: wavefronts on the device, the spheres and
+            the shading on the host, the CPU's image byte for byte.
      0.6.0  The public surface made regular. Builder-specific options moved into nested structs,
             zero still the default (the same trees): desc.ploc_radius -> desc.ploc.radius,
             desc.ploc_top -> desc.ploc.top, desc.max_bytes_per_prim ->

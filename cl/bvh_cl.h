@@ -4,7 +4,9 @@
      Uploads a bvh_tree (nodes, reference-ordered triangles, primitive ids) to an OpenCL device as
      it is, and traces ray batches (closest hit, any hit) and whole camera frames there with the
      kernels of cl/trace.cl. The hits are those of bvh_intersect: same primitive, same t (to the
-     bit on devices with correctly rounded division and fp64, such as PoCL on a CPU).
+     bit on devices with correctly rounded division and fp64, such as PoCL on a CPU). Two-level
+     scenes (bvh_scene: instances of bottom-level trees) go up and are traced the same way, with
+     bvh_scene_intersect's hits (instance, id, triangle, t, u, v, world normal) and ray masks.
 
    HOW TO INCLUDE
      In exactly ONE .c file, after bvh.h:
@@ -29,6 +31,10 @@
          bvh_camera cam = bvh_camera_standard(bvh_tree_bounds(&tree), 640, 480);
          if (r == BVH_CL_SUCCESS) r = bvh_cl_render_frame(gpu, &cam, rgba, NULL, NULL);
          bvh_cl_tree_free(gpu);
+         bvh_cl_scene *gs;                    // a scene from bvh_scene_build, likewise
+         r = bvh_cl_scene_upload(cl, &scene, &gs);
+         if (r == BVH_CL_SUCCESS) r = bvh_cl_scene_intersect(gs, rays, ~0u, scene_hits, ray_count);
+         bvh_cl_scene_free(gs);
          bvh_cl_destroy(cl);
 
    CONFIGURATION (define before including the implementation)
@@ -52,8 +58,9 @@
      returns are listed beside its prototype.
 
    THREADS
-     No global state. A context and its trees must be used by one thread at a time (they share a
-     command queue and scratch buffers); use one context per thread to trace concurrently.
+     No global state. A context and its trees and scenes must be used by one thread at a time
+     (they share a command queue and scratch buffers); use one context per thread to trace
+     concurrently.
 
    LICENSE
      MIT, like bvh.h.
@@ -134,6 +141,7 @@ typedef struct bvh_cl_device_info {
 
 typedef struct bvh_cl_context bvh_cl_context; /* device, queue, compiled kernels */
 typedef struct bvh_cl_tree bvh_cl_tree;       /* a tree uploaded to the device of a context */
+typedef struct bvh_cl_scene bvh_cl_scene;     /* a two-level scene (bvh_scene) uploaded likewise */
 
 BVH_CL_API const char *bvh_cl_result_string(bvh_cl_result r);
 
@@ -147,7 +155,7 @@ BVH_CL_API bvh_cl_result bvh_cl_enumerate(bvh_cl_device_info *out, uint32_t capa
    SUCCESS; ARGUMENT: ctx NULL, frame_rays out of range, a bad device string, a half allocator
    pair; NO_PLATFORM; NO_DEVICE; KERNEL_NOT_FOUND; BUILD_FAILED; OUT_OF_RESOURCES; OPENCL. */
 BVH_CL_API bvh_cl_result bvh_cl_create(bvh_cl_context **ctx, const bvh_cl_desc *desc);
-BVH_CL_API void bvh_cl_destroy(bvh_cl_context *ctx); /* free its trees first; NULL is ignored */
+BVH_CL_API void bvh_cl_destroy(bvh_cl_context *ctx); /* free its trees and scenes first; NULL is ignored */
 /* SUCCESS; ARGUMENT. */
 BVH_CL_API bvh_cl_result bvh_cl_get_info(const bvh_cl_context *ctx, bvh_cl_device_info *out);
 /* The compiler's log of the successful build (warnings), "" if none. */
@@ -179,6 +187,25 @@ BVH_CL_API bvh_cl_result bvh_cl_occluded(bvh_cl_tree *tree, const bvh_ray *rays,
    SUCCESS; ARGUMENT: cam NULL; BUFFER_TOO_LARGE; OUT_OF_RESOURCES; OPENCL. */
 BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera *cam, uint8_t *rgba, bvh_hit *hits,
                                              uint32_t *visited);
+
+/* Two-level scenes. Copies a bvh_scene to the device: its top-level tree, the instances
+   (world-to-object transforms, masks, ids) and each distinct bottom-level tree once, however many
+   instances use it (the scene and its trees may be freed or changed afterwards: upload again after
+   bvh_scene_build). SUCCESS; ARGUMENT: ctx, scene or out NULL, a scene whose arrays are missing,
+   an instance whose tree is NULL or built from boxes; BUFFER_TOO_LARGE: the bottom-level trees
+   together exceed a buffer (they lie in one) or the global memory; OUT_OF_RESOURCES; OPENCL. */
+BVH_CL_API bvh_cl_result bvh_cl_scene_upload(bvh_cl_context *ctx, const bvh_scene *scene, bvh_cl_scene **out);
+BVH_CL_API void bvh_cl_scene_free(bvh_cl_scene *scene); /* NULL is ignored */
+/* bvh_scene_intersect / bvh_scene_occluded of each ray on the device, for the instances whose mask
+   shares a bit with `mask` (one mask for the batch, as the CPU call takes one per ray: rays of
+   different masks go in separate calls); blocking. The hits are the CPU's record (instance, id,
+   triangle, t, u, v, world normal), to the bit on an exact device (bvh_cl_device_info.exact).
+   SUCCESS; ARGUMENT: scene NULL, rays or the output NULL with count > 0; BUFFER_TOO_LARGE;
+   OUT_OF_RESOURCES; OPENCL. */
+BVH_CL_API bvh_cl_result bvh_cl_scene_intersect(bvh_cl_scene *scene, const bvh_ray *rays, uint32_t mask,
+                                                bvh_scene_hit *hits, size_t count);
+BVH_CL_API bvh_cl_result bvh_cl_scene_occluded(bvh_cl_scene *scene, const bvh_ray *rays, uint32_t mask,
+                                               uint8_t *occluded, size_t count);
 
 #ifdef __cplusplus
 }
@@ -304,6 +331,32 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera
     return BVH_CL_ERROR_NOT_AVAILABLE;
 }
 
+BVH_CL_API bvh_cl_result bvh_cl_scene_upload(bvh_cl_context *ctx, const bvh_scene *scene, bvh_cl_scene **out) {
+    (void)ctx;
+    (void)scene;
+    if (out) *out = NULL;
+    return BVH_CL_ERROR_NOT_AVAILABLE;
+}
+BVH_CL_API void bvh_cl_scene_free(bvh_cl_scene *scene) { (void)scene; }
+BVH_CL_API bvh_cl_result bvh_cl_scene_intersect(bvh_cl_scene *scene, const bvh_ray *rays, uint32_t mask,
+                                                bvh_scene_hit *hits, size_t count) {
+    (void)scene;
+    (void)rays;
+    (void)mask;
+    (void)hits;
+    (void)count;
+    return BVH_CL_ERROR_NOT_AVAILABLE;
+}
+BVH_CL_API bvh_cl_result bvh_cl_scene_occluded(bvh_cl_scene *scene, const bvh_ray *rays, uint32_t mask,
+                                               uint8_t *occluded, size_t count) {
+    (void)scene;
+    (void)rays;
+    (void)mask;
+    (void)occluded;
+    (void)count;
+    return BVH_CL_ERROR_NOT_AVAILABLE;
+}
+
 #else /* BVH_HAVE_OPENCL */
 /* ============================================================================================ */
 /* == OpenCL implementation ====================================================================== */
@@ -323,15 +376,28 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera
 typedef char bvh_cl__node_is_32_bytes[sizeof(bvh_node) == 32 ? 1 : -1];
 typedef char bvh_cl__ray_is_32_bytes[sizeof(bvh_ray) == 32 ? 1 : -1];
 typedef char bvh_cl__hit_is_16_bytes[sizeof(bvh_hit) == 16 ? 1 : -1];
+typedef char bvh_cl__scene_hit_is_9_words[sizeof(bvh_scene_hit) == 36 && offsetof(bvh_scene_hit, instance) == 12 &&
+                                                  offsetof(bvh_scene_hit, normal) == 24
+                                              ? 1
+                                              : -1];
 
 #define BVH_CL__PLATFORM_NOT_FOUND (-1001) /* CL_PLATFORM_NOT_FOUND_KHR of the ICD loader */
 #define BVH_CL__MAX_IDS 64
 #define BVH_CL__PACKET_DEFAULT 16       /* frame rays per work-item on CPU devices */
 #define BVH_CL__CHUNK ((size_t)1 << 20) /* rays or pixels per kernel launch at most */
-enum { BVH_CL__K_CLOSEST, BVH_CL__K_ANY, BVH_CL__K_FRAME, BVH_CL__K_FRAME8, BVH_CL__K_COUNT };
+enum {
+    BVH_CL__K_CLOSEST,
+    BVH_CL__K_ANY,
+    BVH_CL__K_FRAME,
+    BVH_CL__K_FRAME8,
+    BVH_CL__K_SCENE_CLOSEST,
+    BVH_CL__K_SCENE_ANY,
+    BVH_CL__K_COUNT
+};
 enum { BVH_CL__S_IN, BVH_CL__S_OUT, BVH_CL__S_RGBA, BVH_CL__S_VISITED, BVH_CL__S_COUNT };
-static const char *const bvh_cl__kernel_names[BVH_CL__K_COUNT] = {"bvh_intersect_kernel", "bvh_occluded_kernel",
-                                                                  "bvh_frame_kernel", "bvh_frame_packet_kernel"};
+static const char *const bvh_cl__kernel_names[BVH_CL__K_COUNT] = {
+    "bvh_intersect_kernel",    "bvh_occluded_kernel",        "bvh_frame_kernel",
+    "bvh_frame_packet_kernel", "bvh_scene_intersect_kernel", "bvh_scene_occluded_kernel"};
 
 struct bvh_cl_context {
     bvh_allocator al; /* desc.allocator: the context's own block, its log and its trees' */
@@ -357,6 +423,25 @@ struct bvh_cl_tree {
     bvh_cl_context *ctx;
     cl_mem nodes, tris, prims;
     cl_uint node_count, ref_count;
+};
+
+/* The buffers of trace.cl's bvh_cl_scene, in the order of BVH_CL_SCENE_ARGS. */
+enum {
+    BVH_CL__B_TOP_NODES,
+    BVH_CL__B_TOP_PRIMS,
+    BVH_CL__B_NODES,
+    BVH_CL__B_TRIS,
+    BVH_CL__B_PRIMS,
+    BVH_CL__B_MESHES,
+    BVH_CL__B_INVERSE,
+    BVH_CL__B_INFO,
+    BVH_CL__B_COUNT
+};
+struct bvh_cl_scene {
+    bvh_allocator al;
+    bvh_cl_context *ctx;
+    cl_mem buf[BVH_CL__B_COUNT];
+    cl_uint top_node_count, top_ref_count, mesh_count, instance_count;
 };
 
 /* Host memory through the caller's pair (or the macros); a block aligned less than malloc's is
@@ -563,6 +648,11 @@ static const char *const bvh_cl__source[] = {
 "     prims   tree.prims: original triangle id per reference\n",
 "     rays    bvh_ray[]: origin xyz, tmin, dir xyz, tmax (32 bytes, read as two float4)\n",
 "     hits    bvh_hit[]: t, u, v, prim (16 bytes), written as one uint4 (float bits, then the id)\n",
+"   A two-level scene (bvh_scene, see bvh_cl_scene below) adds: the top-level tree's nodes and prims\n",
+"   (instance indices; no triangles); the distinct bottom-level trees' nodes, tris and prims, one\n",
+"   tree after the other, with meshes[] = (first node, nodes, first reference, references) per\n",
+"   tree; per instance its world-to-object 3x4 (bvh_scene.inverse) and (mask, id, tree, 0); scene\n",
+"   hits are bvh_scene_hit (36 bytes: t, u, v, instance, id, prim, normal xyz).\n",
 "\n",
 "   SEMANTICS: those of bvh.h (section \"traversal\"), statement for statement: watertight triangle\n",
 "   test (Woop, Benthin & Wald 2013) in float with the exact fallback on zero edge functions, ties in t to the\n",
@@ -570,6 +660,9 @@ static const char *const bvh_cl__source[] = {
 "   components get an inverse of +inf, the near plane is chosen by the sign of the inverse, the NaN\n",
 "   of an origin on a slab plane is dropped by the order of the comparisons), near child first,\n",
 "   invalid rays (NaN, non-finite origin or direction, zero direction, tmin > tmax) miss.\n",
+"   Scenes: those of bvh_scene_intersect (bvh.h, section \"instances\"): the ray moved into each\n",
+"   instance's space by bvh_ray_transform's operations, ties to the lowest instance then triangle,\n",
+"   the world normal computed in double as bvh__scene_normal does.\n",
 "   Hits equal the CPU's to the bit when the host builds with -cl-fp32-correctly-rounded-divide-sqrt\n",
 "   and the device has cl_khr_fp64 (bvh_cl.h does both when it can); FP_CONTRACT is off so that\n",
 "   no compiler fuses a*b-c*d into an fma the CPU code does not do. Without cl_khr_fp64 the edge\n",
@@ -577,7 +670,8 @@ static const char *const bvh_cl__source[] = {
 "\n",
 "   OPTIONS (-D from the host)\n",
 "     BVH_MAX_DEPTH   the host's value (64); the private stack holds BVH_MAX_DEPTH + 2 entries, like\n",
-"                     the CPU's, and a traversal that would overflow it stops (never writes past it).\n",
+"                     the CPU's (twice that for a scene, whose two levels share it), and a traversal\n",
+"                     that would overflow it stops (never writes past it).\n",
 "*/\n",
 "#pragma OPENCL FP_CONTRACT OFF\n",
 "#ifdef cl_khr_fp64\n",
@@ -744,20 +838,40 @@ static const char *const bvh_cl__source[] = {
 "typedef struct bvh_cl_hitrec {\n",
 "    float t, u, v;\n",
 "    uint prim;    /* BVH_CL_INVALID: miss */\n",
-"    uint ref;     /* reference of the hit (index into tris) */\n",
+"    uint ref;     /* reference of the hit (index into its tree's tris) */\n",
+"    uint inst;    /* the hit's instance (0 for a one-level tree) */\n",
 "    uint visited; /* nodes whose box was tested, counted as bvh_intersect_counted does */\n",
 "} bvh_cl_hitrec;\n",
 "\n",
-"typedef struct bvh_cl_scene {\n",
+"/* One tree's buffers: nodes, triangles and primitive ids (a scene's top level: its nodes and the\n",
+"   instance of each reference, no triangles). */\n",
+"typedef struct bvh_cl_level {\n",
 "    __global const uint4 *nodes;\n",
 "    __global const float *tris;\n",
 "    __global const uint *prims;\n",
 "    uint node_count, ref_count;\n",
+"} bvh_cl_level;\n",
+"\n",
+"/* A two-level scene (bvh_scene, uploaded by bvh_cl_scene_upload) and the world ray traced in it.\n",
+"   The distinct bottom-level trees lie one after the other in nodes, tris and prims; meshes[m] =\n",
+"   (first node, node count, first reference, reference count) of tree m. Instance i: inverse +\n",
+"   12 i its world-to-object transform (bvh_scene.inverse), info[i] = (mask, id, tree, 0). */\n",
+"typedef struct bvh_cl_scene {\n",
+"    bvh_cl_level top;\n",
+"    __global const uint4 *nodes;\n",
+"    __global const float *tris;\n",
+"    __global const uint *prims;\n",
+"    __global const uint4 *meshes;\n",
+"    __global const float *inverse;\n",
+"    __global const uint4 *info;\n",
+"    uint mesh_count, instance_count, mask;\n",
+"    float3 o, d; /* the world ray */\n",
+"    float tmin;\n",
 "} bvh_cl_scene;\n",
 "\n",
 "/* The children pair (c, c + 1) of an interior node as two uint4 each; 0 when the pair lies\n",
 "   outside the array (a corrupt tree: the traversal ends). */\n",
-"BVH_CL_FN int bvh_cl_children(const bvh_cl_scene *s, uint c, uint4 *lo0, uint4 *hi0, uint4 *lo1, uint4 *hi1) {\n",
+"BVH_CL_FN int bvh_cl_children(const bvh_cl_level *s, uint c, uint4 *lo0, uint4 *hi0, uint4 *lo1, uint4 *hi1) {\n",
 "    if (c >= s->node_count - 1) return 0;\n",
 "    *lo0 = s->nodes[2 * c];\n",
 "    *hi0 = s->nodes[2 * c + 1];\n",
@@ -766,45 +880,99 @@ static const char *const bvh_cl__source[] = {
 "    return 1;\n",
 "}\n",
 "\n",
-"/* Closest hit (any = 0) or first hit found (any = 1) of a set-up ray in [tmin, tmax]. A child\n",
-"   index or leaf range outside the arrays (a corrupt tree) ends the traversal, so that no read\n",
-"   ever leaves the buffers; a tree deeper than the stack does too, as on the CPU. */\n",
-"BVH_CL_FN void bvh_cl_traverse(const bvh_cl_scene *s, const bvh_cl_rayx *rx, float tmax, int any, bvh_cl_hitrec *res) {\n",
-"    uint stack[BVH_CL_STACK];\n",
-"    float stack_t[BVH_CL_STACK]; /* entry distance of each pushed node */\n",
-"    uint sp = 0, nvis = 1;\n",
+"/* Enters instance i of a scene (bvh__instance_step): its tree's level, the world ray moved into\n",
+"   its space by the operations of bvh_ray_transform (FP_CONTRACT is off: the same bits), set up,\n",
+"   and the tree's root node. 0 when the mask skips the instance, its tree is empty, the ray in its\n",
+"   space is invalid or misses the root box before tmax (the current best), or i is out of range. */\n",
+"BVH_CL_FN int bvh_cl_enter(const bvh_cl_scene *sc, uint i, float tmax, bvh_cl_rayx *rx, bvh_cl_level *lv, uint4 *lo,\n",
+"                           uint4 *hi) {\n",
+"    __global const float *m;\n",
+"    float3 o, d, wo = sc->o, wd = sc->d;\n",
+"    uint4 info, mesh, a, b;\n",
+"    if (i >= sc->instance_count) return 0;\n",
+"    info = sc->info[i];\n",
+"    if (!(info.x & sc->mask) || info.z >= sc->mesh_count) return 0;\n",
+"    mesh = sc->meshes[info.z];\n",
+"    if (!mesh.y) return 0;\n",
+"    m = sc->inverse + 12 * (size_t)i;\n",
+"    o.x = m[0] * wo.x + m[1] * wo.y + m[2] * wo.z + m[3];\n",
+"    o.y = m[4] * wo.x + m[5] * wo.y + m[6] * wo.z + m[7];\n",
+"    o.z = m[8] * wo.x + m[9] * wo.y + m[10] * wo.z + m[11];\n",
+"    d.x = m[0] * wd.x + m[1] * wd.y + m[2] * wd.z;\n",
+"    d.y = m[4] * wd.x + m[5] * wd.y + m[6] * wd.z;\n",
+"    d.z = m[8] * wd.x + m[9] * wd.y + m[10] * wd.z;\n",
+"    if (!bvh_cl_ray_setup(o, sc->tmin, d, tmax, rx)) return 0;\n",
+"    a = sc->nodes[2 * (size_t)mesh.x];\n",
+"    b = sc->nodes[2 * (size_t)mesh.x + 1];\n",
+"    if (bvh_cl_slab(rx, as_float4(a), as_float4(b), tmax) == INFINITY) return 0;\n",
+"    lv->nodes = sc->nodes + 2 * (size_t)mesh.x;\n",
+"    lv->node_count = mesh.y;\n",
+"    lv->tris = sc->tris + 9 * (size_t)mesh.z;\n",
+"    lv->prims = sc->prims + mesh.z;\n",
+"    lv->ref_count = mesh.w;\n",
+"    *lo = a;\n",
+"    *hi = b;\n",
+"    return 1;\n",
+"}\n",
+"\n",
+"/* Closest hit (any = 0) or first hit found (any = 1) of a set-up ray in [tmin, tmax], in one tree\n",
+"   (sc NULL: the tree `top`) or in a scene (sc; top = sc->top). One loop for both levels, with a\n",
+"   level switch: a leaf of the top level hands its instances, one by one in order, to the loop,\n",
+"   which enters each (bvh_cl_enter) and walks its tree above the top level's part of the stack\n",
+"   (from `floor` up), with the ray in the instance's space; when that part is empty, the loop is\n",
+"   back at the top level with the world ray and takes the leaf's next instance. This is the CPU's\n",
+"   order (bvh__trace_leaves with bvh__instance_step), and the best hit is theirs: the lowest\n",
+"   (t, instance, triangle), t in world units because the transformed ray is not normalised.\n",
+"   The stack holds `cap` entries (two trees deep for a scene). A child index or leaf range outside\n",
+"   the arrays (a corrupt tree) ends the traversal, so that no read ever leaves the buffers; a tree\n",
+"   deeper than the stack does too, as on the CPU. After inlining, sc is a constant: a one-level\n",
+"   kernel keeps none of the scene's code. */\n",
+"BVH_CL_FN void bvh_cl_traverse(const bvh_cl_level *top, const bvh_cl_scene *sc, const bvh_cl_rayx *rxw, float tmax,\n",
+"                               int any, uint *stack, float *stack_t, uint cap, bvh_cl_hitrec *res) {\n",
+"    bvh_cl_level lv = *top; /* the level the loop is in */\n",
+"    bvh_cl_rayx rxl;        /* the ray in the current instance's space */\n",
+"    const bvh_cl_rayx *rx = rxw;\n",
+"    uint sp = 0, nvis = 1, floor = 0, inst = 0, next = 0, end_inst = 0;\n",
+"    int bottom = 0;\n",
 "    float best_t = tmax;\n",
-"    uint4 lo = s->nodes[0], hi = s->nodes[1]; /* the current node */\n",
+"    uint4 lo = lv.nodes[0], hi = lv.nodes[1]; /* the current node */\n",
 "    int done = bvh_cl_slab(rx, as_float4(lo), as_float4(hi), best_t) == INFINITY;\n",
-"    res->prim = BVH_CL_INVALID;\n",
+"    res->prim = res->inst = BVH_CL_INVALID;\n",
 "    res->ref = 0;\n",
 "    res->u = res->v = 0.0f;\n",
 "    while (!done) {\n",
 "        int descended = 0;\n",
 "        if (hi.w) {\n",
 "            uint k, end = lo.w + hi.w;\n",
-"            if (end > s->ref_count || end < lo.w) break;\n",
-"            for (k = lo.w; k < end; k++) {\n",
-"                float t, u, v;\n",
-"                uint prim;\n",
-"                if (!bvh_cl_tri_test(rx, s->tris + 9 * (size_t)k, best_t, &t, &u, &v)) continue;\n",
-"                prim = s->prims[k];\n",
-"                if (t == best_t && prim > res->prim) continue; /* ties: lowest index */\n",
-"                best_t = t;\n",
-"                res->u = u;\n",
-"                res->v = v;\n",
-"                res->prim = prim;\n",
-"                res->ref = k;\n",
-"                if (any) {\n",
-"                    done = 1;\n",
-"                    break;\n",
+"            if (end > lv.ref_count || end < lo.w) break;\n",
+"            if (sc && !bottom) { /* a leaf of instances: entered below, one at a time */\n",
+"                next = lo.w;\n",
+"                end_inst = end;\n",
+"            } else {\n",
+"                for (k = lo.w; k < end; k++) {\n",
+"                    float t, u, v;\n",
+"                    uint prim;\n",
+"                    if (!bvh_cl_tri_test(rx, lv.tris + 9 * (size_t)k, best_t, &t, &u, &v)) continue;\n",
+"                    prim = lv.prims[k];\n",
+"                    /* ties: the lowest instance, then the lowest index */\n",
+"                    if (t == best_t && (inst > res->inst || (inst == res->inst && prim > res->prim))) continue;\n",
+"                    best_t = t;\n",
+"                    res->u = u;\n",
+"                    res->v = v;\n",
+"                    res->prim = prim;\n",
+"                    res->ref = k;\n",
+"                    res->inst = inst;\n",
+"                    if (any) {\n",
+"                        done = 1;\n",
+"                        break;\n",
+"                    }\n",
 "                }\n",
 "            }\n",
 "        } else {\n",
 "            uint c = lo.w;\n",
 "            uint4 lo0, hi0, lo1, hi1;\n",
 "            float t0, t1;\n",
-"            if (!bvh_cl_children(s, c, &lo0, &hi0, &lo1, &hi1)) break;\n",
+"            if (!bvh_cl_children(&lv, c, &lo0, &hi0, &lo1, &hi1)) break;\n",
 "            t0 = bvh_cl_slab(rx, as_float4(lo0), as_float4(hi0), best_t);\n",
 "            t1 = bvh_cl_slab(rx, as_float4(lo1), as_float4(hi1), best_t);\n",
 "            nvis += 2;\n",
@@ -822,7 +990,7 @@ static const char *const bvh_cl__source[] = {
 "                    hi = hi0;\n",
 "                }\n",
 "                if (t1 != INFINITY) {\n",
-"                    if (sp == BVH_CL_STACK) break; /* a tree deeper than the validator allows */\n",
+"                    if (sp == cap) break; /* a tree deeper than the validator allows */\n",
 "                    stack_t[sp] = t1;\n",
 "                    stack[sp++] = far;\n",
 "                }\n",
@@ -830,15 +998,30 @@ static const char *const bvh_cl__source[] = {
 "            }\n",
 "        }\n",
 "        if (!descended && !done) {\n",
-"            for (;;) { /* pop the next node still in reach of the current best */\n",
+"            for (;;) { /* the next node: of the leaf's next instance, or popped if still in reach */\n",
+"                if (sc && !bottom && next < end_inst) {\n",
+"                    inst = lv.prims[next++];\n",
+"                    if (!bvh_cl_enter(sc, inst, best_t, &rxl, &lv, &lo, &hi)) continue;\n",
+"                    nvis++;\n",
+"                    bottom = 1;\n",
+"                    floor = sp;\n",
+"                    rx = &rxl;\n",
+"                    break;\n",
+"                }\n",
+"                if (sc && bottom && sp == floor) { /* the instance's tree is done: back to the top */\n",
+"                    bottom = 0;\n",
+"                    lv = *top;\n",
+"                    rx = rxw;\n",
+"                    continue;\n",
+"                }\n",
 "                if (!sp) {\n",
 "                    done = 1;\n",
 "                    break;\n",
 "                }\n",
 "                --sp;\n",
 "                if (stack_t[sp] <= best_t) {\n",
-"                    lo = s->nodes[2 * stack[sp]];\n",
-"                    hi = s->nodes[2 * stack[sp] + 1];\n",
+"                    lo = lv.nodes[2 * stack[sp]];\n",
+"                    hi = lv.nodes[2 * stack[sp] + 1];\n",
 "                    break;\n",
 "                }\n",
 "            }\n",
@@ -848,9 +1031,12 @@ static const char *const bvh_cl__source[] = {
 "    res->visited = nvis;\n",
 "}\n",
 "\n",
-"/* Traces one ray; a miss leaves t = tmax, u = v = 0, prim = BVH_CL_INVALID, like bvh_intersect. */\n",
-"BVH_CL_FN void bvh_cl_trace(const bvh_cl_scene *s, float3 o, float tmin, float3 d, float tmax, int any,\n",
+"/* Traces one ray in a tree; a miss leaves t = tmax, u = v = 0, prim = BVH_CL_INVALID, like\n",
+"   bvh_intersect. */\n",
+"BVH_CL_FN void bvh_cl_trace(const bvh_cl_level *s, float3 o, float tmin, float3 d, float tmax, int any,\n",
 "                            bvh_cl_hitrec *res) {\n",
+"    uint stack[BVH_CL_STACK];\n",
+"    float stack_t[BVH_CL_STACK]; /* entry distance of each pushed node */\n",
 "    bvh_cl_rayx rx;\n",
 "    res->t = tmax;\n",
 "    res->u = res->v = 0.0f;\n",
@@ -858,7 +1044,7 @@ static const char *const bvh_cl__source[] = {
 "    res->ref = 0;\n",
 "    res->visited = 0;\n",
 "    if (!s->node_count || !bvh_cl_ray_setup(o, tmin, d, tmax, &rx)) return;\n",
-"    bvh_cl_traverse(s, &rx, tmax, any, res);\n",
+"    bvh_cl_traverse(s, 0, &rx, tmax, any, stack, stack_t, BVH_CL_STACK, res);\n",
 "    if (res->prim == BVH_CL_INVALID) {\n",
 "        res->t = tmax;\n",
 "        res->u = res->v = 0.0f;\n",
@@ -873,7 +1059,7 @@ static const char *const bvh_cl__source[] = {
 "   0 for a work-item past the batch's count (nothing traced). */\n",
 "int bvh_cl_trace_batch_ray(BVH_CL_TREE_ARGS, __global const float *rays, uint count, int any, bvh_cl_hitrec *res) {\n",
 "    const uint i = (uint)get_global_id(0);\n",
-"    bvh_cl_scene s;\n",
+"    bvh_cl_level s;\n",
 "    float4 r0, r1;\n",
 "    if (i >= count) return 0;\n",
 "    r0 = vload4(2 * (size_t)i, rays);\n",
@@ -884,6 +1070,83 @@ static const char *const bvh_cl__source[] = {
 "    s.node_count = node_count;\n",
 "    s.ref_count = ref_count;\n",
 "    bvh_cl_trace(&s, r0.xyz, r0.w, r1.xyz, r1.w, any, res);\n",
+"    return 1;\n",
+"}\n",
+"\n",
+"/* ============================================================================================ */\n",
+"/* == two-level scenes ============================================================================ */\n",
+"/* ============================================================================================ */\n",
+"/* The world normal of a scene hit, as bvh__scene_normal: (v1 - v0) x (v2 - v0) of the triangle in\n",
+"   object space by the transpose of the world-to-object matrix, normalised, in double (float\n",
+"   without cl_khr_fp64, which is not the CPU's to the bit); zero for a zero-area triangle. */\n",
+"BVH_CL_FN float3 bvh_cl_scene_normal(const bvh_cl_scene *sc, const bvh_cl_hitrec *res) {\n",
+"    __global const float *inv = sc->inverse + 12 * (size_t)res->inst;\n",
+"    __global const float *t = sc->tris + 9 * ((size_t)sc->meshes[sc->info[res->inst].z].z + res->ref);\n",
+"#ifdef BVH_CL_FP64\n",
+"    double e1[3], e2[3], n[3], w[3], l;\n",
+"    int k;\n",
+"    for (k = 0; k < 3; k++) {\n",
+"        e1[k] = (double)t[3 + k] - t[k];\n",
+"        e2[k] = (double)t[6 + k] - t[k];\n",
+"    }\n",
+"    n[0] = e1[1] * e2[2] - e1[2] * e2[1];\n",
+"    n[1] = e1[2] * e2[0] - e1[0] * e2[2];\n",
+"    n[2] = e1[0] * e2[1] - e1[1] * e2[0];\n",
+"    for (k = 0; k < 3; k++) w[k] = inv[k] * n[0] + inv[4 + k] * n[1] + inv[8 + k] * n[2];\n",
+"    l = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);\n",
+"    if (!(l > 0.0)) return (float3)(0.0f);\n",
+"    return (float3)((float)(w[0] / l), (float)(w[1] / l), (float)(w[2] / l));\n",
+"#else\n",
+"    float3 n = cross(vload3(1, t) - vload3(0, t), vload3(2, t) - vload3(0, t)), w;\n",
+"    float l;\n",
+"    w.x = inv[0] * n.x + inv[4] * n.y + inv[8] * n.z;\n",
+"    w.y = inv[1] * n.x + inv[5] * n.y + inv[9] * n.z;\n",
+"    w.z = inv[2] * n.x + inv[6] * n.y + inv[10] * n.z;\n",
+"    l = sqrt(dot(w, w));\n",
+"    return l > 0.0f ? w / l : (float3)(0.0f);\n",
+"#endif\n",
+"}\n",
+"\n",
+"/* A scene's buffers as the scene kernels take them first (cl/bvh_cl.h sets arguments 0-12). */\n",
+"#define BVH_CL_SCENE_ARGS                                                                                              \\\n",
+"    __global const uint4 *top_nodes, uint top_node_count, __global const uint *top_prims, uint top_ref_count,          \\\n",
+"        __global const uint4 *nodes, __global const float *tris, __global const uint *prims,                           \\\n",
+"        __global const uint4 *meshes, uint mesh_count, __global const float *inverse, __global const uint4 *info,      \\\n",
+"        uint instance_count, uint mask\n",
+"\n",
+"/* The work-item's ray of a scene batch traced into *res (bvh_scene_intersect / occluded); 0 for a\n",
+"   work-item past the batch's count. A miss leaves t = tmax, prim = inst = BVH_CL_INVALID. */\n",
+"int bvh_cl_trace_scene_ray(BVH_CL_SCENE_ARGS, __global const float *rays, uint count, int any, bvh_cl_scene *sc,\n",
+"                           bvh_cl_hitrec *res) {\n",
+"    const uint i = (uint)get_global_id(0);\n",
+"    uint stack[2 * BVH_CL_STACK];\n",
+"    float stack_t[2 * BVH_CL_STACK];\n",
+"    bvh_cl_rayx rx;\n",
+"    float4 r0, r1;\n",
+"    if (i >= count) return 0;\n",
+"    r0 = vload4(2 * (size_t)i, rays);\n",
+"    r1 = vload4(2 * (size_t)i + 1, rays);\n",
+"    sc->top.nodes = top_nodes;\n",
+"    sc->top.tris = 0;\n",
+"    sc->top.prims = top_prims;\n",
+"    sc->top.node_count = top_node_count;\n",
+"    sc->top.ref_count = top_ref_count;\n",
+"    sc->nodes = nodes;\n",
+"    sc->tris = tris;\n",
+"    sc->prims = prims;\n",
+"    sc->meshes = meshes;\n",
+"    sc->mesh_count = mesh_count;\n",
+"    sc->inverse = inverse;\n",
+"    sc->info = info;\n",
+"    sc->instance_count = instance_count;\n",
+"    sc->mask = mask;\n",
+"    sc->o = r0.xyz;\n",
+"    sc->tmin = r0.w;\n",
+"    sc->d = r1.xyz;\n",
+"    res->prim = res->inst = BVH_CL_INVALID;\n",
+"    if (top_node_count && mask && bvh_cl_ray_setup(r0.xyz, r0.w, r1.xyz, r1.w, &rx))\n",
+"        bvh_cl_traverse(&sc->top, sc, &rx, r1.w, any, stack, stack_t, 2 * BVH_CL_STACK, res);\n",
+"    if (res->prim == BVH_CL_INVALID) res->t = r1.w;\n",
 "    return 1;\n",
 "}\n",
 "\n",
@@ -901,6 +1164,43 @@ static const char *const bvh_cl__source[] = {
 "__kernel void bvh_occluded_kernel(BVH_CL_TREE_ARGS, __global const float *rays, __global uchar *occluded, uint count) {\n",
 "    bvh_cl_hitrec res;\n",
 "    if (bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, count, 1, &res))\n",
+"        occluded[get_global_id(0)] = res.prim != BVH_CL_INVALID ? (uchar)1 : (uchar)0;\n",
+"}\n",
+"\n",
+"/* The arguments of bvh_cl_trace_scene_ray, passed on by the scene kernels */\n",
+"#define BVH_CL_SCENE_PASS                                                                                              \\\n",
+"    top_nodes, top_node_count, top_prims, top_ref_count, nodes, tris, prims, meshes, mesh_count, inverse, info,        \\\n",
+"        instance_count, mask\n",
+"\n",
+"/* Closest hits of rays[0 .. count) in a scene for the instances `mask` selects\n",
+"   (bvh_scene_intersect): hits as bvh_scene_hit, 9 words each: t, u, v, instance, id, prim, normal. */\n",
+"__kernel void bvh_scene_intersect_kernel(BVH_CL_SCENE_ARGS, __global const float *rays, __global uint *hits,\n",
+"                                         uint count) {\n",
+"    bvh_cl_scene sc;\n",
+"    bvh_cl_hitrec res;\n",
+"    __global uint *h = hits + 9 * (size_t)get_global_id(0);\n",
+"    float3 n = (float3)(0.0f);\n",
+"    int found;\n",
+"    if (!bvh_cl_trace_scene_ray(BVH_CL_SCENE_PASS, rays, count, 0, &sc, &res)) return;\n",
+"    found = res.prim != BVH_CL_INVALID;\n",
+"    if (found) n = bvh_cl_scene_normal(&sc, &res);\n",
+"    h[0] = as_uint(res.t);\n",
+"    h[1] = as_uint(found ? res.u : 0.0f);\n",
+"    h[2] = as_uint(found ? res.v : 0.0f);\n",
+"    h[3] = found ? res.inst : BVH_CL_INVALID;\n",
+"    h[4] = found ? info[res.inst].y : BVH_CL_INVALID;\n",
+"    h[5] = res.prim;\n",
+"    h[6] = as_uint(n.x);\n",
+"    h[7] = as_uint(n.y);\n",
+"    h[8] = as_uint(n.z);\n",
+"}\n",
+"\n",
+"/* Any hit of rays[0 .. count) in a scene: occluded[i] = 1 if blocked (bvh_scene_occluded). */\n",
+"__kernel void bvh_scene_occluded_kernel(BVH_CL_SCENE_ARGS, __global const float *rays, __global uchar *occluded,\n",
+"                                        uint count) {\n",
+"    bvh_cl_scene sc;\n",
+"    bvh_cl_hitrec res;\n",
+"    if (bvh_cl_trace_scene_ray(BVH_CL_SCENE_PASS, rays, count, 1, &sc, &res))\n",
 "        occluded[get_global_id(0)] = res.prim != BVH_CL_INVALID ? (uchar)1 : (uchar)0;\n",
 "}\n",
 "\n",
@@ -933,7 +1233,7 @@ static const char *const bvh_cl__source[] = {
 "                               __global uchar *rgba, __global uint4 *hits, __global uint *visited) {\n",
 "    uint x = (uint)get_global_id(0), row = (uint)get_global_id(1), y = y0 + row;\n",
 "    size_t pix = (size_t)row * width + x;\n",
-"    bvh_cl_scene s;\n",
+"    bvh_cl_level s;\n",
 "    bvh_cl_hitrec res;\n",
 "    float sx, sy, l;\n",
 "    float3 d;\n",
@@ -1038,7 +1338,7 @@ static const char *const bvh_cl__source[] = {
 "\n",
 "/* Closest hits of the packet's rays; best[] holds each ray's tmax on entry (-inf: no ray, which\n",
 "   then enters no box) and its hit distance on return, prim[] BVH_CL_INVALID on entry. */\n",
-"BVH_CL_FN void bvh_cl_traverse8(const bvh_cl_scene *s, const bvh_cl_packet *p, const bvh_cl_rayx *rx, float *best,\n",
+"BVH_CL_FN void bvh_cl_traverse8(const bvh_cl_level *s, const bvh_cl_packet *p, const bvh_cl_rayx *rx, float *best,\n",
 "                                float *u, float *v, uint *prim, uint *ref) {\n",
 "    uint stack[BVH_CL_STACK];\n",
 "    bvh_pkf stack_t[BVH_CL_STACK]; /* entry distances of each pushed node */\n",
@@ -1213,7 +1513,7 @@ static const char *const bvh_cl__source[] = {
 "__kernel void bvh_frame_packet_kernel(BVH_CL_TREE_ARGS, float16 cam, uint width, uint height, uint y0, uint rows,\n",
 "                                      __global uchar *rgba, __global uint4 *hits) {\n",
 "    uint gx = (uint)get_global_id(0), gy = (uint)get_global_id(1), l;\n",
-"    bvh_cl_scene s;\n",
+"    bvh_cl_level s;\n",
 "    bvh_cl_rayx rx[BVH_CL_PACKET];\n",
 "    bvh_cl_packet p;\n",
 "    float best[BVH_CL_PACKET], u[BVH_CL_PACKET], v[BVH_CL_PACKET], dxl[BVH_CL_PACKET], dyl[BVH_CL_PACKET];\n",
@@ -1324,8 +1624,11 @@ static bvh_cl_result bvh_cl__build(bvh_cl_context *c, const bvh_cl_desc *desc) {
         len = strlen(src);
         c->program = clCreateProgramWithSource(c->context, 1, &src, &len, &err);
     } else { /* the kernel this header holds */
+        const char *const *held = bvh_cl__source;
+        const char **lines;
+        memcpy(&lines, &held, sizeof lines); /* drops const (C++ refuses the cast): OpenCL only reads */
         c->program = clCreateProgramWithSource(c->context, (cl_uint)(sizeof bvh_cl__source / sizeof bvh_cl__source[0]),
-                                               BVH_CL__CAST(const char **, bvh_cl__source), NULL, &err);
+                                               lines, NULL, &err);
     }
     bvh_cl__free(&c->al, file);
     if (err != CL_SUCCESS) {
@@ -1557,12 +1860,12 @@ static cl_int bvh_cl__finish_reads(bvh_cl_context *c, cl_int err, cl_event ev) {
 
 static size_t bvh_cl__round_up(size_t n, size_t m) { return (n + m - 1) / m * m; }
 
-/* rays in chunks that fit the device; out_elem bytes of output per ray */
-static bvh_cl_result bvh_cl__batch(bvh_cl_tree *t, const bvh_ray *rays, void *out, size_t out_elem, size_t count,
-                                   int kernel) {
-    bvh_cl_context *c = t->ctx;
-    cl_kernel k = c->kernels[kernel];
-    size_t chunk = c->max_alloc / sizeof(bvh_ray), i, n, global, local = c->local_size;
+/* rays in chunks that fit the device; out_elem bytes of output per ray. The kernel's arguments
+   before `first` (the tree or scene) are set; it takes the rays, the output and the count next. */
+static bvh_cl_result bvh_cl__batch(bvh_cl_context *c, cl_kernel k, cl_uint first, const bvh_ray *rays, void *out,
+                                   size_t out_elem, size_t count) {
+    size_t chunk = c->max_alloc / (out_elem > sizeof(bvh_ray) ? out_elem : sizeof(bvh_ray)), i, n, global;
+    size_t local = c->local_size;
     bvh_cl_result r;
     cl_int err;
     cl_event ev;
@@ -1574,7 +1877,6 @@ static bvh_cl_result bvh_cl__batch(bvh_cl_tree *t, const bvh_ray *rays, void *ou
     if (chunk > count) chunk = count;
     if ((r = bvh_cl__scratch(c, BVH_CL__S_IN, chunk * sizeof(bvh_ray), CL_MEM_READ_ONLY)) != BVH_CL_SUCCESS) return r;
     if ((r = bvh_cl__scratch(c, BVH_CL__S_OUT, chunk * out_elem, CL_MEM_WRITE_ONLY)) != BVH_CL_SUCCESS) return r;
-    if ((err = bvh_cl__tree_args(k, t)) != CL_SUCCESS) return bvh_cl__fail(c, err, "clSetKernelArg");
     for (i = 0; i < count; i += n) {
         n = count - i < chunk ? count - i : chunk;
         nn = (cl_uint)n;
@@ -1582,9 +1884,9 @@ static bvh_cl_result bvh_cl__batch(bvh_cl_tree *t, const bvh_ray *rays, void *ou
         err = clEnqueueWriteBuffer(c->queue, c->scratch[BVH_CL__S_IN], CL_FALSE, 0, n * sizeof(bvh_ray), rays + i, 0,
                                    NULL, NULL);
         if (err != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueWriteBuffer");
-        err = clSetKernelArg(k, 5, sizeof(cl_mem), &c->scratch[BVH_CL__S_IN]);
-        err |= clSetKernelArg(k, 6, sizeof(cl_mem), &c->scratch[BVH_CL__S_OUT]);
-        err |= clSetKernelArg(k, 7, sizeof(cl_uint), &nn);
+        err = clSetKernelArg(k, first, sizeof(cl_mem), &c->scratch[BVH_CL__S_IN]);
+        err |= clSetKernelArg(k, first + 1, sizeof(cl_mem), &c->scratch[BVH_CL__S_OUT]);
+        err |= clSetKernelArg(k, first + 2, sizeof(cl_uint), &nn);
         if (err != CL_SUCCESS) return bvh_cl__fail(c, CL_INVALID_KERNEL_ARGS, "clSetKernelArg");
         err = clEnqueueNDRangeKernel(c->queue, k, 1, NULL, &global, &local, 0, NULL, &ev);
         if (err != CL_SUCCESS) {
@@ -1599,13 +1901,21 @@ static bvh_cl_result bvh_cl__batch(bvh_cl_tree *t, const bvh_ray *rays, void *ou
     return BVH_CL_SUCCESS;
 }
 
+/* a tree's batch: its arguments 0..4, then the rays */
+static bvh_cl_result bvh_cl__tree_batch(bvh_cl_tree *t, const bvh_ray *rays, void *out, size_t out_elem, size_t count,
+                                        int kernel) {
+    cl_kernel k = t->ctx->kernels[kernel];
+    cl_int err = bvh_cl__tree_args(k, t);
+    if (err != CL_SUCCESS) return bvh_cl__fail(t->ctx, err, "clSetKernelArg");
+    return bvh_cl__batch(t->ctx, k, 5, rays, out, out_elem, count);
+}
 BVH_CL_API bvh_cl_result bvh_cl_intersect(bvh_cl_tree *t, const bvh_ray *rays, bvh_hit *hits, size_t count) {
     if (!t || (count && (!rays || !hits))) return BVH_CL_ERROR_INVALID_ARGUMENT;
-    return bvh_cl__batch(t, rays, hits, sizeof(bvh_hit), count, BVH_CL__K_CLOSEST);
+    return bvh_cl__tree_batch(t, rays, hits, sizeof(bvh_hit), count, BVH_CL__K_CLOSEST);
 }
 BVH_CL_API bvh_cl_result bvh_cl_occluded(bvh_cl_tree *t, const bvh_ray *rays, uint8_t *occluded, size_t count) {
     if (!t || (count && (!rays || !occluded))) return BVH_CL_ERROR_INVALID_ARGUMENT;
-    return bvh_cl__batch(t, rays, occluded, 1, count, BVH_CL__K_ANY);
+    return bvh_cl__tree_batch(t, rays, occluded, 1, count, BVH_CL__K_ANY);
 }
 
 /* frames in bands of rows that fit the device */
@@ -1686,6 +1996,192 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *t, const bvh_camera *c
         if ((err = bvh_cl__finish_reads(c, err, ev)) != CL_SUCCESS) return bvh_cl__fail(c, err, "clEnqueueReadBuffer");
     }
     return BVH_CL_SUCCESS;
+}
+
+/* ============================================================================================ */
+/* == two-level scenes ============================================================================= */
+/* ============================================================================================ */
+/* Kernels index one buffer per kind, so the distinct bottom-level trees are laid one after the
+   other in it (an OpenCL 1.2 kernel cannot take an array of buffers); meshes[m] gives tree m's first
+   node and reference there. The top-level tree (a box tree: no triangles) and the per-instance
+   arrays have their own buffers. */
+BVH_CL_API void bvh_cl_scene_free(bvh_cl_scene *s) {
+    int i;
+    if (!s) return;
+    for (i = 0; i < BVH_CL__B_COUNT; i++)
+        if (s->buf[i]) clReleaseMemObject(s->buf[i]);
+    bvh_cl__free(&s->al, s);
+}
+
+/* The checks of bvh_cl_scene_upload, and each distinct tree (one instance's) in trees[m]. */
+static bvh_cl_result bvh_cl__scene_trees(const bvh_scene *sc, const bvh_tree **trees) {
+    uint32_t i, m;
+    for (m = 0; m < sc->mesh_count; m++) trees[m] = NULL;
+    for (i = 0; i < sc->instance_count; i++) {
+        const bvh_tree *t = sc->instances[i].tree;
+        m = sc->mesh[i];
+        if (m >= sc->mesh_count || !t || (t->node_count && (!t->nodes || !t->prims || !t->tris)))
+            return BVH_CL_ERROR_INVALID_ARGUMENT;
+        trees[m] = t;
+    }
+    return BVH_CL_SUCCESS;
+}
+
+/* The arrays in host memory and the sizes of the bottom-level buffers: meshes (4 words per tree:
+   first node, node count, first reference, reference count), info (4 words per instance: mask, id,
+   tree, 0). BUFFER_TOO_LARGE when the trees' nodes or references do not fit 32-bit offsets. */
+static bvh_cl_result bvh_cl__scene_tables(const bvh_scene *sc, const bvh_tree *const *trees, cl_uint *meshes,
+                                          cl_uint *info, size_t *nodes, size_t *refs) {
+    uint32_t i, m;
+    *nodes = *refs = 0;
+    for (m = 0; m < sc->mesh_count; m++) {
+        const bvh_tree *t = trees[m];
+        meshes[4 * m] = (cl_uint)*nodes;
+        meshes[4 * m + 1] = t ? t->node_count : 0;
+        meshes[4 * m + 2] = (cl_uint)*refs;
+        meshes[4 * m + 3] = t && t->node_count ? t->ref_count : 0;
+        *nodes += meshes[4 * m + 1];
+        *refs += meshes[4 * m + 3];
+        if (*nodes > 0xFFFFFFFFu || *refs > 0xFFFFFFFFu) return BVH_CL_ERROR_BUFFER_TOO_LARGE;
+    }
+    for (i = 0; i < sc->instance_count; i++) {
+        info[4 * i] = sc->instances[i].mask;
+        info[4 * i + 1] = sc->instances[i].id;
+        info[4 * i + 2] = sc->mesh[i];
+        info[4 * i + 3] = 0;
+    }
+    return BVH_CL_SUCCESS;
+}
+
+/* Each tree's nodes, triangles and ids written at its offsets (non-blocking, then one wait). */
+static cl_int bvh_cl__scene_write(bvh_cl_context *c, bvh_cl_scene *s, const bvh_tree *const *trees,
+                                  const cl_uint *meshes) {
+    cl_int err = CL_SUCCESS;
+    uint32_t m;
+    for (m = 0; m < s->mesh_count && err == CL_SUCCESS; m++) {
+        const bvh_tree *t = trees[m];
+        size_t n0 = meshes[4 * m], r0 = meshes[4 * m + 2];
+        if (!t || !t->node_count) continue;
+        err = clEnqueueWriteBuffer(c->queue, s->buf[BVH_CL__B_NODES], CL_FALSE, n0 * sizeof(bvh_node),
+                                   (size_t)t->node_count * sizeof(bvh_node), t->nodes, 0, NULL, NULL);
+        if (err == CL_SUCCESS)
+            err = clEnqueueWriteBuffer(c->queue, s->buf[BVH_CL__B_TRIS], CL_FALSE, r0 * 9 * sizeof(float),
+                                       (size_t)t->ref_count * 9 * sizeof(float), t->tris, 0, NULL, NULL);
+        if (err == CL_SUCCESS)
+            err = clEnqueueWriteBuffer(c->queue, s->buf[BVH_CL__B_PRIMS], CL_FALSE, r0 * sizeof(uint32_t),
+                                       (size_t)t->ref_count * sizeof(uint32_t), t->prims, 0, NULL, NULL);
+    }
+    {
+        const cl_int fin = clFinish(c->queue); /* the trees' memory may go when the call returns */
+        return err != CL_SUCCESS ? err : fin;
+    }
+}
+
+BVH_CL_API bvh_cl_result bvh_cl_scene_upload(bvh_cl_context *c, const bvh_scene *sc, bvh_cl_scene **out) {
+    const bvh_tree **trees;
+    cl_uint *meshes, *info;
+    bvh_cl_scene *s = NULL;
+    size_t nodes = 0, refs = 0, size[BVH_CL__B_COUNT], total = 0, top_refs;
+    const void *data[BVH_CL__B_COUNT];
+    const char *call = "clCreateBuffer";
+    bvh_cl_result r;
+    cl_int err = CL_SUCCESS;
+    int i;
+    if (out) *out = NULL;
+    if (!c || !sc || !out) return BVH_CL_ERROR_INVALID_ARGUMENT;
+    if ((sc->instance_count && (!sc->instances || !sc->inverse || !sc->mesh)) ||
+        (sc->top.node_count && (!sc->top.nodes || !sc->top.prims)))
+        return BVH_CL_ERROR_INVALID_ARGUMENT;
+    top_refs = sc->top.node_count ? sc->top.ref_count : 0;
+    trees = BVH_CL__CAST(const bvh_tree **, bvh_cl__alloc(&c->al, ((size_t)sc->mesh_count + 1) * sizeof *trees));
+    meshes = BVH_CL__CAST(cl_uint *, bvh_cl__alloc(&c->al, ((size_t)sc->mesh_count + 1) * 4 * sizeof(cl_uint)));
+    info = BVH_CL__CAST(cl_uint *, bvh_cl__alloc(&c->al, ((size_t)sc->instance_count + 1) * 4 * sizeof(cl_uint)));
+    r = trees && meshes && info ? bvh_cl__scene_trees(sc, trees) : BVH_CL_ERROR_OUT_OF_RESOURCES;
+    if (r == BVH_CL_SUCCESS) r = bvh_cl__scene_tables(sc, trees, meshes, info, &nodes, &refs);
+    size[BVH_CL__B_TOP_NODES] = (size_t)sc->top.node_count * sizeof(bvh_node);
+    size[BVH_CL__B_TOP_PRIMS] = top_refs * sizeof(uint32_t);
+    size[BVH_CL__B_NODES] = nodes * sizeof(bvh_node);
+    size[BVH_CL__B_TRIS] = refs * 9 * sizeof(float);
+    size[BVH_CL__B_PRIMS] = refs * sizeof(uint32_t);
+    size[BVH_CL__B_MESHES] = (size_t)sc->mesh_count * 4 * sizeof(cl_uint);
+    size[BVH_CL__B_INVERSE] = (size_t)sc->instance_count * 12 * sizeof(float);
+    size[BVH_CL__B_INFO] = (size_t)sc->instance_count * 4 * sizeof(cl_uint);
+    data[BVH_CL__B_TOP_NODES] = sc->top.nodes;
+    data[BVH_CL__B_TOP_PRIMS] = sc->top.prims;
+    data[BVH_CL__B_NODES] = data[BVH_CL__B_TRIS] = data[BVH_CL__B_PRIMS] = NULL; /* written per tree */
+    data[BVH_CL__B_MESHES] = meshes;
+    data[BVH_CL__B_INVERSE] = sc->inverse;
+    data[BVH_CL__B_INFO] = info;
+    for (i = 0; i < BVH_CL__B_COUNT && r == BVH_CL_SUCCESS; i++) {
+        total += size[i];
+        if (size[i] > c->max_alloc || (c->info.global_mem && total > c->info.global_mem))
+            r = BVH_CL_ERROR_BUFFER_TOO_LARGE;
+    }
+    if (r == BVH_CL_SUCCESS) {
+        s = BVH_CL__CAST(bvh_cl_scene *, bvh_cl__alloc(&c->al, sizeof *s));
+        if (!s) r = BVH_CL_ERROR_OUT_OF_RESOURCES;
+    }
+    if (r == BVH_CL_SUCCESS) {
+        memset(s, 0, sizeof *s);
+        s->al = c->al;
+        s->ctx = c;
+        s->top_node_count = sc->top.node_count;
+        s->top_ref_count = (cl_uint)top_refs;
+        s->mesh_count = sc->mesh_count;
+        s->instance_count = sc->instance_count;
+        for (i = 0; i < BVH_CL__B_COUNT && err == CL_SUCCESS; i++) {
+            if (data[i] || !size[i])
+                s->buf[i] = bvh_cl__buffer(c, size[i], data[i], &err);
+            else
+                s->buf[i] = clCreateBuffer(c->context, CL_MEM_READ_ONLY, size[i], NULL, &err);
+        }
+        if (err == CL_SUCCESS) {
+            call = "clEnqueueWriteBuffer";
+            err = bvh_cl__scene_write(c, s, trees, meshes);
+        }
+        if (err != CL_SUCCESS) {
+            r = bvh_cl__fail(c, err, call);
+            bvh_cl_scene_free(s);
+            s = NULL;
+        }
+    }
+    bvh_cl__free(&c->al, BVH_CL__CAST(void *, trees));
+    bvh_cl__free(&c->al, meshes);
+    bvh_cl__free(&c->al, info);
+    *out = s;
+    return r;
+}
+
+/* a scene's batch: its arguments 0..12 (the buffers, counts and the mask), then the rays */
+static bvh_cl_result bvh_cl__scene_batch(bvh_cl_scene *s, const bvh_ray *rays, uint32_t mask, void *out,
+                                         size_t out_elem, size_t count, int kernel) {
+    cl_kernel k = s->ctx->kernels[kernel];
+    cl_uint m = mask;
+    cl_int e = clSetKernelArg(k, 0, sizeof(cl_mem), &s->buf[BVH_CL__B_TOP_NODES]);
+    e |= clSetKernelArg(k, 1, sizeof(cl_uint), &s->top_node_count);
+    e |= clSetKernelArg(k, 2, sizeof(cl_mem), &s->buf[BVH_CL__B_TOP_PRIMS]);
+    e |= clSetKernelArg(k, 3, sizeof(cl_uint), &s->top_ref_count);
+    e |= clSetKernelArg(k, 4, sizeof(cl_mem), &s->buf[BVH_CL__B_NODES]);
+    e |= clSetKernelArg(k, 5, sizeof(cl_mem), &s->buf[BVH_CL__B_TRIS]);
+    e |= clSetKernelArg(k, 6, sizeof(cl_mem), &s->buf[BVH_CL__B_PRIMS]);
+    e |= clSetKernelArg(k, 7, sizeof(cl_mem), &s->buf[BVH_CL__B_MESHES]);
+    e |= clSetKernelArg(k, 8, sizeof(cl_uint), &s->mesh_count);
+    e |= clSetKernelArg(k, 9, sizeof(cl_mem), &s->buf[BVH_CL__B_INVERSE]);
+    e |= clSetKernelArg(k, 10, sizeof(cl_mem), &s->buf[BVH_CL__B_INFO]);
+    e |= clSetKernelArg(k, 11, sizeof(cl_uint), &s->instance_count);
+    e |= clSetKernelArg(k, 12, sizeof(cl_uint), &m);
+    if (e != CL_SUCCESS) return bvh_cl__fail(s->ctx, CL_INVALID_KERNEL_ARGS, "clSetKernelArg");
+    return bvh_cl__batch(s->ctx, k, 13, rays, out, out_elem, count);
+}
+BVH_CL_API bvh_cl_result bvh_cl_scene_intersect(bvh_cl_scene *s, const bvh_ray *rays, uint32_t mask,
+                                                bvh_scene_hit *hits, size_t count) {
+    if (!s || (count && (!rays || !hits))) return BVH_CL_ERROR_INVALID_ARGUMENT;
+    return bvh_cl__scene_batch(s, rays, mask, hits, sizeof(bvh_scene_hit), count, BVH_CL__K_SCENE_CLOSEST);
+}
+BVH_CL_API bvh_cl_result bvh_cl_scene_occluded(bvh_cl_scene *s, const bvh_ray *rays, uint32_t mask, uint8_t *occluded,
+                                               size_t count) {
+    if (!s || (count && (!rays || !occluded))) return BVH_CL_ERROR_INVALID_ARGUMENT;
+    return bvh_cl__scene_batch(s, rays, mask, occluded, 1, count, BVH_CL__K_SCENE_ANY);
 }
 
 #endif /* BVH_HAVE_OPENCL */

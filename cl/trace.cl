@@ -10,6 +10,11 @@
      prims   tree.prims: original triangle id per reference
      rays    bvh_ray[]: origin xyz, tmin, dir xyz, tmax (32 bytes, read as two float4)
      hits    bvh_hit[]: t, u, v, prim (16 bytes), written as one uint4 (float bits, then the id)
+   A two-level scene (bvh_scene, see bvh_cl_scene below) adds: the top-level tree's nodes and prims
+   (instance indices; no triangles); the distinct bottom-level trees' nodes, tris and prims, one
+   tree after the other, with meshes[] = (first node, nodes, first reference, references) per
+   tree; per instance its world-to-object 3x4 (bvh_scene.inverse) and (mask, id, tree, 0); scene
+   hits are bvh_scene_hit (36 bytes: t, u, v, instance, id, prim, normal xyz).
 
    SEMANTICS: those of bvh.h (section "traversal"), statement for statement: watertight triangle
    test (Woop, Benthin & Wald 2013) in float with the exact fallback on zero edge functions, ties in t to the
@@ -17,6 +22,9 @@
    components get an inverse of +inf, the near plane is chosen by the sign of the inverse, the NaN
    of an origin on a slab plane is dropped by the order of the comparisons), near child first,
    invalid rays (NaN, non-finite origin or direction, zero direction, tmin > tmax) miss.
+   Scenes: those of bvh_scene_intersect (bvh.h, section "instances"): the ray moved into each
+   instance's space by bvh_ray_transform's operations, ties to the lowest instance then triangle,
+   the world normal computed in double as bvh__scene_normal does.
    Hits equal the CPU's to the bit when the host builds with -cl-fp32-correctly-rounded-divide-sqrt
    and the device has cl_khr_fp64 (bvh_cl.h does both when it can); FP_CONTRACT is off so that
    no compiler fuses a*b-c*d into an fma the CPU code does not do. Without cl_khr_fp64 the edge
@@ -24,7 +32,8 @@
 
    OPTIONS (-D from the host)
      BVH_MAX_DEPTH   the host's value (64); the private stack holds BVH_MAX_DEPTH + 2 entries, like
-                     the CPU's, and a traversal that would overflow it stops (never writes past it).
+                     the CPU's (twice that for a scene, whose two levels share it), and a traversal
+                     that would overflow it stops (never writes past it).
 */
 #pragma OPENCL FP_CONTRACT OFF
 #ifdef cl_khr_fp64
@@ -191,20 +200,40 @@ BVH_CL_FN float bvh_cl_slab(const bvh_cl_rayx *r, float4 lo, float4 hi, float tf
 typedef struct bvh_cl_hitrec {
     float t, u, v;
     uint prim;    /* BVH_CL_INVALID: miss */
-    uint ref;     /* reference of the hit (index into tris) */
+    uint ref;     /* reference of the hit (index into its tree's tris) */
+    uint inst;    /* the hit's instance (0 for a one-level tree) */
     uint visited; /* nodes whose box was tested, counted as bvh_intersect_counted does */
 } bvh_cl_hitrec;
 
-typedef struct bvh_cl_scene {
+/* One tree's buffers: nodes, triangles and primitive ids (a scene's top level: its nodes and the
+   instance of each reference, no triangles). */
+typedef struct bvh_cl_level {
     __global const uint4 *nodes;
     __global const float *tris;
     __global const uint *prims;
     uint node_count, ref_count;
+} bvh_cl_level;
+
+/* A two-level scene (bvh_scene, uploaded by bvh_cl_scene_upload) and the world ray traced in it.
+   The distinct bottom-level trees lie one after the other in nodes, tris and prims; meshes[m] =
+   (first node, node count, first reference, reference count) of tree m. Instance i: inverse +
+   12 i its world-to-object transform (bvh_scene.inverse), info[i] = (mask, id, tree, 0). */
+typedef struct bvh_cl_scene {
+    bvh_cl_level top;
+    __global const uint4 *nodes;
+    __global const float *tris;
+    __global const uint *prims;
+    __global const uint4 *meshes;
+    __global const float *inverse;
+    __global const uint4 *info;
+    uint mesh_count, instance_count, mask;
+    float3 o, d; /* the world ray */
+    float tmin;
 } bvh_cl_scene;
 
 /* The children pair (c, c + 1) of an interior node as two uint4 each; 0 when the pair lies
    outside the array (a corrupt tree: the traversal ends). */
-BVH_CL_FN int bvh_cl_children(const bvh_cl_scene *s, uint c, uint4 *lo0, uint4 *hi0, uint4 *lo1, uint4 *hi1) {
+BVH_CL_FN int bvh_cl_children(const bvh_cl_level *s, uint c, uint4 *lo0, uint4 *hi0, uint4 *lo1, uint4 *hi1) {
     if (c >= s->node_count - 1) return 0;
     *lo0 = s->nodes[2 * c];
     *hi0 = s->nodes[2 * c + 1];
@@ -213,45 +242,99 @@ BVH_CL_FN int bvh_cl_children(const bvh_cl_scene *s, uint c, uint4 *lo0, uint4 *
     return 1;
 }
 
-/* Closest hit (any = 0) or first hit found (any = 1) of a set-up ray in [tmin, tmax]. A child
-   index or leaf range outside the arrays (a corrupt tree) ends the traversal, so that no read
-   ever leaves the buffers; a tree deeper than the stack does too, as on the CPU. */
-BVH_CL_FN void bvh_cl_traverse(const bvh_cl_scene *s, const bvh_cl_rayx *rx, float tmax, int any, bvh_cl_hitrec *res) {
-    uint stack[BVH_CL_STACK];
-    float stack_t[BVH_CL_STACK]; /* entry distance of each pushed node */
-    uint sp = 0, nvis = 1;
+/* Enters instance i of a scene (bvh__instance_step): its tree's level, the world ray moved into
+   its space by the operations of bvh_ray_transform (FP_CONTRACT is off: the same bits), set up,
+   and the tree's root node. 0 when the mask skips the instance, its tree is empty, the ray in its
+   space is invalid or misses the root box before tmax (the current best), or i is out of range. */
+BVH_CL_FN int bvh_cl_enter(const bvh_cl_scene *sc, uint i, float tmax, bvh_cl_rayx *rx, bvh_cl_level *lv, uint4 *lo,
+                           uint4 *hi) {
+    __global const float *m;
+    float3 o, d, wo = sc->o, wd = sc->d;
+    uint4 info, mesh, a, b;
+    if (i >= sc->instance_count) return 0;
+    info = sc->info[i];
+    if (!(info.x & sc->mask) || info.z >= sc->mesh_count) return 0;
+    mesh = sc->meshes[info.z];
+    if (!mesh.y) return 0;
+    m = sc->inverse + 12 * (size_t)i;
+    o.x = m[0] * wo.x + m[1] * wo.y + m[2] * wo.z + m[3];
+    o.y = m[4] * wo.x + m[5] * wo.y + m[6] * wo.z + m[7];
+    o.z = m[8] * wo.x + m[9] * wo.y + m[10] * wo.z + m[11];
+    d.x = m[0] * wd.x + m[1] * wd.y + m[2] * wd.z;
+    d.y = m[4] * wd.x + m[5] * wd.y + m[6] * wd.z;
+    d.z = m[8] * wd.x + m[9] * wd.y + m[10] * wd.z;
+    if (!bvh_cl_ray_setup(o, sc->tmin, d, tmax, rx)) return 0;
+    a = sc->nodes[2 * (size_t)mesh.x];
+    b = sc->nodes[2 * (size_t)mesh.x + 1];
+    if (bvh_cl_slab(rx, as_float4(a), as_float4(b), tmax) == INFINITY) return 0;
+    lv->nodes = sc->nodes + 2 * (size_t)mesh.x;
+    lv->node_count = mesh.y;
+    lv->tris = sc->tris + 9 * (size_t)mesh.z;
+    lv->prims = sc->prims + mesh.z;
+    lv->ref_count = mesh.w;
+    *lo = a;
+    *hi = b;
+    return 1;
+}
+
+/* Closest hit (any = 0) or first hit found (any = 1) of a set-up ray in [tmin, tmax], in one tree
+   (sc NULL: the tree `top`) or in a scene (sc; top = sc->top). One loop for both levels, with a
+   level switch: a leaf of the top level hands its instances, one by one in order, to the loop,
+   which enters each (bvh_cl_enter) and walks its tree above the top level's part of the stack
+   (from `floor` up), with the ray in the instance's space; when that part is empty, the loop is
+   back at the top level with the world ray and takes the leaf's next instance. This is the CPU's
+   order (bvh__trace_leaves with bvh__instance_step), and the best hit is theirs: the lowest
+   (t, instance, triangle), t in world units because the transformed ray is not normalised.
+   The stack holds `cap` entries (two trees deep for a scene). A child index or leaf range outside
+   the arrays (a corrupt tree) ends the traversal, so that no read ever leaves the buffers; a tree
+   deeper than the stack does too, as on the CPU. After inlining, sc is a constant: a one-level
+   kernel keeps none of the scene's code. */
+BVH_CL_FN void bvh_cl_traverse(const bvh_cl_level *top, const bvh_cl_scene *sc, const bvh_cl_rayx *rxw, float tmax,
+                               int any, uint *stack, float *stack_t, uint cap, bvh_cl_hitrec *res) {
+    bvh_cl_level lv = *top; /* the level the loop is in */
+    bvh_cl_rayx rxl;        /* the ray in the current instance's space */
+    const bvh_cl_rayx *rx = rxw;
+    uint sp = 0, nvis = 1, floor = 0, inst = 0, next = 0, end_inst = 0;
+    int bottom = 0;
     float best_t = tmax;
-    uint4 lo = s->nodes[0], hi = s->nodes[1]; /* the current node */
+    uint4 lo = lv.nodes[0], hi = lv.nodes[1]; /* the current node */
     int done = bvh_cl_slab(rx, as_float4(lo), as_float4(hi), best_t) == INFINITY;
-    res->prim = BVH_CL_INVALID;
+    res->prim = res->inst = BVH_CL_INVALID;
     res->ref = 0;
     res->u = res->v = 0.0f;
     while (!done) {
         int descended = 0;
         if (hi.w) {
             uint k, end = lo.w + hi.w;
-            if (end > s->ref_count || end < lo.w) break;
-            for (k = lo.w; k < end; k++) {
-                float t, u, v;
-                uint prim;
-                if (!bvh_cl_tri_test(rx, s->tris + 9 * (size_t)k, best_t, &t, &u, &v)) continue;
-                prim = s->prims[k];
-                if (t == best_t && prim > res->prim) continue; /* ties: lowest index */
-                best_t = t;
-                res->u = u;
-                res->v = v;
-                res->prim = prim;
-                res->ref = k;
-                if (any) {
-                    done = 1;
-                    break;
+            if (end > lv.ref_count || end < lo.w) break;
+            if (sc && !bottom) { /* a leaf of instances: entered below, one at a time */
+                next = lo.w;
+                end_inst = end;
+            } else {
+                for (k = lo.w; k < end; k++) {
+                    float t, u, v;
+                    uint prim;
+                    if (!bvh_cl_tri_test(rx, lv.tris + 9 * (size_t)k, best_t, &t, &u, &v)) continue;
+                    prim = lv.prims[k];
+                    /* ties: the lowest instance, then the lowest index */
+                    if (t == best_t && (inst > res->inst || (inst == res->inst && prim > res->prim))) continue;
+                    best_t = t;
+                    res->u = u;
+                    res->v = v;
+                    res->prim = prim;
+                    res->ref = k;
+                    res->inst = inst;
+                    if (any) {
+                        done = 1;
+                        break;
+                    }
                 }
             }
         } else {
             uint c = lo.w;
             uint4 lo0, hi0, lo1, hi1;
             float t0, t1;
-            if (!bvh_cl_children(s, c, &lo0, &hi0, &lo1, &hi1)) break;
+            if (!bvh_cl_children(&lv, c, &lo0, &hi0, &lo1, &hi1)) break;
             t0 = bvh_cl_slab(rx, as_float4(lo0), as_float4(hi0), best_t);
             t1 = bvh_cl_slab(rx, as_float4(lo1), as_float4(hi1), best_t);
             nvis += 2;
@@ -269,7 +352,7 @@ BVH_CL_FN void bvh_cl_traverse(const bvh_cl_scene *s, const bvh_cl_rayx *rx, flo
                     hi = hi0;
                 }
                 if (t1 != INFINITY) {
-                    if (sp == BVH_CL_STACK) break; /* a tree deeper than the validator allows */
+                    if (sp == cap) break; /* a tree deeper than the validator allows */
                     stack_t[sp] = t1;
                     stack[sp++] = far;
                 }
@@ -277,15 +360,30 @@ BVH_CL_FN void bvh_cl_traverse(const bvh_cl_scene *s, const bvh_cl_rayx *rx, flo
             }
         }
         if (!descended && !done) {
-            for (;;) { /* pop the next node still in reach of the current best */
+            for (;;) { /* the next node: of the leaf's next instance, or popped if still in reach */
+                if (sc && !bottom && next < end_inst) {
+                    inst = lv.prims[next++];
+                    if (!bvh_cl_enter(sc, inst, best_t, &rxl, &lv, &lo, &hi)) continue;
+                    nvis++;
+                    bottom = 1;
+                    floor = sp;
+                    rx = &rxl;
+                    break;
+                }
+                if (sc && bottom && sp == floor) { /* the instance's tree is done: back to the top */
+                    bottom = 0;
+                    lv = *top;
+                    rx = rxw;
+                    continue;
+                }
                 if (!sp) {
                     done = 1;
                     break;
                 }
                 --sp;
                 if (stack_t[sp] <= best_t) {
-                    lo = s->nodes[2 * stack[sp]];
-                    hi = s->nodes[2 * stack[sp] + 1];
+                    lo = lv.nodes[2 * stack[sp]];
+                    hi = lv.nodes[2 * stack[sp] + 1];
                     break;
                 }
             }
@@ -295,9 +393,12 @@ BVH_CL_FN void bvh_cl_traverse(const bvh_cl_scene *s, const bvh_cl_rayx *rx, flo
     res->visited = nvis;
 }
 
-/* Traces one ray; a miss leaves t = tmax, u = v = 0, prim = BVH_CL_INVALID, like bvh_intersect. */
-BVH_CL_FN void bvh_cl_trace(const bvh_cl_scene *s, float3 o, float tmin, float3 d, float tmax, int any,
+/* Traces one ray in a tree; a miss leaves t = tmax, u = v = 0, prim = BVH_CL_INVALID, like
+   bvh_intersect. */
+BVH_CL_FN void bvh_cl_trace(const bvh_cl_level *s, float3 o, float tmin, float3 d, float tmax, int any,
                             bvh_cl_hitrec *res) {
+    uint stack[BVH_CL_STACK];
+    float stack_t[BVH_CL_STACK]; /* entry distance of each pushed node */
     bvh_cl_rayx rx;
     res->t = tmax;
     res->u = res->v = 0.0f;
@@ -305,7 +406,7 @@ BVH_CL_FN void bvh_cl_trace(const bvh_cl_scene *s, float3 o, float tmin, float3 
     res->ref = 0;
     res->visited = 0;
     if (!s->node_count || !bvh_cl_ray_setup(o, tmin, d, tmax, &rx)) return;
-    bvh_cl_traverse(s, &rx, tmax, any, res);
+    bvh_cl_traverse(s, 0, &rx, tmax, any, stack, stack_t, BVH_CL_STACK, res);
     if (res->prim == BVH_CL_INVALID) {
         res->t = tmax;
         res->u = res->v = 0.0f;
@@ -320,7 +421,7 @@ BVH_CL_FN void bvh_cl_trace(const bvh_cl_scene *s, float3 o, float tmin, float3 
    0 for a work-item past the batch's count (nothing traced). */
 int bvh_cl_trace_batch_ray(BVH_CL_TREE_ARGS, __global const float *rays, uint count, int any, bvh_cl_hitrec *res) {
     const uint i = (uint)get_global_id(0);
-    bvh_cl_scene s;
+    bvh_cl_level s;
     float4 r0, r1;
     if (i >= count) return 0;
     r0 = vload4(2 * (size_t)i, rays);
@@ -331,6 +432,83 @@ int bvh_cl_trace_batch_ray(BVH_CL_TREE_ARGS, __global const float *rays, uint co
     s.node_count = node_count;
     s.ref_count = ref_count;
     bvh_cl_trace(&s, r0.xyz, r0.w, r1.xyz, r1.w, any, res);
+    return 1;
+}
+
+/* ============================================================================================ */
+/* == two-level scenes ============================================================================ */
+/* ============================================================================================ */
+/* The world normal of a scene hit, as bvh__scene_normal: (v1 - v0) x (v2 - v0) of the triangle in
+   object space by the transpose of the world-to-object matrix, normalised, in double (float
+   without cl_khr_fp64, which is not the CPU's to the bit); zero for a zero-area triangle. */
+BVH_CL_FN float3 bvh_cl_scene_normal(const bvh_cl_scene *sc, const bvh_cl_hitrec *res) {
+    __global const float *inv = sc->inverse + 12 * (size_t)res->inst;
+    __global const float *t = sc->tris + 9 * ((size_t)sc->meshes[sc->info[res->inst].z].z + res->ref);
+#ifdef BVH_CL_FP64
+    double e1[3], e2[3], n[3], w[3], l;
+    int k;
+    for (k = 0; k < 3; k++) {
+        e1[k] = (double)t[3 + k] - t[k];
+        e2[k] = (double)t[6 + k] - t[k];
+    }
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    for (k = 0; k < 3; k++) w[k] = inv[k] * n[0] + inv[4 + k] * n[1] + inv[8 + k] * n[2];
+    l = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    if (!(l > 0.0)) return (float3)(0.0f);
+    return (float3)((float)(w[0] / l), (float)(w[1] / l), (float)(w[2] / l));
+#else
+    float3 n = cross(vload3(1, t) - vload3(0, t), vload3(2, t) - vload3(0, t)), w;
+    float l;
+    w.x = inv[0] * n.x + inv[4] * n.y + inv[8] * n.z;
+    w.y = inv[1] * n.x + inv[5] * n.y + inv[9] * n.z;
+    w.z = inv[2] * n.x + inv[6] * n.y + inv[10] * n.z;
+    l = sqrt(dot(w, w));
+    return l > 0.0f ? w / l : (float3)(0.0f);
+#endif
+}
+
+/* A scene's buffers as the scene kernels take them first (cl/bvh_cl.h sets arguments 0-12). */
+#define BVH_CL_SCENE_ARGS                                                                                              \
+    __global const uint4 *top_nodes, uint top_node_count, __global const uint *top_prims, uint top_ref_count,          \
+        __global const uint4 *nodes, __global const float *tris, __global const uint *prims,                           \
+        __global const uint4 *meshes, uint mesh_count, __global const float *inverse, __global const uint4 *info,      \
+        uint instance_count, uint mask
+
+/* The work-item's ray of a scene batch traced into *res (bvh_scene_intersect / occluded); 0 for a
+   work-item past the batch's count. A miss leaves t = tmax, prim = inst = BVH_CL_INVALID. */
+int bvh_cl_trace_scene_ray(BVH_CL_SCENE_ARGS, __global const float *rays, uint count, int any, bvh_cl_scene *sc,
+                           bvh_cl_hitrec *res) {
+    const uint i = (uint)get_global_id(0);
+    uint stack[2 * BVH_CL_STACK];
+    float stack_t[2 * BVH_CL_STACK];
+    bvh_cl_rayx rx;
+    float4 r0, r1;
+    if (i >= count) return 0;
+    r0 = vload4(2 * (size_t)i, rays);
+    r1 = vload4(2 * (size_t)i + 1, rays);
+    sc->top.nodes = top_nodes;
+    sc->top.tris = 0;
+    sc->top.prims = top_prims;
+    sc->top.node_count = top_node_count;
+    sc->top.ref_count = top_ref_count;
+    sc->nodes = nodes;
+    sc->tris = tris;
+    sc->prims = prims;
+    sc->meshes = meshes;
+    sc->mesh_count = mesh_count;
+    sc->inverse = inverse;
+    sc->info = info;
+    sc->instance_count = instance_count;
+    sc->mask = mask;
+    sc->o = r0.xyz;
+    sc->tmin = r0.w;
+    sc->d = r1.xyz;
+    res->prim = res->inst = BVH_CL_INVALID;
+    if (top_node_count && mask && bvh_cl_ray_setup(r0.xyz, r0.w, r1.xyz, r1.w, &rx))
+        bvh_cl_traverse(&sc->top, sc, &rx, r1.w, any, stack, stack_t, 2 * BVH_CL_STACK, res);
+    if (res->prim == BVH_CL_INVALID) res->t = r1.w;
     return 1;
 }
 
@@ -348,6 +526,43 @@ __kernel void bvh_intersect_kernel(BVH_CL_TREE_ARGS, __global const float *rays,
 __kernel void bvh_occluded_kernel(BVH_CL_TREE_ARGS, __global const float *rays, __global uchar *occluded, uint count) {
     bvh_cl_hitrec res;
     if (bvh_cl_trace_batch_ray(nodes, node_count, tris, prims, ref_count, rays, count, 1, &res))
+        occluded[get_global_id(0)] = res.prim != BVH_CL_INVALID ? (uchar)1 : (uchar)0;
+}
+
+/* The arguments of bvh_cl_trace_scene_ray, passed on by the scene kernels */
+#define BVH_CL_SCENE_PASS                                                                                              \
+    top_nodes, top_node_count, top_prims, top_ref_count, nodes, tris, prims, meshes, mesh_count, inverse, info,        \
+        instance_count, mask
+
+/* Closest hits of rays[0 .. count) in a scene for the instances `mask` selects
+   (bvh_scene_intersect): hits as bvh_scene_hit, 9 words each: t, u, v, instance, id, prim, normal. */
+__kernel void bvh_scene_intersect_kernel(BVH_CL_SCENE_ARGS, __global const float *rays, __global uint *hits,
+                                         uint count) {
+    bvh_cl_scene sc;
+    bvh_cl_hitrec res;
+    __global uint *h = hits + 9 * (size_t)get_global_id(0);
+    float3 n = (float3)(0.0f);
+    int found;
+    if (!bvh_cl_trace_scene_ray(BVH_CL_SCENE_PASS, rays, count, 0, &sc, &res)) return;
+    found = res.prim != BVH_CL_INVALID;
+    if (found) n = bvh_cl_scene_normal(&sc, &res);
+    h[0] = as_uint(res.t);
+    h[1] = as_uint(found ? res.u : 0.0f);
+    h[2] = as_uint(found ? res.v : 0.0f);
+    h[3] = found ? res.inst : BVH_CL_INVALID;
+    h[4] = found ? info[res.inst].y : BVH_CL_INVALID;
+    h[5] = res.prim;
+    h[6] = as_uint(n.x);
+    h[7] = as_uint(n.y);
+    h[8] = as_uint(n.z);
+}
+
+/* Any hit of rays[0 .. count) in a scene: occluded[i] = 1 if blocked (bvh_scene_occluded). */
+__kernel void bvh_scene_occluded_kernel(BVH_CL_SCENE_ARGS, __global const float *rays, __global uchar *occluded,
+                                        uint count) {
+    bvh_cl_scene sc;
+    bvh_cl_hitrec res;
+    if (bvh_cl_trace_scene_ray(BVH_CL_SCENE_PASS, rays, count, 1, &sc, &res))
         occluded[get_global_id(0)] = res.prim != BVH_CL_INVALID ? (uchar)1 : (uchar)0;
 }
 
@@ -380,7 +595,7 @@ __kernel void bvh_frame_kernel(BVH_CL_TREE_ARGS, float16 cam, uint width, uint h
                                __global uchar *rgba, __global uint4 *hits, __global uint *visited) {
     uint x = (uint)get_global_id(0), row = (uint)get_global_id(1), y = y0 + row;
     size_t pix = (size_t)row * width + x;
-    bvh_cl_scene s;
+    bvh_cl_level s;
     bvh_cl_hitrec res;
     float sx, sy, l;
     float3 d;
@@ -485,7 +700,7 @@ BVH_CL_FN bvh_pkf bvh_cl_slab8(const bvh_cl_packet *p, float4 lo, float4 hi, bvh
 
 /* Closest hits of the packet's rays; best[] holds each ray's tmax on entry (-inf: no ray, which
    then enters no box) and its hit distance on return, prim[] BVH_CL_INVALID on entry. */
-BVH_CL_FN void bvh_cl_traverse8(const bvh_cl_scene *s, const bvh_cl_packet *p, const bvh_cl_rayx *rx, float *best,
+BVH_CL_FN void bvh_cl_traverse8(const bvh_cl_level *s, const bvh_cl_packet *p, const bvh_cl_rayx *rx, float *best,
                                 float *u, float *v, uint *prim, uint *ref) {
     uint stack[BVH_CL_STACK];
     bvh_pkf stack_t[BVH_CL_STACK]; /* entry distances of each pushed node */
@@ -660,7 +875,7 @@ BVH_CL_FN void bvh_cl_packet_setup(float3 o, bvh_pkf dx, bvh_pkf dy, bvh_pkf dz,
 __kernel void bvh_frame_packet_kernel(BVH_CL_TREE_ARGS, float16 cam, uint width, uint height, uint y0, uint rows,
                                       __global uchar *rgba, __global uint4 *hits) {
     uint gx = (uint)get_global_id(0), gy = (uint)get_global_id(1), l;
-    bvh_cl_scene s;
+    bvh_cl_level s;
     bvh_cl_rayx rx[BVH_CL_PACKET];
     bvh_cl_packet p;
     float best[BVH_CL_PACKET], u[BVH_CL_PACKET], v[BVH_CL_PACKET], dxl[BVH_CL_PACKET], dyl[BVH_CL_PACKET];

@@ -2,8 +2,10 @@
    primitives, diffuse bounces, a sun with shadow rays and a sky, on all CPUs.
 
    build/pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N] [--inside]
+                   [--trace cpu|opencl|auto]
    e.g. build/pathtrace sponza.glb --inside --size 512x512 --spp 4 --out sponza.png
         build/pathtrace                       (the built-in scene: boxes on a ground quad)
+        build/pathtrace --trace opencl        (the same image, the rays traced by cl/bvh_cl.h)
 
    The scene keeps the file's structure: one bottom-level tree per mesh (assimp's aiMesh), built
    once, and one bvh_instance per node that uses the mesh, placed by the node's world transform
@@ -14,11 +16,22 @@
    ray toward the sun (next-event estimation), and the sky's colour when a ray escapes. Secondary
    rays start at bvh_offset_origin(point, normal) with tmin = 0: no epsilon to tune per scene.
    Pixels are independent and each has its own random sequence (a hash of pixel and sample), so
-   the image is the same for any --threads. Without assimp (BVH_HAVE_ASSIMP) a file is read by
-   scene.h's OBJ reader as one mesh; without stb (BVH_HAVE_STB) the image is a .ppm.
-   Exit status: 0 done; 1 an error (said on stderr); 2 a bad command line. */
+   the image is the same for any --threads.
+   --trace opencl traces the scene's rays on an OpenCL device (cl/bvh_cl.h: bvh_cl_scene_upload,
+   bvh_cl_scene_intersect, bvh_cl_scene_occluded) in wavefronts: the paths of a block of pixels
+   advance together, one batch of rays per bounce and one of shadow rays. The spheres are custom
+   primitives, whose test is C code the kernel cannot run: the host tests them on the same rays
+   (bvh_intersect_custom, cheap for three spheres) and the nearer hit wins, as on the CPU; the
+   shading runs on one host thread. The device's hits are the CPU's (to the bit on an exact device
+   such as PoCL), every path keeps its random sequence and a pixel's samples are summed in the same
+   order, so the image is the CPU's, byte for byte. --trace auto takes OpenCL when a device can be
+   used, else the CPU (said on stderr); --trace opencl without one is an error. Without assimp (BVH_HAVE_ASSIMP) a file
+   is read by scene.h's OBJ reader as one mesh; without stb (BVH_HAVE_STB) the image is a .ppm. Exit status: 0 done; 1
+   an error (said on stderr); 2 a bad command line. */
 #define BVH_IMPLEMENTATION
 #include "bvh.h"
+#define BVH_CL_IMPLEMENTATION
+#include "cl/bvh_cl.h" /* without BVH_HAVE_OPENCL its calls return BVH_CL_ERROR_NOT_AVAILABLE */
 #define SCENE_IMPLEMENTATION
 #include "scene.h" /* image writing, clock, command-line numbers, the OBJ reader */
 
@@ -273,26 +286,26 @@ typedef struct surface {
     bvh_vec3 p, n, albedo;
 } surface;
 
-/* The closest hit among instances and spheres: its point, unit normal (facing the ray), albedo. */
-static int trace(const world *w, bvh_ray ray, surface *s) {
-    bvh_scene_hit h;
+/* The closest hit among instances and spheres, given the scene's hit h of the ray (by
+   bvh_scene_intersect, or from the device): its point, unit normal (facing the ray), albedo. */
+static int resolve(const world *w, bvh_ray ray, const bvh_scene_hit *h, surface *s) {
     bvh_hit sh;
-    int hit = bvh_scene_intersect(&w->scene, &ray, ~0u, &h);
-    ray.tmax = h.t; /* the scene's hit, or the ray's tmax on a miss: a sphere must be nearer */
+    int hit = h->instance != BVH_INVALID;
+    ray.tmax = h->t; /* the scene's hit, or the ray's tmax on a miss: a sphere must be nearer */
     if (bvh_intersect_custom(&w->sphere_tree, &ray, &sh, &w->sphere_test)) {
         const sphere *sp = &w->spheres[sh.prim];
         s->n = normalize(sub(add(ray.origin, scale(ray.dir, sh.t)), sp->c));
         s->p = add(sp->c, scale(s->n, sp->r)); /* on the sphere, not origin + t dir's rounding */
         s->albedo = sp->albedo;
     } else if (hit) {
-        const mesh *m = &w->meshes[h.id];
-        const float *t = w->scene.instances[h.instance].transform;
-        bvh_hit local = {h.t, h.u, h.v, h.prim};
+        const mesh *m = &w->meshes[h->id];
+        const float *t = w->scene.instances[h->instance].transform;
+        bvh_hit local = {h->t, h->u, h->v, h->prim};
         bvh_vec3 q; /* the point from the barycentrics in object space, then moved to the world */
         bvh_hit_surface(&m->tris, &local, &q, NULL);
         s->p = v3(t[0] * q.x + t[1] * q.y + t[2] * q.z + t[3], t[4] * q.x + t[5] * q.y + t[6] * q.z + t[7],
                   t[8] * q.x + t[9] * q.y + t[10] * q.z + t[11]);
-        s->n = h.normal; /* geometric, world space, unit (zero for a zero-area triangle) */
+        s->n = h->normal; /* geometric, world space, unit (zero for a zero-area triangle) */
         if (dot(s->n, s->n) == 0.0f) s->n = scale(ray.dir, -1.0f / sqrtf(dot(ray.dir, ray.dir)));
         s->albedo = m->albedo;
     } else {
@@ -300,6 +313,11 @@ static int trace(const world *w, bvh_ray ray, surface *s) {
     }
     if (dot(s->n, ray.dir) > 0.0f) s->n = scale(s->n, -1.0f); /* two-sided surfaces */
     return 1;
+}
+static int trace(const world *w, bvh_ray ray, surface *s) {
+    bvh_scene_hit h;
+    bvh_scene_intersect(&w->scene, &ray, ~0u, &h);
+    return resolve(w, ray, &h, s);
 }
 
 /* PCG hash (Jarzynski & Olano 2020): a well-mixed number from the previous one. */
@@ -325,26 +343,34 @@ static bvh_vec3 sky(bvh_vec3 d) {                     /* pale at the horizon, bl
     return d.y < 0 ? v3(0.1f, 0.09f, 0.08f) : add(scale(v3(0.6f, 0.65f, 0.7f), 1 - y), scale(v3(0.2f, 0.35f, 0.7f), y));
 }
 
+/* A path meets surface s. Lambertian: BRDF albedo / pi; with cosine sampling the path weight T
+   gains the albedo. Returns 1 when the sun lights the side the ray came from: *shadow is the ray
+   toward it, whose light is *light unless something hides the sun. *ray becomes the next bounce. */
+static int scatter(const surface *s, bvh_vec3 sun_dir, bvh_ray *ray, bvh_vec3 *T, uint32_t *rng, bvh_ray *shadow,
+                   bvh_vec3 *light) {
+    float c = dot(s->n, sun_dir);
+    *T = mul(*T, s->albedo);
+    *shadow = (bvh_ray){bvh_offset_origin(s->p, s->n), 0.0f, sun_dir, BVH_INF};
+    *light = scale(mul(*T, SUN), c);
+    *ray = *shadow;
+    ray->dir = cosine_dir(s->n, rng);
+    return c > 0.0f;
+}
+
 /* One path: up to `depth` diffuse hits, each lit by the sun through a shadow ray. */
 static bvh_vec3 radiance(const world *w, bvh_ray ray, bvh_vec3 sun_dir, uint32_t depth, uint32_t *rng, uint64_t *rays) {
-    bvh_vec3 L = {0, 0, 0}, T = {1, 1, 1};
+    bvh_vec3 L = {0, 0, 0}, T = {1, 1, 1}, light;
+    bvh_ray shadow;
     uint32_t d;
     for (d = 0; d < depth; d++) {
         surface s;
-        float c;
         ++*rays;
         if (!trace(w, ray, &s)) return add(L, mul(T, sky(ray.dir)));
-        /* Lambertian: BRDF albedo / pi; with cosine sampling the path weight gains the albedo. */
-        T = mul(T, s.albedo);
-        ray = (bvh_ray){bvh_offset_origin(s.p, s.n), 0.0f, sun_dir, BVH_INF};
-        c = dot(s.n, sun_dir);
-        if (c > 0.0f) { /* the sun lights the side the ray came from: is it hidden? */
-            ++*rays;
-            if (!bvh_scene_occluded(&w->scene, &ray, ~0u) &&
-                !bvh_occluded_custom(&w->sphere_tree, &ray, &w->sphere_test))
-                L = add(L, scale(mul(T, SUN), c));
-        }
-        ray.dir = cosine_dir(s.n, rng);
+        if (!scatter(&s, sun_dir, &ray, &T, rng, &shadow, &light)) continue;
+        ++*rays;
+        if (!bvh_scene_occluded(&w->scene, &shadow, ~0u) &&
+            !bvh_occluded_custom(&w->sphere_tree, &shadow, &w->sphere_test))
+            L = add(L, light);
     }
     return L;
 }
@@ -367,30 +393,177 @@ static uint8_t to_srgb8(float x) { /* a soft shoulder (1 - e^-x, no hard clippin
     return (uint8_t)(255.0f * powf(1.0f - expf(-1.2f * fmaxf(x, 0.0f)), 1.0f / 2.2f) + 0.5f);
 }
 
+/* Sample k of pixel i (= y * width + x): the jittered camera ray, and in *rng the start of the
+   sample's own sequence, so that the image does not depend on who renders it. */
+static bvh_ray camera_ray(const job *j, size_t i, uint32_t k, uint32_t *rng) {
+    const bvh_camera *cam = &j->cam;
+    uint32_t x = (uint32_t)(i % cam->width), y = (uint32_t)(i / cam->width);
+    float sx, sy;
+    *rng = hash((uint32_t)i * j->spp + k);
+    sx = 2.0f * ((float)x + rand01(rng)) / (float)cam->width - 1.0f;
+    sy = 1.0f - 2.0f * ((float)y + rand01(rng)) / (float)cam->height;
+    return (bvh_ray){cam->eye, 0.0f, normalize(add(cam->forward, add(scale(cam->right, sx), scale(cam->up, sy)))),
+                     BVH_INF};
+}
+static void put_pixel(job *j, size_t i, bvh_vec3 sum) { /* sum: the pixel's samples, added in order */
+    sum = scale(sum, 1.0f / (float)j->spp);
+    j->rgb[3 * i] = to_srgb8(sum.x);
+    j->rgb[3 * i + 1] = to_srgb8(sum.y);
+    j->rgb[3 * i + 2] = to_srgb8(sum.z);
+}
+
 static void *render_rows(void *arg) {
     worker *wk = arg;
     job *j = wk->job;
-    const bvh_camera *cam = &j->cam;
     uint32_t y, x, k;
-    while ((y = atomic_fetch_add(&j->next_row, 1)) < cam->height) {
-        for (x = 0; x < cam->width; x++) {
+    while ((y = atomic_fetch_add(&j->next_row, 1)) < j->cam.height) {
+        for (x = 0; x < j->cam.width; x++) {
+            size_t i = (size_t)y * j->cam.width + x;
             bvh_vec3 sum = {0, 0, 0};
             for (k = 0; k < j->spp; k++) {
-                /* the pixel's own sequence: the image does not depend on which thread renders it */
-                uint32_t rng = hash((y * cam->width + x) * j->spp + k);
-                float sx = 2.0f * ((float)x + rand01(&rng)) / (float)cam->width - 1.0f; /* jittered */
-                float sy = 1.0f - 2.0f * ((float)y + rand01(&rng)) / (float)cam->height;
-                bvh_vec3 d = add(cam->forward, add(scale(cam->right, sx), scale(cam->up, sy)));
-                bvh_ray ray = {cam->eye, 0.0f, normalize(d), BVH_INF};
+                uint32_t rng;
+                bvh_ray ray = camera_ray(j, i, k, &rng);
                 sum = add(sum, radiance(j->w, ray, j->sun_dir, j->depth, &rng, &wk->rays));
             }
-            sum = scale(sum, 1.0f / (float)j->spp);
-            j->rgb[3 * ((size_t)y * cam->width + x)] = to_srgb8(sum.x);
-            j->rgb[3 * ((size_t)y * cam->width + x) + 1] = to_srgb8(sum.y);
-            j->rgb[3 * ((size_t)y * cam->width + x) + 2] = to_srgb8(sum.z);
+            put_pixel(j, i, sum);
         }
     }
     return NULL;
+}
+
+/* ---- tracing on OpenCL ---------------------------------------------------------------------- */
+/* The samples of PIXELS_PER_WAVE pixels (at least one pixel's) are paths that advance together:
+   one device batch of their rays per bounce, then one of the shadow rays of those that hit. */
+#define PATHS_PER_WAVE (1u << 18)
+
+typedef struct path {
+    bvh_ray ray;
+    bvh_vec3 L, T, light; /* light: what the pending shadow ray brings if the sun is not hidden */
+    uint32_t rng;
+} path;
+
+typedef struct wave {
+    bvh_cl_context *ctx;
+    bvh_cl_scene *dev;
+    double kernel_ms; /* the device's time in the kernels, summed */
+    path *paths;
+    bvh_ray *rays;
+    bvh_scene_hit *hits;
+    uint8_t *occluded;
+    uint32_t *live; /* the paths still tracing, then those with a shadow ray */
+} wave;
+
+/* The paths of one wave: pixel i0 onwards, `count` paths (whole pixels). 0, or 1 after an
+   OpenCL error (said on stderr). */
+static int trace_wave(job *j, wave *v, size_t i0, uint32_t count, uint64_t *rays) {
+    const uint32_t lit = 0x80000000u; /* a path number with this bit has a shadow ray pending */
+    const world *w = j->w;
+    uint32_t n = count, m, ns, p, d, k;
+    bvh_cl_result r = BVH_CL_SUCCESS;
+    for (p = 0; p < count; p++) {
+        path *q = &v->paths[p];
+        q->ray = camera_ray(j, i0 + p / j->spp, p % j->spp, &q->rng);
+        q->L = v3(0, 0, 0);
+        q->T = v3(1, 1, 1);
+        v->live[p] = p;
+    }
+    for (d = 0; d < j->depth && n && r == BVH_CL_SUCCESS; d++) {
+        for (k = 0; k < n; k++) v->rays[k] = v->paths[v->live[k]].ray;
+        r = bvh_cl_scene_intersect(v->dev, v->rays, ~0u, v->hits, n);
+        v->kernel_ms += bvh_cl_last_kernel_ms(v->ctx);
+        *rays += n;
+        for (k = m = ns = 0; k < n && r == BVH_CL_SUCCESS; k++) { /* as radiance(), path by path */
+            path *q = &v->paths[v->live[k]];
+            surface s;
+            bvh_ray shadow;
+            if (!resolve(w, q->ray, &v->hits[k], &s)) {
+                q->L = add(q->L, mul(q->T, sky(q->ray.dir)));
+                continue; /* the path ends */
+            }
+            if (scatter(&s, j->sun_dir, &q->ray, &q->T, &q->rng, &shadow, &q->light)) {
+                v->rays[ns++] = shadow; /* the shadow rays in the order of their paths */
+                v->live[m++] = v->live[k] | lit;
+            } else {
+                v->live[m++] = v->live[k];
+            }
+        }
+        n = m;
+        if (ns && r == BVH_CL_SUCCESS) {
+            r = bvh_cl_scene_occluded(v->dev, v->rays, ~0u, v->occluded, ns);
+            v->kernel_ms += bvh_cl_last_kernel_ms(v->ctx);
+        }
+        *rays += ns;
+        for (k = ns = 0; k < n && r == BVH_CL_SUCCESS; k++) {
+            path *q = &v->paths[v->live[k] & ~lit];
+            if (!(v->live[k] & lit)) continue;
+            if (!v->occluded[ns] && !bvh_occluded_custom(&w->sphere_tree, &v->rays[ns], &w->sphere_test))
+                q->L = add(q->L, q->light);
+            ns++;
+            v->live[k] &= ~lit;
+        }
+    }
+    if (r != BVH_CL_SUCCESS) return fprintf(stderr, "pathtrace: OpenCL: %s\n", bvh_cl_result_string(r)), 1;
+    for (p = 0; p < count; p += j->spp) { /* each pixel's samples in order, as render_rows adds them */
+        bvh_vec3 sum = {0, 0, 0};
+        for (k = 0; k < j->spp; k++) sum = add(sum, v->paths[p + k].L);
+        put_pixel(j, i0 + p / j->spp, sum);
+    }
+    return 0;
+}
+
+/* The whole image on the device, wave after wave. 0, or 1 (said on stderr). */
+static int render_opencl(job *j, bvh_cl_context *ctx, bvh_cl_scene *dev, uint64_t *rays, double *kernel_ms) {
+    size_t pixels = (size_t)j->cam.width * j->cam.height, i, per = PATHS_PER_WAVE / j->spp;
+    uint32_t n;
+    wave v = {ctx, dev, 0.0, NULL, NULL, NULL, NULL, NULL};
+    int rc = 0;
+    if (per == 0) per = 1;
+    n = (uint32_t)(per * j->spp);
+    v.paths = malloc(n * sizeof *v.paths);
+    v.rays = malloc(n * sizeof *v.rays);
+    v.hits = malloc(n * sizeof *v.hits);
+    v.occluded = malloc(n);
+    v.live = malloc(n * sizeof *v.live);
+    if (!v.paths || !v.rays || !v.hits || !v.occluded || !v.live) rc = 1, fprintf(stderr, "pathtrace: out of memory\n");
+    for (i = 0; i < pixels && !rc; i += per)
+        rc = trace_wave(j, &v, i, (uint32_t)((pixels - i < per ? pixels - i : per) * j->spp), rays);
+    free(v.paths), free(v.rays), free(v.hits), free(v.occluded), free(v.live);
+    *kernel_ms = v.kernel_ms;
+    return rc;
+}
+
+/* The device ($BVH_CL_DEVICE or the first) with the scene on it. 0: ready; 1: OpenCL cannot be
+   used, said on stderr (an error when `required`, else a note: the caller renders on the CPU). */
+static int open_device(const world *w, int required, bvh_cl_context **ctx, bvh_cl_scene **dev, char *name, size_t len) {
+    char log[1024] = "";
+    bvh_cl_desc desc = {0};
+    bvh_cl_device_info info;
+    bvh_cl_result r;
+    bvh_ray ray = {{0, 0, 0}, 0.0f, {0, 0, 1}, BVH_INF};
+    bvh_scene_hit hit;
+    uint8_t blocked;
+    size_t i;
+    desc.log = log;
+    desc.log_size = sizeof log;
+    r = bvh_cl_create(ctx, &desc);
+    if (r == BVH_CL_SUCCESS) r = bvh_cl_scene_upload(*ctx, &w->scene, dev);
+    if (r == BVH_CL_SUCCESS) r = bvh_cl_get_info(*ctx, &info);
+    /* a first launch of each kernel: a driver may finish compiling it only then (PoCL does) */
+    if (r == BVH_CL_SUCCESS) r = bvh_cl_scene_intersect(*dev, &ray, ~0u, &hit, 1);
+    if (r == BVH_CL_SUCCESS) r = bvh_cl_scene_occluded(*dev, &ray, ~0u, &blocked, 1);
+    if (r == BVH_CL_SUCCESS) {
+        snprintf(name, len, "%s%s", info.device, info.exact ? ", exact: the CPU's hits" : "");
+        return 0;
+    }
+    for (i = 0; log[i]; i++) /* one line, even with a compiler's log */
+        if (log[i] == '\n' || log[i] == '\r') log[i] = ' ';
+    fprintf(stderr, "pathtrace: %sOpenCL cannot be used (%s%s%s)%s\n", required ? "--trace opencl: " : "",
+            bvh_cl_result_string(r), log[0] ? ": " : "", log, required ? "" : ": rendering on the CPU");
+    bvh_cl_scene_free(*dev);
+    bvh_cl_destroy(*ctx);
+    *dev = NULL;
+    *ctx = NULL;
+    return 1;
 }
 
 /* The view of the scene's box b: from above, looking down at its centre; or, with --inside (for
@@ -419,6 +592,7 @@ static bvh_camera view(bvh_aabb b, int inside, uint32_t width, uint32_t height) 
 /* ---- main ----------------------------------------------------------------------------------- */
 static int usage(void) {
     printf("usage: pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N] [--inside]\n"
+           "                 [--trace cpu|opencl|auto]\n"
            "  SCENE        a glTF/GLB, OBJ... file (assimp); none: the built-in scene\n"
            "  --spp N      samples per pixel (default 16)\n"
            "  --depth D    diffuse hits per path (default 4)\n"
@@ -426,6 +600,8 @@ static int usage(void) {
            "  --out FILE   .png or .ppm (default pathtrace.png, or .ppm without PNG support)\n"
            "  --threads N  (default: all CPUs; the image is the same for any N)\n"
            "  --inside     view from inside the scene's box (interiors), not from above\n"
+           "  --trace B    cpu (default), opencl (the same image; the spheres and the shading on\n"
+           "               the host), or auto (opencl when a device can be used, else cpu)\n"
            "exit status: 0 done, 1 error, 2 bad command line\n");
     return 0;
 }
@@ -438,9 +614,12 @@ int main(int argc, char **argv) {
     job *j;
     worker *wk;
     uint64_t rays = 0;
-    double t0, t1, t2;
+    double t0, t1, t2, t3, kernel_ms = 0.0;
     bvh_result r;
-    int ok, inside = 0;
+    int ok = 1, inside = 0, trace = 0; /* trace: 0 cpu, 1 opencl, 2 auto */
+    bvh_cl_context *ctx = NULL;
+    bvh_cl_scene *dev = NULL;
+    char device[160] = "";
     for (i = 1; i < (uint32_t)argc; i++) { /* options with a value: "--spp 4", not "--spp=4" */
         const char *a = argv[i], *v = i + 1 < (uint32_t)argc ? argv[i + 1] : NULL;
         uint32_t *n = !strcmp(a, "--spp")       ? &spp
@@ -455,7 +634,7 @@ int main(int argc, char **argv) {
             path = a;
         else if (a[0] != '-')
             return fprintf(stderr, "pathtrace: one SCENE only (see --help)\n"), 2;
-        else if (!n && strcmp(a, "--size") && strcmp(a, "--out"))
+        else if (!n && strcmp(a, "--size") && strcmp(a, "--out") && strcmp(a, "--trace"))
             return fprintf(stderr, "pathtrace: unknown option '%s' (see --help)\n", a), 2;
         else if (!v)
             return fprintf(stderr, "pathtrace: %s needs a value (see --help)\n", a), 2;
@@ -465,6 +644,10 @@ int main(int argc, char **argv) {
             return fprintf(stderr, "pathtrace: --size wants WxH (1 to 16384 each), not '%s'\n", v), 2;
         else if (!strcmp(a, "--out") && scene_check_image_path(v, err, sizeof err))
             return fprintf(stderr, "pathtrace: --out: %s\n", err), 2;
+        else if (!strcmp(a, "--trace") && strcmp(v, "cpu") && strcmp(v, "opencl") && strcmp(v, "auto"))
+            return fprintf(stderr, "pathtrace: --trace wants cpu, opencl or auto, not '%s'\n", v), 2;
+        else if (!strcmp(a, "--trace"))
+            trace = !strcmp(v, "opencl") ? 1 : !strcmp(v, "auto") ? 2 : 0, i++;
         else
             out = !strcmp(a, "--out") ? v : out, i++;
     }
@@ -482,13 +665,16 @@ int main(int argc, char **argv) {
         return free_world(&w), 1;
     }
     t1 = scene_now_ms();
+    if (trace && open_device(&w, trace == 1, &ctx, &dev, device, sizeof device) && trace == 1) return free_world(&w), 1;
+    t2 = scene_now_ms(); /* the kernel's build, the scene's upload, a first launch */
 
     j = calloc(1, sizeof *j);
     wk = calloc(threads, sizeof *wk);
     if (j) j->rgb = malloc(3 * (size_t)width * height);
     if (!j || !wk || !j->rgb) {
         fprintf(stderr, "pathtrace: out of memory\n");
-        return free(j ? j->rgb : NULL), free(j), free(wk), free_world(&w), 1;
+        return free(j ? j->rgb : NULL), free(j), free(wk), bvh_cl_scene_free(dev), bvh_cl_destroy(ctx), free_world(&w),
+               1;
     }
     j->w = &w;
     j->cam = view(bvh_tree_bounds(&w.scene.top), inside, width, height);
@@ -496,26 +682,37 @@ int main(int argc, char **argv) {
     j->spp = spp;
     j->depth = depth;
     atomic_init(&j->next_row, 0);
-    for (i = 0; i < threads; i++) {
-        wk[i].job = j;
-        if (i > 0 && pthread_create(&wk[i].thread, NULL, render_rows, &wk[i]) != 0) threads = i; /* run with fewer */
+    if (dev) {
+        ok = !render_opencl(j, ctx, dev, &rays, &kernel_ms);
+    } else {
+        for (i = 0; i < threads; i++) {
+            wk[i].job = j;
+            if (i > 0 && pthread_create(&wk[i].thread, NULL, render_rows, &wk[i]) != 0) threads = i; /* fewer */
+        }
+        render_rows(&wk[0]); /* the main thread is worker 0 */
+        for (i = 0; i < threads; i++) {
+            if (i > 0) pthread_join(wk[i].thread, NULL);
+            rays += wk[i].rays;
+        }
     }
-    render_rows(&wk[0]); /* the main thread is worker 0 */
-    for (i = 0; i < threads; i++) {
-        if (i > 0) pthread_join(wk[i].thread, NULL);
-        rays += wk[i].rays;
-    }
-    t2 = scene_now_ms();
+    t3 = scene_now_ms();
 
     printf("pathtrace: %s: %u meshes, %u instances, %u spheres; load and build %.0f ms\n", path ? path : "built-in",
            w.mesh_count, w.instance_count, SPHERES, t1 - t0);
-    printf("pathtrace: %ux%u, %u spp, depth %u, %u threads: %.0f ms, %llu rays, %.2f Mrays/s\n", width, height, spp,
-           depth, threads, t2 - t1, (unsigned long long)rays, (double)rays / ((t2 - t1) * 1e3));
-    ok = !scene_write_image(out, width, height, j->rgb, err, sizeof err);
-    if (ok)
+    if (dev)
+        printf("pathtrace: %ux%u, %u spp, depth %u, OpenCL on %s (set up in %.0f ms): %.0f ms (kernels %.0f ms), "
+               "%llu rays, %.2f Mrays/s\n",
+               width, height, spp, depth, device, t2 - t1, t3 - t2, kernel_ms, (unsigned long long)rays,
+               (double)rays / ((t3 - t2) * 1e3));
+    else
+        printf("pathtrace: %ux%u, %u spp, depth %u, %u threads: %.0f ms, %llu rays, %.2f Mrays/s\n", width, height, spp,
+               depth, threads, t3 - t2, (unsigned long long)rays, (double)rays / ((t3 - t2) * 1e3));
+    if (!ok) /* the device failed (said) */
+        ;
+    else if ((ok = !scene_write_image(out, width, height, j->rgb, err, sizeof err)) != 0)
         printf("pathtrace: wrote %s\n", out);
     else
         fprintf(stderr, "pathtrace: %s\n", err);
-    free(j->rgb), free(j), free(wk), free_world(&w);
+    free(j->rgb), free(j), free(wk), bvh_cl_scene_free(dev), bvh_cl_destroy(ctx), free_world(&w);
     return ok ? 0 : 1;
 }

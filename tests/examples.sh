@@ -4,7 +4,8 @@
 #   finds, tracing a box build with bvh_intersect_custom, the same sphere as brute force for every ray;
 #   build/animate refits a waving sheet, saves the tree to a file and loads it back.
 #   build/pathtrace renders its built-in scene (instances and spheres) into a real picture, the
-#   same bytes on 1 and 2 threads, and refuses a bad command line with status 2.
+#   same bytes on 1 and 2 threads and with --trace opencl (on an exact device), and refuses a bad
+#   command line with status 2.
 # Usage: tests/examples.sh  (`make test` runs it after building both; BUILD=dir picks another
 #   build directory). Prints one line per failed check and a closing result line; exits 1 on failure.
 set -u
@@ -61,6 +62,21 @@ fi
 checks=$((checks + 1))
 "$build/pathtrace" --size 64x64 --spp 2 --threads 2 --out "$tmp/b.ppm" >/dev/null 2>&1
 cmp -s "$tmp/a.ppm" "$tmp/b.ppm" || fail "$build/pathtrace: the image on 2 threads differs from 1 thread's"
+# pathtrace --trace opencl: on an exact device (PoCL) the same bytes as the CPU's image (the
+# device's hits are the CPU's, the spheres and the shading the same code); without a usable device
+# it says so and exits 1 (the check is skipped)
+checks=$((checks + 1))
+out=$("$build/pathtrace" --size 64x64 --spp 2 --trace opencl --out "$tmp/cl.ppm" 2>&1)
+rc=$?
+if [ "$rc" = 0 ] && grep -q "exact: the CPU's hits" <<<"$out"; then
+  cmp -s "$tmp/a.ppm" "$tmp/cl.ppm" || fail "$build/pathtrace --trace opencl: the image differs from the CPU's"
+elif [ "$rc" = 0 ]; then
+  echo "note: $build/pathtrace --trace opencl ran on a device without exact hits: image not compared"
+elif [ "$rc" = 1 ] && grep -q "OpenCL cannot be used" <<<"$out"; then
+  echo "note: no OpenCL device, $build/pathtrace --trace opencl not checked: $out"
+else
+  fail "$build/pathtrace --trace opencl: exit status $rc, printed: $out"
+fi
 checks=$((checks + 1))
 "$build/pathtrace" --spp 0 --out "$tmp/c.ppm" >/dev/null 2>&1
 rc=$?

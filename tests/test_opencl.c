@@ -9,6 +9,14 @@
    for the standard camera. Batches and frames split to fit a small max_alloc give the same
    results. Error paths: bad kernel source, missing kernel file, buffer too large, platform or
    device index out of range (also through $BVH_CL_DEVICE), bad arguments.
+   Two-level scenes: five meshes (one empty) under 40 instances (rotations, non-uniform scales, a
+   mirror, a shear, a far one, an exact twin for ties, four masks), every builder at the bottom
+   and on top: bvh_cl_scene_intersect equals bvh_scene_intersect field for field (instance, id,
+   triangle, t, u, v, normal; bit for bit on an exact device) and bvh_cl_scene_occluded equals
+   bvh_scene_occluded, for rays from inside and outside, at vertices and edges, grazing along
+   edges, axis-parallel, cut at the hit, invalid, under four masks (0 included); empty scenes,
+   an instance of an empty tree, one mesh under the identity (the one-level hits), small
+   buffers; bad arguments; the caller's allocator gets every block back.
    Without an OpenCL device the tests skip, except under CI=true, where the first one fails.
    The kernel is read from cl/trace.cl: run from the repository root. */
 #define BVH_IMPLEMENTATION
@@ -697,6 +705,12 @@ static void caller_allocator(void **state) {
     bvh_tree t;
     bvh_ray ray = {{0.2f, 0.2f, -1}, 0, {0, 0, 1}, BVH_INF};
     bvh_hit hit;
+    bvh_instance inst[2];
+    bvh_scene_desc sd;
+    bvh_scene sc;
+    bvh_cl_scene *gs = NULL;
+    bvh_scene_hit sh;
+    long calls;
     (void)state;
     NEED_DEVICE();
     memset(&d, 0, sizeof d);
@@ -716,10 +730,443 @@ static void caller_allocator(void **state) {
     assert_int_equal(bvh_cl_intersect(g, &ray, &hit, 1), BVH_CL_SUCCESS);
     assert_int_equal(hit.prim, 0);
     bvh_cl_tree_free(g);
+    /* a scene of two instances of the tree: its blocks too */
+    memset(inst, 0, sizeof inst);
+    inst[0].tree = inst[1].tree = &t;
+    inst[0].transform[0] = inst[0].transform[5] = inst[0].transform[10] = 1.0f;
+    inst[0].mask = inst[1].mask = ~0u;
+    inst[1] = inst[0];
+    inst[1].transform[11] = 1.0f;
+    memset(&sd, 0, sizeof sd);
+    sd.instances = inst;
+    sd.instance_count = 2;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+    calls = count.calls;
+    assert_int_equal(bvh_cl_scene_upload(c, &sc, &gs), BVH_CL_SUCCESS);
+    assert_true(count.calls > calls);
+    assert_int_equal(bvh_cl_scene_intersect(gs, &ray, ~0u, &sh, 1), BVH_CL_SUCCESS);
+    assert_int_equal(sh.instance, 0);
+    bvh_cl_scene_free(gs);
+    bvh_scene_free(&sc);
     bvh_cl_destroy(c);
     bvh_free(&t);
     assert_true(count.calls >= 2); /* the context and the tree at least */
     assert_int_equal(count.live, 0);
+}
+
+/* ============================================================================================ */
+/* == two-level scenes ============================================================================ */
+/* ============================================================================================ */
+/* Meshes: the scenes above (random, quads with ties, huge, three, empty), instanced INSTANCES times
+   with rotations about random axes, non-uniform scales, a mirror, a shear, a far translation, an
+   exact duplicate (ties between instances) and masks 1 << (i % 4). */
+#define MESHES 5
+#define INSTANCES 40
+static const int oc_mesh_scene[MESHES] = {SC_RANDOM, SC_QUADS, SC_HUGE, SC_THREE, SC_EMPTY};
+
+typedef struct oc_world {
+    oc_scene mesh[MESHES];
+    bvh_tree tree[MESHES];
+    bvh_instance inst[INSTANCES];
+    uint32_t mesh_of[INSTANCES];
+} oc_world;
+
+/* rotation about a random axis (Rodrigues) times a diagonal scale, then a translation */
+static void oc_transform(uint64_t *rng, float m[12], float spread) {
+    float a[3] = {oc_range(rng, -1, 1), oc_range(rng, -1, 1), oc_range(rng, 0.1f, 1)};
+    float l = sqrtf(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]), th = oc_range(rng, 0, 6.2831853f);
+    float c = cosf(th), s = sinf(th), C = 1.0f - c, x = a[0] / l, y = a[1] / l, z = a[2] / l;
+    float R[9] = {c + x * x * C,     x * y * C - z * s, x * z * C + y * s, y * x * C + z * s, c + y * y * C,
+                  y * z * C - x * s, z * x * C - y * s, z * y * C + x * s, c + z * z * C};
+    float sc[3] = {oc_range(rng, 0.3f, 3), oc_range(rng, 0.3f, 3), oc_range(rng, 0.3f, 3)};
+    int i, j;
+    for (i = 0; i < 3; i++)
+        for (j = 0; j < 3; j++) m[4 * i + j] = R[3 * i + j] * sc[j];
+    m[3] = oc_range(rng, -spread, spread);
+    m[7] = oc_range(rng, -spread, spread);
+    m[11] = oc_range(rng, -spread, spread);
+}
+
+static void oc_world_make(oc_world *w) {
+    uint64_t rng = 0x1257a7ceu;
+    uint32_t i;
+    memset(w, 0, sizeof *w);
+    for (i = 0; i < MESHES; i++) assert_true(oc_scene_make(oc_mesh_scene[i], &w->mesh[i]));
+    for (i = 0; i < INSTANCES; i++) {
+        w->mesh_of[i] = i % MESHES;
+        oc_transform(&rng, w->inst[i].transform, 12.0f);
+        w->inst[i].id = 5000 + i;
+        w->inst[i].mask = 1u << (i % 4);
+    }
+    for (i = 0; i < 9; i += 4) w->inst[3].transform[i] = -w->inst[3].transform[i]; /* a mirror */
+    w->inst[6].transform[1] += 0.8f;                                               /* a shear */
+    w->inst[8].transform[7] += 3e4f;                                               /* far away */
+    w->inst[12] = w->inst[1]; /* the same mesh at the same place: every hit on it ties */
+    w->mesh_of[12] = w->mesh_of[1];
+    w->inst[12].id = 5012;
+    w->inst[12].mask = 1u << 2;
+}
+static void oc_world_free(oc_world *w) {
+    uint32_t i;
+    for (i = 0; i < MESHES; i++) {
+        bvh_free(&w->tree[i]);
+        free(w->mesh[i].v);
+    }
+}
+static void oc_world_build(oc_world *w, bvh_builder bottom, bvh_builder top, bvh_scene *sc) {
+    bvh_scene_desc sd;
+    uint32_t i;
+    for (i = 0; i < MESHES; i++) {
+        bvh_free(&w->tree[i]);
+        assert_int_equal(oc_build(&w->mesh[i], bottom, &w->tree[i]), BVH_SUCCESS);
+    }
+    for (i = 0; i < INSTANCES; i++) w->inst[i].tree = &w->tree[w->mesh_of[i]];
+    memset(&sd, 0, sizeof sd);
+    sd.instances = w->inst;
+    sd.instance_count = INSTANCES;
+    sd.builder = top;
+    sd.threads = 2;
+    assert_int_equal(bvh_scene_build(sc, &sd), BVH_SUCCESS);
+}
+
+/* a mesh vertex (or edge point) of instance i in world space */
+static bvh_vec3 oc_world_point(const oc_world *w, uint32_t i, uint64_t *rng, int edge) {
+    const oc_scene *s = &w->mesh[w->mesh_of[i]];
+    const float *m = w->inst[i].transform, *t = s->v + 9 * (size_t)(oc_rand(rng) % s->n);
+    int a = (int)(oc_rand(rng) % 3), b = (a + 1) % 3;
+    float p[3], f = edge ? oc_unit(rng) : 0.0f;
+    bvh_vec3 q;
+    int k;
+    for (k = 0; k < 3; k++) p[k] = t[3 * a + k] + f * (t[3 * b + k] - t[3 * a + k]);
+    q.x = m[0] * p[0] + m[1] * p[1] + m[2] * p[2] + m[3];
+    q.y = m[4] * p[0] + m[5] * p[1] + m[6] * p[2] + m[7];
+    q.z = m[8] * p[0] + m[9] * p[1] + m[10] * p[2] + m[11];
+    return q;
+}
+
+/* Rays of eight kinds (i % 8): 0 random from anywhere in and around the instances (origins inside
+   meshes' boxes too), 1 at an instance's origin, 2 at a vertex, 3 at an edge point, 4 grazing (in
+   the plane of a triangle, from one of its vertices along an edge, nudged off it), 5
+   axis-parallel, 6 at a vertex with a random [tmin, tmax], 7 invalid. */
+static void oc_world_rays(const oc_world *w, bvh_ray *r, size_t count, uint64_t seed) {
+    uint64_t rng = seed;
+    size_t i;
+    for (i = 0; i < count; i++) {
+        int kind = (int)(i % 8), k;
+        uint32_t in = oc_rand(&rng) % INSTANCES;
+        float o[3], d[3];
+        bvh_vec3 p;
+        while (w->mesh_of[in] == 4) in = oc_rand(&rng) % INSTANCES; /* not the empty mesh */
+        for (k = 0; k < 3; k++) {
+            o[k] = oc_range(&rng, -16, 16);
+            d[k] = oc_range(&rng, -1, 1);
+        }
+        r[i].tmin = 0.0f;
+        r[i].tmax = BVH_INF;
+        if (kind == 1) {
+            d[0] = w->inst[in].transform[3] - o[0];
+            d[1] = w->inst[in].transform[7] - o[1];
+            d[2] = w->inst[in].transform[11] - o[2];
+        } else if (kind == 2 || kind == 3 || kind == 6) {
+            p = oc_world_point(w, in, &rng, kind == 3);
+            d[0] = p.x - o[0];
+            d[1] = p.y - o[1];
+            d[2] = p.z - o[2];
+            if (kind == 6) {
+                r[i].tmin = oc_range(&rng, 0, 0.9f);
+                r[i].tmax = oc_range(&rng, r[i].tmin, 1.2f);
+            }
+        } else if (kind == 4) {
+            uint64_t again = rng; /* the same triangle and vertex twice: the vertex, then a point on its edge */
+            bvh_vec3 a = oc_world_point(w, in, &rng, 0), b = oc_world_point(w, in, &again, 1);
+            rng = again;
+            o[0] = a.x;
+            o[1] = a.y;
+            o[2] = a.z;
+            d[0] = b.x - a.x + oc_range(&rng, -1e-6f, 1e-6f);
+            d[1] = b.y - a.y;
+            d[2] = b.z - a.z;
+            if (d[0] == 0 && d[1] == 0 && d[2] == 0) d[0] = 1;
+        } else if (kind == 5) {
+            d[0] = d[1] = d[2] = 0.0f;
+            d[oc_rand(&rng) % 3] = (oc_rand(&rng) & 1) ? 1.0f : -2.0f;
+        } else if (kind == 7) {
+            switch ((i / 8) % 4) {
+            case 0:
+                o[0] = NAN;
+                break;
+            case 1:
+                d[0] = d[1] = d[2] = 0.0f;
+                break;
+            case 2:
+                r[i].tmin = 2.0f;
+                r[i].tmax = 1.0f;
+                break;
+            default:
+                d[1] = BVH_INF;
+                break;
+            }
+        }
+        r[i].origin.x = o[0];
+        r[i].origin.y = o[1];
+        r[i].origin.z = o[2];
+        r[i].dir.x = d[0];
+        r[i].dir.y = d[1];
+        r[i].dir.z = d[2];
+    }
+}
+
+/* Bit for bit on an exact device; elsewhere the same instance and triangle with t close (or the
+   ambiguous cases of oc_hit_equal) and the normal within 1e-4. */
+static int oc_scene_hit_equal(const bvh_ray *r, const bvh_scene_hit *a, const bvh_scene_hit *b) {
+    bvh_hit ha, hb;
+    if (g_info.exact) return memcmp(a, b, sizeof *a) == 0;
+    ha.t = a->t, ha.u = a->u, ha.v = a->v, ha.prim = a->instance;
+    hb.t = b->t, hb.u = b->u, hb.v = b->v, hb.prim = b->instance;
+    if (!oc_hit_equal(r, &ha, &hb)) return 0;
+    if (a->instance == BVH_INVALID || b->instance == BVH_INVALID) return 1;
+    return a->instance == b->instance && a->prim == b->prim && a->id == b->id &&
+           fabsf(a->normal.x - b->normal.x) < 1e-4f && fabsf(a->normal.y - b->normal.y) < 1e-4f &&
+           fabsf(a->normal.z - b->normal.z) < 1e-4f;
+}
+
+/* Both sides for one mask; returns the rays that differ; *hits counts the CPU's hits. */
+static size_t oc_scene_compare(const char *what, bvh_scene *sc, bvh_cl_scene *g, const bvh_ray *rays, size_t count,
+                               uint32_t mask, bvh_scene_hit *cpu, size_t *hits) {
+    bvh_scene_hit *gpu = (bvh_scene_hit *)calloc(count + 1, sizeof *gpu);
+    uint8_t *occ = (uint8_t *)calloc(count + 1, 1);
+    size_t i, bad = 0;
+    assert_true(gpu && occ);
+    memset(gpu, 0xAB, count * sizeof *gpu);
+    assert_int_equal(bvh_cl_scene_intersect(g, rays, mask, gpu, count), BVH_CL_SUCCESS);
+    assert_int_equal(bvh_cl_scene_occluded(g, rays, mask, occ, count), BVH_CL_SUCCESS);
+    for (i = 0; i < count; i++) {
+        int found = bvh_scene_intersect(sc, &rays[i], mask, &cpu[i]), blocked = bvh_scene_occluded(sc, &rays[i], mask);
+        *hits += (size_t)found;
+        if (oc_scene_hit_equal(&rays[i], &cpu[i], &gpu[i]) && blocked == found && occ[i] == blocked) continue;
+        if (bad++ >= MAX_REPORTS) continue;
+        print_error("%s mask %x ray %zu o=(%a %a %a) d=(%a %a %a) [%a, %a]\n", what, mask, i, rays[i].origin.x,
+                    rays[i].origin.y, rays[i].origin.z, rays[i].dir.x, rays[i].dir.y, rays[i].dir.z, rays[i].tmin,
+                    rays[i].tmax);
+        print_error("  cpu inst %u id %u prim %u t %a u %a v %a n (%a %a %a) any %d\n", cpu[i].instance, cpu[i].id,
+                    cpu[i].prim, cpu[i].t, cpu[i].u, cpu[i].v, cpu[i].normal.x, cpu[i].normal.y, cpu[i].normal.z,
+                    blocked);
+        print_error("  ocl inst %u id %u prim %u t %a u %a v %a n (%a %a %a) any %d\n", gpu[i].instance, gpu[i].id,
+                    gpu[i].prim, gpu[i].t, gpu[i].u, gpu[i].v, gpu[i].normal.x, gpu[i].normal.y, gpu[i].normal.z,
+                    occ[i]);
+    }
+    free(gpu);
+    free(occ);
+    return bad;
+}
+
+/* Every builder at the bottom (the default on top), then every builder on top (the default at
+   the bottom); four masks; the rays as made, then cut at the CPU's hit (tmax = t, and just below). */
+static void scene_hits_equal_cpu(void **state) {
+    static const uint32_t masks[4] = {~0u, 1u, 0x0Au, 0u};
+    static oc_world w;
+    const size_t n = RAYS;
+    bvh_ray *rays = (bvh_ray *)malloc(n * sizeof *rays), *cut = (bvh_ray *)malloc(2 * n * sizeof *cut);
+    bvh_scene_hit *cpu = (bvh_scene_hit *)malloc(2 * n * sizeof *cpu);
+    size_t bad = 0, hits = 0, ties = 0;
+    int pass;
+    (void)state;
+    NEED_DEVICE();
+    assert_true(rays && cut && cpu);
+    oc_world_make(&w);
+    oc_world_rays(&w, rays, n, 0x5ce7e5u);
+    for (pass = 0; pass < 2 * (BVH_BUILDER_COUNT - 1); pass++) {
+        bvh_builder b = (bvh_builder)(pass % (BVH_BUILDER_COUNT - 1) + 1);
+        bvh_builder bottom = pass < BVH_BUILDER_COUNT - 1 ? b : BVH_BUILDER_DEFAULT;
+        bvh_builder top = pass < BVH_BUILDER_COUNT - 1 ? BVH_BUILDER_DEFAULT : b;
+        bvh_scene sc;
+        bvh_cl_scene *g = NULL;
+        char what[96];
+        size_t i, m, k;
+        oc_world_build(&w, bottom, top, &sc);
+        assert_int_equal(bvh_cl_scene_upload(g_cl, &sc, &g), BVH_CL_SUCCESS);
+        snprintf(what, sizeof what, "bottom %s top %s", bvh_builder_name(bottom), bvh_builder_name(top));
+        for (k = 0; k < 4; k++) {
+            bad += oc_scene_compare(what, &sc, g, rays, n, masks[k], cpu, &hits);
+            for (i = m = 0; i < n; i++) {
+                if (cpu[i].instance == BVH_INVALID) continue;
+                ties += cpu[i].instance == 1 && (masks[k] & 4);
+                cut[m] = rays[i];
+                cut[m++].tmax = cpu[i].t;
+                cut[m] = rays[i];
+                cut[m++].tmax = nextafterf(cpu[i].t, -BVH_INF);
+            }
+            bad += oc_scene_compare(what, &sc, g, cut, m, masks[k], cpu, &hits);
+        }
+        bvh_cl_scene_free(g);
+        bvh_scene_free(&sc);
+    }
+    print_message("%zu hits, %zu on an instance with a twin\n", hits, ties);
+    assert_true(hits > (size_t)n && ties > 0);
+    oc_world_free(&w);
+    free(rays);
+    free(cut);
+    free(cpu);
+    assert_int_equal(bad, 0);
+}
+
+/* An empty scene, a scene of one instance of an empty tree, and a scene that is one mesh under
+   the identity (its hits are the one-level tree's); small buffers: batches split, scenes refused. */
+static void scene_edges(void **state) {
+    static const float identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+    oc_scene s, none;
+    bvh_tree t, empty;
+    bvh_instance inst[2];
+    bvh_scene_desc sd;
+    bvh_scene sc;
+    bvh_cl_scene *g = NULL;
+    bvh_cl_context *small = NULL;
+    bvh_ray rays[1000];
+    bvh_scene_hit a[1000], b[1000];
+    bvh_hit one[1000];
+    uint8_t occ[1000];
+    size_t i;
+    (void)state;
+    NEED_DEVICE();
+    assert_true(oc_scene_make(SC_RANDOM, &s));
+    assert_true(oc_scene_make(SC_EMPTY, &none));
+    assert_int_equal(oc_build(&s, BVH_BUILDER_PLOC, &t), BVH_SUCCESS);
+    assert_int_equal(oc_build(&none, BVH_BUILDER_PLOC, &empty), BVH_SUCCESS);
+    oc_rays(&s, rays, 1000, 99);
+    memset(&sd, 0, sizeof sd);
+    memset(inst, 0, sizeof inst);
+    /* no instances */
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+    assert_int_equal(bvh_cl_scene_upload(g_cl, &sc, &g), BVH_CL_SUCCESS);
+    assert_int_equal(bvh_cl_scene_intersect(g, rays, ~0u, a, 1000), BVH_CL_SUCCESS);
+    assert_int_equal(bvh_cl_scene_occluded(g, rays, ~0u, occ, 1000), BVH_CL_SUCCESS);
+    for (i = 0; i < 1000; i++) {
+        bvh_scene_intersect(&sc, &rays[i], ~0u, &b[i]);
+        assert_int_equal(occ[i], 0);
+    }
+    assert_memory_equal(a, b, sizeof a);
+    bvh_cl_scene_free(g);
+    bvh_scene_free(&sc);
+    /* one instance of an empty tree */
+    inst[0].tree = &empty;
+    memcpy(inst[0].transform, identity, sizeof identity);
+    inst[0].mask = ~0u;
+    sd.instances = inst;
+    sd.instance_count = 1;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+    assert_int_equal(bvh_cl_scene_upload(g_cl, &sc, &g), BVH_CL_SUCCESS);
+    assert_int_equal(bvh_cl_scene_intersect(g, rays, ~0u, a, 1000), BVH_CL_SUCCESS);
+    for (i = 0; i < 1000; i++) assert_int_equal(a[i].instance, BVH_INVALID);
+    bvh_cl_scene_free(g);
+    bvh_scene_free(&sc);
+    /* the mesh under the identity, and the empty tree after it */
+    inst[1] = inst[0];
+    inst[0].tree = &t;
+    inst[0].id = 77;
+    sd.instance_count = 2;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+    assert_int_equal(bvh_cl_scene_upload(g_cl, &sc, &g), BVH_CL_SUCCESS);
+    assert_int_equal(bvh_cl_scene_intersect(g, rays, ~0u, a, 1000), BVH_CL_SUCCESS);
+    for (i = 0; i < 1000; i++) {
+        bvh_intersect(&t, &rays[i], &one[i]);
+        bvh_scene_intersect(&sc, &rays[i], ~0u, &b[i]);
+        if (!g_info.exact) continue;
+        assert_memory_equal(&a[i], &b[i], sizeof a[i]);
+        assert_int_equal(a[i].prim, one[i].prim);
+        assert_int_equal(a[i].instance, one[i].prim == BVH_INVALID ? BVH_INVALID : 0);
+        assert_int_equal(a[i].id, one[i].prim == BVH_INVALID ? BVH_INVALID : 77);
+        assert_memory_equal(&a[i].t, &one[i].t, sizeof(float));
+    }
+    /* a max_alloc of 4 KiB: batches of 113 rays, the same hits; a tree of 108 KB refused */
+    assert_int_equal(oc_create(&small, NULL, NULL, NULL, 4096, g_log, sizeof g_log), BVH_CL_SUCCESS);
+    bvh_cl_scene_free(g);
+    assert_int_equal(bvh_cl_scene_upload(small, &sc, &g), BVH_CL_ERROR_BUFFER_TOO_LARGE);
+    assert_null(g);
+    bvh_scene_free(&sc);
+    inst[0].tree = &empty;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+    assert_int_equal(bvh_cl_scene_upload(small, &sc, &g), BVH_CL_SUCCESS);
+    memset(b, 0, sizeof b);
+    assert_int_equal(bvh_cl_scene_intersect(g, rays, ~0u, b, 1000), BVH_CL_SUCCESS);
+    for (i = 0; i < 1000; i++) {
+        bvh_scene_hit h;
+        bvh_scene_intersect(&sc, &rays[i], ~0u, &h);
+        assert_memory_equal(&b[i], &h, sizeof h);
+    }
+    bvh_cl_scene_free(g);
+    bvh_cl_destroy(small);
+    bvh_scene_free(&sc);
+    bvh_free(&t);
+    bvh_free(&empty);
+    free(s.v);
+    free(none.v);
+}
+
+/* Bad arguments get BVH_CL_ERROR_INVALID_ARGUMENT and leave *out NULL; count 0 is no error. */
+static void scene_invalid_arguments(void **state) {
+    static const float v[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    bvh_cl_scene *g = (bvh_cl_scene *)&g;
+    bvh_build_desc d;
+    bvh_tree t, boxes;
+    bvh_aabb box = {{0, 0, 0}, {1, 1, 1}};
+    bvh_instance inst;
+    bvh_scene_desc sd;
+    bvh_scene sc, broken;
+    bvh_ray ray = {{0.2f, 0.2f, -1}, 0, {0, 0, 1}, BVH_INF};
+    bvh_scene_hit hit;
+    uint8_t occ;
+    (void)state;
+    NEED_DEVICE();
+    memset(&d, 0, sizeof d);
+    d.triangles.positions = v;
+    d.triangles.vertex_count = 3;
+    d.triangles.triangle_count = 1;
+    assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+    memset(&d, 0, sizeof d);
+    d.boxes = &box;
+    d.box_count = 1;
+    assert_int_equal(bvh_build(&boxes, &d), BVH_SUCCESS);
+    memset(&inst, 0, sizeof inst);
+    inst.tree = &t;
+    inst.transform[0] = inst.transform[5] = inst.transform[10] = 1.0f;
+    inst.mask = ~0u;
+    inst.id = 9;
+    memset(&sd, 0, sizeof sd);
+    sd.instances = &inst;
+    sd.instance_count = 1;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+    assert_int_equal(bvh_cl_scene_upload(NULL, &sc, &g), BVH_CL_ERROR_INVALID_ARGUMENT);
+    assert_null(g);
+    assert_int_equal(bvh_cl_scene_upload(g_cl, NULL, &g), BVH_CL_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_cl_scene_upload(g_cl, &sc, NULL), BVH_CL_ERROR_INVALID_ARGUMENT);
+    broken = sc; /* an instance of a tree built from boxes (bvh_scene_build refuses those) */
+    broken.instances = &inst;
+    inst.tree = &boxes;
+    assert_int_equal(bvh_cl_scene_upload(g_cl, &broken, &g), BVH_CL_ERROR_INVALID_ARGUMENT);
+    inst.tree = NULL;
+    assert_int_equal(bvh_cl_scene_upload(g_cl, &broken, &g), BVH_CL_ERROR_INVALID_ARGUMENT);
+    inst.tree = &t;
+    broken.inverse = NULL;
+    assert_int_equal(bvh_cl_scene_upload(g_cl, &broken, &g), BVH_CL_ERROR_INVALID_ARGUMENT);
+    assert_null(g);
+    assert_int_equal(bvh_cl_scene_upload(g_cl, &sc, &g), BVH_CL_SUCCESS);
+    assert_int_equal(bvh_cl_scene_intersect(NULL, &ray, ~0u, &hit, 1), BVH_CL_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_cl_scene_intersect(g, NULL, ~0u, &hit, 1), BVH_CL_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_cl_scene_intersect(g, &ray, ~0u, NULL, 1), BVH_CL_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_cl_scene_occluded(NULL, &ray, ~0u, &occ, 1), BVH_CL_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_cl_scene_occluded(g, &ray, ~0u, NULL, 1), BVH_CL_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_cl_scene_intersect(g, NULL, ~0u, NULL, 0), BVH_CL_SUCCESS);
+    assert_int_equal(bvh_cl_scene_occluded(g, NULL, ~0u, NULL, 0), BVH_CL_SUCCESS);
+    assert_int_equal(bvh_cl_scene_intersect(g, &ray, ~0u, &hit, 1), BVH_CL_SUCCESS);
+    assert_int_equal(hit.instance, 0);
+    assert_int_equal(hit.id, 9);
+    assert_int_equal(bvh_cl_scene_intersect(g, &ray, 0u, &hit, 1), BVH_CL_SUCCESS); /* mask 0: nothing */
+    assert_int_equal(hit.instance, BVH_INVALID);
+    bvh_cl_scene_free(g);
+    bvh_cl_scene_free(NULL);
+    bvh_scene_free(&sc);
+    bvh_free(&t);
+    bvh_free(&boxes);
 }
 
 static int group_setup(void **state) {
@@ -762,6 +1209,9 @@ int main(void) {
         cmocka_unit_test(no_platform_or_device),
         cmocka_unit_test(invalid_arguments),
         cmocka_unit_test(caller_allocator),
+        cmocka_unit_test(scene_hits_equal_cpu),
+        cmocka_unit_test(scene_edges),
+        cmocka_unit_test(scene_invalid_arguments),
     };
     return cmocka_run_group_tests(tests, group_setup, group_teardown);
 }

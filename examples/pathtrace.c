@@ -2,10 +2,13 @@
    primitives, diffuse bounces, a sun with shadow rays and a sky, on all CPUs.
 
    build/pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N] [--inside]
-                   [--trace cpu|opencl|auto]
+                   [--trace cpu|opencl|auto] [--add MODEL] [--embree] [--json]
    e.g. build/pathtrace sponza.glb --inside --size 512x512 --spp 4 --out sponza.png
         build/pathtrace                       (the built-in scene: boxes on a ground quad)
         build/pathtrace --trace opencl        (the same image, the rays traced by cl/bvh_cl.h)
+        build/pathtrace sponza.glb --inside --add bunny.obj --embree --json
+                                              (three bunnies in Sponza; then the same image on
+                                               Embree 3: both Mrays/s, the ratio, one JSON line)
 
    The scene keeps the file's structure: one bottom-level tree per mesh (assimp's aiMesh), built
    once, and one bvh_instance per node that uses the mesh, placed by the node's world transform
@@ -25,9 +28,13 @@
    shading runs on one host thread. The device's hits are the CPU's (to the bit on an exact device
    such as PoCL), every path keeps its random sequence and a pixel's samples are summed in the same
    order, so the image is the CPU's, byte for byte. --trace auto takes OpenCL when a device can be
-   used, else the CPU (said on stderr); --trace opencl without one is an error. Without assimp (BVH_HAVE_ASSIMP) a file
-   is read by scene.h's OBJ reader as one mesh; without stb (BVH_HAVE_STB) the image is a .ppm. Exit status: 0 done; 1
-   an error (said on stderr); 2 a bad command line. */
+   used, else the CPU (said on stderr); --trace opencl without one is an error.
+   --embree renders the image again with Embree 3 tracing (see "the same renderer on Embree 3"):
+   the same paths, so the images agree but where float rounding in a hit sends a path elsewhere;
+   both Mrays/s (whole render, the same shading, rays counted alike) and their ratio.
+   Without assimp (BVH_HAVE_ASSIMP) a file is read by scene.h's OBJ reader as one mesh; without
+   stb (BVH_HAVE_STB) the image is a .ppm. Exit status: 0 done; 1 an error (said on stderr); 2 a
+   bad command line. */
 #define BVH_IMPLEMENTATION
 #include "bvh.h"
 #define BVH_CL_IMPLEMENTATION
@@ -115,6 +122,19 @@ static int add_instance(world *w, uint32_t i, const float m[12]) {
     return 0;
 }
 
+/* Room for n more meshes (zeroed) after w's: 0, or 1 when out of memory. The instances point
+   at their mesh's tree, which may have moved. */
+static int more_meshes(world *w, uint32_t n) {
+    mesh *p = realloc(w->meshes, ((size_t)w->mesh_count + n + 1) * sizeof *p);
+    uint32_t i;
+    if (!p) return 1;
+    memset(p + w->mesh_count, 0, (n + 1) * sizeof *p);
+    w->meshes = p;
+    w->mesh_count += n;
+    for (i = 0; i < w->instance_count; i++) w->instances[i].tree = &p[w->instances[i].id].tree;
+    return 0;
+}
+
 /* Rotation about y by angle a, then scale (sx, sy, sz) and translation t: M = R_y(a) S. */
 static void place(float m[12], float a, float sx, float sy, float sz, float tx, float ty, float tz) {
     float c = cosf(a), s = sinf(a);
@@ -160,16 +180,16 @@ static int load_builtin(world *w, char *err, size_t errlen) {
 
 #ifdef BVH_HAVE_ASSIMP
 /* Walks assimp's node tree, accumulating transforms: one instance per (node, mesh) pair. */
-static int add_nodes(world *w, const struct aiNode *node, struct aiMatrix4x4 parent) {
+static int add_nodes(world *w, const struct aiNode *node, struct aiMatrix4x4 parent, uint32_t base) {
     uint32_t k;
     aiMultiplyMatrix4(&parent, &node->mTransformation); /* parent = parent * node's own */
     for (k = 0; k < node->mNumMeshes; k++) {
         const struct aiMatrix4x4 *t = &parent; /* assimp's rows a, b, c: the 3x4 we need */
         float m[12] = {t->a1, t->a2, t->a3, t->a4, t->b1, t->b2, t->b3, t->b4, t->c1, t->c2, t->c3, t->c4};
-        if (node->mMeshes[k] < w->mesh_count && add_instance(w, node->mMeshes[k], m)) return 1;
+        if (base + node->mMeshes[k] < w->mesh_count && add_instance(w, base + node->mMeshes[k], m)) return 1;
     }
     for (k = 0; k < node->mNumChildren; k++)
-        if (add_nodes(w, node->mChildren[k], parent)) return 1;
+        if (add_nodes(w, node->mChildren[k], parent, base)) return 1;
     return 0;
 }
 
@@ -182,16 +202,16 @@ static bvh_vec3 material_albedo(const struct aiMaterial *mat) {
     return v3(0.8f * fminf(c.r, 1.0f), 0.8f * fminf(c.g, 1.0f), 0.8f * fminf(c.b, 1.0f));
 }
 
+/* Adds the file's meshes and its instances to w's. */
 static int load_file(world *w, const char *path, char *err, size_t errlen) {
     const struct aiScene *s = aiImportFile(path, aiProcess_Triangulate | aiProcess_JoinIdenticalVertices |
                                                      aiProcess_SortByPType | aiProcess_ValidateDataStructure);
     struct aiMatrix4x4 identity;
-    uint32_t i, f, n;
+    uint32_t i, f, n, base = w->mesh_count;
     int rc = 0;
     if (!s || !s->mRootNode) return snprintf(err, errlen, "cannot read '%s': %s", path, aiGetErrorString()), 1;
-    w->meshes = calloc(s->mNumMeshes ? s->mNumMeshes : 1, sizeof *w->meshes);
-    w->mesh_count = w->meshes ? s->mNumMeshes : 0;
-    for (i = 0; i < w->mesh_count && !rc; i++) { /* one bottom-level tree per aiMesh */
+    if (more_meshes(w, s->mNumMeshes)) return aiReleaseImport(s), snprintf(err, errlen, "out of memory"), 1;
+    for (i = 0; i < s->mNumMeshes && !rc; i++) { /* one bottom-level tree per aiMesh */
         const struct aiMesh *am = s->mMeshes[i];
         float *pos = malloc(((size_t)am->mNumVertices + 1) * 3 * sizeof(float));
         uint32_t *idx = malloc(((size_t)am->mNumFaces + 1) * 3 * sizeof(uint32_t));
@@ -204,11 +224,11 @@ static int load_file(world *w, const char *path, char *err, size_t errlen) {
         for (n = 0; n < am->mNumVertices; n++) memcpy(pos + 3 * n, &am->mVertices[n], 3 * sizeof(float));
         for (f = n = 0; f < am->mNumFaces; f++) /* triangles only: SortByPType left lines apart */
             if (am->mFaces[f].mNumIndices == 3) memcpy(idx + 3 * n++, am->mFaces[f].mIndices, 3 * sizeof(uint32_t));
-        r = add_mesh(w, i, pos, am->mNumVertices, idx, n, material_albedo(s->mMaterials[am->mMaterialIndex]));
+        r = add_mesh(w, base + i, pos, am->mNumVertices, idx, n, material_albedo(s->mMaterials[am->mMaterialIndex]));
         if (r != BVH_SUCCESS) rc = 1, snprintf(err, errlen, "mesh %u: bvh_build: %s", i, bvh_result_string(r));
     }
     aiIdentityMatrix4(&identity);
-    if (!w->meshes || (!rc && add_nodes(w, s->mRootNode, identity))) rc = 1, snprintf(err, errlen, "out of memory");
+    if (!rc && add_nodes(w, s->mRootNode, identity, base)) rc = 1, snprintf(err, errlen, "out of memory");
     aiReleaseImport(s);
     return rc;
 }
@@ -218,15 +238,74 @@ static int load_file(world *w, const char *path, char *err, size_t errlen) {
     static const float identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
     scene s;
     bvh_result r;
+    uint32_t i = w->mesh_count;
     if (scene_load(path, &s, err, errlen)) return 1;
-    w->meshes = calloc(1, sizeof *w->meshes);
-    if (!w->meshes) return scene_free(&s), snprintf(err, errlen, "out of memory"), 1;
-    w->mesh_count = 1;
-    r = add_mesh(w, 0, s.v, 3 * s.triangles, NULL, s.triangles, v3(0.8f, 0.8f, 0.8f)); /* s.v now the mesh's */
+    if (more_meshes(w, 1)) return scene_free(&s), snprintf(err, errlen, "out of memory"), 1;
+    r = add_mesh(w, i, s.v, 3 * s.triangles, NULL, s.triangles, v3(0.8f, 0.8f, 0.8f)); /* s.v now the mesh's */
     if (r != BVH_SUCCESS) return snprintf(err, errlen, "bvh_build: %s", bvh_result_string(r)), 1;
-    return add_instance(w, 0, identity) ? (snprintf(err, errlen, "out of memory"), 1) : 0;
+    return add_instance(w, i, identity) ? (snprintf(err, errlen, "out of memory"), 1) : 0;
 }
 #endif
+
+/* The world box of instances [from, to): their meshes' boxes, corner by corner, transformed. */
+static bvh_aabb instances_box(const world *w, uint32_t from, uint32_t to) {
+    bvh_aabb b = bvh_aabb_empty();
+    uint32_t i, k;
+    for (i = from; i < to; i++) {
+        bvh_aabb mb = bvh_tree_bounds(w->instances[i].tree);
+        const float *m = w->instances[i].transform;
+        for (k = 0; k < 8 && mb.min.x <= mb.max.x; k++) {
+            bvh_vec3 p = v3(k & 1 ? mb.max.x : mb.min.x, k & 2 ? mb.max.y : mb.min.y, k & 4 ? mb.max.z : mb.min.z);
+            bvh_aabb_grow(&b,
+                          v3(m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3], m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
+                             m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11]));
+        }
+    }
+    return b;
+}
+
+/* --add: the instances from `first` on (a model just loaded, e.g. a bunny) become ADD_COPIES
+   instances of it (its node hierarchy under each) standing on the floor of the scene before them,
+   each 7% of that scene's diagonal tall, turned differently, in a row across the view between
+   the camera of --inside and the centre. 0, or 1 when out of memory. */
+#define ADD_COPIES 3
+static int add_copies(world *w, uint32_t first) {
+    uint32_t n = w->instance_count, i, k, c;
+    bvh_aabb b = instances_box(w, 0, first), mb = instances_box(w, first, n);
+    bvh_vec3 mid = bvh_aabb_centroid(b), d = sub(b.max, b.min), base = bvh_aabb_centroid(mb);
+    float size = mb.max.y > mb.min.y ? 0.07f * sqrtf(dot(d, d)) / (mb.max.y - mb.min.y) : 1.0f;
+    bvh_scene floor = {0};
+    if (first == 0 || n == first) return 0;
+    if (bvh_scene_build(&floor, &(bvh_scene_desc){.instances = w->instances, .instance_count = first}) != BVH_SUCCESS)
+        return 1;
+    base.y = mb.min.y;
+    for (k = ADD_COPIES; k-- > 0;) { /* copy 0 last: it overwrites the loaded instances */
+        float along = -0.12f, across = 0.2f * ((float)k - 1.0f), p[12], q[3];
+        bvh_vec3 at = d.x > d.z ? v3(mid.x + along * d.x, mid.y, mid.z + across * d.z)
+                                : v3(mid.x + across * d.x, mid.y, mid.z + along * d.z);
+        bvh_ray down = {at, 0.0f, {0.0f, -1.0f, 0.0f}, BVH_INF};
+        bvh_scene_hit h;
+        at.y = bvh_scene_intersect(&floor, &down, ~0u, &h) ? at.y - h.t : b.min.y;
+        place(p, 1.1f * (float)k + 0.4f, size, size, size, 0, 0, 0);
+        for (c = 0; c < 3; c++) q[c] = p[4 * c] * base.x + p[4 * c + 1] * base.y + p[4 * c + 2] * base.z;
+        p[3] = at.x - q[0], p[7] = at.y - q[1], p[11] = at.z - q[2]; /* the model's foot on the floor */
+        for (i = first; i < n; i++) {
+            float t[12], m[12];
+            uint32_t r;
+            memcpy(t, w->instances[i].transform, sizeof t);
+            for (r = 0; r < 3; r++)
+                for (c = 0; c < 4; c++)
+                    m[4 * r + c] = p[4 * r] * t[c] + p[4 * r + 1] * t[4 + c] + p[4 * r + 2] * t[8 + c] +
+                                   (c == 3 ? p[4 * r + 3] : 0.0f);
+            if (k == 0)
+                memcpy(w->instances[i].transform, m, sizeof m);
+            else if (add_instance(w, w->instances[i].id, m))
+                return bvh_scene_free(&floor), 1;
+        }
+    }
+    bvh_scene_free(&floor);
+    return 0;
+}
 
 /* The spheres' test (bvh_custom_desc.intersect): the nearest t in [tmin, tmax] on sphere i. */
 static int hit_sphere(const bvh_ray *ray, uint32_t i, void *user, bvh_hit *hit) {
@@ -286,38 +365,42 @@ typedef struct surface {
     bvh_vec3 p, n, albedo;
 } surface;
 
-/* The closest hit among instances and spheres, given the scene's hit h of the ray (by
-   bvh_scene_intersect, or from the device): its point, unit normal (facing the ray), albedo. */
-static int resolve(const world *w, bvh_ray ray, const bvh_scene_hit *h, surface *s) {
-    bvh_hit sh;
-    int hit = h->instance != BVH_INVALID;
-    ray.tmax = h->t; /* the scene's hit, or the ray's tmax on a miss: a sphere must be nearer */
-    if (bvh_intersect_custom(&w->sphere_tree, &ray, &sh, &w->sphere_test)) {
-        const sphere *sp = &w->spheres[sh.prim];
-        s->n = normalize(sub(add(ray.origin, scale(ray.dir, sh.t)), sp->c));
+/* The surface a ray meets, from a hit record every tracer fills the same way (bvh.h on the CPU,
+   OpenCL, Embree): sphere number `ball` at t (BVH_INVALID: none), else the scene's hit h of a
+   triangle of an instance (NULL or h->instance = BVH_INVALID: none). 0 when the ray meets
+   nothing. Its point, unit normal (facing the ray) and albedo. */
+static int surface_at(const world *w, const bvh_ray *ray, const bvh_scene_hit *h, uint32_t ball, float t, surface *s) {
+    if (ball != BVH_INVALID) {
+        const sphere *sp = &w->spheres[ball];
+        s->n = normalize(sub(add(ray->origin, scale(ray->dir, t)), sp->c));
         s->p = add(sp->c, scale(s->n, sp->r)); /* on the sphere, not origin + t dir's rounding */
         s->albedo = sp->albedo;
-    } else if (hit) {
+    } else if (h && h->instance != BVH_INVALID) {
         const mesh *m = &w->meshes[h->id];
-        const float *t = w->scene.instances[h->instance].transform;
+        const float *x = w->instances[h->instance].transform;
         bvh_hit local = {h->t, h->u, h->v, h->prim};
         bvh_vec3 q; /* the point from the barycentrics in object space, then moved to the world */
         bvh_hit_surface(&m->tris, &local, &q, NULL);
-        s->p = v3(t[0] * q.x + t[1] * q.y + t[2] * q.z + t[3], t[4] * q.x + t[5] * q.y + t[6] * q.z + t[7],
-                  t[8] * q.x + t[9] * q.y + t[10] * q.z + t[11]);
+        s->p = v3(x[0] * q.x + x[1] * q.y + x[2] * q.z + x[3], x[4] * q.x + x[5] * q.y + x[6] * q.z + x[7],
+                  x[8] * q.x + x[9] * q.y + x[10] * q.z + x[11]);
         s->n = h->normal; /* geometric, world space, unit (zero for a zero-area triangle) */
-        if (dot(s->n, s->n) == 0.0f) s->n = scale(ray.dir, -1.0f / sqrtf(dot(ray.dir, ray.dir)));
+        if (dot(s->n, s->n) == 0.0f) s->n = scale(ray->dir, -1.0f / sqrtf(dot(ray->dir, ray->dir)));
         s->albedo = m->albedo;
     } else {
         return 0;
     }
-    if (dot(s->n, ray.dir) > 0.0f) s->n = scale(s->n, -1.0f); /* two-sided surfaces */
+    if (dot(s->n, ray->dir) > 0.0f) s->n = scale(s->n, -1.0f); /* two-sided surfaces */
     return 1;
 }
-static int trace(const world *w, bvh_ray ray, surface *s) {
-    bvh_scene_hit h;
-    bvh_scene_intersect(&w->scene, &ray, ~0u, &h);
-    return resolve(w, ray, &h, s);
+
+/* The closest hit among instances and spheres, given the scene's hit h of the ray (by
+   bvh_scene_intersect, or from the device): the spheres are tested here, nearer than h->t. */
+static int resolve(const world *w, bvh_ray ray, const bvh_scene_hit *h, surface *s) {
+    bvh_hit sh;
+    ray.tmax = h->t; /* the scene's hit, or the ray's tmax on a miss: a sphere must be nearer */
+    if (bvh_intersect_custom(&w->sphere_tree, &ray, &sh, &w->sphere_test))
+        return surface_at(w, &ray, NULL, sh.prim, sh.t, s);
+    return surface_at(w, &ray, h, BVH_INVALID, 0.0f, s);
 }
 
 /* PCG hash (Jarzynski & Olano 2020): a well-mixed number from the previous one. */
@@ -357,26 +440,11 @@ static int scatter(const surface *s, bvh_vec3 sun_dir, bvh_ray *ray, bvh_vec3 *T
     return c > 0.0f;
 }
 
-/* One path: up to `depth` diffuse hits, each lit by the sun through a shadow ray. */
-static bvh_vec3 radiance(const world *w, bvh_ray ray, bvh_vec3 sun_dir, uint32_t depth, uint32_t *rng, uint64_t *rays) {
-    bvh_vec3 L = {0, 0, 0}, T = {1, 1, 1}, light;
-    bvh_ray shadow;
-    uint32_t d;
-    for (d = 0; d < depth; d++) {
-        surface s;
-        ++*rays;
-        if (!trace(w, ray, &s)) return add(L, mul(T, sky(ray.dir)));
-        if (!scatter(&s, sun_dir, &ray, &T, rng, &shadow, &light)) continue;
-        ++*rays;
-        if (!bvh_scene_occluded(&w->scene, &shadow, ~0u) &&
-            !bvh_occluded_custom(&w->sphere_tree, &shadow, &w->sphere_test))
-            L = add(L, light);
-    }
-    return L;
-}
+typedef struct embree_world embree_world; /* the scene on Embree (BVH_HAVE_EMBREE), below */
 
 typedef struct job {
     const world *w;
+    const embree_world *embree; /* NULL: trace with bvh.h */
     bvh_camera cam;
     bvh_vec3 sun_dir;
     uint32_t spp, depth;
@@ -388,6 +456,45 @@ typedef struct worker {
     uint64_t rays;
     pthread_t thread;
 } worker;
+
+#ifdef BVH_HAVE_EMBREE
+static int embree_trace(const embree_world *e, const world *w, bvh_ray ray, surface *s);
+static int embree_occluded(const embree_world *e, const bvh_ray *ray);
+#endif
+
+/* The surface the ray meets first (0: none), traced by bvh.h or by Embree. */
+static int trace(const job *j, bvh_ray ray, surface *s) {
+    bvh_scene_hit h;
+#ifdef BVH_HAVE_EMBREE
+    if (j->embree) return embree_trace(j->embree, j->w, ray, s);
+#endif
+    bvh_scene_intersect(&j->w->scene, &ray, ~0u, &h);
+    return resolve(j->w, ray, &h, s);
+}
+/* 1 when something lies on the ray (instances or spheres). */
+static int occluded(const job *j, const bvh_ray *ray) {
+#ifdef BVH_HAVE_EMBREE
+    if (j->embree) return embree_occluded(j->embree, ray);
+#endif
+    return bvh_scene_occluded(&j->w->scene, ray, ~0u) ||
+           bvh_occluded_custom(&j->w->sphere_tree, ray, &j->w->sphere_test);
+}
+
+/* One path: up to `depth` diffuse hits, each lit by the sun through a shadow ray. */
+static bvh_vec3 radiance(const job *j, bvh_ray ray, uint32_t *rng, uint64_t *rays) {
+    bvh_vec3 L = {0, 0, 0}, T = {1, 1, 1}, light;
+    bvh_ray shadow;
+    uint32_t d;
+    for (d = 0; d < j->depth; d++) {
+        surface s;
+        ++*rays;
+        if (!trace(j, ray, &s)) return add(L, mul(T, sky(ray.dir)));
+        if (!scatter(&s, j->sun_dir, &ray, &T, rng, &shadow, &light)) continue;
+        ++*rays;
+        if (!occluded(j, &shadow)) L = add(L, light);
+    }
+    return L;
+}
 
 static uint8_t to_srgb8(float x) { /* a soft shoulder (1 - e^-x, no hard clipping), then gamma 2.2 */
     return (uint8_t)(255.0f * powf(1.0f - expf(-1.2f * fmaxf(x, 0.0f)), 1.0f / 2.2f) + 0.5f);
@@ -423,13 +530,174 @@ static void *render_rows(void *arg) {
             for (k = 0; k < j->spp; k++) {
                 uint32_t rng;
                 bvh_ray ray = camera_ray(j, i, k, &rng);
-                sum = add(sum, radiance(j->w, ray, j->sun_dir, j->depth, &rng, &wk->rays));
+                sum = add(sum, radiance(j, ray, &rng, &wk->rays));
             }
             put_pixel(j, i, sum);
         }
     }
     return NULL;
 }
+
+/* ---- the same renderer on Embree 3 ------------------------------------------------------------ */
+/* --embree renders the image a second time on the CPU with Embree 3 tracing the rays, everything
+   else (camera, random sequences, shading) the same code: an RTCScene of one triangle geometry per
+   mesh, a top RTCScene of Embree's own instances (RTC_GEOMETRY_TYPE_INSTANCE, the same 3x4
+   transforms, nothing baked) plus the spheres as one user geometry (hit_sphere in Embree's
+   callbacks), rtcIntersect1 / rtcOccluded1, RTC_BUILD_QUALITY_MEDIUM (Embree's default). Its hit
+   becomes the record surface_at takes, as bvh.h's: instance, triangle, t, u, v (the same
+   barycentric convention), Ng taken to the world as bvh.h does its normal. */
+#ifdef BVH_HAVE_EMBREE
+#include <embree3/rtcore.h>
+#define RTC_VERSION_STRING_OR_NONE RTC_VERSION_STRING
+
+struct embree_world {
+    RTCDevice device;
+    RTCScene top;     /* geometry i: instance i; geometry instance_count: the spheres */
+    RTCScene *meshes; /* per mesh; NULL for a mesh without triangles */
+    uint32_t mesh_count;
+};
+
+static void embree_sphere_bounds(const struct RTCBoundsFunctionArguments *a) {
+    const sphere *s = (const sphere *)a->geometryUserPtr + a->primID;
+    struct RTCBounds *b = a->bounds_o;
+    b->lower_x = s->c.x - s->r, b->lower_y = s->c.y - s->r, b->lower_z = s->c.z - s->r;
+    b->upper_x = s->c.x + s->r, b->upper_y = s->c.y + s->r, b->upper_z = s->c.z + s->r;
+}
+static bvh_ray from_embree(const struct RTCRay *r) {
+    return (bvh_ray){{r->org_x, r->org_y, r->org_z}, r->tnear, {r->dir_x, r->dir_y, r->dir_z}, r->tfar};
+}
+/* rtcIntersect1 / rtcOccluded1 call these with N = 1: the ray is a plain RTCRayHit / RTCRay. */
+static void embree_sphere_intersect(const struct RTCIntersectFunctionNArguments *a) {
+    struct RTCRayHit *rh = (struct RTCRayHit *)a->rayhit;
+    bvh_ray ray = from_embree(&rh->ray);
+    bvh_hit h;
+    if (a->N != 1 || !a->valid[0] || !hit_sphere(&ray, a->primID, a->geometryUserPtr, &h)) return;
+    rh->ray.tfar = h.t;
+    rh->hit.Ng_x = rh->hit.Ng_y = rh->hit.Ng_z = 0.0f; /* surface_at finds it from the centre */
+    rh->hit.u = rh->hit.v = 0.0f;
+    rh->hit.primID = a->primID;
+    rh->hit.geomID = a->geomID;
+    rh->hit.instID[0] = a->context->instID[0];
+}
+static void embree_sphere_occluded(const struct RTCOccludedFunctionNArguments *a) {
+    struct RTCRay *r = (struct RTCRay *)a->ray;
+    bvh_ray ray = from_embree(r);
+    bvh_hit h;
+    if (a->N == 1 && a->valid[0] && hit_sphere(&ray, a->primID, a->geometryUserPtr, &h)) r->tfar = -INFINITY;
+}
+
+static void embree_free(embree_world *e) {
+    uint32_t i;
+    if (e->top) rtcReleaseScene(e->top);
+    for (i = 0; e->meshes && i < e->mesh_count; i++)
+        if (e->meshes[i]) rtcReleaseScene(e->meshes[i]);
+    free(e->meshes);
+    if (e->device) rtcReleaseDevice(e->device);
+}
+
+/* w's meshes, instances and spheres on Embree, built with `threads` threads. 0, or 1 (err). */
+static int embree_build(embree_world *e, const world *w, uint32_t threads, char *err, size_t errlen) {
+    char config[32];
+    uint32_t i, k;
+    enum RTCError code;
+    snprintf(config, sizeof config, "threads=%u", threads);
+    memset(e, 0, sizeof *e);
+    e->device = rtcNewDevice(config);
+    if (!e->device) return snprintf(err, errlen, "rtcNewDevice: error %d", (int)rtcGetDeviceError(NULL)), 1;
+    e->meshes = calloc(w->mesh_count ? w->mesh_count : 1, sizeof *e->meshes);
+    if (!e->meshes) return snprintf(err, errlen, "out of memory"), 1;
+    e->mesh_count = w->mesh_count;
+    for (i = 0; i < w->mesh_count; i++) { /* one scene of one triangle geometry per mesh */
+        const bvh_triangles *t = &w->meshes[i].tris;
+        RTCGeometry g;
+        float *v;
+        uint32_t *x;
+        if (!w->meshes[i].built) continue;
+        g = rtcNewGeometry(e->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+        v = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
+                                    t->vertex_count);
+        x = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(uint32_t),
+                                    t->triangle_count);
+        if (!v || !x) return rtcReleaseGeometry(g), snprintf(err, errlen, "Embree: out of memory"), 1;
+        memcpy(v, t->positions, 3 * sizeof(float) * t->vertex_count); /* stride 0: packed */
+        for (k = 0; k < 3 * t->triangle_count; k++) x[k] = t->indices ? t->indices[k] : k;
+        rtcCommitGeometry(g);
+        e->meshes[i] = rtcNewScene(e->device);
+        rtcSetSceneBuildQuality(e->meshes[i], RTC_BUILD_QUALITY_MEDIUM);
+        rtcAttachGeometry(e->meshes[i], g);
+        rtcReleaseGeometry(g);
+        rtcCommitScene(e->meshes[i]);
+    }
+    e->top = rtcNewScene(e->device);
+    rtcSetSceneBuildQuality(e->top, RTC_BUILD_QUALITY_MEDIUM);
+    for (i = 0; i < w->instance_count; i++) { /* Embree's instances: geometry i is instance i */
+        RTCGeometry g = rtcNewGeometry(e->device, RTC_GEOMETRY_TYPE_INSTANCE);
+        rtcSetGeometryInstancedScene(g, e->meshes[w->instances[i].id]);
+        rtcSetGeometryTransform(g, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, w->instances[i].transform);
+        rtcCommitGeometry(g);
+        rtcAttachGeometryByID(e->top, g, i);
+        rtcReleaseGeometry(g);
+    }
+    {
+        RTCGeometry g = rtcNewGeometry(e->device, RTC_GEOMETRY_TYPE_USER);
+        rtcSetGeometryUserPrimitiveCount(g, SPHERES);
+        rtcSetGeometryUserData(g, (void *)w->spheres);
+        rtcSetGeometryBoundsFunction(g, embree_sphere_bounds, NULL);
+        rtcSetGeometryIntersectFunction(g, embree_sphere_intersect);
+        rtcSetGeometryOccludedFunction(g, embree_sphere_occluded);
+        rtcCommitGeometry(g);
+        rtcAttachGeometryByID(e->top, g, w->instance_count);
+        rtcReleaseGeometry(g);
+    }
+    rtcCommitScene(e->top);
+    code = rtcGetDeviceError(e->device);
+    return code != RTC_ERROR_NONE ? (snprintf(err, errlen, "Embree: error %d", (int)code), 1) : 0;
+}
+
+static struct RTCRay to_embree(const bvh_ray *r) {
+    struct RTCRay e = {0};
+    e.org_x = r->origin.x, e.org_y = r->origin.y, e.org_z = r->origin.z, e.tnear = r->tmin;
+    e.dir_x = r->dir.x, e.dir_y = r->dir.y, e.dir_z = r->dir.z, e.tfar = r->tmax;
+    e.mask = ~0u;
+    return e;
+}
+
+static int embree_trace(const embree_world *e, const world *w, bvh_ray ray, surface *s) {
+    struct RTCIntersectContext context;
+    struct RTCRayHit rh;
+    bvh_scene_hit h;
+    const float *inv;
+    double n[3], l;
+    uint32_t k;
+    rtcInitIntersectContext(&context);
+    rh.ray = to_embree(&ray);
+    rh.hit.geomID = rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(e->top, &context, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return 0;
+    if (rh.hit.instID[0] == RTC_INVALID_GEOMETRY_ID) /* the spheres are the top scene's own geometry */
+        return surface_at(w, &ray, NULL, rh.hit.primID, rh.ray.tfar, s);
+    h.t = rh.ray.tfar, h.u = rh.hit.u, h.v = rh.hit.v;
+    h.instance = rh.hit.instID[0];
+    h.id = w->instances[h.instance].id;
+    h.prim = rh.hit.primID;
+    /* Ng is in the instance's space: to the world by M^-T, in double, normalised (as bvh.h) */
+    inv = w->scene.inverse + 12 * (size_t)h.instance;
+    for (k = 0; k < 3; k++)
+        n[k] = (double)inv[k] * rh.hit.Ng_x + (double)inv[4 + k] * rh.hit.Ng_y + (double)inv[8 + k] * rh.hit.Ng_z;
+    l = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    h.normal = l > 0.0 ? v3((float)(n[0] / l), (float)(n[1] / l), (float)(n[2] / l)) : v3(0, 0, 0);
+    return surface_at(w, &ray, &h, BVH_INVALID, 0.0f, s);
+}
+static int embree_occluded(const embree_world *e, const bvh_ray *ray) {
+    struct RTCIntersectContext context;
+    struct RTCRay r = to_embree(ray);
+    rtcInitIntersectContext(&context);
+    rtcOccluded1(e->top, &context, &r);
+    return r.tfar < 0.0f; /* -inf when blocked */
+}
+#else
+#define RTC_VERSION_STRING_OR_NONE "" /* never printed: --embree is refused */
+#endif
 
 /* ---- tracing on OpenCL ---------------------------------------------------------------------- */
 /* The samples of PIXELS_PER_WAVE pixels (at least one pixel's) are paths that advance together:
@@ -592,7 +860,7 @@ static bvh_camera view(bvh_aabb b, int inside, uint32_t width, uint32_t height) 
 /* ---- main ----------------------------------------------------------------------------------- */
 static int usage(void) {
     printf("usage: pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N] [--inside]\n"
-           "                 [--trace cpu|opencl|auto]\n"
+           "                 [--trace cpu|opencl|auto] [--add MODEL] [--embree] [--json]\n"
            "  SCENE        a glTF/GLB, OBJ... file (assimp); none: the built-in scene\n"
            "  --spp N      samples per pixel (default 16)\n"
            "  --depth D    diffuse hits per path (default 4)\n"
@@ -602,21 +870,61 @@ static int usage(void) {
            "  --inside     view from inside the scene's box (interiors), not from above\n"
            "  --trace B    cpu (default), opencl (the same image; the spheres and the shading on\n"
            "               the host), or auto (opencl when a device can be used, else cpu)\n"
-           "exit status: 0 done, 1 error, 2 bad command line\n");
+           "  --add MODEL  %u instances of MODEL (e.g. a bunny) standing in the scene\n"
+           "  --embree     then the same image again on the CPU, the rays traced by Embree 3 (its\n"
+           "               own instances, the spheres a user geometry, build quality medium = its\n"
+           "               default) on as many threads: both Mrays/s, their ratio (bvh.h / Embree)\n"
+           "               and the images' mean absolute difference (0..1); --out is bvh.h's image%s\n"
+           "  --json       print one JSON line instead of the report: instances, meshes, triangles\n"
+           "               (in the meshes), instanced_triangles, spp, rays, ms, mrays and with --embree\n"
+           "               embree_rays, embree_ms, embree_mrays, ratio, image_diff\n"
+           "exit status: 0 done, 1 error, 2 bad command line\n",
+           ADD_COPIES,
+#ifdef BVH_HAVE_EMBREE
+           ""
+#else
+           "\n               (this build has no Embree: --embree is an error)"
+#endif
+    );
     return 0;
 }
 
+/* Renders j on `threads` threads (the caller's is one of them); the rays traced, added to *rays. */
+static void render_cpu(job *j, worker *wk, uint32_t threads, uint64_t *rays) {
+    uint32_t i;
+    atomic_init(&j->next_row, 0);
+    for (i = 0; i < threads; i++) {
+        wk[i].job = j;
+        wk[i].rays = 0;
+        if (i > 0 && pthread_create(&wk[i].thread, NULL, render_rows, &wk[i]) != 0) threads = i; /* fewer */
+    }
+    render_rows(&wk[0]); /* the main thread is worker 0 */
+    for (i = 0; i < threads; i++) {
+        if (i > 0) pthread_join(wk[i].thread, NULL);
+        *rays += wk[i].rays;
+    }
+}
+
+/* s as a JSON string's contents (quotes and backslashes escaped, control characters dropped). */
+static void json_string(const char *s) {
+    for (; *s; s++)
+        if (*s == '"' || *s == '\\')
+            printf("\\%c", *s);
+        else if ((unsigned char)*s >= 0x20)
+            putchar(*s);
+}
+
 int main(int argc, char **argv) {
-    const char *path = NULL, *out = scene_can_write_png() ? "pathtrace.png" : "pathtrace.ppm";
+    const char *path = NULL, *extra = NULL, *out = scene_can_write_png() ? "pathtrace.png" : "pathtrace.ppm";
     uint32_t spp = 16, depth = 4, width = 640, height = 480, threads = scene_cpu_count(), i;
     char err[512];
     world w = {0};
     job *j;
     worker *wk;
-    uint64_t rays = 0;
-    double t0, t1, t2, t3, kernel_ms = 0.0;
+    uint64_t rays = 0, embree_rays = 0, triangles = 0, instanced = 0;
+    double t0, t1, t2, t3, kernel_ms = 0.0, embree_build_ms = 0.0, embree_ms = 0.0, diff = 0.0;
     bvh_result r;
-    int ok = 1, inside = 0, trace = 0; /* trace: 0 cpu, 1 opencl, 2 auto */
+    int ok = 1, inside = 0, trace = 0, embree = 0, json = 0; /* trace: 0 cpu, 1 opencl, 2 auto */
     bvh_cl_context *ctx = NULL;
     bvh_cl_scene *dev = NULL;
     char device[160] = "";
@@ -630,11 +938,15 @@ int main(int argc, char **argv) {
         if (!strcmp(a, "--help") || !strcmp(a, "-h")) return usage();
         if (!strcmp(a, "--inside"))
             inside = 1;
+        else if (!strcmp(a, "--embree"))
+            embree = 1;
+        else if (!strcmp(a, "--json"))
+            json = 1;
         else if (a[0] != '-' && !path)
             path = a;
         else if (a[0] != '-')
             return fprintf(stderr, "pathtrace: one SCENE only (see --help)\n"), 2;
-        else if (!n && strcmp(a, "--size") && strcmp(a, "--out") && strcmp(a, "--trace"))
+        else if (!n && strcmp(a, "--size") && strcmp(a, "--out") && strcmp(a, "--trace") && strcmp(a, "--add"))
             return fprintf(stderr, "pathtrace: unknown option '%s' (see --help)\n", a), 2;
         else if (!v)
             return fprintf(stderr, "pathtrace: %s needs a value (see --help)\n", a), 2;
@@ -648,14 +960,27 @@ int main(int argc, char **argv) {
             return fprintf(stderr, "pathtrace: --trace wants cpu, opencl or auto, not '%s'\n", v), 2;
         else if (!strcmp(a, "--trace"))
             trace = !strcmp(v, "opencl") ? 1 : !strcmp(v, "auto") ? 2 : 0, i++;
+        else if (!strcmp(a, "--add"))
+            extra = v, i++;
         else
             out = !strcmp(a, "--out") ? v : out, i++;
     }
+#ifndef BVH_HAVE_EMBREE
+    if (embree) return fprintf(stderr, "pathtrace: --embree: built without Embree (BVH_HAVE_EMBREE)\n"), 1;
+#endif
 
     t0 = scene_now_ms();
     if (path ? load_file(&w, path, err, sizeof err) : load_builtin(&w, err, sizeof err)) {
         fprintf(stderr, "pathtrace: %s\n", err);
         return free_world(&w), 1;
+    }
+    if (extra) {
+        uint32_t first = w.instance_count;
+        if (load_file(&w, extra, err, sizeof err) ||
+            (add_copies(&w, first) && snprintf(err, sizeof err, "out of memory"))) {
+            fprintf(stderr, "pathtrace: --add: %s\n", err);
+            return free_world(&w), 1;
+        }
     }
     r = bvh_scene_build(&w.scene, &(bvh_scene_desc){.instances = w.instances, .instance_count = w.instance_count});
     if (r == BVH_SUCCESS && w.instance_count == 0) r = BVH_ERROR_INVALID_GEOMETRY; /* nothing to see */
@@ -664,55 +989,100 @@ int main(int argc, char **argv) {
         fprintf(stderr, "pathtrace: %s: %s\n", w.instance_count ? "scene" : "no triangles", bvh_result_string(r));
         return free_world(&w), 1;
     }
+    for (i = 0; i < w.mesh_count; i++) triangles += w.meshes[i].built ? w.meshes[i].tris.triangle_count : 0;
+    for (i = 0; i < w.instance_count; i++) instanced += w.meshes[w.instances[i].id].tris.triangle_count;
     t1 = scene_now_ms();
     if (trace && open_device(&w, trace == 1, &ctx, &dev, device, sizeof device) && trace == 1) return free_world(&w), 1;
     t2 = scene_now_ms(); /* the kernel's build, the scene's upload, a first launch */
 
-    j = calloc(1, sizeof *j);
+    j = calloc(2, sizeof *j); /* j[1]: the same job on Embree */
     wk = calloc(threads, sizeof *wk);
     if (j) j->rgb = malloc(3 * (size_t)width * height);
-    if (!j || !wk || !j->rgb) {
+    if (j && embree) j[1].rgb = malloc(3 * (size_t)width * height);
+    if (!j || !wk || !j->rgb || (embree && !j[1].rgb)) {
         fprintf(stderr, "pathtrace: out of memory\n");
-        return free(j ? j->rgb : NULL), free(j), free(wk), bvh_cl_scene_free(dev), bvh_cl_destroy(ctx), free_world(&w),
-               1;
+        return free(j ? j->rgb : NULL), free(j ? j[1].rgb : NULL), free(j), free(wk), bvh_cl_scene_free(dev),
+               bvh_cl_destroy(ctx), free_world(&w), 1;
     }
     j->w = &w;
     j->cam = view(bvh_tree_bounds(&w.scene.top), inside, width, height);
     j->sun_dir = normalize(SUN_DIR);
     j->spp = spp;
     j->depth = depth;
-    atomic_init(&j->next_row, 0);
-    if (dev) {
-        ok = !render_opencl(j, ctx, dev, &rays, &kernel_ms);
-    } else {
-        for (i = 0; i < threads; i++) {
-            wk[i].job = j;
-            if (i > 0 && pthread_create(&wk[i].thread, NULL, render_rows, &wk[i]) != 0) threads = i; /* fewer */
-        }
-        render_rows(&wk[0]); /* the main thread is worker 0 */
-        for (i = 0; i < threads; i++) {
-            if (i > 0) pthread_join(wk[i].thread, NULL);
-            rays += wk[i].rays;
-        }
-    }
-    t3 = scene_now_ms();
-
-    printf("pathtrace: %s: %u meshes, %u instances, %u spheres; load and build %.0f ms\n", path ? path : "built-in",
-           w.mesh_count, w.instance_count, SPHERES, t1 - t0);
     if (dev)
-        printf("pathtrace: %ux%u, %u spp, depth %u, OpenCL on %s (set up in %.0f ms): %.0f ms (kernels %.0f ms), "
-               "%llu rays, %.2f Mrays/s\n",
-               width, height, spp, depth, device, t2 - t1, t3 - t2, kernel_ms, (unsigned long long)rays,
-               (double)rays / ((t3 - t2) * 1e3));
+        ok = !render_opencl(j, ctx, dev, &rays, &kernel_ms);
     else
-        printf("pathtrace: %ux%u, %u spp, depth %u, %u threads: %.0f ms, %llu rays, %.2f Mrays/s\n", width, height, spp,
-               depth, threads, t3 - t2, (unsigned long long)rays, (double)rays / ((t3 - t2) * 1e3));
-    if (!ok) /* the device failed (said) */
+        render_cpu(j, wk, threads, &rays);
+    t3 = scene_now_ms();
+#ifdef BVH_HAVE_EMBREE
+    if (embree && ok) { /* the same job, the rays traced by Embree: only the tracer differs */
+        embree_world e;
+        double e0 = scene_now_ms(), e1;
+        uint8_t *rgb = j[1].rgb;
+        size_t k, bytes = 3 * (size_t)width * height;
+        uint64_t sum = 0;
+        if (embree_build(&e, &w, threads, err, sizeof err)) {
+            fprintf(stderr, "pathtrace: --embree: %s\n", err);
+            ok = 0;
+        } else {
+            e1 = scene_now_ms();
+            embree_build_ms = e1 - e0;
+            j[1] = j[0];
+            j[1].rgb = rgb;
+            j[1].embree = &e;
+            render_cpu(&j[1], wk, threads, &embree_rays);
+            embree_ms = scene_now_ms() - e1;
+            for (k = 0; k < bytes; k++) sum += (uint64_t)abs((int)j[0].rgb[k] - (int)j[1].rgb[k]);
+            diff = (double)sum / (255.0 * (double)bytes);
+        }
+        embree_free(&e);
+    }
+#endif
+
+    if (json) {
+        printf("{\"scene\":\"");
+        json_string(path ? path : "built-in");
+        printf("\",\"add\":\"");
+        json_string(extra ? extra : "");
+        printf("\",\"width\":%u,\"height\":%u,\"spp\":%u,\"depth\":%u,\"threads\":%u,\"trace\":\"%s\",\"instances\":%u,"
+               "\"meshes\":%u,\"triangles\":%llu,\"instanced_triangles\":%llu,\"spheres\":%u,\"build_ms\":%.1f,"
+               "\"rays\":%llu,\"ms\":%.1f,\"mrays\":%.3f",
+               width, height, spp, depth, dev ? 1 : threads, dev ? "opencl" : "cpu", w.instance_count, w.mesh_count,
+               (unsigned long long)triangles, (unsigned long long)instanced, SPHERES, t1 - t0, (unsigned long long)rays,
+               t3 - t2, (double)rays / ((t3 - t2) * 1e3));
+        if (embree && embree_ms > 0.0)
+            printf(",\"embree_build_ms\":%.1f,\"embree_rays\":%llu,\"embree_ms\":%.1f,\"embree_mrays\":%.3f,"
+                   "\"ratio\":%.3f,\"image_diff\":%.5f",
+                   embree_build_ms, (unsigned long long)embree_rays, embree_ms, (double)embree_rays / (embree_ms * 1e3),
+                   ((double)rays / (t3 - t2)) / ((double)embree_rays / embree_ms), diff);
+        printf("}\n");
+    } else {
+        printf("pathtrace: %s: %u meshes (%llu triangles), %u instances (%llu triangles), %u spheres; load and build "
+               "%.0f ms\n",
+               path ? path : "built-in", w.mesh_count, (unsigned long long)triangles, w.instance_count,
+               (unsigned long long)instanced, SPHERES, t1 - t0);
+        if (dev)
+            printf("pathtrace: %ux%u, %u spp, depth %u, OpenCL on %s (set up in %.0f ms): %.0f ms (kernels %.0f ms), "
+                   "%llu rays, %.2f Mrays/s\n",
+                   width, height, spp, depth, device, t2 - t1, t3 - t2, kernel_ms, (unsigned long long)rays,
+                   (double)rays / ((t3 - t2) * 1e3));
+        else
+            printf("pathtrace: %ux%u, %u spp, depth %u, %u threads: %.0f ms, %llu rays, %.2f Mrays/s\n", width, height,
+                   spp, depth, threads, t3 - t2, (unsigned long long)rays, (double)rays / ((t3 - t2) * 1e3));
+        if (embree && embree_ms > 0.0)
+            printf("pathtrace: Embree %s (built in %.0f ms), %u threads: %.0f ms, %llu rays, %.2f Mrays/s; "
+                   "bvh.h / Embree %.2fx; images differ by %.4f (mean |difference| / 255)\n",
+                   RTC_VERSION_STRING_OR_NONE, embree_build_ms, threads, embree_ms, (unsigned long long)embree_rays,
+                   (double)embree_rays / (embree_ms * 1e3),
+                   ((double)rays / (t3 - t2)) / ((double)embree_rays / embree_ms), diff);
+    }
+    if (!ok) /* the device or Embree failed (said) */
         ;
-    else if ((ok = !scene_write_image(out, width, height, j->rgb, err, sizeof err)) != 0)
-        printf("pathtrace: wrote %s\n", out);
-    else
+    else if ((ok = !scene_write_image(out, width, height, j->rgb, err, sizeof err)) != 0) {
+        if (!json) printf("pathtrace: wrote %s\n", out);
+    } else {
         fprintf(stderr, "pathtrace: %s\n", err);
-    free(j->rgb), free(j), free(wk), bvh_cl_scene_free(dev), bvh_cl_destroy(ctx), free_world(&w);
+    }
+    free(j->rgb), free(j[1].rgb), free(j), free(wk), bvh_cl_scene_free(dev), bvh_cl_destroy(ctx), free_world(&w);
     return ok ? 0 : 1;
 }

@@ -4,8 +4,9 @@
 #   finds, tracing a box build with bvh_intersect_custom, the same sphere as brute force for every ray;
 #   build/animate refits a waving sheet, saves the tree to a file and loads it back.
 #   build/pathtrace renders its built-in scene (instances and spheres) into a real picture, the
-#   same bytes on 1 and 2 threads and with --trace opencl (on an exact device), and refuses a bad
-#   command line with status 2.
+#   same bytes on 1 and 2 threads and with --trace opencl (on an exact device), prints one JSON
+#   line with --json, an image within noise of bvh.h's with --embree (Embree 3 tracing, where
+#   built with it), and refuses a bad command line with status 2.
 # Usage: tests/examples.sh  (`make test` runs it after building both; BUILD=dir picks another
 #   build directory). Prints one line per failed check and a closing result line; exits 1 on failure.
 set -u
@@ -76,6 +77,28 @@ elif [ "$rc" = 1 ] && grep -q "OpenCL cannot be used" <<<"$out"; then
   echo "note: no OpenCL device, $build/pathtrace --trace opencl not checked: $out"
 else
   fail "$build/pathtrace --trace opencl: exit status $rc, printed: $out"
+fi
+# pathtrace --json: one line of JSON with the counts; --embree (where built with Embree): the same
+# job traced by Embree 3 gives bvh.h's image but for paths that float rounding in a hit sends
+# elsewhere (none here: 0 measured; mean |difference| below 0.002 of full scale: Embree's
+# occluded rays always unblocked gave 0.003), bvh.h's image (--out) unchanged by the comparison
+checks=$((checks + 1))
+out=$("$build/pathtrace" --size 64x64 --spp 2 --threads 2 --json --embree --out "$tmp/e.ppm" 2>&1)
+rc=$?
+keys='"instances":8,"meshes":2,"triangles":14,"instanced_triangles":86,"spheres":3'
+if [ "$rc" = 1 ] && grep -q "built without Embree" <<<"$out"; then
+  echo "note: $build/pathtrace built without Embree: --embree not checked"
+  out=$("$build/pathtrace" --size 64x64 --spp 2 --threads 2 --json --out "$tmp/e.ppm" 2>&1)
+  rc=$?
+  if [ "$rc" != 0 ] || [ "$(wc -l <<<"$out")" != 1 ] || ! grep -q "$keys" <<<"$out" || ! grep -q '"mrays":' <<<"$out"; then
+    fail "$build/pathtrace --json: exit status $rc, printed: $out"
+  fi
+elif [ "$rc" != 0 ] || [ "$(wc -l <<<"$out")" != 1 ] || ! grep -q "$keys" <<<"$out" ||
+  ! grep -q '"rays":[1-9][0-9]*,"ms":[0-9.]*,"mrays":[0-9.]*,"embree_build_ms":' <<<"$out" ||
+  ! grep -q '"embree_mrays":[0-9.]*,"ratio":[0-9.]*,"image_diff":0\.00[01][0-9]*}$' <<<"$out"; then
+  fail "$build/pathtrace --embree --json: exit status $rc (or image_diff not below 0.002), printed: $out"
+else
+  cmp -s "$tmp/a.ppm" "$tmp/e.ppm" || fail "$build/pathtrace --embree: bvh.h's image differs from the one without --embree"
 fi
 checks=$((checks + 1))
 "$build/pathtrace" --spp 0 --out "$tmp/c.ppm" >/dev/null 2>&1

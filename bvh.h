@@ -263,7 +263,10 @@ typedef struct bvh_node8 {
     float min[3][8], max[3][8]; /* min[axis][slot], max[axis][slot] */
     uint32_t child[8];          /* count 0: index of a bvh_node8 (empty slot: 0) */
     uint8_t count[8];           /* > 0: leaf of count packets from tree.tri4[child] on */
-    uint32_t pad[6];
+    uint32_t head;              /* the binary node it was made from (bvh_refit and bvh_load ... */
+    uint32_t shape;             /* ... follow the grouping from it to the slots: see bvh.h's
+                                   8-wide layout section) */
+    uint32_t pad[4];
 } bvh_node8;
 
 /* Up to four triangles of a wide leaf (160 bytes), by coordinate, so that one SIMD test covers
@@ -394,8 +397,7 @@ typedef struct bvh_tree {
                            order, for traversal; NULL for box builds */
     bvh_node8 *nodes8;  /* 8-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
     uint32_t node8_count;
-    bvh_tri4 *tri4; /* the 8-wide leaves' triangle packets (in nodes8's allocation, which
-                       also holds, after them, the grouping bvh_refit replays) */
+    bvh_tri4 *tri4; /* the 8-wide leaves' triangle packets (in nodes8's allocation) */
     uint32_t tri4_count;
     uint32_t prim_count; /* primitives given */
     uint32_t excluded;   /* primitives left out by skip_invalid */
@@ -4952,7 +4954,13 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
    leaves at most three lanes empty, whatever its size). The child boxes are the binary nodes' boxes,
    bit for bit, and the slab test below is the binary one lane by lane, so the argument that no box
    culls a hit the brute-force loop finds holds as it is; the packet test is bvh__tri_test lane by
-   lane. The numbering depends on the tree alone, never on the thread count. */
+   lane. The numbering depends on the tree alone, never on the thread count.
+   Each wide node keeps its grouping (bvh_node8.head, .shape): the binary node it was made from, and
+   the binary nodes from there down to its slots in pre-order (left child first), a bit each from
+   bit 0 on: 1 a node opened inside the wide node, 0 a slot; at most 7 opened nodes and 8 slots, 15
+   bits (a root that is a leaf slot: shape 0, its head its one slot). bvh_refit follows it to update
+   the boxes and packets in place, bvh_load to remake them from the saved binary tree; both check it
+   against the binary tree as they go. */
 #define BVH__PACKET 4u     /* triangles per packet */
 #define BVH__SLOT_REFS 16u /* a binary subtree of at most this many references is one leaf slot */
 typedef struct bvh__wide_src {
@@ -4961,30 +4969,62 @@ typedef struct bvh__wide_src {
     const uint32_t *prims; /* the tree's references (caller ids) and their triangles */
     const float *tris;
     bvh_tri4 *packets; /* NULL: count only */
-    uint8_t *role;     /* the grouping, a byte per binary node (bvh__wide_heads): written by
-                          the write pass, read back by bvh_refit (replay) */
-    int replay;        /* 0: slots opened by area, sub given (the build); 1: by role, sub NULL,
-                          so that bvh_refit groups moved boxes as the build did (the same
-                          counts and numbering) without a scratch array */
 } bvh__wide_src;
-/* Roles: 0 a node opened inside a wide node (or below a leaf slot), 1 the head of a wide node,
-   2 + r a leaf slot of r references (r = 0 for a binary leaf, whose count says it). */
-#define BVH__ROLE_HEAD 1u
-#define BVH__ROLE_SLOT 2u
 BVH__INLINE int bvh__wide_leaf(const bvh__wide_src *s, uint32_t b) {
-    if (s->replay) return s->role[b] >= BVH__ROLE_SLOT;
     return s->nodes[b].count || s->sub[b] <= BVH__SLOT_REFS;
 }
-BVH__INLINE uint32_t bvh__wide_refs(const bvh__wide_src *s, uint32_t b) {
-    if (s->replay) return s->nodes[b].count ? s->nodes[b].count : s->role[b] - BVH__ROLE_SLOT;
-    return s->sub[b];
-}
+BVH__INLINE uint32_t bvh__wide_refs(const bvh__wide_src *s, uint32_t b) { return s->sub[b]; }
 BVH__INLINE uint32_t bvh__wide_packets(const bvh__wide_src *s, uint32_t b) {
     return (bvh__wide_refs(s, b) + BVH__PACKET - 1) / BVH__PACKET;
 }
+/* The packets of n references (tree positions refs[], their triangles in tris), four to a packet. */
+static void bvh__packets_write(const uint32_t *refs, uint32_t n, const uint32_t *prims, const float *tris,
+                               bvh_tri4 *out) {
+    uint32_t i, j, v, a;
+    for (i = 0; 4 * i < n; i++) {
+        bvh_tri4 *p = &out[i];
+        uint32_t lane[4];
+        int flat = 0;
+        for (j = 0; j < 4; j++) {
+            lane[j] = refs[4 * i + (4 * i + j < n ? j : 0)];
+            flat |= (j == 0 || lane[j] != lane[0]) && bvh__tri_zero_area(tris + 9 * (size_t)lane[j]);
+        }
+#ifdef BVH__SSE
+        if (!flat) { /* the common case: a 4 x 9 transpose, the same floats */
+            const float *t0 = tris + 9 * (size_t)lane[0], *t1 = tris + 9 * (size_t)lane[1];
+            const float *t2 = tris + 9 * (size_t)lane[2], *t3 = tris + 9 * (size_t)lane[3];
+            float *o = &p->v[0][0][0];
+            __m128 a0 = _mm_loadu_ps(t0), a1 = _mm_loadu_ps(t1), a2 = _mm_loadu_ps(t2), a3 = _mm_loadu_ps(t3);
+            __m128 b0 = _mm_loadu_ps(t0 + 4), b1 = _mm_loadu_ps(t1 + 4), b2 = _mm_loadu_ps(t2 + 4);
+            __m128 b3 = _mm_loadu_ps(t3 + 4);
+            _MM_TRANSPOSE4_PS(a0, a1, a2, a3);
+            _MM_TRANSPOSE4_PS(b0, b1, b2, b3);
+            _mm_storeu_ps(o, a0);
+            _mm_storeu_ps(o + 4, a1);
+            _mm_storeu_ps(o + 8, a2);
+            _mm_storeu_ps(o + 12, a3);
+            _mm_storeu_ps(o + 16, b0);
+            _mm_storeu_ps(o + 20, b1);
+            _mm_storeu_ps(o + 24, b2);
+            _mm_storeu_ps(o + 28, b3);
+            _mm_storeu_ps(o + 32, _mm_setr_ps(t0[8], t1[8], t2[8], t3[8]));
+            for (j = 0; j < 4; j++) p->prim[j] = prims[lane[j]];
+            continue;
+        }
+#endif
+        for (j = 0; j < 4; j++) {
+            uint32_t k = lane[j];
+            const float *t = tris + 9 * (size_t)k;
+            const int point = flat && bvh__tri_zero_area(t); /* held as its first vertex three times */
+            for (v = 0; v < 3; v++)
+                for (a = 0; a < 3; a++) p->v[v][a][j] = t[3 * (point ? 0 : v) + a];
+            p->prim[j] = prims[k];
+        }
+    }
+}
 /* The packets of leaf slot b: its references in depth-first order, four to a packet. */
 static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4 *out) {
-    uint32_t refs[BVH__MAX_LEAF], n = 0, stack[2 * BVH__SLOT_REFS], sp = 0, i, j, v, a;
+    uint32_t refs[BVH__MAX_LEAF], n = 0, stack[2 * BVH__SLOT_REFS], sp = 0, i;
     stack[sp++] = b;
     while (sp) { /* a subtree of at most BVH__SLOT_REFS references: fewer levels than that */
         const bvh_node *nd = &s->nodes[stack[--sp]];
@@ -4995,23 +5035,64 @@ static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4
             stack[sp++] = nd->index;
         }
     }
-    for (i = 0; 4 * i < n; i++) {
-        bvh_tri4 *p = &out[i];
-        for (j = 0; j < 4; j++) {
-            uint32_t k = refs[4 * i + (4 * i + j < n ? j : 0)];
-            const float *t = s->tris + 9 * (size_t)k;
-            const int flat = bvh__tri_zero_area(t); /* held as its first vertex three times */
-            for (v = 0; v < 3; v++)
-                for (a = 0; a < 3; a++) p->v[v][a][j] = t[3 * (flat ? 0 : v) + a];
-            p->prim[j] = s->prims[k];
+    bvh__packets_write(refs, n, s->prims, s->tris, out);
+}
+/* The shape of the wide node of head b whose slots are kids[0 .. k - 1] (see above). */
+static uint32_t bvh__group_shape(const bvh_node *nodes, uint32_t b, const uint32_t *kids, uint32_t k) {
+    uint32_t stack[BVH__W], sp = 0, bit = 0, shape = 0, i;
+    stack[sp++] = b;
+    while (sp) {
+        uint32_t x = stack[--sp];
+        for (i = 0; i < k && kids[i] != x; i++) {
+        }
+        if (i == k) { /* opened: its children follow, the left one first */
+            shape |= 1u << bit;
+            stack[sp++] = nodes[x].index + 1;
+            stack[sp++] = nodes[x].index;
+        }
+        bit++;
+    }
+    return shape;
+}
+/* A wide node's grouping read back: its slots (ascending, the wide node's slot order) and the
+   nodes opened in it (pre-order: parents before children). 0 where it does not fit the binary tree
+   (an index out of range or not after its parent, an opened leaf, more than 8 slots, bits left
+   over), so that a damaged tree is refused, never followed out of bounds. */
+typedef struct bvh__group {
+    uint32_t slot[BVH__W], open[BVH__W - 1], nslot, nopen;
+} bvh__group;
+static int bvh__group_read(const bvh_node *nodes, uint32_t node_count, const bvh_node8 *w, bvh__group *g) {
+    uint32_t stack[BVH__W], sp = 0, bit = 0, i, a;
+    if (w->head >= node_count) return 0;
+    g->nslot = g->nopen = 0;
+    stack[sp++] = w->head;
+    while (sp) {
+        uint32_t x = stack[--sp];
+        if (bit == 15) return 0;
+        if ((w->shape >> bit++) & 1u) {
+            const bvh_node *n = &nodes[x];
+            if (n->count || n->index <= x || n->index >= node_count - 1 || g->nopen == BVH__W - 1) return 0;
+            g->open[g->nopen++] = x;
+            stack[sp++] = n->index + 1;
+            stack[sp++] = n->index;
+        } else {
+            if (g->nslot == BVH__W) return 0;
+            g->slot[g->nslot++] = x;
         }
     }
+    if (w->shape >> bit) return 0;
+    for (i = 1; i < g->nslot; i++) /* insertion sort: the build's slot order */
+        for (a = i; a > 0 && g->slot[a - 1] > g->slot[a]; a--) {
+            uint32_t x = g->slot[a];
+            g->slot[a] = g->slot[a - 1];
+            g->slot[a - 1] = x;
+        }
+    return 1;
 }
 /* The slots of interior binary node b (see above; area ties: the first in the list). */
 /* The area by which a slot is opened: -1 for a leaf slot, which stays whole. */
 static float bvh__wide_area(const bvh__wide_src *s, uint32_t b) {
     if (bvh__wide_leaf(s, b)) return -1.0f;
-    if (s->replay) return s->role[b] == BVH__ROLE_HEAD ? -1.0f : 1.0f; /* the build opened all others */
     return bvh_aabb_area(bvh__node_box(&s->nodes[b]));
 }
 static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t out[BVH__W]) {
@@ -5052,13 +5133,14 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *ou
             }
     }
     if (out) {
-        if (!bvh__wide_leaf(s, b)) s->role[b] = BVH__ROLE_HEAD;
         memset(out, 0, sizeof *out);
         for (i = 0; i < BVH__W; i++)
             for (a = 0; a < 3; a++) {
                 out->min[a][i] = BVH_INF;
                 out->max[a][i] = -BVH_INF;
             }
+        out->head = b;
+        out->shape = bvh__group_shape(s->nodes, b, kids, k);
     }
     for (i = 0; i < k; i++) {
         const bvh_node *c = &s->nodes[kids[i]];
@@ -5072,7 +5154,6 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *ou
         }
         if (!bvh__wide_leaf(s, kids[i])) continue; /* interior children: the caller sets the index */
         if (out) {
-            s->role[kids[i]] = BVH__CAST(uint8_t, BVH__ROLE_SLOT + (c->count ? 0 : bvh__wide_refs(s, kids[i])));
             out->child[i] = *packet;
             out->count[i] = (uint8_t)bvh__wide_packets(s, kids[i]);
         }
@@ -5152,9 +5233,8 @@ static bvh_result bvh__wide_sub(const bvh_node *nodes, uint32_t count, uint32_t 
     }
     return BVH_SUCCESS;
 }
-/* The wide layout in two passes, so that bvh_refit can run the second alone on the arrays it has:
-   the plan (the breadth-first top and every subtree's node and packet counts, hence the totals)
-   and the write pass into arrays of those sizes. */
+/* The wide layout in two passes: the plan (the breadth-first top and every subtree's node and
+   packet counts, hence the totals) and the write pass into arrays of those sizes. */
 typedef struct bvh__wide_plan {
     uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], psize[BVH__WIDE_TOP], qlen, top;
     uint32_t nodes, packets, nt; /* totals; the team's size */
@@ -5174,63 +5254,22 @@ static void bvh__wide_run(const bvh__wide_plan *p, const bvh_allocator *al, bvh_
     else
         bvh__team_run_always(al, p->nt, bvh__wide_fn, job);
 }
-/* What bvh_refit keeps of the build's layout, after the packets in nodes8's block: the role of
-   each binary node (a byte each, bvh__wide_heads), then the plan's top and subtree starts (top,
-   qlen, queue[qlen], size[], psize[]), so that a refit needs neither a scratch nor the plan's
-   counting pass. */
-static uint8_t *bvh__wide_heads(const bvh_tree *tree) {
-    return BVH__CAST(uint8_t *, BVH__CAST(void *, tree->tri4 + (tree->tri4_count ? tree->tri4_count : 1)));
-}
-static uint32_t *bvh__wide_kept(const bvh_tree *tree) {
-    return BVH__CAST(uint32_t *, BVH__CAST(void *, bvh__wide_heads(tree) + ((size_t)tree->node_count + 3u) / 4u * 4u));
-}
-static size_t bvh__wide_kept_bytes(uint32_t node_count, const bvh__wide_plan *p) {
-    return ((size_t)node_count + 3u) / 4u * 4u +
-           sizeof(uint32_t) * (2u + (size_t)p->qlen + 2u * (size_t)(p->qlen - p->top));
-}
-static void bvh__wide_plan_init(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub, uint8_t *role) {
+static void bvh__wide_plan_init(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub) {
     memset(&p->job, 0, sizeof p->job);
     p->job.src.nodes = tree->nodes;
     p->job.src.sub = sub;
     p->job.src.prims = tree->prims;
     p->job.src.tris = tree->tris;
-    p->job.src.role = role;
-    p->job.src.replay = sub == NULL;
     p->pool = NULL;
     p->job.size = p->size;
     p->job.psize = p->psize;
-}
-static void bvh__wide_keep(const bvh_tree *tree, const bvh__wide_plan *p) {
-    uint32_t *k = bvh__wide_kept(tree), n = p->qlen - p->top;
-    k[0] = p->top;
-    k[1] = p->qlen;
-    memcpy(k + 2, p->queue, p->qlen * sizeof(uint32_t));
-    memcpy(k + 2 + p->qlen, p->size, n * sizeof(uint32_t));
-    memcpy(k + 2 + p->qlen + n, p->psize, n * sizeof(uint32_t));
-}
-/* bvh_refit's plan: the kept one, replaying the roles. */
-static void bvh__wide_plan_kept(bvh__wide_plan *p, const bvh_tree *tree, uint32_t threads) {
-    const uint32_t *k = bvh__wide_kept(tree);
-    uint32_t n;
-    bvh__wide_plan_init(p, tree, NULL, bvh__wide_heads(tree));
-    p->top = k[0];
-    p->qlen = k[1];
-    n = p->qlen - p->top;
-    memcpy(p->queue, k + 2, p->qlen * sizeof(uint32_t));
-    memcpy(p->size, k + 2 + p->qlen, n * sizeof(uint32_t));
-    memcpy(p->psize, k + 2 + p->qlen + n, n * sizeof(uint32_t));
-    p->job.heads = p->queue + p->top;
-    p->job.count = n;
-    p->nt = threads < n ? threads : n;
-    p->nodes = tree->node8_count;
-    p->packets = tree->tri4_count;
 }
 /* The plan of tree's wide layout by area from sub, the references below each binary node
    (bvh__wide_sub): the build's. */
 static bvh_result bvh__wide_plan_make(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub,
                                       const bvh_allocator *al, const bvh_thread_pool *pool, uint32_t threads) {
     uint32_t i, k, total, ptotal = 0, kids[BVH__W];
-    bvh__wide_plan_init(p, tree, sub, NULL);
+    bvh__wide_plan_init(p, tree, sub);
     p->pool = pool;
     p->queue[0] = 0;
     p->qlen = 1;
@@ -5274,11 +5313,23 @@ static void bvh__wide_write(bvh__wide_plan *p, bvh_node8 *nodes8, bvh_tri4 *tri4
     p->job.out = nodes8;
     if (p->job.count) bvh__wide_run(p, al, &p->job);
 }
+/* One block for both arrays: the packets follow the nodes, on a cache line as well (256-byte
+   nodes). */
+static bvh_result bvh__wide_alloc(bvh_tree *tree, const bvh_allocator *al, uint32_t nodes, uint32_t packets) {
+    if ((size_t)packets + 1 > ((size_t)-1 - (size_t)nodes * sizeof(bvh_node8)) / sizeof(bvh_tri4))
+        return BVH_ERROR_OUT_OF_MEMORY;
+    tree->nodes8 = BVH__CAST(bvh_node8 *, bvh__alloc_lines(al, (size_t)nodes * sizeof(bvh_node8) +
+                                                                   (size_t)(packets ? packets : 1) * sizeof(bvh_tri4)));
+    if (!tree->nodes8) return BVH_ERROR_OUT_OF_MEMORY;
+    tree->tri4 = BVH__CAST(bvh_tri4 *, BVH__CAST(void *, tree->nodes8 + nodes));
+    tree->node8_count = nodes;
+    tree->tri4_count = packets;
+    return BVH_SUCCESS;
+}
 static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, const bvh_thread_pool *pool,
                                  uint32_t threads) {
     bvh__wide_plan *p;
     uint32_t *sub;
-    size_t kept;
     bvh_result r;
     if (!tree->node_count) return BVH_SUCCESS;
     sub = BVH__ALLOC(al, uint32_t, tree->node_count);
@@ -5289,27 +5340,8 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, const 
     }
     if ((r = bvh__wide_sub(tree->nodes, tree->node_count, sub)) != BVH_SUCCESS) goto done;
     if ((r = bvh__wide_plan_make(p, tree, sub, al, pool, threads)) != BVH_SUCCESS) goto done;
-    /* one block: the packets follow the nodes, on a cache line as well (256-byte nodes), then
-       what bvh_refit keeps (bvh__wide_kept) */
-    kept = bvh__wide_kept_bytes(tree->node_count, p);
-    if ((size_t)p->packets + 1 > ((size_t)-1 - (size_t)p->nodes * sizeof(bvh_node8) - kept) / sizeof(bvh_tri4)) {
-        r = BVH_ERROR_OUT_OF_MEMORY;
-        goto done;
-    }
-    tree->nodes8 = BVH__CAST(bvh_node8 *,
-                             bvh__alloc_lines(al, (size_t)p->nodes * sizeof(bvh_node8) +
-                                                      (size_t)(p->packets ? p->packets : 1) * sizeof(bvh_tri4) + kept));
-    if (!tree->nodes8) {
-        r = BVH_ERROR_OUT_OF_MEMORY;
-        goto done;
-    }
-    tree->tri4 = BVH__CAST(bvh_tri4 *, BVH__CAST(void *, tree->nodes8 + p->nodes));
-    tree->node8_count = p->nodes;
-    tree->tri4_count = p->packets;
-    memset(bvh__wide_heads(tree), 0, tree->node_count);
-    p->job.src.role = bvh__wide_heads(tree);
+    if ((r = bvh__wide_alloc(tree, al, p->nodes, p->packets)) != BVH_SUCCESS) goto done;
     bvh__wide_write(p, tree->nodes8, tree->tri4, al);
-    bvh__wide_keep(tree, p);
 done:
     bvh__free(al, sub);
     bvh__free(al, p);
@@ -6595,11 +6627,14 @@ BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint3
 
 /* ============================================================================================ */
 /* == refit ===================================================================================== */
-/* The topology stays; the boxes follow the primitives. Binary boxes bottom-up over subtrees taken
-   in parallel (each in post-order from its head; the few nodes above the heads last, on one
-   thread), the triangle copy fetched leaf by leaf in the same walk, then the 8-wide layout's
-   write pass run again on its own arrays. Every box is a min/max of the same inputs, so the
-   result does not depend on the thread count or the order. */
+/* The topology stays; the boxes follow the primitives. With the 8-wide layout, one pass over it
+   does everything: wide subtrees taken in parallel, each in post-order from its head (the few wide
+   nodes above the heads last, on one thread); at each wide node, its grouping (bvh_node8.head,
+   .shape) gives the binary subtrees of its leaf slots, whose triangles are fetched (all of the
+   node's first, asked ahead), written to tree.tris and to the packets, and boxed bottom-up, then
+   the binary nodes opened in it, then its slot boxes. Without it (trace_width 2, box trees):
+   the triangle copy in reference order, then binary subtrees in parallel. Every box is a min/max
+   of the same inputs, so the result does not depend on the thread count or the order. */
 /* ============================================================================================ */
 #define BVH__REFIT_HEADS 256u /* subtrees the threads share (a PLOC tree's vary a lot in size) */
 typedef struct bvh__refit {
@@ -6725,6 +6760,202 @@ static int bvh__refit_heads(bvh__refit *j) {
     return 1;
 }
 
+/* The 8-wide pass. Node w once its wide children are done: 0 if the tree is broken there. */
+#define BVH__WREFS (BVH__W * BVH__MAX_LEAF) /* references of a wide node's leaf slots, at most */
+typedef struct bvh__wnode_scratch {
+    uint32_t pre[BVH__W * (2 * BVH__SLOT_REFS)]; /* the leaf slots' binary nodes, pre-order */
+    uint32_t refs[BVH__WREFS];                   /* their references, in packet order */
+    uint32_t pre_end[BVH__W], ref_end[BVH__W];
+} bvh__wnode_scratch;
+/* The binary subtree of leaf slot b: its nodes in pre-order (left first) appended to pre[] and
+   its references to refs[] (the packets' order); 0 if it is not a leaf slot of at most
+   BVH__SLOT_REFS references (or a leaf of at most BVH__MAX_LEAF), or out of range. */
+static int bvh__slot_walk(const bvh_tree *t, uint32_t b, uint32_t *pre, uint32_t *npre, uint32_t *refs,
+                          uint32_t *nref) {
+    uint32_t stack[2 * BVH__SLOT_REFS + 2], sp = 0, first = *nref, k, cap;
+    const bvh_node *root = &t->nodes[b];
+    cap = root->count ? BVH__MAX_LEAF : BVH__SLOT_REFS;
+    stack[sp++] = b;
+    while (sp) {
+        uint32_t x = stack[--sp];
+        const bvh_node *n = &t->nodes[x];
+        if (*npre >= BVH__W * (2 * BVH__SLOT_REFS)) return 0;
+        pre[(*npre)++] = x;
+        if (n->count) {
+            if (n->index > t->ref_count || n->count > t->ref_count - n->index || n->count > cap - (*nref - first))
+                return 0;
+            for (k = 0; k < n->count; k++) refs[(*nref)++] = n->index + k;
+        } else {
+            if (n->index <= x || n->index >= t->node_count - 1 || sp + 2 > 2 * BVH__SLOT_REFS + 2) return 0;
+            stack[sp++] = n->index + 1;
+            stack[sp++] = n->index;
+        }
+    }
+    return 1;
+}
+/* The box of n consecutive triangles (a leaf's, in tree.tris). */
+static bvh_aabb bvh__tris_box(const float *t, uint32_t n) {
+    bvh_aabb b;
+#ifdef BVH__SSE
+    __m128 lo = _mm_set1_ps(BVH_INF), hi = _mm_set1_ps(-BVH_INF);
+    float l[4], h[4];
+    uint32_t i;
+    for (i = 0; i < n; i++, t += 9) { /* lane 3 is not read back */
+        __m128 a = _mm_loadu_ps(t), c = _mm_loadu_ps(t + 3);
+        __m128 e =
+            _mm_movelh_ps(_mm_loadl_pi(_mm_setzero_ps(), BVH__CAST(const __m64 *, BVH__CAST(const void *, t + 6))),
+                          _mm_load_ss(t + 8));
+        lo = _mm_min_ps(lo, _mm_min_ps(_mm_min_ps(a, c), e));
+        hi = _mm_max_ps(hi, _mm_max_ps(_mm_max_ps(a, c), e));
+    }
+    _mm_storeu_ps(l, lo);
+    _mm_storeu_ps(h, hi);
+    b.min.x = l[0];
+    b.min.y = l[1];
+    b.min.z = l[2];
+    b.max.x = h[0];
+    b.max.y = h[1];
+    b.max.z = h[2];
+#else
+    uint32_t i;
+    b = bvh__empty();
+    for (i = 0; i < n; i++) b = bvh__merge(b, bvh__tri_box(t + 9 * (size_t)i));
+#endif
+    return b;
+}
+BVH__INLINE void bvh__set_box8(bvh_node8 *w, uint32_t i, const bvh_node *n) {
+    w->min[0][i] = n->min.x;
+    w->min[1][i] = n->min.y;
+    w->min[2][i] = n->min.z;
+    w->max[0][i] = n->max.x;
+    w->max[1][i] = n->max.y;
+    w->max[2][i] = n->max.z;
+}
+static int bvh__refit_wnode(const bvh__refit *j, uint32_t w, bvh__wnode_scratch *sc) {
+    bvh_tree *t = j->tree;
+    bvh_node8 *n = &t->nodes8[w];
+    const bvh_triangles *tr = j->tris;
+    bvh__group g;
+    uint32_t i, k, npre = 0, nref = 0;
+    if (!bvh__group_read(t->nodes, t->node_count, n, &g)) return 0;
+    for (i = 0; i < BVH__W; i++) { /* the leaf slots' subtrees, their triangles asked ahead */
+        uint32_t r0 = nref;
+        if (i >= g.nslot) {
+            if (n->count[i] || n->child[i]) return 0;
+        } else if (n->count[i]) {
+            if (!bvh__slot_walk(t, g.slot[i], sc->pre, &npre, sc->refs, &nref)) return 0;
+            if (n->count[i] != (nref - r0 + BVH__PACKET - 1) / BVH__PACKET || n->child[i] > t->tri4_count ||
+                n->count[i] > t->tri4_count - n->child[i])
+                return 0;
+            for (k = r0; k < nref; k++) {
+                uint32_t p = t->prims[sc->refs[k]];
+                if (p >= t->prim_count) return 0;
+                if (tr->indices)
+                    BVH__PREFETCH(&tr->indices[3 * (size_t)p]);
+                else
+                    BVH__PREFETCH(bvh__vertex(tr, 3 * p));
+            }
+        } else if (n->child[i] <= w || n->child[i] >= t->node8_count || t->nodes8[n->child[i]].head != g.slot[i]) {
+            return 0;
+        }
+        sc->pre_end[i] = npre;
+        sc->ref_end[i] = nref;
+    }
+    if (tr->indices)
+        for (k = 0; k < nref; k++) { /* the indices have arrived by now, mostly */
+            const uint32_t *ix = &tr->indices[3 * (size_t)t->prims[sc->refs[k]]];
+            BVH__PREFETCH(bvh__vertex(tr, ix[0]));
+            BVH__PREFETCH(bvh__vertex(tr, ix[1]));
+            BVH__PREFETCH(bvh__vertex(tr, ix[2]));
+        }
+    if (!tr->indices && (tr->stride == 0 || tr->stride == 3 * sizeof(float))) { /* a packed soup */
+        const char *v = BVH__CAST(const char *, BVH__CAST(const void *, tr->positions));
+        for (k = 0; k < nref; k++)
+            memcpy(t->tris + 9 * (size_t)sc->refs[k], v + 36 * (size_t)t->prims[sc->refs[k]], 36);
+    } else {
+        for (k = 0; k < nref; k++) bvh__fetch_triangle(tr, t->prims[sc->refs[k]], t->tris + 9 * (size_t)sc->refs[k]);
+    }
+    for (k = npre; k-- > 0;) { /* the leaf slots' binary nodes, children before parents */
+        bvh_node *x = &t->nodes[sc->pre[k]];
+        if (x->count)
+            bvh__set_box(x, bvh__tris_box(t->tris + 9 * (size_t)x->index, x->count));
+        else
+            bvh__set_box(x, bvh__merge(bvh__node_box(&t->nodes[x->index]), bvh__node_box(&t->nodes[x->index + 1])));
+    }
+    for (i = 0; i < g.nslot; i++)
+        if (n->count[i])
+            bvh__packets_write(sc->refs + (i ? sc->ref_end[i - 1] : 0), sc->ref_end[i] - (i ? sc->ref_end[i - 1] : 0),
+                               t->prims, t->tris, t->tri4 + n->child[i]);
+    for (k = g.nopen; k-- > 0;) bvh__refit_node(j, g.open[k]); /* interior: cannot fail */
+    for (i = 0; i < g.nslot; i++) bvh__set_box8(n, i, &t->nodes[g.slot[i]]);
+    return 1;
+}
+/* The wide subtree of head h in post-order; 0 if the tree is broken (child indices must point
+   forward: no cycle). */
+static int bvh__refit_wsubtree(const bvh__refit *j, uint32_t h, bvh__wnode_scratch *sc) {
+    uint32_t stack[BVH__W * (BVH_MAX_DEPTH + 2)], sp = 0; /* w << 1 | children pushed */
+    const bvh_tree *t = j->tree;
+    stack[sp++] = h << 1;
+    while (sp) {
+        uint32_t e = stack[sp - 1], w = e >> 1, i;
+        const bvh_node8 *n = &t->nodes8[w];
+        if (e & 1u) {
+            sp--;
+            if (!bvh__refit_wnode(j, w, sc)) return 0;
+            continue;
+        }
+        stack[sp - 1] |= 1u;
+        for (i = 0; i < BVH__W; i++)
+            if (!n->count[i] && n->child[i]) {
+                if (n->child[i] <= w || n->child[i] >= t->node8_count || sp == BVH__W * (BVH_MAX_DEPTH + 2)) return 0;
+                stack[sp++] = n->child[i] << 1;
+            }
+    }
+    return 1;
+}
+static void bvh__refit_wide_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__refit *j = BVH__CAST(bvh__refit *, arg);
+    bvh__wnode_scratch sc; /* 9 KiB of this thread's stack */
+    uint32_t i;
+    (void)team;
+    for (i = tid; i < j->nheads; i += nt)
+        if (!bvh__refit_wsubtree(j, j->heads[i], &sc)) j->bad[tid]++;
+}
+/* The wide heads: from the root, each head with wide children is replaced by them, round after
+   round, until there are BVH__REFIT_HEADS / 4 or more (or no more can be opened). The replaced
+   nodes (top[], parents before children) are refitted after the heads, last to first. */
+static int bvh__refit_wheads(bvh__refit *j) {
+    const bvh_tree *t = j->tree;
+    uint32_t i = 0, grew = 0;
+    j->heads[0] = 0;
+    j->nheads = 1;
+    j->ntop = 0;
+    while (j->nheads < BVH__REFIT_HEADS / 4 && j->ntop < BVH__REFIT_HEADS) {
+        uint32_t w = j->heads[i], c = 0, s;
+        const bvh_node8 *n = &t->nodes8[w];
+        for (s = 0; s < BVH__W; s++) c += !n->count[s] && n->child[s];
+        if (c && j->nheads - 1 + c <= BVH__REFIT_HEADS) {
+            uint32_t first = 1;
+            j->top[j->ntop++] = w;
+            for (s = 0; s < BVH__W; s++)
+                if (!n->count[s] && n->child[s]) {
+                    if (n->child[s] <= w || n->child[s] >= t->node8_count) return 0;
+                    if (first)
+                        j->heads[i] = n->child[s];
+                    else
+                        j->heads[j->nheads++] = n->child[s];
+                    first = 0;
+                }
+            grew = 1;
+        }
+        if (++i == j->nheads) { /* a round done */
+            if (!grew) break;
+            i = grew = 0;
+        }
+    }
+    return 1;
+}
+
 /* The precheck, before anything changes: indices in range, and every vertex (every box) finite. A
    non-finite one is looked up again by primitive below: it matters only if the tree holds it. */
 typedef struct bvh__refit_check {
@@ -6754,13 +6985,29 @@ static void bvh__refit_check_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team 
             /* packed: the floats in blocks, by their bits, without branches (a vector loop) */
             const char *p = BVH__CAST(const char *, BVH__CAST(const void *, d->triangles.positions));
             size_t f = 3 * b, fe = 3 * e;
-            uint32_t any = 0, w[64], k;
-            for (; f < fe; f += 64) {
-                uint32_t m = (uint32_t)(fe - f < 64 ? fe - f : 64);
-                memcpy(w, p + f * sizeof(float), m * sizeof(float));
-                for (k = 0; k < m; k++) any |= (w[k] & 0x7f800000u) == 0x7f800000u;
+            uint32_t w; /* a float's bits without its sign: Inf and NaN are above 0x7f7fffff */
+#ifdef BVH__SSE
+            const __m128i sign = _mm_set1_epi32(0x7fffffff), big = _mm_set1_epi32(0x7f7fffff);
+            __m128i acc = _mm_setzero_si128();
+            for (; f + 16 <= fe; f += 16) {
+                const char *q = p + f * sizeof(float);
+                __m128i a =
+                    _mm_and_si128(_mm_loadu_si128(BVH__CAST(const __m128i *, BVH__CAST(const void *, q))), sign);
+                __m128i b =
+                    _mm_and_si128(_mm_loadu_si128(BVH__CAST(const __m128i *, BVH__CAST(const void *, q + 16))), sign);
+                __m128i c =
+                    _mm_and_si128(_mm_loadu_si128(BVH__CAST(const __m128i *, BVH__CAST(const void *, q + 32))), sign);
+                __m128i d =
+                    _mm_and_si128(_mm_loadu_si128(BVH__CAST(const __m128i *, BVH__CAST(const void *, q + 48))), sign);
+                acc = _mm_or_si128(acc, _mm_or_si128(_mm_or_si128(_mm_cmpgt_epi32(a, big), _mm_cmpgt_epi32(b, big)),
+                                                     _mm_or_si128(_mm_cmpgt_epi32(c, big), _mm_cmpgt_epi32(d, big))));
             }
-            bad_value += any;
+            bad_value += _mm_movemask_epi8(acc) != 0;
+#endif
+            for (; f < fe; f++) {
+                memcpy(&w, p + f * sizeof(float), sizeof w);
+                bad_value += (w & 0x7fffffffu) > 0x7f7fffffu;
+            }
         } else {
             for (i = b; i < e; i++) {
                 float v[3];
@@ -6815,7 +7062,6 @@ static bvh_result bvh__refit_check_desc(const bvh_tree *tree, const bvh_refit_de
 }
 BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
     bvh__refit job, *j = &job; /* a few KiB on the stack: a refit allocates nothing */
-    bvh__wide_plan plan;
     bvh_allocator al;
     bvh_result r;
     uint32_t nt, i, bad = 0;
@@ -6831,17 +7077,20 @@ BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
     j->tree = tree;
     j->tris = tree->tris ? &desc->triangles : NULL;
     j->boxes = tree->tris ? NULL : desc->boxes;
+    if (tree->nodes8 && tree->tris) { /* one pass over the 8-wide layout (see above) */
+        bvh__wnode_scratch sc;
+        if (!tree->tri4 || !bvh__refit_wheads(j)) return BVH_ERROR_INVALID_TREE;
+        bvh__team_run_always(&al, nt < j->nheads ? nt : j->nheads, bvh__refit_wide_fn, j);
+        for (i = 0; i < BVH__MAX_THREADS; i++) bad += j->bad[i];
+        for (i = j->ntop; !bad && i-- > 0;) bad += !bvh__refit_wnode(j, j->top[i], &sc);
+        return bad ? BVH_ERROR_INVALID_TREE : BVH_SUCCESS;
+    }
     if (!bvh__refit_heads(j)) return BVH_ERROR_INVALID_TREE;
     if (j->tris) bvh__team_run_always(&al, nt, bvh__refit_tris_fn, j);
     bvh__team_run_always(&al, nt < j->nheads ? nt : j->nheads, bvh__refit_fn, j);
     for (i = 0; i < BVH__MAX_THREADS; i++) bad += j->bad[i];
     for (i = j->ntop; !bad && i-- > 0;) bad += !bvh__refit_node(j, j->top[i]);
-    if (bad) return BVH_ERROR_INVALID_TREE;
-    if (tree->nodes8) { /* the wide layout as the build grouped it, written over its own arrays */
-        bvh__wide_plan_kept(&plan, tree, nt);
-        bvh__wide_write(&plan, tree->nodes8, tree->tri4, &al);
-    }
-    return BVH_SUCCESS;
+    return bad ? BVH_ERROR_INVALID_TREE : BVH_SUCCESS;
 }
 
 /* ============================================================================================ */

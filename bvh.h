@@ -62,7 +62,8 @@
 
    THREADS
      No global mutable state: any function may be called from several threads on different trees.
-     bvh_refit runs on desc.threads (five short phases, each creating its threads once).
+     bvh_refit runs on desc.threads (two phases, each creating its threads once); bvh_load on
+     bvh_load_desc.threads (a memory buffer's copy and checks, and the 8-wide packets).
      Parallel builders create their worker threads once per build phase (six per build, eight
      with the 8-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
      memory budget applies), never per iteration. At barriers they spin briefly before sleeping,
@@ -104,6 +105,14 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.7.0  (in progress) bvh_refit updates the 8-wide layout in one pass over it (boxes and packets
+            in place, from each wide node's grouping), no longer replaying the build's grouping
+            pass; the tree no longer keeps a byte per binary node for it: bvh_node8 gains head and
+            shape (in its padding; pad is now 4 words). Save format version 2: the 8-wide nodes are
+            stored, bvh_load remakes only their packets and boxes (checked against the binary
+            tree, on bvh_load_desc.threads) and checks the binary tree in linear passes; the
+            payload checksum is per 256 KiB piece. Version 1 files are refused
+            (BVH_ERROR_UNSUPPORTED_FORMAT).
      0.6.0  The public surface made regular. Builder-specific options moved into nested structs,
             zero still the default (the same trees): desc.ploc_radius -> desc.ploc.radius,
             desc.ploc_top -> desc.ploc.top, desc.max_bytes_per_prim ->
@@ -642,8 +651,8 @@ typedef struct bvh_refit_desc {
     uint32_t threads; /* 0 = all online CPUs; at most one per 8192 references */
 } bvh_refit_desc;
 /* Refits a built (or loaded) tree to moved primitives, keeping its topology: every binary node
-   box bottom-up, tree.tris, and the 8-wide layout rewritten in place with the grouping the build
-   chose (so its node and packet counts stay). Arrays keep their addresses and sizes; the tree
+   box bottom-up, tree.tris, and the 8-wide layout's boxes and packets updated in place with the
+   grouping the build chose (so its node and packet counts stay). Arrays keep their addresses and sizes; the tree
    gives the same hits as a brute-force loop over the new triangles. The quality falls as the
    motion departs from the build's: rebuild when bvh_sah has grown too much.
    - Split references (sah-midpoint): refitted correctly, each reference's leaf box taking the
@@ -656,16 +665,20 @@ typedef struct bvh_refit_desc {
      BVH_ERROR_INVALID_TREE after part of it was updated.
    - Memory: nothing is allocated but the thread team's bookkeeping (a few bytes per thread, from
      the tree's allocator; without it the refit runs on one thread), so it cannot run out of
-     memory. The 8-wide layout keeps, from its build, the role of each binary node in it (a byte
-     per node); the refit replays that grouping rather than regrouping by the new areas.
+     memory; 9 KiB of stack per thread. Each 8-wide node keeps, from its build, its grouping
+     (bvh_node8.head, .shape, in what was padding: no memory per triangle); the refit follows it
+     in one pass over the 8-wide layout rather than regrouping by the new areas.
    - Threads: desc.threads, parallel over subtrees; the result does not depend on the count. */
 BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc);
 
 /* ---- save and load ------------------------------------------------------------------------ */
-/* A tree as bytes: a 64-byte header (magic "BVH.TREE", format version, byte-order marker,
+/* A tree as bytes: a 64-byte header (magic "BVH.TREE", format version 2, byte-order marker,
    builder, counts, payload size, a header and a payload checksum) then the binary nodes, the
-   references and, for triangle trees, tree.tris, in the saving machine's byte order. The 8-wide
-   layout is not stored: bvh_load makes it again (the format does not change when it does).
+   references and, for triangle trees, tree.tris and the 8-wide nodes (with their groupings), in
+   the saving machine's byte order: 60 to 80 bytes per triangle for a default build. The 8-wide
+   packets are not stored: bvh_load remakes them from tree.tris and the groupings, checking each
+   against the binary tree. Version 1 files (bvh.h 0.6.0) are refused with
+   BVH_ERROR_UNSUPPORTED_FORMAT: load them with 0.6.0's bvh.h or rebuild, and save again.
    The callbacks return the number of bytes they moved; fewer than asked ends the call. */
 typedef size_t (*bvh_write_fn)(void *user, const void *data, size_t size);
 typedef size_t (*bvh_read_fn)(void *user, void *data, size_t size);
@@ -681,13 +694,16 @@ typedef struct bvh_load_desc {
     size_t max_bytes;        /* refuse a tree whose payload is larger (BVH_ERROR_CORRUPT) before
                                 allocating it; 0 = no limit but the format's own caps (with a
                                 memory buffer its size bounds the payload in any case) */
-    uint32_t trace_width;    /* 0 = as the saved tree had it; 8 = make the 8-wide layout; 2 = none */
-    uint32_t threads;        /* for the 8-wide layout: 0 = all online CPUs */
+    uint32_t trace_width;    /* 0 = as the saved tree had it; 8 = the 8-wide layout (made as bvh_build
+                                does if the file has none); 2 = none */
+    uint32_t threads;        /* a memory buffer's copy and checks, and the 8-wide layout: 0 = all
+                                online CPUs */
     bvh_allocator allocator; /* becomes the tree's, as bvh_build_desc.allocator */
 } bvh_load_desc;
 /* Reads a tree saved by bvh_save. Sizes are checked before anything is allocated; the checksums,
-   then the structure (bvh_validate's checks; a box tree's leaves are not checked against boxes
-   it does not have) are checked before the tree is returned. On failure *tree is zeroed and
+   then the structure (bvh_validate's checks in linear passes, and the 8-wide groupings against
+   the binary tree; a box tree's leaves are not checked against boxes it does not have) are
+   checked before the tree is returned. On failure *tree is zeroed and
    nothing is leaked. Errors: BVH_ERROR_TRUNCATED, BVH_ERROR_CORRUPT,
    BVH_ERROR_UNSUPPORTED_FORMAT, BVH_ERROR_OUT_OF_MEMORY, BVH_ERROR_INVALID_ARGUMENT. */
 BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc);

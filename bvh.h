@@ -62,7 +62,8 @@
 
    THREADS
      No global mutable state: any function may be called from several threads on different trees.
-     bvh_refit runs on desc.threads (five short phases, each creating its threads once).
+     bvh_refit runs on desc.threads (two phases, each creating its threads once); bvh_load on
+     bvh_load_desc.threads (a memory buffer's copy and checks, and the 8-wide packets).
      Parallel builders create their worker threads once per build phase (six per build, eight
      with the 8-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
      memory budget applies), never per iteration. At barriers they spin briefly before sleeping,
@@ -118,6 +119,14 @@
             top-level leaf hands its instances to it), shared with the one-level kernels.
             examples/pathtrace.c --trace opencl|auto: wavefronts on the device, the spheres and
             the shading on the host, the CPU's image byte for byte.
+            bvh_refit updates the 8-wide layout in one pass over it (boxes and packets
+            in place, from each wide node's grouping), no longer replaying the build's grouping
+            pass; the tree no longer keeps a byte per binary node for it: bvh_node8 gains head and
+            shape (in its padding; pad is now 4 words). Save format version 2: the 8-wide nodes are
+            stored, bvh_load remakes only their packets and boxes (checked against the binary
+            tree, on bvh_load_desc.threads) and checks the binary tree in linear passes; the
+            payload checksum is per 256 KiB piece. Version 1 files are refused
+            (BVH_ERROR_UNSUPPORTED_FORMAT).
      0.6.0  The public surface made regular. Builder-specific options moved into nested structs,
             zero still the default (the same trees): desc.ploc_radius -> desc.ploc.radius,
             desc.ploc_top -> desc.ploc.top, desc.max_bytes_per_prim ->
@@ -277,7 +286,10 @@ typedef struct bvh_node8 {
     float min[3][8], max[3][8]; /* min[axis][slot], max[axis][slot] */
     uint32_t child[8];          /* count 0: index of a bvh_node8 (empty slot: 0) */
     uint8_t count[8];           /* > 0: leaf of count packets from tree.tri4[child] on */
-    uint32_t pad[6];
+    uint32_t head;              /* the binary node it was made from (bvh_refit and bvh_load ... */
+    uint32_t shape;             /* ... follow the grouping from it to the slots: see bvh.h's
+                                   8-wide layout section) */
+    uint32_t pad[4];
 } bvh_node8;
 
 /* Up to four triangles of a wide leaf (160 bytes), by coordinate, so that one SIMD test covers
@@ -408,8 +420,7 @@ typedef struct bvh_tree {
                            order, for traversal; NULL for box builds */
     bvh_node8 *nodes8;  /* 8-wide nodes for CPU traversal, root at 0; NULL: binary traversal */
     uint32_t node8_count;
-    bvh_tri4 *tri4; /* the 8-wide leaves' triangle packets (in nodes8's allocation, which
-                       also holds, after them, the grouping bvh_refit replays) */
+    bvh_tri4 *tri4; /* the 8-wide leaves' triangle packets (in nodes8's allocation) */
     uint32_t tri4_count;
     uint32_t prim_count; /* primitives given */
     uint32_t excluded;   /* primitives left out by skip_invalid */
@@ -654,8 +665,8 @@ typedef struct bvh_refit_desc {
     uint32_t threads; /* 0 = all online CPUs; at most one per 8192 references */
 } bvh_refit_desc;
 /* Refits a built (or loaded) tree to moved primitives, keeping its topology: every binary node
-   box bottom-up, tree.tris, and the 8-wide layout rewritten in place with the grouping the build
-   chose (so its node and packet counts stay). Arrays keep their addresses and sizes; the tree
+   box bottom-up, tree.tris, and the 8-wide layout's boxes and packets updated in place with the
+   grouping the build chose (so its node and packet counts stay). Arrays keep their addresses and sizes; the tree
    gives the same hits as a brute-force loop over the new triangles. The quality falls as the
    motion departs from the build's: rebuild when bvh_sah has grown too much.
    - Split references (sah-midpoint): refitted correctly, each reference's leaf box taking the
@@ -668,16 +679,20 @@ typedef struct bvh_refit_desc {
      BVH_ERROR_INVALID_TREE after part of it was updated.
    - Memory: nothing is allocated but the thread team's bookkeeping (a few bytes per thread, from
      the tree's allocator; without it the refit runs on one thread), so it cannot run out of
-     memory. The 8-wide layout keeps, from its build, the role of each binary node in it (a byte
-     per node); the refit replays that grouping rather than regrouping by the new areas.
+     memory; 9 KiB of stack per thread. Each 8-wide node keeps, from its build, its grouping
+     (bvh_node8.head, .shape, in what was padding: no memory per triangle); the refit follows it
+     in one pass over the 8-wide layout rather than regrouping by the new areas.
    - Threads: desc.threads, parallel over subtrees; the result does not depend on the count. */
 BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc);
 
 /* ---- save and load ------------------------------------------------------------------------ */
-/* A tree as bytes: a 64-byte header (magic "BVH.TREE", format version, byte-order marker,
+/* A tree as bytes: a 64-byte header (magic "BVH.TREE", format version 2, byte-order marker,
    builder, counts, payload size, a header and a payload checksum) then the binary nodes, the
-   references and, for triangle trees, tree.tris, in the saving machine's byte order. The 8-wide
-   layout is not stored: bvh_load makes it again (the format does not change when it does).
+   references and, for triangle trees, tree.tris and the 8-wide nodes (with their groupings), in
+   the saving machine's byte order: 60 to 80 bytes per triangle for a default build. The 8-wide
+   packets are not stored: bvh_load remakes them from tree.tris and the groupings, checking each
+   against the binary tree. Version 1 files (bvh.h 0.6.0) are refused with
+   BVH_ERROR_UNSUPPORTED_FORMAT: load them with 0.6.0's bvh.h or rebuild, and save again.
    The callbacks return the number of bytes they moved; fewer than asked ends the call. */
 typedef size_t (*bvh_write_fn)(void *user, const void *data, size_t size);
 typedef size_t (*bvh_read_fn)(void *user, void *data, size_t size);
@@ -693,13 +708,16 @@ typedef struct bvh_load_desc {
     size_t max_bytes;        /* refuse a tree whose payload is larger (BVH_ERROR_CORRUPT) before
                                 allocating it; 0 = no limit but the format's own caps (with a
                                 memory buffer its size bounds the payload in any case) */
-    uint32_t trace_width;    /* 0 = as the saved tree had it; 8 = make the 8-wide layout; 2 = none */
-    uint32_t threads;        /* for the 8-wide layout: 0 = all online CPUs */
+    uint32_t trace_width;    /* 0 = as the saved tree had it; 8 = the 8-wide layout (made as bvh_build
+                                does if the file has none); 2 = none */
+    uint32_t threads;        /* a memory buffer's copy and checks, and the 8-wide layout: 0 = all
+                                online CPUs */
     bvh_allocator allocator; /* becomes the tree's, as bvh_build_desc.allocator */
 } bvh_load_desc;
 /* Reads a tree saved by bvh_save. Sizes are checked before anything is allocated; the checksums,
-   then the structure (bvh_validate's checks; a box tree's leaves are not checked against boxes
-   it does not have) are checked before the tree is returned. On failure *tree is zeroed and
+   then the structure (bvh_validate's checks in linear passes, and the 8-wide groupings against
+   the binary tree; a box tree's leaves are not checked against boxes it does not have) are
+   checked before the tree is returned. On failure *tree is zeroed and
    nothing is leaked. Errors: BVH_ERROR_TRUNCATED, BVH_ERROR_CORRUPT,
    BVH_ERROR_UNSUPPORTED_FORMAT, BVH_ERROR_OUT_OF_MEMORY, BVH_ERROR_INVALID_ARGUMENT. */
 BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc);
@@ -4965,10 +4983,17 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
    two passes of the AVX2 packet test on lines side by side, and its packets are fuller (a slot
    leaves at most three lanes empty, whatever its size). Slots left free once only leaf slots
    remain are not wasted: leaf slots are opened into their two children where that lowers the
-   expected cost of the packet tests (bvh__wide_gain) without adding a packet. The child boxes are the binary nodes'
-   boxes, bit for bit, and the slab test below is the binary one lane by lane, so the argument that no box culls a hit
-   the brute-force loop finds holds as it is; the packet test is bvh__tri_test lane by lane. The numbering depends on
-   the tree alone, never on the thread count. */
+   expected cost of the packet tests (bvh__wide_gain) without adding a packet. The child boxes are
+   the binary nodes' boxes, bit for bit, and the slab test below is the binary one lane by lane, so
+   the argument that no box culls a hit the brute-force loop finds holds as it is; the packet test
+   is bvh__tri_test lane by lane. The numbering depends on the tree alone, never on the thread count.
+   Each wide node keeps its grouping (bvh_node8.head, .shape): the binary node it was made from, and
+   the binary nodes from there down to its slots in pre-order (left child first), a bit each from
+   bit 0 on: 1 a node opened inside the wide node, 0 a slot; at most 7 opened nodes and 8 slots, 15
+   bits (a root that is a leaf slot: shape 0, its head its one slot). An opened leaf slot is one
+   more opened node like any other. bvh_refit follows the grouping to update the boxes and packets
+   in place, bvh_load to remake them from the saved binary tree; both check it against the binary
+   tree as they go. */
 #define BVH__PACKET 4u     /* triangles per packet */
 #define BVH__SLOT_REFS 16u /* a binary subtree of at most this many references is one leaf slot */
 typedef struct bvh__wide_src {
@@ -4977,30 +5002,62 @@ typedef struct bvh__wide_src {
     const uint32_t *prims; /* the tree's references (caller ids) and their triangles */
     const float *tris;
     bvh_tri4 *packets; /* NULL: count only */
-    uint8_t *role;     /* the grouping, a byte per binary node (bvh__wide_heads): written by
-                          the write pass, read back by bvh_refit (replay) */
-    int replay;        /* 0: slots opened by area, sub given (the build); 1: by role, sub NULL,
-                          so that bvh_refit groups moved boxes as the build did (the same
-                          counts and numbering) without a scratch array */
 } bvh__wide_src;
-/* Roles: 0 a node opened inside a wide node (or below a leaf slot), 1 the head of a wide node,
-   2 + r a leaf slot of r references (r = 0 for a binary leaf, whose count says it). */
-#define BVH__ROLE_HEAD 1u
-#define BVH__ROLE_SLOT 2u
 BVH__INLINE int bvh__wide_leaf(const bvh__wide_src *s, uint32_t b) {
-    if (s->replay) return s->role[b] >= BVH__ROLE_SLOT;
     return s->nodes[b].count || s->sub[b] <= BVH__SLOT_REFS;
 }
-BVH__INLINE uint32_t bvh__wide_refs(const bvh__wide_src *s, uint32_t b) {
-    if (s->replay) return s->nodes[b].count ? s->nodes[b].count : s->role[b] - BVH__ROLE_SLOT;
-    return s->sub[b];
-}
+BVH__INLINE uint32_t bvh__wide_refs(const bvh__wide_src *s, uint32_t b) { return s->sub[b]; }
 BVH__INLINE uint32_t bvh__wide_packets(const bvh__wide_src *s, uint32_t b) {
     return (bvh__wide_refs(s, b) + BVH__PACKET - 1) / BVH__PACKET;
 }
+/* The packets of n references (tree positions refs[], their triangles in tris), four to a packet. */
+static void bvh__packets_write(const uint32_t *refs, uint32_t n, const uint32_t *prims, const float *tris,
+                               bvh_tri4 *out) {
+    uint32_t i, j, v, a;
+    for (i = 0; 4 * i < n; i++) {
+        bvh_tri4 *p = &out[i];
+        uint32_t lane[4];
+        int flat = 0;
+        for (j = 0; j < 4; j++) {
+            lane[j] = refs[4 * i + (4 * i + j < n ? j : 0)];
+            flat |= (j == 0 || lane[j] != lane[0]) && bvh__tri_zero_area(tris + 9 * (size_t)lane[j]);
+        }
+#ifdef BVH__SSE
+        if (!flat) { /* the common case: a 4 x 9 transpose, the same floats */
+            const float *t0 = tris + 9 * (size_t)lane[0], *t1 = tris + 9 * (size_t)lane[1];
+            const float *t2 = tris + 9 * (size_t)lane[2], *t3 = tris + 9 * (size_t)lane[3];
+            float *o = &p->v[0][0][0];
+            __m128 a0 = _mm_loadu_ps(t0), a1 = _mm_loadu_ps(t1), a2 = _mm_loadu_ps(t2), a3 = _mm_loadu_ps(t3);
+            __m128 b0 = _mm_loadu_ps(t0 + 4), b1 = _mm_loadu_ps(t1 + 4), b2 = _mm_loadu_ps(t2 + 4);
+            __m128 b3 = _mm_loadu_ps(t3 + 4);
+            _MM_TRANSPOSE4_PS(a0, a1, a2, a3);
+            _MM_TRANSPOSE4_PS(b0, b1, b2, b3);
+            _mm_storeu_ps(o, a0);
+            _mm_storeu_ps(o + 4, a1);
+            _mm_storeu_ps(o + 8, a2);
+            _mm_storeu_ps(o + 12, a3);
+            _mm_storeu_ps(o + 16, b0);
+            _mm_storeu_ps(o + 20, b1);
+            _mm_storeu_ps(o + 24, b2);
+            _mm_storeu_ps(o + 28, b3);
+            _mm_storeu_ps(o + 32, _mm_setr_ps(t0[8], t1[8], t2[8], t3[8]));
+            for (j = 0; j < 4; j++) p->prim[j] = prims[lane[j]];
+            continue;
+        }
+#endif
+        for (j = 0; j < 4; j++) {
+            uint32_t k = lane[j];
+            const float *t = tris + 9 * (size_t)k;
+            const int point = flat && bvh__tri_zero_area(t); /* held as its first vertex three times */
+            for (v = 0; v < 3; v++)
+                for (a = 0; a < 3; a++) p->v[v][a][j] = t[3 * (point ? 0 : v) + a];
+            p->prim[j] = prims[k];
+        }
+    }
+}
 /* The packets of leaf slot b: its references in depth-first order, four to a packet. */
 static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4 *out) {
-    uint32_t refs[BVH__MAX_LEAF], n = 0, stack[2 * BVH__SLOT_REFS], sp = 0, i, j, v, a;
+    uint32_t refs[BVH__MAX_LEAF], n = 0, stack[2 * BVH__SLOT_REFS], sp = 0, i;
     stack[sp++] = b;
     while (sp) { /* a subtree of at most BVH__SLOT_REFS references: fewer levels than that */
         const bvh_node *nd = &s->nodes[stack[--sp]];
@@ -5011,23 +5068,64 @@ static void bvh__wide_write_packets(const bvh__wide_src *s, uint32_t b, bvh_tri4
             stack[sp++] = nd->index;
         }
     }
-    for (i = 0; 4 * i < n; i++) {
-        bvh_tri4 *p = &out[i];
-        for (j = 0; j < 4; j++) {
-            uint32_t k = refs[4 * i + (4 * i + j < n ? j : 0)];
-            const float *t = s->tris + 9 * (size_t)k;
-            const int flat = bvh__tri_zero_area(t); /* held as its first vertex three times */
-            for (v = 0; v < 3; v++)
-                for (a = 0; a < 3; a++) p->v[v][a][j] = t[3 * (flat ? 0 : v) + a];
-            p->prim[j] = s->prims[k];
+    bvh__packets_write(refs, n, s->prims, s->tris, out);
+}
+/* The shape of the wide node of head b whose slots are kids[0 .. k - 1] (see above). */
+static uint32_t bvh__group_shape(const bvh_node *nodes, uint32_t b, const uint32_t *kids, uint32_t k) {
+    uint32_t stack[BVH__W], sp = 0, bit = 0, shape = 0, i;
+    stack[sp++] = b;
+    while (sp) {
+        uint32_t x = stack[--sp];
+        for (i = 0; i < k && kids[i] != x; i++) {
+        }
+        if (i == k) { /* opened: its children follow, the left one first */
+            shape |= 1u << bit;
+            stack[sp++] = nodes[x].index + 1;
+            stack[sp++] = nodes[x].index;
+        }
+        bit++;
+    }
+    return shape;
+}
+/* A wide node's grouping read back: its slots (ascending, the wide node's slot order) and the
+   nodes opened in it (pre-order: parents before children). 0 where it does not fit the binary tree
+   (an index out of range or not after its parent, an opened leaf, more than 8 slots, bits left
+   over), so that a damaged tree is refused, never followed out of bounds. */
+typedef struct bvh__group {
+    uint32_t slot[BVH__W], open[BVH__W - 1], nslot, nopen;
+} bvh__group;
+static int bvh__group_read(const bvh_node *nodes, uint32_t node_count, const bvh_node8 *w, bvh__group *g) {
+    uint32_t stack[BVH__W], sp = 0, bit = 0, i, a;
+    if (w->head >= node_count) return 0;
+    g->nslot = g->nopen = 0;
+    stack[sp++] = w->head;
+    while (sp) {
+        uint32_t x = stack[--sp];
+        if (bit == 15) return 0;
+        if ((w->shape >> bit++) & 1u) {
+            const bvh_node *n = &nodes[x];
+            if (n->count || n->index <= x || n->index >= node_count - 1 || g->nopen == BVH__W - 1) return 0;
+            g->open[g->nopen++] = x;
+            stack[sp++] = n->index + 1;
+            stack[sp++] = n->index;
+        } else {
+            if (g->nslot == BVH__W) return 0;
+            g->slot[g->nslot++] = x;
         }
     }
+    if (w->shape >> bit) return 0;
+    for (i = 1; i < g->nslot; i++) /* insertion sort: the build's slot order */
+        for (a = i; a > 0 && g->slot[a - 1] > g->slot[a]; a--) {
+            uint32_t x = g->slot[a];
+            g->slot[a] = g->slot[a - 1];
+            g->slot[a - 1] = x;
+        }
+    return 1;
 }
 /* The slots of interior binary node b (see above; area ties: the first in the list). */
 /* The area by which a slot is opened: -1 for a leaf slot, which stays whole. */
 static float bvh__wide_area(const bvh__wide_src *s, uint32_t b) {
     if (bvh__wide_leaf(s, b)) return -1.0f;
-    if (s->replay) return s->role[b] == BVH__ROLE_HEAD ? -1.0f : 1.0f; /* the build opened all others */
     return bvh_aabb_area(bvh__node_box(&s->nodes[b]));
 }
 /* Expected cost of a leaf slot of r references for a ray that enters its box: the leaf's set-up
@@ -5085,7 +5183,7 @@ static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t ou
         area[best] = bvh__wide_area(s, out[best]);
         k++;
     }
-    if (!s->replay) k = bvh__wide_open_slots(s, out, k);
+    k = bvh__wide_open_slots(s, out, k);
     return k;
 }
 /* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
@@ -5107,13 +5205,14 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *ou
             }
     }
     if (out) {
-        if (!bvh__wide_leaf(s, b)) s->role[b] = BVH__ROLE_HEAD;
         memset(out, 0, sizeof *out);
         for (i = 0; i < BVH__W; i++)
             for (a = 0; a < 3; a++) {
                 out->min[a][i] = BVH_INF;
                 out->max[a][i] = -BVH_INF;
             }
+        out->head = b;
+        out->shape = bvh__group_shape(s->nodes, b, kids, k);
     }
     for (i = 0; i < k; i++) {
         const bvh_node *c = &s->nodes[kids[i]];
@@ -5127,7 +5226,6 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *ou
         }
         if (!bvh__wide_leaf(s, kids[i])) continue; /* interior children: the caller sets the index */
         if (out) {
-            s->role[kids[i]] = BVH__CAST(uint8_t, BVH__ROLE_SLOT + (c->count ? 0 : bvh__wide_refs(s, kids[i])));
             out->child[i] = *packet;
             out->count[i] = (uint8_t)bvh__wide_packets(s, kids[i]);
         }
@@ -5207,9 +5305,8 @@ static bvh_result bvh__wide_sub(const bvh_node *nodes, uint32_t count, uint32_t 
     }
     return BVH_SUCCESS;
 }
-/* The wide layout in two passes, so that bvh_refit can run the second alone on the arrays it has:
-   the plan (the breadth-first top and every subtree's node and packet counts, hence the totals)
-   and the write pass into arrays of those sizes. */
+/* The wide layout in two passes: the plan (the breadth-first top and every subtree's node and
+   packet counts, hence the totals) and the write pass into arrays of those sizes. */
 typedef struct bvh__wide_plan {
     uint32_t queue[BVH__WIDE_TOP], size[BVH__WIDE_TOP], psize[BVH__WIDE_TOP], qlen, top;
     uint32_t nodes, packets, nt; /* totals; the team's size */
@@ -5229,63 +5326,22 @@ static void bvh__wide_run(const bvh__wide_plan *p, const bvh_allocator *al, bvh_
     else
         bvh__team_run_always(al, p->nt, bvh__wide_fn, job);
 }
-/* What bvh_refit keeps of the build's layout, after the packets in nodes8's block: the role of
-   each binary node (a byte each, bvh__wide_heads), then the plan's top and subtree starts (top,
-   qlen, queue[qlen], size[], psize[]), so that a refit needs neither a scratch nor the plan's
-   counting pass. */
-static uint8_t *bvh__wide_heads(const bvh_tree *tree) {
-    return BVH__CAST(uint8_t *, BVH__CAST(void *, tree->tri4 + (tree->tri4_count ? tree->tri4_count : 1)));
-}
-static uint32_t *bvh__wide_kept(const bvh_tree *tree) {
-    return BVH__CAST(uint32_t *, BVH__CAST(void *, bvh__wide_heads(tree) + ((size_t)tree->node_count + 3u) / 4u * 4u));
-}
-static size_t bvh__wide_kept_bytes(uint32_t node_count, const bvh__wide_plan *p) {
-    return ((size_t)node_count + 3u) / 4u * 4u +
-           sizeof(uint32_t) * (2u + (size_t)p->qlen + 2u * (size_t)(p->qlen - p->top));
-}
-static void bvh__wide_plan_init(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub, uint8_t *role) {
+static void bvh__wide_plan_init(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub) {
     memset(&p->job, 0, sizeof p->job);
     p->job.src.nodes = tree->nodes;
     p->job.src.sub = sub;
     p->job.src.prims = tree->prims;
     p->job.src.tris = tree->tris;
-    p->job.src.role = role;
-    p->job.src.replay = sub == NULL;
     p->pool = NULL;
     p->job.size = p->size;
     p->job.psize = p->psize;
-}
-static void bvh__wide_keep(const bvh_tree *tree, const bvh__wide_plan *p) {
-    uint32_t *k = bvh__wide_kept(tree), n = p->qlen - p->top;
-    k[0] = p->top;
-    k[1] = p->qlen;
-    memcpy(k + 2, p->queue, p->qlen * sizeof(uint32_t));
-    memcpy(k + 2 + p->qlen, p->size, n * sizeof(uint32_t));
-    memcpy(k + 2 + p->qlen + n, p->psize, n * sizeof(uint32_t));
-}
-/* bvh_refit's plan: the kept one, replaying the roles. */
-static void bvh__wide_plan_kept(bvh__wide_plan *p, const bvh_tree *tree, uint32_t threads) {
-    const uint32_t *k = bvh__wide_kept(tree);
-    uint32_t n;
-    bvh__wide_plan_init(p, tree, NULL, bvh__wide_heads(tree));
-    p->top = k[0];
-    p->qlen = k[1];
-    n = p->qlen - p->top;
-    memcpy(p->queue, k + 2, p->qlen * sizeof(uint32_t));
-    memcpy(p->size, k + 2 + p->qlen, n * sizeof(uint32_t));
-    memcpy(p->psize, k + 2 + p->qlen + n, n * sizeof(uint32_t));
-    p->job.heads = p->queue + p->top;
-    p->job.count = n;
-    p->nt = threads < n ? threads : n;
-    p->nodes = tree->node8_count;
-    p->packets = tree->tri4_count;
 }
 /* The plan of tree's wide layout by area from sub, the references below each binary node
    (bvh__wide_sub): the build's. */
 static bvh_result bvh__wide_plan_make(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub,
                                       const bvh_allocator *al, const bvh_thread_pool *pool, uint32_t threads) {
     uint32_t i, k, total, ptotal = 0, kids[BVH__W];
-    bvh__wide_plan_init(p, tree, sub, NULL);
+    bvh__wide_plan_init(p, tree, sub);
     p->pool = pool;
     p->queue[0] = 0;
     p->qlen = 1;
@@ -5329,11 +5385,23 @@ static void bvh__wide_write(bvh__wide_plan *p, bvh_node8 *nodes8, bvh_tri4 *tri4
     p->job.out = nodes8;
     if (p->job.count) bvh__wide_run(p, al, &p->job);
 }
+/* One block for both arrays: the packets follow the nodes, on a cache line as well (256-byte
+   nodes). */
+static bvh_result bvh__wide_alloc(bvh_tree *tree, const bvh_allocator *al, uint32_t nodes, uint32_t packets) {
+    if ((size_t)packets + 1 > ((size_t)-1 - (size_t)nodes * sizeof(bvh_node8)) / sizeof(bvh_tri4))
+        return BVH_ERROR_OUT_OF_MEMORY;
+    tree->nodes8 = BVH__CAST(bvh_node8 *, bvh__alloc_lines(al, (size_t)nodes * sizeof(bvh_node8) +
+                                                                   (size_t)(packets ? packets : 1) * sizeof(bvh_tri4)));
+    if (!tree->nodes8) return BVH_ERROR_OUT_OF_MEMORY;
+    tree->tri4 = BVH__CAST(bvh_tri4 *, BVH__CAST(void *, tree->nodes8 + nodes));
+    tree->node8_count = nodes;
+    tree->tri4_count = packets;
+    return BVH_SUCCESS;
+}
 static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, const bvh_thread_pool *pool,
                                  uint32_t threads) {
     bvh__wide_plan *p;
     uint32_t *sub;
-    size_t kept;
     bvh_result r;
     if (!tree->node_count) return BVH_SUCCESS;
     sub = BVH__ALLOC(al, uint32_t, tree->node_count);
@@ -5344,27 +5412,8 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, const 
     }
     if ((r = bvh__wide_sub(tree->nodes, tree->node_count, sub)) != BVH_SUCCESS) goto done;
     if ((r = bvh__wide_plan_make(p, tree, sub, al, pool, threads)) != BVH_SUCCESS) goto done;
-    /* one block: the packets follow the nodes, on a cache line as well (256-byte nodes), then
-       what bvh_refit keeps (bvh__wide_kept) */
-    kept = bvh__wide_kept_bytes(tree->node_count, p);
-    if ((size_t)p->packets + 1 > ((size_t)-1 - (size_t)p->nodes * sizeof(bvh_node8) - kept) / sizeof(bvh_tri4)) {
-        r = BVH_ERROR_OUT_OF_MEMORY;
-        goto done;
-    }
-    tree->nodes8 = BVH__CAST(bvh_node8 *,
-                             bvh__alloc_lines(al, (size_t)p->nodes * sizeof(bvh_node8) +
-                                                      (size_t)(p->packets ? p->packets : 1) * sizeof(bvh_tri4) + kept));
-    if (!tree->nodes8) {
-        r = BVH_ERROR_OUT_OF_MEMORY;
-        goto done;
-    }
-    tree->tri4 = BVH__CAST(bvh_tri4 *, BVH__CAST(void *, tree->nodes8 + p->nodes));
-    tree->node8_count = p->nodes;
-    tree->tri4_count = p->packets;
-    memset(bvh__wide_heads(tree), 0, tree->node_count);
-    p->job.src.role = bvh__wide_heads(tree);
+    if ((r = bvh__wide_alloc(tree, al, p->nodes, p->packets)) != BVH_SUCCESS) goto done;
     bvh__wide_write(p, tree->nodes8, tree->tri4, al);
-    bvh__wide_keep(tree, p);
 done:
     bvh__free(al, sub);
     bvh__free(al, p);
@@ -6700,11 +6749,14 @@ BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint3
 
 /* ============================================================================================ */
 /* == refit ===================================================================================== */
-/* The topology stays; the boxes follow the primitives. Binary boxes bottom-up over subtrees taken
-   in parallel (each in post-order from its head; the few nodes above the heads last, on one
-   thread), the triangle copy fetched leaf by leaf in the same walk, then the 8-wide layout's
-   write pass run again on its own arrays. Every box is a min/max of the same inputs, so the
-   result does not depend on the thread count or the order. */
+/* The topology stays; the boxes follow the primitives. With the 8-wide layout, one pass over it
+   does everything: wide subtrees taken in parallel, each in post-order from its head (the few wide
+   nodes above the heads last, on one thread); at each wide node, its grouping (bvh_node8.head,
+   .shape) gives the binary subtrees of its leaf slots, whose triangles are fetched (all of the
+   node's first, asked ahead), written to tree.tris and to the packets, and boxed bottom-up, then
+   the binary nodes opened in it, then its slot boxes. Without it (trace_width 2, box trees):
+   the triangle copy in reference order, then binary subtrees in parallel. Every box is a min/max
+   of the same inputs, so the result does not depend on the thread count or the order. */
 /* ============================================================================================ */
 #define BVH__REFIT_HEADS 256u /* subtrees the threads share (a PLOC tree's vary a lot in size) */
 typedef struct bvh__refit {
@@ -6830,6 +6882,226 @@ static int bvh__refit_heads(bvh__refit *j) {
     return 1;
 }
 
+/* The 8-wide pass. Node w once its wide children are done: 0 if the tree is broken there. */
+#define BVH__WREFS (BVH__W * BVH__MAX_LEAF) /* references of a wide node's leaf slots, at most */
+typedef struct bvh__wnode_scratch {
+    uint32_t pre[BVH__W * (2 * BVH__SLOT_REFS)]; /* the leaf slots' binary nodes, pre-order */
+    uint32_t refs[BVH__WREFS];                   /* their references, in packet order */
+    uint32_t pre_end[BVH__W], ref_end[BVH__W];
+} bvh__wnode_scratch;
+/* The binary subtree of leaf slot b: its nodes in pre-order (left first) appended to pre[] and
+   its references to refs[] (the packets' order); 0 if it is not a leaf slot of at most
+   BVH__SLOT_REFS references (or a leaf of at most BVH__MAX_LEAF), or out of range. */
+static int bvh__slot_walk(const bvh_tree *t, uint32_t b, uint32_t *pre, uint32_t *npre, uint32_t *refs,
+                          uint32_t *nref) {
+    uint32_t stack[2 * BVH__SLOT_REFS + 2], sp = 0, first = *nref, k, cap;
+    const bvh_node *root = &t->nodes[b];
+    cap = root->count ? BVH__MAX_LEAF : BVH__SLOT_REFS;
+    stack[sp++] = b;
+    while (sp) {
+        uint32_t x = stack[--sp];
+        const bvh_node *n = &t->nodes[x];
+        if (*npre >= BVH__W * (2 * BVH__SLOT_REFS)) return 0;
+        pre[(*npre)++] = x;
+        if (n->count) {
+            if (n->index > t->ref_count || n->count > t->ref_count - n->index || n->count > cap - (*nref - first))
+                return 0;
+            for (k = 0; k < n->count; k++) refs[(*nref)++] = n->index + k;
+        } else {
+            if (n->index <= x || n->index >= t->node_count - 1 || sp + 2 > 2 * BVH__SLOT_REFS + 2) return 0;
+            stack[sp++] = n->index + 1;
+            stack[sp++] = n->index;
+        }
+    }
+    return 1;
+}
+/* The box of n consecutive triangles (a leaf's, in tree.tris). */
+static bvh_aabb bvh__tris_box(const float *t, uint32_t n) {
+    bvh_aabb b;
+#ifdef BVH__SSE
+    __m128 lo = _mm_set1_ps(BVH_INF), hi = _mm_set1_ps(-BVH_INF);
+    float l[4], h[4];
+    uint32_t i;
+    for (i = 0; i < n; i++, t += 9) { /* lane 3 is not read back */
+        __m128 a = _mm_loadu_ps(t), c = _mm_loadu_ps(t + 3);
+        __m128 e =
+            _mm_movelh_ps(_mm_loadl_pi(_mm_setzero_ps(), BVH__CAST(const __m64 *, BVH__CAST(const void *, t + 6))),
+                          _mm_load_ss(t + 8));
+        lo = _mm_min_ps(lo, _mm_min_ps(_mm_min_ps(a, c), e));
+        hi = _mm_max_ps(hi, _mm_max_ps(_mm_max_ps(a, c), e));
+    }
+    _mm_storeu_ps(l, lo);
+    _mm_storeu_ps(h, hi);
+    b.min.x = l[0];
+    b.min.y = l[1];
+    b.min.z = l[2];
+    b.max.x = h[0];
+    b.max.y = h[1];
+    b.max.z = h[2];
+#else
+    uint32_t i;
+    b = bvh__empty();
+    for (i = 0; i < n; i++) b = bvh__merge(b, bvh__tri_box(t + 9 * (size_t)i));
+#endif
+    return b;
+}
+BVH__INLINE void bvh__set_box8(bvh_node8 *w, uint32_t i, const bvh_node *n) {
+    w->min[0][i] = n->min.x;
+    w->min[1][i] = n->min.y;
+    w->min[2][i] = n->min.z;
+    w->max[0][i] = n->max.x;
+    w->max[1][i] = n->max.y;
+    w->max[2][i] = n->max.z;
+}
+static int bvh__refit_wnode(const bvh__refit *j, uint32_t w, bvh__wnode_scratch *sc) {
+    bvh_tree *t = j->tree;
+    bvh_node8 *n = &t->nodes8[w];
+    const bvh_triangles *tr = j->tris;
+    bvh__group g;
+    uint32_t i, k, npre = 0, nref = 0;
+    if (!bvh__group_read(t->nodes, t->node_count, n, &g)) return 0;
+    for (i = 0; i < BVH__W; i++) { /* the leaf slots' subtrees, their triangles asked ahead */
+        uint32_t r0 = nref;
+        if (i >= g.nslot) {
+            if (n->count[i] || n->child[i]) return 0;
+        } else if (n->count[i]) {
+            if (!bvh__slot_walk(t, g.slot[i], sc->pre, &npre, sc->refs, &nref)) return 0;
+            if (n->count[i] != (nref - r0 + BVH__PACKET - 1) / BVH__PACKET || n->child[i] > t->tri4_count ||
+                n->count[i] > t->tri4_count - n->child[i])
+                return 0;
+            for (k = r0; k < nref; k++) {
+                uint32_t p = t->prims[sc->refs[k]];
+                if (p >= t->prim_count) return 0;
+                if (tr->indices)
+                    BVH__PREFETCH(&tr->indices[3 * (size_t)p]);
+                else
+                    BVH__PREFETCH(bvh__vertex(tr, 3 * p));
+            }
+        } else if (n->child[i] <= w || n->child[i] >= t->node8_count || t->nodes8[n->child[i]].head != g.slot[i]) {
+            return 0;
+        }
+        sc->pre_end[i] = npre;
+        sc->ref_end[i] = nref;
+    }
+    if (tr->indices)
+        for (k = 0; k < nref; k++) { /* the indices have arrived by now, mostly */
+            const uint32_t *ix = &tr->indices[3 * (size_t)t->prims[sc->refs[k]]];
+            BVH__PREFETCH(bvh__vertex(tr, ix[0]));
+            BVH__PREFETCH(bvh__vertex(tr, ix[1]));
+            BVH__PREFETCH(bvh__vertex(tr, ix[2]));
+        }
+    if (!tr->indices && (tr->stride == 0 || tr->stride == 3 * sizeof(float))) { /* a packed soup */
+        const char *v = BVH__CAST(const char *, BVH__CAST(const void *, tr->positions));
+        for (k = 0; k < nref; k++)
+            memcpy(t->tris + 9 * (size_t)sc->refs[k], v + 36 * (size_t)t->prims[sc->refs[k]], 36);
+    } else {
+        for (k = 0; k < nref; k++) bvh__fetch_triangle(tr, t->prims[sc->refs[k]], t->tris + 9 * (size_t)sc->refs[k]);
+    }
+    for (k = npre; k-- > 0;) { /* the leaf slots' binary nodes, children before parents */
+        bvh_node *x = &t->nodes[sc->pre[k]];
+        if (x->count)
+            bvh__set_box(x, bvh__tris_box(t->tris + 9 * (size_t)x->index, x->count));
+        else
+            bvh__set_box(x, bvh__merge(bvh__node_box(&t->nodes[x->index]), bvh__node_box(&t->nodes[x->index + 1])));
+    }
+    for (i = 0; i < g.nslot; i++)
+        if (n->count[i])
+            bvh__packets_write(sc->refs + (i ? sc->ref_end[i - 1] : 0), sc->ref_end[i] - (i ? sc->ref_end[i - 1] : 0),
+                               t->prims, t->tris, t->tri4 + n->child[i]);
+    for (k = g.nopen; k-- > 0;) bvh__refit_node(j, g.open[k]); /* interior: cannot fail */
+    for (i = 0; i < g.nslot; i++) bvh__set_box8(n, i, &t->nodes[g.slot[i]]);
+    return 1;
+}
+/* The wide subtree of head h in post-order; 0 if the tree is broken (child indices must point
+   forward: no cycle). */
+static int bvh__refit_wsubtree(const bvh__refit *j, uint32_t h, bvh__wnode_scratch *sc) {
+    uint32_t stack[BVH__W * (BVH_MAX_DEPTH + 2)], sp = 0; /* w << 1 | children pushed */
+    const bvh_tree *t = j->tree;
+    stack[sp++] = h << 1;
+    while (sp) {
+        uint32_t e = stack[sp - 1], w = e >> 1, i;
+        const bvh_node8 *n = &t->nodes8[w];
+        if (e & 1u) {
+            sp--;
+            if (!bvh__refit_wnode(j, w, sc)) return 0;
+            continue;
+        }
+        stack[sp - 1] |= 1u;
+        for (i = 0; i < BVH__W; i++)
+            if (!n->count[i] && n->child[i]) {
+                if (n->child[i] <= w || n->child[i] >= t->node8_count || sp == BVH__W * (BVH_MAX_DEPTH + 2)) return 0;
+                stack[sp++] = n->child[i] << 1;
+            }
+    }
+    return 1;
+}
+static void bvh__refit_wide_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__refit *j = BVH__CAST(bvh__refit *, arg);
+    bvh__wnode_scratch sc; /* 9 KiB of this thread's stack */
+    uint32_t i;
+    (void)team;
+    for (i = tid; i < j->nheads; i += nt)
+        if (!bvh__refit_wsubtree(j, j->heads[i], &sc)) j->bad[tid]++;
+}
+/* The wide heads: from the root, each head with wide children is replaced by them, round after
+   round, until there are BVH__REFIT_HEADS / 4 or more (or no more can be opened). The replaced
+   nodes (top[], parents before children) are refitted after the heads, last to first. */
+static int bvh__refit_wheads(bvh__refit *j) {
+    const bvh_tree *t = j->tree;
+    uint32_t i = 0, grew = 0;
+    j->heads[0] = 0;
+    j->nheads = 1;
+    j->ntop = 0;
+    while (j->nheads < BVH__REFIT_HEADS / 4 && j->ntop < BVH__REFIT_HEADS) {
+        uint32_t w = j->heads[i], c = 0, s;
+        const bvh_node8 *n = &t->nodes8[w];
+        for (s = 0; s < BVH__W; s++) c += !n->count[s] && n->child[s];
+        if (c && j->nheads - 1 + c <= BVH__REFIT_HEADS) {
+            uint32_t first = 1;
+            j->top[j->ntop++] = w;
+            for (s = 0; s < BVH__W; s++)
+                if (!n->count[s] && n->child[s]) {
+                    if (n->child[s] <= w || n->child[s] >= t->node8_count) return 0;
+                    if (first)
+                        j->heads[i] = n->child[s];
+                    else
+                        j->heads[j->nheads++] = n->child[s];
+                    first = 0;
+                }
+            grew = 1;
+        }
+        if (++i == j->nheads) { /* a round done */
+            if (!grew) break;
+            i = grew = 0;
+        }
+    }
+    return 1;
+}
+
+/* Whether any of n floats at p (any alignment) is Inf or NaN, by their bits without branches:
+   without its sign, such a float's bits are above 0x7f7fffff (SSE2: 16 floats a step). */
+static int bvh__any_nonfinite(const void *data, size_t n) {
+    const char *p = BVH__CAST(const char *, data);
+    size_t f = 0;
+    uint32_t w, bad = 0;
+#ifdef BVH__SSE
+    const __m128i sign = _mm_set1_epi32(0x7fffffff), big = _mm_set1_epi32(0x7f7fffff);
+    __m128i acc = _mm_setzero_si128();
+    for (; f + 16 <= n; f += 16) {
+        const __m128i *q = BVH__CAST(const __m128i *, BVH__CAST(const void *, p + f * sizeof(float)));
+        __m128i a = _mm_and_si128(_mm_loadu_si128(q), sign), b = _mm_and_si128(_mm_loadu_si128(q + 1), sign);
+        __m128i c = _mm_and_si128(_mm_loadu_si128(q + 2), sign), d = _mm_and_si128(_mm_loadu_si128(q + 3), sign);
+        acc = _mm_or_si128(acc, _mm_or_si128(_mm_or_si128(_mm_cmpgt_epi32(a, big), _mm_cmpgt_epi32(b, big)),
+                                             _mm_or_si128(_mm_cmpgt_epi32(c, big), _mm_cmpgt_epi32(d, big))));
+    }
+    bad = _mm_movemask_epi8(acc) != 0;
+#endif
+    for (; f < n; f++) {
+        memcpy(&w, p + f * sizeof(float), sizeof w);
+        bad |= (w & 0x7fffffffu) > 0x7f7fffffu;
+    }
+    return bad != 0;
+}
 /* The precheck, before anything changes: indices in range, and every vertex (every box) finite. A
    non-finite one is looked up again by primitive below: it matters only if the tree holds it. */
 typedef struct bvh__refit_check {
@@ -6858,14 +7130,7 @@ static void bvh__refit_check_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team 
         if (d->triangles.stride == 0 || d->triangles.stride == 3 * sizeof(float)) {
             /* packed: the floats in blocks, by their bits, without branches (a vector loop) */
             const char *p = BVH__CAST(const char *, BVH__CAST(const void *, d->triangles.positions));
-            size_t f = 3 * b, fe = 3 * e;
-            uint32_t any = 0, w[64], k;
-            for (; f < fe; f += 64) {
-                uint32_t m = (uint32_t)(fe - f < 64 ? fe - f : 64);
-                memcpy(w, p + f * sizeof(float), m * sizeof(float));
-                for (k = 0; k < m; k++) any |= (w[k] & 0x7f800000u) == 0x7f800000u;
-            }
-            bad_value += any;
+            bad_value += bvh__any_nonfinite(p + 3 * b * sizeof(float), 3 * (e - b));
         } else {
             for (i = b; i < e; i++) {
                 float v[3];
@@ -6920,7 +7185,6 @@ static bvh_result bvh__refit_check_desc(const bvh_tree *tree, const bvh_refit_de
 }
 BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
     bvh__refit job, *j = &job; /* a few KiB on the stack: a refit allocates nothing */
-    bvh__wide_plan plan;
     bvh_allocator al;
     bvh_result r;
     uint32_t nt, i, bad = 0;
@@ -6936,32 +7200,40 @@ BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
     j->tree = tree;
     j->tris = tree->tris ? &desc->triangles : NULL;
     j->boxes = tree->tris ? NULL : desc->boxes;
+    if (tree->nodes8 && tree->tris) { /* one pass over the 8-wide layout (see above) */
+        bvh__wnode_scratch sc;
+        if (!tree->tri4 || !bvh__refit_wheads(j)) return BVH_ERROR_INVALID_TREE;
+        bvh__team_run_always(&al, nt < j->nheads ? nt : j->nheads, bvh__refit_wide_fn, j);
+        for (i = 0; i < BVH__MAX_THREADS; i++) bad += j->bad[i];
+        for (i = j->ntop; !bad && i-- > 0;) bad += !bvh__refit_wnode(j, j->top[i], &sc);
+        return bad ? BVH_ERROR_INVALID_TREE : BVH_SUCCESS;
+    }
     if (!bvh__refit_heads(j)) return BVH_ERROR_INVALID_TREE;
     if (j->tris) bvh__team_run_always(&al, nt, bvh__refit_tris_fn, j);
     bvh__team_run_always(&al, nt < j->nheads ? nt : j->nheads, bvh__refit_fn, j);
     for (i = 0; i < BVH__MAX_THREADS; i++) bad += j->bad[i];
     for (i = j->ntop; !bad && i-- > 0;) bad += !bvh__refit_node(j, j->top[i]);
-    if (bad) return BVH_ERROR_INVALID_TREE;
-    if (tree->nodes8) { /* the wide layout as the build grouped it, written over its own arrays */
-        bvh__wide_plan_kept(&plan, tree, nt);
-        bvh__wide_write(&plan, tree->nodes8, tree->tri4, &al);
-    }
-    return BVH_SUCCESS;
+    return bad ? BVH_ERROR_INVALID_TREE : BVH_SUCCESS;
 }
 
 /* ============================================================================================ */
 /* == save and load ============================================================================== */
-/* The format (version 1): a 64-byte header of 32- and 64-bit fields in the saving machine's byte
+/* The format (version 2): a 64-byte header of 32- and 64-bit fields in the saving machine's byte
    order, then the payload: nodes, references, and tree.tris for a triangle tree, as they lie in
-   memory. A reader checks the byte-order marker, the header's checksum, then every size against
-   the others and against caps before it allocates, then the payload's checksum, then the tree's
-   structure, so that no input makes it read or allocate out of bounds. */
+   memory, then the 8-wide nodes when the tree has them (their count is what the payload size
+   leaves for them). Packets are not stored: they are a copy of tree.tris in the order the wide
+   nodes' groupings give, remade on load in one linear pass that checks each grouping against the
+   binary tree (bvh__wide_load), as fast as a copy and a check of a stored copy would be, for 40%
+   fewer bytes. A reader checks the byte-order marker, the header's checksum, then every size
+   against the others and against caps before it allocates, then the payload's checksum, then the
+   tree's structure, so that no input makes it read or allocate out of bounds. Version 1 (0.6.0,
+   no 8-wide nodes) is refused with BVH_ERROR_UNSUPPORTED_FORMAT: save such a tree again. */
 /* ============================================================================================ */
-#define BVH__FILE_VERSION 1u
+#define BVH__FILE_VERSION 2u
 #define BVH__FILE_ENDIAN 0x01020304u
 #define BVH__FILE_HEADER 64u
 #define BVH__FILE_TRIANGLES 1u /* flags: tree.tris follows the references */
-#define BVH__FILE_WIDE 2u      /* flags: the saved tree had the 8-wide layout */
+#define BVH__FILE_WIDE 2u      /* flags: the 8-wide nodes follow tree.tris */
 typedef char bvh__node_is_32_bytes[sizeof(bvh_node) == 32 ? 1 : -1];
 static const char bvh__file_magic[8] = {'B', 'V', 'H', '.', 'T', 'R', 'E', 'E'};
 typedef struct bvh__file_header {
@@ -6970,7 +7242,7 @@ typedef struct bvh__file_header {
     uint32_t builder, node_count, ref_count, prim_count, excluded;
     uint32_t header_check; /* bvh__hash of the header with this field 0, low 32 bits */
     uint64_t payload_bytes;
-    uint64_t payload_check; /* bvh__hash of nodes, references and triangles, chained */
+    uint64_t payload_check; /* bvh__payload_check */
 } bvh__file_header;
 typedef char bvh__header_is_64_bytes[sizeof(bvh__file_header) == BVH__FILE_HEADER ? 1 : -1];
 
@@ -7027,23 +7299,44 @@ static uint64_t bvh__hash(const void *data, size_t size, uint64_t seed) {
     bvh__hash_blocks(&s, data, size);
     return bvh__hash_final(&s, size ? BVH__CAST(const unsigned char *, data) + size / 32 * 32 : NULL, size);
 }
+static int bvh__saves_wide(const bvh_tree *t) { return t->nodes8 && t->tris && t->node8_count; }
+/* The payload's checksum: each array (nodes, references, triangles, 8-wide nodes: array 0 to 3)
+   cut in pieces of BVH__PIECE bytes, each hashed with its array and number as the seed, the
+   hashes summed. A sum, so that a loader can check pieces on several threads in any order; the
+   seeds keep it sensitive to where a piece lies. */
+#define BVH__PIECE ((size_t)1 << 18) /* a multiple of 32 bytes, of a node, a wide node and a float */
+static uint64_t bvh__piece_check(const void *p, size_t n, uint32_t array, size_t piece) {
+    return bvh__hash(p, n, ((uint64_t)array << 48) ^ (uint64_t)piece);
+}
+static uint64_t bvh__array_check(const void *data, size_t size, uint32_t array) {
+    const unsigned char *p = BVH__CAST(const unsigned char *, data);
+    uint64_t h = 0;
+    size_t i;
+    for (i = 0; i * BVH__PIECE < size; i++)
+        h += bvh__piece_check(p + i * BVH__PIECE,
+                              size - i * BVH__PIECE < BVH__PIECE ? size - i * BVH__PIECE : BVH__PIECE, array, i);
+    return h;
+}
 static uint64_t bvh__payload_check(const bvh_tree *t) {
-    uint64_t h = bvh__hash(t->nodes, (size_t)t->node_count * sizeof(bvh_node), 1);
-    h = bvh__hash(t->prims, (size_t)t->ref_count * sizeof(uint32_t), h);
-    return t->tris ? bvh__hash(t->tris, (size_t)t->ref_count * 9 * sizeof(float), h) : h;
+    uint64_t h = bvh__array_check(t->nodes, (size_t)t->node_count * sizeof(bvh_node), 0);
+    h += bvh__array_check(t->prims, (size_t)t->ref_count * sizeof(uint32_t), 1);
+    if (t->tris) h += bvh__array_check(t->tris, (size_t)t->ref_count * 9 * sizeof(float), 2);
+    if (bvh__saves_wide(t)) h += bvh__array_check(t->nodes8, (size_t)t->node8_count * sizeof(bvh_node8), 3);
+    return h;
 }
 static uint32_t bvh__header_check(bvh__file_header h) {
     h.header_check = 0;
     return (uint32_t)bvh__hash(&h, sizeof h, 0x42);
 }
 /* Payload bytes of a tree of these counts, or 0 where they overflow. */
-static uint64_t bvh__payload_bytes(uint32_t nodes, uint32_t refs, int tris) {
+static uint64_t bvh__payload_bytes(uint32_t nodes, uint32_t refs, int tris, uint32_t nodes8) {
     return (uint64_t)nodes * sizeof(bvh_node) + (uint64_t)refs * sizeof(uint32_t) +
-           (tris ? (uint64_t)refs * 9 * sizeof(float) : 0);
+           (tris ? (uint64_t)refs * 9 * sizeof(float) : 0) + (uint64_t)nodes8 * sizeof(bvh_node8);
 }
 BVH_API size_t bvh_save_size(const bvh_tree *tree) {
     if (!tree) return 0;
-    return BVH__FILE_HEADER + (size_t)bvh__payload_bytes(tree->node_count, tree->ref_count, tree->tris != NULL);
+    return BVH__FILE_HEADER + (size_t)bvh__payload_bytes(tree->node_count, tree->ref_count, tree->tris != NULL,
+                                                         bvh__saves_wide(tree) ? tree->node8_count : 0);
 }
 /* Large arrays go out in pieces of 64 MiB at most: a callback may take a 32-bit length. */
 static bvh_result bvh__write_all(bvh_write_fn write, void *user, const void *data, size_t size) {
@@ -7066,13 +7359,14 @@ BVH_API bvh_result bvh_save(const bvh_tree *tree, bvh_write_fn write, void *user
     h.version = BVH__FILE_VERSION;
     h.endian = BVH__FILE_ENDIAN;
     h.header_bytes = BVH__FILE_HEADER;
-    h.flags = (tree->tris ? BVH__FILE_TRIANGLES : 0u) | (tree->nodes8 ? BVH__FILE_WIDE : 0u);
+    h.flags = (tree->tris ? BVH__FILE_TRIANGLES : 0u) | (bvh__saves_wide(tree) ? BVH__FILE_WIDE : 0u);
     h.builder = (uint32_t)tree->builder;
     h.node_count = tree->node_count;
     h.ref_count = tree->ref_count;
     h.prim_count = tree->prim_count;
     h.excluded = tree->excluded;
-    h.payload_bytes = bvh__payload_bytes(tree->node_count, tree->ref_count, tree->tris != NULL);
+    h.payload_bytes = bvh__payload_bytes(tree->node_count, tree->ref_count, tree->tris != NULL,
+                                         bvh__saves_wide(tree) ? tree->node8_count : 0);
     h.payload_check = bvh__payload_check(tree);
     h.header_check = bvh__header_check(h);
     if ((r = bvh__write_all(write, user, &h, sizeof h)) != BVH_SUCCESS) return r;
@@ -7081,12 +7375,15 @@ BVH_API bvh_result bvh_save(const bvh_tree *tree, bvh_write_fn write, void *user
     if ((r = bvh__write_all(write, user, tree->prims, (size_t)tree->ref_count * sizeof(uint32_t))) != BVH_SUCCESS)
         return r;
     if (tree->tris) r = bvh__write_all(write, user, tree->tris, (size_t)tree->ref_count * 9 * sizeof(float));
+    if (r == BVH_SUCCESS && bvh__saves_wide(tree))
+        r = bvh__write_all(write, user, tree->nodes8, (size_t)tree->node8_count * sizeof(bvh_node8));
     return r;
 }
 
 /* The load source: a callback, or a memory buffer read through a cursor. */
 typedef struct bvh__reader {
     const bvh_load_desc *d;
+    const bvh_tree *tree; /* its allocator, for the team */
     size_t pos;
 } bvh__reader;
 static bvh_result bvh__read_all(bvh__reader *rd, void *out, size_t size) {
@@ -7115,32 +7412,62 @@ static int bvh__leaves_small(const bvh_node *n, size_t count) {
     for (i = 0; i < count; i++) bad |= n[i].count > BVH__MAX_LEAF;
     return !bad;
 }
-static int bvh__floats_finite(const float *t, size_t n) {
-    size_t i;
-    uint32_t bad = 0;
-    for (i = 0; i < n; i++) bad |= (bvh__bits(t[i]) & 0x7f800000u) == 0x7f800000u;
-    return !bad;
+static int bvh__floats_finite(const float *t, size_t n) { return !bvh__any_nonfinite(t, n); }
+/* A payload array read in pieces (BVH__PIECE), each hashed (bvh__payload_check) and checked as
+   `kind` says (1 nodes, 2 triangles) while it is still in cache: one pass over the memory. From a
+   memory buffer, the pieces are spread over the load's team; from a stream, read in order. */
+typedef struct bvh__load_array {
+    const unsigned char *src; /* the memory buffer's bytes; NULL: a stream */
+    unsigned char *out;
+    size_t size;
+    uint32_t array;
+    int kind;
+    uint64_t check[BVH__MAX_THREADS];
+    int bad[BVH__MAX_THREADS];
+} bvh__load_array;
+static void bvh__load_piece(bvh__load_array *a, size_t i, uint32_t tid) {
+    unsigned char *p = a->out + i * BVH__PIECE;
+    size_t n = a->size - i * BVH__PIECE < BVH__PIECE ? a->size - i * BVH__PIECE : BVH__PIECE;
+    if (a->src) memcpy(p, a->src + i * BVH__PIECE, n);
+    a->check[tid] += bvh__piece_check(p, n, a->array, i);
+    if (a->kind == 1)
+        a->bad[tid] |= !bvh__leaves_small(BVH__CAST(const bvh_node *, BVH__CAST(void *, p)), n / sizeof(bvh_node));
+    if (a->kind == 2)
+        a->bad[tid] |= !bvh__floats_finite(BVH__CAST(const float *, BVH__CAST(void *, p)), n / sizeof(float));
 }
-/* One payload array read in pieces of 256 KiB, each hashed (chained from *check) and checked as
-   `kind` says (1 nodes, 2 triangles) while it is still in cache: one pass over the memory. */
-static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int kind, uint64_t *check, int *bad) {
-    unsigned char *p = BVH__CAST(unsigned char *, out);
-    const size_t piece = (size_t)1 << 18; /* a multiple of 32 bytes, of a node and of a float */
-    bvh__hasher s;
-    size_t done = 0;
+static void bvh__load_array_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__load_array *a = BVH__CAST(bvh__load_array *, arg);
+    size_t i;
+    (void)team;
+    for (i = tid; i * BVH__PIECE < a->size; i += nt) bvh__load_piece(a, i, tid);
+}
+static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int kind, uint32_t array, uint32_t threads,
+                                  uint64_t *check, int *bad) {
+    bvh__load_array a;
+    size_t i;
     bvh_result r;
-    bvh__hash_init(&s, *check);
-    while (done < size) {
-        size_t n = size - done < piece ? size - done : piece;
-        if ((r = bvh__read_all(rd, p + done, n)) != BVH_SUCCESS) return r;
-        bvh__hash_blocks(&s, p + done, n / 32 * 32);
-        if (kind == 1)
-            *bad |= !bvh__leaves_small(BVH__CAST(const bvh_node *, BVH__CAST(void *, p + done)), n / sizeof(bvh_node));
-        if (kind == 2)
-            *bad |= !bvh__floats_finite(BVH__CAST(const float *, BVH__CAST(void *, p + done)), n / sizeof(float));
-        done += n;
+    memset(&a, 0, sizeof a);
+    a.out = BVH__CAST(unsigned char *, out);
+    a.size = size;
+    a.array = array;
+    a.kind = kind;
+    if (!rd->d->read) { /* memory: the pieces on the team (at least 1 MiB each thread) */
+        uint32_t nt = (uint32_t)(size >> 20) < threads ? (uint32_t)(size >> 20) : threads;
+        if (size > rd->d->size - rd->pos) return BVH_ERROR_TRUNCATED;
+        a.src = BVH__CAST(const unsigned char *, rd->d->data) + rd->pos;
+        rd->pos += size;
+        bvh__team_run_always(&rd->tree->allocator, nt ? nt : 1, bvh__load_array_fn, &a);
+    } else {
+        for (i = 0; i * BVH__PIECE < size; i++) {
+            size_t n = size - i * BVH__PIECE < BVH__PIECE ? size - i * BVH__PIECE : BVH__PIECE;
+            if ((r = bvh__read_all(rd, a.out + i * BVH__PIECE, n)) != BVH_SUCCESS) return r;
+            bvh__load_piece(&a, i, 0);
+        }
     }
-    *check = bvh__hash_final(&s, p + size / 32 * 32, size);
+    for (i = 0; i < BVH__MAX_THREADS; i++) {
+        *check += a.check[i];
+        *bad |= a.bad[i];
+    }
     return BVH_SUCCESS;
 }
 static uint32_t bvh__bswap32(uint32_t x) {
@@ -7165,17 +7492,171 @@ static bvh_result bvh__check_header(const bvh__file_header *h, const bvh_load_de
         return BVH_ERROR_CORRUPT;
     if (h->ref_count == 0 ? h->node_count != 0 : h->node_count == 0 || h->node_count > 2 * (uint64_t)h->ref_count - 1)
         return BVH_ERROR_CORRUPT;
-    payload = bvh__payload_bytes(h->node_count, h->ref_count, (h->flags & BVH__FILE_TRIANGLES) != 0);
+    payload = bvh__payload_bytes(h->node_count, h->ref_count, (h->flags & BVH__FILE_TRIANGLES) != 0, 0);
+    if (h->flags & BVH__FILE_WIDE) { /* the rest: at least one wide node, each from its own binary node */
+        uint64_t wide = h->payload_bytes - payload;
+        if (h->payload_bytes <= payload || wide % sizeof(bvh_node8) || wide / sizeof(bvh_node8) > h->node_count)
+            return BVH_ERROR_CORRUPT;
+        payload = h->payload_bytes;
+    }
     if (h->payload_bytes != payload) return BVH_ERROR_CORRUPT;
     if (payload > (uint64_t)((size_t)-1 / 2)) return BVH_ERROR_OUT_OF_MEMORY;
     if (d->max_bytes && payload > d->max_bytes) return BVH_ERROR_CORRUPT;
     return BVH_SUCCESS;
+}
+/* bvh_validate's checks of the binary tree in one forward pass, for bvh_load (and 8-wide nodes
+   left to bvh__wide_load): every builder stores children after their parent, so when node i is
+   met its parent, if it has one, was met before. Each node but the root must be reached exactly
+   once and no deeper than BVH_MAX_DEPTH (depth + 1 per node, a byte, 0 = not reached: then never),
+   its box valid and inside its parent's, a leaf's references inside the array, their primitives
+   in range (once each unless the builder splits) and their triangles in the leaf box. */
+static bvh_result bvh__validate_linear(const bvh_tree *t) {
+    bvh_allocator al = t->allocator;
+    uint8_t *depth = BVH__ALLOC(&al, uint8_t, t->node_count), *used = BVH__ALLOC(&al, uint8_t, t->prim_count);
+    uint64_t refs = 0;
+    uint32_t i, k, n_used = 0;
+    int splits = t->ref_count != t->prim_count - t->excluded;
+    bvh_result r = BVH_ERROR_INVALID_TREE;
+    if (!depth || !used) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    if (splits && !bvh__builders[t->builder].info.splits_references) goto done;
+    memset(depth, 0, t->node_count);
+    memset(used, 0, t->prim_count);
+    depth[0] = 1;
+    for (i = 0; i < t->node_count; i++) {
+        const bvh_node *n = &t->nodes[i];
+        bvh_aabb box = bvh__node_box(n);
+        if (!depth[i] || !(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z)) goto done;
+        if (n->count) {
+            if (n->index > t->ref_count || n->count > t->ref_count - n->index) goto done;
+            refs += n->count;
+            for (k = n->index; k < n->index + n->count; k++) {
+                uint32_t p = t->prims[k];
+                bvh_aabb pb;
+                if (p >= t->prim_count || (used[p] && !splits)) goto done;
+                n_used += !used[p];
+                used[p] = 1;
+                if (!t->tris || !splits) continue;
+                pb = bvh__tri_box(t->tris + 9 * (size_t)k);
+                if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
+                               pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
+                           : !bvh_aabb_contains(box, pb))
+                    goto done;
+            }
+            /* the triangles' box inside the leaf's: each triangle's is */
+            if (t->tris && !splits && !bvh_aabb_contains(box, bvh__tris_box(t->tris + 9 * (size_t)n->index, n->count)))
+                goto done;
+            continue;
+        }
+        if (n->index <= i || n->index >= t->node_count - 1 || depth[i] > BVH_MAX_DEPTH) goto done;
+        for (k = n->index; k < n->index + 2; k++) {
+            if (depth[k] || !bvh_aabb_contains(box, bvh__node_box(&t->nodes[k]))) goto done;
+            depth[k] = (uint8_t)(depth[i] + 1);
+        }
+    }
+    if (refs == t->ref_count && n_used == t->prim_count - t->excluded) r = BVH_SUCCESS;
+done:
+    bvh__free(&al, depth);
+    bvh__free(&al, used);
+    return r;
+}
+/* The saved 8-wide nodes (in tree.nodes8, tree.node8_count; tree.tri4_count packets, the sum of
+   their leaf counts) made whole: boxes from the binary nodes and packets from tree.tris, following
+   each node's grouping, which must fit the binary tree (validated before): the root's head is the
+   binary root, each interior slot a wide node after its parent whose head is that slot (so every
+   wide node but the root has one parent: a tree, as deep as the binary one at most, and each
+   binary node in one grouping), each leaf slot's packets as many as its references fill, inside
+   the array and in no other slot. Two linear passes: the links and packet ranges on one thread,
+   then the groupings, boxes and packets on the team (each node writes only its own slots and
+   packets, whose ranges the first pass found disjoint). BVH_ERROR_CORRUPT where they do not fit. */
+typedef struct bvh__wide_load_job {
+    bvh_tree *tree;
+    uint32_t bad[BVH__MAX_THREADS];
+} bvh__wide_load_job;
+static int bvh__wide_load_node(bvh_tree *t, uint32_t w, bvh__wnode_scratch *sc) {
+    bvh_node8 *n = &t->nodes8[w];
+    bvh__group g;
+    uint32_t i, a, npre = 0, nref = 0;
+    if (!bvh__group_read(t->nodes, t->node_count, n, &g)) return 0;
+    if (g.nslot == 1 && (w || !n->count[0])) return 0; /* only a root that is a leaf slot */
+    for (i = 0; i < BVH__W; i++) {
+        if (i >= g.nslot) {
+            if (n->count[i] || n->child[i]) return 0;
+            for (a = 0; a < 3; a++) {
+                n->min[a][i] = BVH_INF;
+                n->max[a][i] = -BVH_INF;
+            }
+            continue;
+        }
+        if (n->count[i]) {
+            uint32_t r0 = nref;
+            if (!bvh__slot_walk(t, g.slot[i], sc->pre, &npre, sc->refs, &nref)) return 0;
+            if (n->count[i] != (nref - r0 + BVH__PACKET - 1) / BVH__PACKET) return 0;
+            bvh__packets_write(sc->refs + r0, nref - r0, t->prims, t->tris, t->tri4 + n->child[i]);
+        } else if (t->nodes8[n->child[i]].head != g.slot[i]) {
+            return 0;
+        }
+        bvh__set_box8(n, i, &t->nodes[g.slot[i]]);
+    }
+    memset(n->pad, 0, sizeof n->pad);
+    return 1;
+}
+static void bvh__wide_load_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__wide_load_job *j = BVH__CAST(bvh__wide_load_job *, arg);
+    bvh__wnode_scratch sc; /* 9 KiB of this thread's stack */
+    size_t b, e, w;
+    (void)team;
+    bvh__range(j->tree->node8_count, tid, nt, &b, &e);
+    for (w = b; w < e && !j->bad[tid]; w++) j->bad[tid] += !bvh__wide_load_node(j->tree, (uint32_t)w, &sc);
+}
+static bvh_result bvh__wide_load(bvh_tree *t, uint32_t threads) {
+    uint8_t *parent = BVH__ALLOC(&t->allocator, uint8_t, t->node8_count);
+    uint8_t *cover = BVH__ALLOC(&t->allocator, uint8_t, t->tri4_count ? t->tri4_count : 1);
+    bvh__wide_load_job job;
+    bvh_result r = BVH_ERROR_CORRUPT;
+    uint32_t w, i, k, nt;
+    if (!parent || !cover) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    memset(parent, 0, t->node8_count);
+    memset(cover, 0, t->tri4_count ? t->tri4_count : 1);
+    if (t->nodes8[0].head != 0) goto done;
+    for (w = 0; w < t->node8_count; w++) {
+        const bvh_node8 *n = &t->nodes8[w];
+        for (i = 0; i < BVH__W; i++)
+            if (n->count[i]) {
+                if (n->child[i] > t->tri4_count || n->count[i] > t->tri4_count - n->child[i]) goto done;
+                for (k = n->child[i]; k < n->child[i] + n->count[i]; k++)
+                    if (cover[k]++) goto done;
+            } else if (n->child[i] && (n->child[i] <= w || n->child[i] >= t->node8_count || parent[n->child[i]]++)) {
+                goto done;
+            }
+    }
+    for (w = 1; w < t->node8_count; w++)
+        if (!parent[w]) goto done;
+    memset(&job, 0, sizeof job);
+    job.tree = t;
+    nt = t->ref_count / BVH__MIN_PRIMS_PER_THREAD;
+    nt = threads < nt ? threads : nt ? nt : 1;
+    bvh__team_run_always(&t->allocator, nt, bvh__wide_load_fn, &job);
+    for (i = 0; i < BVH__MAX_THREADS; i++)
+        if (job.bad[i]) goto done;
+    r = BVH_SUCCESS; /* packets: each in one slot, and as many as the slots' counts */
+done:
+    bvh__free(&t->allocator, parent);
+    bvh__free(&t->allocator, cover);
+    return r;
 }
 BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
     bvh__file_header h;
     bvh__reader rd;
     bvh_result r;
     uint64_t check;
+    bvh_node8 *wide = NULL; /* the saved 8-wide nodes, until the block that holds the packets too */
+    uint32_t nodes8 = 0, packets = 0, i, k, nt;
     int bad = 0;
     if (!tree) return BVH_ERROR_INVALID_ARGUMENT;
     memset(tree, 0, sizeof *tree);
@@ -7185,7 +7666,9 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
     if ((r = bvh__allocator_ok(&desc->allocator)) != BVH_SUCCESS) return r;
     tree->allocator = desc->allocator;
     rd.d = desc;
+    rd.tree = tree;
     rd.pos = 0;
+    nt = bvh__resolve_threads(desc->threads);
     if ((r = bvh__read_all(&rd, &h, sizeof h)) != BVH_SUCCESS) return r;
     if ((r = bvh__check_header(&h, desc)) != BVH_SUCCESS) return r;
     /* a memory buffer bounds the payload before anything is allocated */
@@ -7194,6 +7677,9 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
     tree->prim_count = h.prim_count;
     tree->excluded = h.excluded;
     if (!h.node_count) return BVH_SUCCESS;
+    if (h.flags & BVH__FILE_WIDE)
+        nodes8 =
+            (uint32_t)((h.payload_bytes - bvh__payload_bytes(h.node_count, h.ref_count, 1, 0)) / sizeof(bvh_node8));
     tree->nodes = BVH__ALLOC(&tree->allocator, bvh_node, h.node_count);
     tree->prims = BVH__ALLOC(&tree->allocator, uint32_t, h.ref_count);
     if (h.flags & BVH__FILE_TRIANGLES) tree->tris = BVH__ALLOC(&tree->allocator, float, 9 * (size_t)h.ref_count);
@@ -7201,33 +7687,56 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto fail;
     }
-    check = 1; /* bvh__payload_check's chain */
-    if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, &check, &bad)) !=
+    check = 0; /* bvh__payload_check's sum */
+    if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, 0, nt, &check, &bad)) !=
             BVH_SUCCESS ||
-        (r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 0, &check, &bad)) !=
+        (r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 0, 1, nt, &check, &bad)) !=
             BVH_SUCCESS ||
-        (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, &check,
+        (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, 2, nt, &check,
                                             &bad)) != BVH_SUCCESS))
         goto fail;
+    if (nodes8) {
+        if (!(wide = BVH__ALLOC(&tree->allocator, bvh_node8, nodes8))) {
+            r = BVH_ERROR_OUT_OF_MEMORY;
+            goto fail;
+        }
+        if ((r = bvh__read_array(&rd, wide, (size_t)nodes8 * sizeof(bvh_node8), 0, 3, nt, &check, &bad)) != BVH_SUCCESS)
+            goto fail;
+    }
     tree->node_count = h.node_count;
     tree->ref_count = h.ref_count;
     if (check != h.payload_check || bad) {
         r = BVH_ERROR_CORRUPT;
         goto fail;
     }
-    if ((r = bvh__validate(tree, NULL, 1, NULL)) != BVH_SUCCESS) {
+    if ((r = bvh__validate_linear(tree)) != BVH_SUCCESS) {
         if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT;
         goto fail;
     }
-    if (tree->tris && (desc->trace_width == 8 || (desc->trace_width == 0 && (h.flags & BVH__FILE_WIDE)))) {
-        uint32_t nt = bvh__resolve_threads(desc->threads);
+    if (wide && desc->trace_width != 2) { /* the saved layout, its packets remade */
+        uint64_t sum = 0;
+        for (i = 0; i < nodes8; i++)
+            for (k = 0; k < BVH__W; k++) sum += wide[i].count[k];
+        if (sum > h.ref_count) { /* each packet holds a reference of its own */
+            r = BVH_ERROR_CORRUPT;
+            goto fail;
+        }
+        packets = (uint32_t)sum;
+        if ((r = bvh__wide_alloc(tree, &tree->allocator, nodes8, packets)) != BVH_SUCCESS) goto fail;
+        memcpy(tree->nodes8, wide, (size_t)nodes8 * sizeof(bvh_node8));
+        bvh__free(&tree->allocator, wide);
+        wide = NULL;
+        if ((r = bvh__wide_load(tree, nt)) != BVH_SUCCESS) goto fail;
+    } else if (tree->tris && desc->trace_width == 8) { /* saved without: made as bvh_build does */
         if ((r = bvh__make_wide(tree, &tree->allocator, NULL, nt)) != BVH_SUCCESS) {
             if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT; /* children before their parent */
             goto fail;
         }
     }
+    bvh__free(&tree->allocator, wide);
     return BVH_SUCCESS;
 fail:
+    bvh__free(&tree->allocator, wide);
     bvh_free(tree);
     tree->builder = BVH_BUILDER_DEFAULT;
     return r;

@@ -57,7 +57,7 @@
    last frame the SAH of the refitted tree and of the row's builder rebuilt on it (refit_sah,
    rebuild_sah) and the camera rays' Mrays/s on N threads with each (refit_mrays, rebuild_mrays;
    their hits must agree). With --save-load, bvh_save and bvh_load to and from memory (save_ms,
-   load_ms; the 8-wide layout is remade on load). Both are off by default.
+   load_ms; the 8-wide nodes are read and their packets remade on load). Both are off by default.
 
    Exit status: 0 ok; 1 an error (a scene, build or output failed); 2 bad command line;
    3 the hits disagree. */
@@ -844,8 +844,8 @@ fail:
     snprintf(r->note, sizeof r->note, "failed: tracing: %s", bvh_result_string(res));
 }
 
-/* --save-load: bvh_save into a buffer of bvh_save_size bytes and bvh_load from it (the 8-wide
-   layout made again on N threads), 3 times each; the median times. The loaded tree must be the
+/* --save-load: bvh_save into a buffer of bvh_save_size bytes and bvh_load from it (on N threads:
+   the 8-wide packets remade from the saved groupings), 3 times each; the median times. The loaded tree must be the
    saved one. */
 typedef struct mem_writer {
     unsigned char *p;
@@ -2004,7 +2004,7 @@ static void anim_lines(FILE *f, const options *o, const bench_scene *s, const ch
             prefix, r->name, r->refit_ms, r->rebuild_ms, r->rebuild_ms / r->refit_ms, r->refit_sah, r->rebuild_sah,
             100.0 * (r->refit_sah / r->rebuild_sah - 1.0), r->refit_mrays, r->rebuild_mrays);
     }
-    if (o->save_load) fprintf(f, "%ssave and load (--save-load, memory, 8-wide layout made on load): ms\n", prefix);
+    if (o->save_load) fprintf(f, "%ssave and load (--save-load, memory, 8-wide packets remade on load): ms\n", prefix);
     for (i = 0; o->save_load && i < s->nrows; i++) {
         const row *r = &s->rows[i];
         if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
@@ -2529,7 +2529,7 @@ static void usage(FILE *f) {
             "  --refit N        animated case: N frames of a twisting, waving scene; per frame bvh_refit\n"
             "                   of each tree and a bottom-up rebuild (ms), then SAH and Mrays/s of the\n"
             "                   refitted tree against this builder's rebuild (default 0: none)\n"
-            "  --save-load      time bvh_save and bvh_load (from memory, the 8-wide layout remade)\n"
+            "  --save-load      time bvh_save and bvh_load (from memory, the 8-wide packets remade)\n"
             "  --md FILE        Markdown tables, best value per column and scene in bold\n"
             "  --json FILE      one JSON object per line and row ('-': stdout; the table goes to stderr)\n"
             "  --plots DIR      plot data (*.dat) and, with gnuplot, PNG plots (bench/plot.sh)\n"

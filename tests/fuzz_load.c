@@ -97,7 +97,10 @@ static void fz_reseal(uint8_t *file, size_t size) {
     uint64_t payload;
     if (size < sizeof h) return;
     memcpy(&h, file, sizeof h);
-    payload = bvh__payload_bytes(h.node_count, h.ref_count, (h.flags & BVH__FILE_TRIANGLES) != 0);
+    payload = bvh__payload_bytes(h.node_count, h.ref_count, (h.flags & BVH__FILE_TRIANGLES) != 0, 0);
+    if ((h.flags & BVH__FILE_WIDE) && h.payload_bytes > payload && h.payload_bytes - payload < (uint64_t)1 << 40 &&
+        (h.payload_bytes - payload) % sizeof(bvh_node8) == 0)
+        payload = h.payload_bytes; /* the 8-wide nodes: what the payload leaves for them */
     if (payload <= size - sizeof h) {
         bvh_tree t;
         memset(&t, 0, sizeof t);
@@ -106,6 +109,11 @@ static void fz_reseal(uint8_t *file, size_t size) {
         t.nodes = (bvh_node *)(void *)(file + sizeof h);
         t.prims = (uint32_t *)(void *)(t.nodes + h.node_count);
         t.tris = (h.flags & BVH__FILE_TRIANGLES) ? (float *)(void *)(t.prims + h.ref_count) : NULL;
+        if (t.tris && payload == h.payload_bytes && (h.flags & BVH__FILE_WIDE)) {
+            t.nodes8 = (bvh_node8 *)(void *)(t.tris + 9 * (size_t)h.ref_count);
+            t.node8_count =
+                (uint32_t)((payload - bvh__payload_bytes(h.node_count, h.ref_count, 1, 0)) / sizeof(bvh_node8));
+        }
         h.payload_check = bvh__payload_check(&t);
     }
     h.header_check = bvh__header_check(h);

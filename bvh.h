@@ -4031,6 +4031,9 @@ struct bvh__sm_par {
     int stop;
 };
 #define BVH__SM_FALLBACK ((bvh_result)-1000) /* internal: phase A needs an exact budget */
+#ifndef BVH__SM_EVENT /* private; the tests count the rare paths: BVH__SM_EVENT(rebuilt), (serial) */
+#define BVH__SM_EVENT(what) ((void)0)
+#endif
 
 static int bvh__sm_grow(const bvh__ctx *c, void **p, uint32_t *cap, uint32_t used, size_t size) {
     void *q;
@@ -4268,6 +4271,7 @@ static bvh_result bvh__sm_assemble(bvh__sm_par *par, bvh__out *o) {
                     return BVH_ERROR_OUT_OF_MEMORY;
                 }
                 u->own = 1;
+                BVH__SM_EVENT(rebuilt);
                 r = bvh__sm_build_sub(par, &par->ts[0], u, budget, s->work, bn, br, NULL);
                 if (r != BVH_SUCCESS) return r;
                 if (bvh__report(c->prog, 0.0)) return BVH_ERROR_CANCELLED;
@@ -4413,6 +4417,7 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
         r = bvh__sm_parallel(s, root, c->threads, o);
         if (r != BVH__SM_FALLBACK) goto done;
         r = BVH_SUCCESS; /* start again, serially */
+        BVH__SM_EVENT(serial);
         for (i = 0; i < c->n; i++) {
             s->work[i].box = c->boxes[i];
             s->work[i].id = i;

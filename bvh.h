@@ -3384,6 +3384,7 @@ typedef struct bvh__sm_task {
     uint32_t node, count, depth; /* its references are work[top - count, top) when it is popped */
     uint32_t budget;             /* extra references this subtree may still create */
     uint32_t parent, right;      /* parallel builds: the parent's record (bvh__sm_rec), second child */
+    uint32_t guess;              /* phase A: the budget if no subtree before it made duplicates */
     bvh_aabb box, cbox;          /* bounds of the references and of their centroids */
 } bvh__sm_task;
 
@@ -3404,7 +3405,11 @@ typedef struct bvh__sm {
     bvh__out *o;
     bvh__sm_ref *work;
     uint32_t top, cap, budget, extra, carry, node_max, bins;
-    int tight; /* a comparison with the budget decided something: more budget might change it */
+    int tight;       /* a comparison with the budget decided something: more budget might change it */
+    uint32_t lo, hi; /* the node's decisions are the same for any budget in [lo, hi] */
+    uint32_t room;   /* at most this many duplicates in all (a subtree's slot), else overflow */
+    int overflow;    /* a duplicate was not made for want of room: the result is not used */
+    uint32_t *cons;  /* NULL, or per node: lo, hi, first child's references, duplicates */
     double root_area;
     /* evaluation scratch, per axis */
     bvh_aabb bin[3][BVH__SM_MAX_BINS + 1]; /* one more: the bin holding the mid-point, cut */
@@ -3711,7 +3716,13 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         }
         for (a = 0; a < 3; a++) {
             clip[a] = !gate && budget > 0 && mid_ok[a];
-            s->tight |= !gate && budget == 0 && mid_ok[a];
+            if (!gate && mid_ok[a]) { /* clipping was wanted: the budget decides */
+                if (budget == 0) {
+                    s->tight = 1;
+                    s->hi = 0;
+                } else if (s->lo < 1)
+                    s->lo = 1;
+            }
             any_clip |= clip[a];
         }
     }
@@ -3722,8 +3733,10 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         if (!clip[a]) continue;
         if (u.over[a] || u.dup[a] > budget) { /* over budget: not a candidate */
             s->tight = 1;
+            if (s->hi > budget) s->hi = budget;
             continue;
         }
+        if (s->lo < u.dup[a]) s->lo = u.dup[a];
         if (!(u.nsl[a] + u.nsr[a]) || !(u.ndl[a] + u.nsl[a]) || !(u.ndr[a] + u.nsr[a])) continue;
         lb = u.dl[a];
         lb = bvh__merge(lb, u.sl[a]);
@@ -3795,9 +3808,15 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
                 } /* touches one side only */
                 else {
                     side = s->bins ? bvh__sm_unsplit(ch, r) : 3; /* 1 or 2: whole, on that side */
-                    if (side == 3 && dups >= budget) {
+                    if (side == 3 && (dups >= budget || s->extra + dups >= s->room)) {
                         side = bvh__sm_centre(r, a) < p ? 1 : 2;
-                        s->tight = 1;
+                        if (dups < budget)
+                            s->overflow = 1;
+                        else { /* this budget only */
+                            s->tight = 1;
+                            if (s->lo < budget) s->lo = budget;
+                            if (s->hi > budget) s->hi = budget;
+                        }
                     }
                     if (side == 3) {
                         w[top + dups++] = lp;
@@ -3818,6 +3837,7 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
                 bvh__sm_swap(&w[mid], &w[hi]);
             }
         }
+        if (s->lo < dups) s->lo = dups;
         s->extra += dups;
         s->top = top + dups;
         return s->top - mid;
@@ -3957,6 +3977,8 @@ static bvh_result bvh__sm_run(bvh__sm *s, bvh__sm_task *stack, uint32_t sp, bvh_
         if (stop && BVH__LOAD_ACQ(stop)) return BVH_ERROR_CANCELLED;
         t.budget += s->carry; /* what the subtrees before this one left unused */
         s->carry = 0;
+        s->lo = 0;
+        s->hi = 0xffffffffu;
         bvh__sm_decide(s, &t, &ch);
         node = &o->nodes[t.node];
         if (ch.kind == BVH__SM_NONE) { /* leaf */
@@ -3966,9 +3988,22 @@ static bvh_result bvh__sm_run(bvh__sm *s, bvh__sm_task *stack, uint32_t sp, bvh_
             for (i = b; i < b + m; i++) o->refs[o->ref_count++] = s->work[i].id;
             s->top = b;
             s->carry = t.budget;
+            if (s->cons) {
+                uint32_t *k = s->cons + 4 * (size_t)t.node;
+                k[0] = s->lo;
+                k[1] = s->hi;
+                k[2] = k[3] = 0;
+            }
             continue;
         }
-        bvh__sm_children(s, &t, &ch, &tl, &tr);
+        i = bvh__sm_children(s, &t, &ch, &tl, &tr);
+        if (s->cons) {
+            uint32_t *k = s->cons + 4 * (size_t)t.node;
+            k[0] = s->lo;
+            k[1] = s->hi;
+            k[2] = tl.count;
+            k[3] = i;
+        }
         r = bvh__sm_reserve_pair(s);
         if (r != BVH_SUCCESS) return r;
         node = &o->nodes[t.node];
@@ -3993,12 +4028,16 @@ static bvh_result bvh__sm_run(bvh__sm *s, bvh__sm_task *stack, uint32_t sp, bvh_
    threads then build in any order, each into its own slot of an arena; the assembly numbers the
    nodes and references in the serial order. The tree is the serial one if every node sees the
    serial budget. Its one serial dependency is the carry: a subtree's unused budget goes to the
-   node after it. Phase A and the subtrees take 0 for the carry of a subtree not yet built (a
-   lower bound: budgets only grow with it, and both children's shares grow with their parent's).
-   A decision that no comparison with the budget made (s->tight clear) is the one any larger
-   budget makes; the assembly walks the nodes in order with the exact budgets and builds again,
-   on the calling thread, a subtree whose result may depend on a budget it did not get. A node of
-   phase A that compared with an inexact budget makes the build start again serially. */
+   node after it. Phase A takes 0 for the carry of a subtree not yet built (a lower bound:
+   budgets only grow with it, and both children's shares grow with their parent's); a decision
+   that no comparison with the budget made (s->tight clear) is the one any larger budget makes,
+   and a node of phase A that compared with an inexact budget makes the build start again
+   serially. A subtree is built with a guess (the budget if no subtree before it made
+   duplicates: most of the budget is left unused and flows on) and records, per node, the range
+   of budgets that make the same decisions; the assembly walks the nodes in order with the exact
+   budgets, checks every node of a subtree against its range, and builds again, on the calling
+   thread, a subtree whose check fails or that had not the room for its duplicates (its slot is
+   sized for the lower bound). */
 typedef struct bvh__sm_rec {
     uint32_t parent, right; /* the parent's record (BVH_INVALID: the root), 1: the second child */
     uint32_t sub;           /* its subtree, or BVH_INVALID: a node phase A split */
@@ -4008,11 +4047,12 @@ typedef struct bvh__sm_rec {
     bvh_aabb box;
 } bvh__sm_rec;
 typedef struct bvh__sm_sub {
-    bvh__sm_task t;             /* its budget: the one it was built with */
+    bvh__sm_task t;             /* budget: the lower bound (its slot's room for duplicates) */
     uint32_t in;                /* its references: par->in[in, in + t.count) */
-    uint32_t node_off, ref_off; /* its slot of the arena */
+    uint32_t node_off, ref_off; /* its slot of the arena (and of par->cons) */
+    uint32_t built;             /* the budget it was built with (t.guess, then the exact one) */
     uint32_t nodes, refs, dups; /* what it made */
-    int tight, own;             /* own: rebuilt with more budget into blocks of its own */
+    int overflow, own;          /* own: built again into blocks of its own */
     bvh_node *out_nodes;
     uint32_t *out_refs;
 } bvh__sm_sub;
@@ -4025,7 +4065,7 @@ struct bvh__sm_par {
     bvh__sm_sub *sub;
     uint32_t *order; /* the subtrees, largest first */
     bvh_node *arena_nodes;
-    uint32_t *arena_refs;
+    uint32_t *arena_refs, *cons; /* cons: the subtrees' nodes' ranges (bvh__sm.cons) */
     uint32_t nt, threshold, in_used, nrec, rec_cap, nsub, sub_cap, pending, scratch_cap;
     size_t next; /* the next subtree of `order` no thread has taken */
     int stop;
@@ -4123,11 +4163,12 @@ static bvh_result bvh__sm_phase_a(bvh__sm_par *par, bvh__sm_task root) {
     bvh__sm *s = par->s;
     const bvh__ctx *c = s->c;
     bvh__sm_task stack[BVH__SM_STACK];
-    uint32_t sp = 1;
+    uint32_t sp = 1, gcarry = 0; /* gcarry: the guess's carry */
     stack[0] = root;
     while (sp) {
         bvh__sm_task t = stack[--sp], tl, tr;
         const uint32_t m = t.count, b = s->top - m;
+        uint32_t left;
         bvh__sm_choice ch;
         bvh__sm_rec *rec;
         if (bvh__tick(c->prog, m, 0.0)) return BVH_ERROR_CANCELLED;
@@ -4147,6 +4188,8 @@ static bvh_result bvh__sm_phase_a(bvh__sm_par *par, bvh__sm_task root) {
             memset(u, 0, sizeof *u);
             u->t = t;
             u->t.node = 0;
+            u->t.guess = t.guess + gcarry;
+            gcarry = u->t.guess; /* as if it made no duplicates */
             u->in = par->in_used;
             memcpy(par->in + par->in_used, s->work + b, (size_t)m * sizeof *s->work);
             par->in_used += m;
@@ -4162,6 +4205,11 @@ static bvh_result bvh__sm_phase_a(bvh__sm_par *par, bvh__sm_task root) {
         rec->budget = t.budget;
         rec->nl = tl.count;
         rec->nr = tr.count;
+        t.guess += gcarry;
+        gcarry = 0;
+        left = t.guess - rec->dups;
+        tl.guess = (uint32_t)((uint64_t)left * tl.count / (tl.count + tr.count));
+        tr.guess = left - tl.guess;
         rec->box = bvh__merge(tl.box, tr.box);
         tl.parent = tr.parent = par->nrec - 1;
         tl.right = 0;
@@ -4175,8 +4223,9 @@ static bvh_result bvh__sm_phase_a(bvh__sm_par *par, bvh__sm_task root) {
 
 /* Builds subtree u with `budget` from its references in par->in, with work room `work`, into
    nodes and refs (room for 2 (count + budget) - 1 and count + budget). */
-static bvh_result bvh__sm_build_sub(bvh__sm_par *par, bvh__sm *st, bvh__sm_sub *u, uint32_t budget, bvh__sm_ref *work,
-                                    bvh_node *nodes, uint32_t *refs, bvh__progress *prog) {
+static bvh_result bvh__sm_build_sub(bvh__sm_par *par, bvh__sm *st, bvh__sm_sub *u, uint32_t budget, uint32_t room,
+                                    bvh__sm_ref *work, bvh_node *nodes, uint32_t *refs, uint32_t *cons,
+                                    bvh__progress *prog) {
     bvh__out o;
     bvh__sm_task stack[BVH__SM_STACK];
     bvh_result r;
@@ -4190,19 +4239,22 @@ static bvh_result bvh__sm_build_sub(bvh__sm_par *par, bvh__sm *st, bvh__sm_sub *
     st->work = work;
     st->top = m;
     st->budget = budget;
-    st->cap = m + budget;
+    st->room = room;
+    st->cap = m + room;
     st->node_max = o.node_cap = 2 * st->cap - 1;
     o.ref_cap = st->cap;
     st->extra = st->carry = 0;
-    st->tight = 0;
+    st->tight = st->overflow = 0;
+    st->cons = cons;
     stack[0] = u->t;
     stack[0].budget = budget;
     r = bvh__sm_run(st, stack, 1, prog, &par->stop);
     BVH_ASSERT(r != BVH_SUCCESS || st->extra <= budget);
+    u->built = budget;
     u->nodes = o.node_count;
     u->refs = o.ref_count;
     u->dups = st->extra;
-    u->tight = st->tight;
+    u->overflow = st->overflow;
     u->out_nodes = nodes;
     u->out_refs = refs;
     return r;
@@ -4227,10 +4279,44 @@ static void bvh__sm_sub_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team
     size_t k = 0, i;
     while ((i = bvh__sm_take(par, tid, nt, &k)) < par->nsub) {
         bvh__sm_sub *u = &par->sub[par->order[i]];
-        if (bvh__sm_build_sub(par, st, u, u->t.budget, par->scratch + (size_t)tid * par->scratch_cap,
-                              par->arena_nodes + u->node_off, par->arena_refs + u->ref_off, prog) != BVH_SUCCESS)
+        if (bvh__sm_build_sub(par, st, u, u->t.guess, u->t.budget, par->scratch + (size_t)tid * par->scratch_cap,
+                              par->arena_nodes + u->node_off, par->arena_refs + u->ref_off,
+                              par->cons + 4 * (size_t)u->node_off, prog) != BVH_SUCCESS)
             return;
     }
+}
+
+/* Whether subtree u, built with u->built, is the one the exact budget makes: the budgets flow
+   through its nodes as in bvh__sm_run, each within the range its decisions hold for. */
+static int bvh__sm_same(const bvh__sm_par *par, const bvh__sm_sub *u, uint32_t budget) {
+    const uint32_t *cons = par->cons + 4 * (size_t)u->node_off;
+    uint32_t stack[3 * BVH__SM_STACK], sp = 0, carry = 0;
+    if (budget == u->built) return 1;
+    stack[sp++] = 0; /* node, budget, references */
+    stack[sp++] = budget;
+    stack[sp++] = u->t.count;
+    while (sp) {
+        const uint32_t m = stack[--sp], j = stack[sp - 2], *k = cons + 4 * (size_t)j;
+        uint32_t b = stack[sp - 1] + carry, left, first, nr;
+        sp -= 2;
+        carry = 0;
+        if (b < k[0] || b > k[1]) return 0;
+        if (u->out_nodes[j].count) { /* a leaf */
+            carry = b;
+            continue;
+        }
+        left = b - k[3];
+        nr = m + k[3] - k[2];
+        first = (uint32_t)((uint64_t)left * k[2] / (k[2] + nr));
+        BVH_ASSERT(sp + 6 <= 3 * BVH__SM_STACK);
+        stack[sp++] = u->out_nodes[j].index + 1;
+        stack[sp++] = left - first;
+        stack[sp++] = nr;
+        stack[sp++] = u->out_nodes[j].index;
+        stack[sp++] = first;
+        stack[sp++] = k[2];
+    }
+    return 1;
 }
 
 /* The walk in the serial order: exact budgets (a subtree built with less and tight is built
@@ -4260,7 +4346,7 @@ static bvh_result bvh__sm_assemble(bvh__sm_par *par, bvh__out *o) {
         {
             bvh__sm_sub *u = &par->sub[x->sub];
             BVH_ASSERT(budget >= u->t.budget);
-            if (u->tight && budget != u->t.budget) { /* built again with its exact budget */
+            if (u->overflow || !bvh__sm_same(par, u, budget)) { /* built again with its exact budget */
                 const uint32_t cap = u->t.count + budget;
                 bvh_node *bn = BVH__ALLOC(&c->al, bvh_node, 2 * (size_t)cap - 1);
                 uint32_t *br = BVH__ALLOC(&c->al, uint32_t, cap);
@@ -4272,11 +4358,10 @@ static bvh_result bvh__sm_assemble(bvh__sm_par *par, bvh__out *o) {
                 }
                 u->own = 1;
                 BVH__SM_EVENT(rebuilt);
-                r = bvh__sm_build_sub(par, &par->ts[0], u, budget, s->work, bn, br, NULL);
+                r = bvh__sm_build_sub(par, &par->ts[0], u, budget, budget, s->work, bn, br, NULL, NULL);
                 if (r != BVH_SUCCESS) return r;
                 if (bvh__report(c->prog, 0.0)) return BVH_ERROR_CANCELLED;
             }
-            u->t.budget = budget;
             carry = budget - u->dups;
             nodes += u->nodes - 1;
             refs += u->refs;
@@ -4329,6 +4414,7 @@ static void bvh__sm_par_free(const bvh__ctx *c, bvh__sm_par *par) {
     bvh__free(&c->al, par->order);
     bvh__free(&c->al, par->arena_nodes);
     bvh__free(&c->al, par->arena_refs);
+    bvh__free(&c->al, par->cons);
 }
 
 /* Phase A, the subtrees on the threads, the assembly. BVH__SM_FALLBACK: build serially. */
@@ -4365,9 +4451,10 @@ static bvh_result bvh__sm_parallel(bvh__sm *s, bvh__sm_task root, uint32_t nt, b
             par.order[j] = i; /* largest first, ties in order */
         }
         par.arena_nodes = BVH__ALLOC(&c->al, bvh_node, nodes ? nodes : 1);
+        par.cons = BVH__ALLOC(&c->al, uint32_t, 4 * (size_t)(nodes ? nodes : 1));
         par.arena_refs = BVH__ALLOC(&c->al, uint32_t, refs ? refs : 1);
         par.scratch = BVH__ALLOC(&c->al, bvh__sm_ref, (size_t)nt * par.scratch_cap);
-        if (!par.order || !par.arena_nodes || !par.arena_refs || !par.scratch) r = BVH_ERROR_OUT_OF_MEMORY;
+        if (!par.order || !par.arena_nodes || !par.arena_refs || !par.scratch || !par.cons) r = BVH_ERROR_OUT_OF_MEMORY;
     }
     if (r == BVH_SUCCESS) {
         for (i = 0; i < nt; i++) par.ts[i] = *s; /* s->par is NULL: the subtrees' passes are serial */
@@ -4409,8 +4496,9 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
     memset(&root, 0, sizeof root);
     root.count = c->n;
     root.depth = 1;
-    root.budget = s->budget;
+    root.budget = root.guess = s->budget;
     root.parent = BVH_INVALID;
+    s->room = 0xffffffffu;
     bvh__sm_bounds(s->work, c->n, &root.box, &root.cbox);
     s->root_area = bvh__half_area_d(root.box);
     if (c->threads > 1) {

@@ -13,9 +13,7 @@
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 /* sah-midpoint's rare paths, counted (on the calling thread): a subtree built again with its
    exact budget, a parallel build started again serially */
-static struct {
-    unsigned rebuilt, serial;
-} sm_events;
+static struct { unsigned rebuilt, serial; } sm_events;
 #define BVH__SM_EVENT(what) (sm_events.what++)
 #include "bvh.h"
 #include "test_util.h"

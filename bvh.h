@@ -104,6 +104,13 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.7.0  (in progress) sah-midpoint builds on the build's threads (desc.threads, or the
+            caller's pool; bvh_builder_info.uses_threads is now 1 for it), with the same tree
+            byte for byte for any thread count and as before on one thread: the top nodes' passes
+            over the references on the threads, the subtrees below them built in parallel and
+            numbered in the serial order; a subtree whose decisions depended on a budget it could
+            not know yet is built again (docs/DESIGN.md, sah-midpoint). bvhbench: a "build 1t"
+            column (build_ms_1t in the JSON) for the builders that use threads.
      0.6.0  The public surface made regular. Builder-specific options moved into nested structs,
             zero still the default (the same trees): desc.ploc_radius -> desc.ploc.radius,
             desc.ploc_top -> desc.ploc.top, desc.max_bytes_per_prim ->
@@ -359,7 +366,7 @@ typedef struct bvh_build_desc {
     uint32_t box_count;
     uint32_t max_leaf_size; /* 0 = the builder's (bvh_builder_info.max_leaf_size: 4 for top-down
                                and bottom-up, 8 for the SAH-collapsed builders); above 255 refused */
-    uint32_t threads;       /* ploc-parallel: 0 = all online CPUs; above 256 clamped to 256;
+    uint32_t threads;       /* ploc-parallel, sah-midpoint: 0 = all online CPUs; above 256 clamped;
                                at most one per 8192 primitives (the tree is the same) */
     bvh_costs costs;        /* build-time SAH costs, zero = (1, 0, 1) (PLOC's collapse: (1.2,
                                0, 1), for smaller trees at the same SAH); negative/NaN refused */
@@ -3364,7 +3371,8 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
    halving is needed to stay within BVH_MAX_DEPTH. Added to the study (desc.sah_midpoint.bins;
    BVH_OFF = the study's variant): binned SAH object splits, C_S costed only where children
    overlap, reference unsplitting. Nodes come out depth-first, children adjacent and after their
-   parent. One thread. The method in full, and the differences from the paper: docs/DESIGN.md. */
+   parent. On the build's threads: see "on the build's threads" below; the same tree for any
+   count. The method in full, and the differences from the paper: docs/DESIGN.md. */
 /* ============================================================================================ */
 #ifndef BVH__SAH_MIDPOINT_ALPHA
 #define BVH__SAH_MIDPOINT_ALPHA 1e-3
@@ -3716,12 +3724,9 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         }
         for (a = 0; a < 3; a++) {
             clip[a] = !gate && budget > 0 && mid_ok[a];
-            if (!gate && mid_ok[a]) { /* clipping was wanted: the budget decides */
-                if (budget == 0) {
-                    s->tight = 1;
-                    s->hi = 0;
-                } else if (s->lo < 1)
-                    s->lo = 1;
+            if (!gate && mid_ok[a] && budget == 0) { /* clipping was wanted: more budget may choose it */
+                s->tight = 1;
+                s->hi = 0;
             }
             any_clip |= clip[a];
         }
@@ -3731,12 +3736,11 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         bvh__sm_pass2(s->c, s->work, b, b + m, x, clip, budget, &u);
     for (a = 0; a < 3; a++) {
         if (!clip[a]) continue;
-        if (u.over[a] || u.dup[a] > budget) { /* over budget: not a candidate */
+        if (u.over[a] || u.dup[a] > budget) { /* over budget: not a candidate (more budget may choose it) */
             s->tight = 1;
             if (s->hi > budget) s->hi = budget;
             continue;
         }
-        if (s->lo < u.dup[a]) s->lo = u.dup[a];
         if (!(u.nsl[a] + u.nsr[a]) || !(u.ndl[a] + u.nsl[a]) || !(u.ndr[a] + u.nsr[a])) continue;
         lb = u.dl[a];
         lb = bvh__merge(lb, u.sl[a]);
@@ -3750,6 +3754,11 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
             best->n_left = u.ndl[a] + u.nsl[a];
             best->n_right = u.ndr[a] + u.nsr[a];
         }
+    }
+    /* less budget changes the choice only where it refuses the winner (a loser refused is no loss) */
+    if (best->kind == BVH__SM_SPLIT) {
+        const uint32_t need = u.dup[best->axis] > 1 ? u.dup[best->axis] : 1;
+        if (s->lo < need) s->lo = need;
     }
 }
 
@@ -3926,9 +3935,10 @@ static void bvh__sm_decide(bvh__sm *s, const bvh__sm_task *t, bvh__sm_choice *ch
         bvh__sm_evaluate(s, b, m, t->budget, &t->box, &t->cbox, ch);
         /* E_r = C_i A(n) + C_t C; where nothing separates, a leaf whenever one may hold them */
         split = ch->kind == BVH__SM_NONE ? HUGE_VAL : c->ci * area + c->ct * ch->cost;
-        if (bvh__sah_leaf(c, m, BVH__LEAF_COST(c, area, (double)m), split))
+        if (bvh__sah_leaf(c, m, BVH__LEAF_COST(c, area, (double)m), split)) {
             ch->kind = BVH__SM_NONE; /* leaf: E_t <= E_r */
-        else if (ch->kind == BVH__SM_NONE || !(ch->cost < area * m))
+            s->lo = 0;               /* refusing the winner for want of budget leaves a dearer split: a leaf still */
+        } else if (ch->kind == BVH__SM_NONE || !(ch->cost < area * m))
             ch->kind = BVH__SM_MEDIAN;
     }
 }

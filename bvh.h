@@ -4057,12 +4057,13 @@ typedef struct bvh__sm_rec {
     bvh_aabb box;
 } bvh__sm_rec;
 typedef struct bvh__sm_sub {
-    bvh__sm_task t;             /* budget: the lower bound (its slot's room for duplicates) */
-    uint32_t in;                /* its references: par->in[in, in + t.count) */
-    uint32_t node_off, ref_off; /* its slot of the arena (and of par->cons) */
-    uint32_t built;             /* the budget it was built with (t.guess, then the exact one) */
-    uint32_t nodes, refs, dups; /* what it made */
-    int overflow, own;          /* own: built again into blocks of its own */
+    bvh__sm_task t;                  /* budget: the lower bound (its slot's room for duplicates) */
+    uint32_t in;                     /* its references: par->in[in, in + t.count) */
+    uint32_t node_off, ref_off;      /* its slot of the arena (and of par->cons) */
+    uint32_t built;                  /* the budget it was built with (t.guess, then the exact one) */
+    uint32_t nodes, refs, dups;      /* what it made */
+    uint32_t g, node_base, ref_base; /* assembly: its root's index, where its nodes and refs go */
+    int overflow, own;               /* own: built again into blocks of its own */
     bvh_node *out_nodes;
     uint32_t *out_refs;
 } bvh__sm_sub;
@@ -4079,6 +4080,7 @@ struct bvh__sm_par {
     uint32_t nt, threshold, in_used, nrec, rec_cap, nsub, sub_cap, pending, scratch_cap;
     size_t next; /* the next subtree of `order` no thread has taken */
     int stop;
+    bvh__out *out; /* the assembly's */
 };
 #define BVH__SM_FALLBACK ((bvh_result)-1000) /* internal: phase A needs an exact budget */
 #ifndef BVH__SM_EVENT /* private; the tests count the rare paths: BVH__SM_EVENT(rebuilt), (serial) */
@@ -4296,6 +4298,25 @@ static void bvh__sm_sub_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team
     }
 }
 
+/* The subtrees' nodes and references into the tree, renumbered: children (local index >= 1)
+   follow node_base, a leaf's references ref_base. */
+static void bvh__sm_copy_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__sm_par *par = BVH__CAST(bvh__sm_par *, arg);
+    bvh__out *o = par->out;
+    size_t k = 0, i;
+    uint32_t j;
+    (void)team;
+    while ((i = bvh__sm_take(par, tid, nt, &k)) < par->nsub) {
+        const bvh__sm_sub *u = &par->sub[i];
+        for (j = 0; j < u->nodes; j++) {
+            bvh_node nd = u->out_nodes[j];
+            nd.index += nd.count ? u->ref_base : u->node_base - 1;
+            o->nodes[j ? u->node_base + j - 1 : u->g] = nd;
+        }
+        memcpy(o->refs + u->ref_base, u->out_refs, (size_t)u->refs * sizeof *o->refs);
+    }
+}
+
 /* Whether subtree u, built with u->built, is the one the exact budget makes: the budgets flow
    through its nodes as in bvh__sm_run, each within the range its decisions hold for. */
 static int bvh__sm_same(const bvh__sm_par *par, const bvh__sm_sub *u, uint32_t budget) {
@@ -4334,7 +4355,7 @@ static int bvh__sm_same(const bvh__sm_par *par, const bvh__sm_sub *u, uint32_t b
 static bvh_result bvh__sm_assemble(bvh__sm_par *par, bvh__out *o) {
     bvh__sm *s = par->s;
     const bvh__ctx *c = s->c;
-    uint32_t i, j, carry = 0, nodes = 1, refs = 0, next_node = 1, next_ref = 0;
+    uint32_t i, carry = 0, nodes = 1, refs = 0, next_node = 1, next_ref = 0;
     for (i = 0; i < par->nrec; i++) {
         bvh__sm_rec *x = &par->rec[i];
         uint32_t budget;
@@ -4393,18 +4414,23 @@ static bvh_result bvh__sm_assemble(bvh__sm_par *par, bvh__out *o) {
             node->index = x->base;
             node->count = 0;
         } else {
-            const bvh__sm_sub *u = &par->sub[x->sub];
-            for (j = 0; j < u->nodes; j++) {
-                bvh_node nd = u->out_nodes[j];
-                nd.index += nd.count ? next_ref : next_node - 1; /* children: local index >= 1 */
-                o->nodes[j ? next_node + j - 1 : g] = nd;
-            }
-            memcpy(o->refs + next_ref, u->out_refs, (size_t)u->refs * sizeof *o->refs);
+            bvh__sm_sub *u = &par->sub[x->sub];
+            u->g = g; /* copied by the threads (bvh__sm_copy_fn) */
+            u->node_base = next_node;
+            u->ref_base = next_ref;
             next_node += u->nodes - 1;
             next_ref += u->refs;
         }
     }
     BVH_ASSERT(next_node == nodes && next_ref == refs);
+    par->out = o;
+    par->next = 0;
+    if (bvh__run(c, par->nt, 0, bvh__sm_copy_fn, par) != BVH_SUCCESS) {
+        bvh__team team; /* no threads to be had: the calling thread copies them all */
+        memset(&team, 0, sizeof team);
+        par->next = 0;
+        bvh__sm_copy_fn(par, 0, 1, &team);
+    }
     return BVH_SUCCESS;
 }
 

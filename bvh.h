@@ -3968,9 +3968,9 @@ static uint32_t bvh__sm_children(bvh__sm *s, const bvh__sm_task *t, const bvh__s
 }
 
 /* Builds the subtrees of the tasks on the stack, depth-first, into s->o: a node's children are
-   the next free pair when it is split, a leaf's references the next in s->o->refs. `prog`: the
-   thread that reports progress (NULL: none); `stop`: set when a thread of the build cancels. */
-static bvh_result bvh__sm_run(bvh__sm *s, bvh__sm_task *stack, uint32_t sp, bvh__progress *prog, int *stop) {
+   the next free pair when it is split, a leaf's references the next in s->o->refs. `prog`: NULL
+   on the threads of a parallel build (the calling thread reports between their rounds). */
+static bvh_result bvh__sm_run(bvh__sm *s, bvh__sm_task *stack, uint32_t sp, bvh__progress *prog) {
     bvh__out *o = s->o;
     uint32_t i;
     bvh_result r;
@@ -3980,11 +3980,7 @@ static bvh_result bvh__sm_run(bvh__sm *s, bvh__sm_task *stack, uint32_t sp, bvh_
         bvh__sm_choice ch;
         bvh_aabb box;
         bvh_node *node;
-        if (prog && bvh__tick(prog, m, (double)o->ref_count / (double)s->cap)) {
-            if (stop) BVH__STORE_REL(stop, 1);
-            return BVH_ERROR_CANCELLED;
-        }
-        if (stop && BVH__LOAD_ACQ(stop)) return BVH_ERROR_CANCELLED;
+        if (prog && bvh__tick(prog, m, (double)o->ref_count / (double)s->cap)) return BVH_ERROR_CANCELLED;
         t.budget += s->carry; /* what the subtrees before this one left unused */
         s->carry = 0;
         s->lo = 0;
@@ -4078,9 +4074,8 @@ struct bvh__sm_par {
     bvh_node *arena_nodes;
     uint32_t *arena_refs, *cons; /* cons: the subtrees' nodes' ranges (bvh__sm.cons) */
     uint32_t nt, threshold, in_used, nrec, rec_cap, nsub, sub_cap, pending, scratch_cap;
-    size_t next; /* the next subtree of `order` no thread has taken */
-    int stop;
-    bvh__out *out; /* the assembly's */
+    size_t next, end; /* the next subtree of `order` no thread has taken, the end of the round */
+    bvh__out *out;    /* the assembly's */
 };
 #define BVH__SM_FALLBACK ((bvh_result)-1000) /* internal: phase A needs an exact budget */
 #ifndef BVH__SM_EVENT /* private; the tests count the rare paths: BVH__SM_EVENT(rebuilt), (serial) */
@@ -4236,8 +4231,7 @@ static bvh_result bvh__sm_phase_a(bvh__sm_par *par, bvh__sm_task root) {
 /* Builds subtree u with `budget` from its references in par->in, with work room `work`, into
    nodes and refs (room for 2 (count + budget) - 1 and count + budget). */
 static bvh_result bvh__sm_build_sub(bvh__sm_par *par, bvh__sm *st, bvh__sm_sub *u, uint32_t budget, uint32_t room,
-                                    bvh__sm_ref *work, bvh_node *nodes, uint32_t *refs, uint32_t *cons,
-                                    bvh__progress *prog) {
+                                    bvh__sm_ref *work, bvh_node *nodes, uint32_t *refs, uint32_t *cons) {
     bvh__out o;
     bvh__sm_task stack[BVH__SM_STACK];
     bvh_result r;
@@ -4260,7 +4254,7 @@ static bvh_result bvh__sm_build_sub(bvh__sm_par *par, bvh__sm *st, bvh__sm_sub *
     st->cons = cons;
     stack[0] = u->t;
     stack[0].budget = budget;
-    r = bvh__sm_run(st, stack, 1, prog, &par->stop);
+    r = bvh__sm_run(st, stack, 1, NULL); /* the caller reports between rounds */
     BVH_ASSERT(r != BVH_SUCCESS || st->extra <= budget);
     u->built = budget;
     u->nodes = o.node_count;
@@ -4281,21 +4275,20 @@ static size_t bvh__sm_take(bvh__sm_par *par, uint32_t tid, uint32_t nt, size_t *
 #else
     size_t i = *k; /* no atomics: every nt-th subtree from tid on */
     *k += nt;
-    return (size_t)tid + i;
+    return par->next + tid + i;
 #endif
 }
 static void bvh__sm_sub_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__sm_par *par = BVH__CAST(bvh__sm_par *, arg);
     bvh__sm *st = &par->ts[tid];
-    bvh__progress *prog = team->pool || tid ? NULL : par->s->c->prog;
     size_t k = 0, i;
-    while ((i = bvh__sm_take(par, tid, nt, &k)) < par->nsub) {
-        bvh__sm_sub *u = &par->sub[par->order[i]];
-        if (bvh__sm_build_sub(par, st, u, u->t.guess, u->t.budget, par->scratch + (size_t)tid * par->scratch_cap,
-                              par->arena_nodes + u->node_off, par->arena_refs + u->ref_off,
-                              par->cons + 4 * (size_t)u->node_off, prog) != BVH_SUCCESS)
-            return;
-    }
+    (void)team;
+    while ((i = bvh__sm_take(par, tid, nt, &k)) < par->end)
+        (void)bvh__sm_build_sub(par, st, &par->sub[par->order[i]], par->sub[par->order[i]].t.guess,
+                                par->sub[par->order[i]].t.budget, par->scratch + (size_t)tid * par->scratch_cap,
+                                par->arena_nodes + par->sub[par->order[i]].node_off,
+                                par->arena_refs + par->sub[par->order[i]].ref_off,
+                                par->cons + 4 * (size_t)par->sub[par->order[i]].node_off);
 }
 
 /* The subtrees' nodes and references into the tree, renumbered: children (local index >= 1)
@@ -4306,7 +4299,7 @@ static void bvh__sm_copy_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *tea
     size_t k = 0, i;
     uint32_t j;
     (void)team;
-    while ((i = bvh__sm_take(par, tid, nt, &k)) < par->nsub) {
+    while ((i = bvh__sm_take(par, tid, nt, &k)) < par->end) {
         const bvh__sm_sub *u = &par->sub[i];
         for (j = 0; j < u->nodes; j++) {
             bvh_node nd = u->out_nodes[j];
@@ -4389,7 +4382,7 @@ static bvh_result bvh__sm_assemble(bvh__sm_par *par, bvh__out *o) {
                 }
                 u->own = 1;
                 BVH__SM_EVENT(rebuilt);
-                r = bvh__sm_build_sub(par, &par->ts[0], u, budget, budget, s->work, bn, br, NULL, NULL);
+                r = bvh__sm_build_sub(par, &par->ts[0], u, budget, budget, s->work, bn, br, NULL);
                 if (r != BVH_SUCCESS) return r;
                 if (bvh__report(c->prog, 0.0)) return BVH_ERROR_CANCELLED;
             }
@@ -4425,10 +4418,12 @@ static bvh_result bvh__sm_assemble(bvh__sm_par *par, bvh__out *o) {
     BVH_ASSERT(next_node == nodes && next_ref == refs);
     par->out = o;
     par->next = 0;
+    par->end = par->nsub;
     if (bvh__run(c, par->nt, 0, bvh__sm_copy_fn, par) != BVH_SUCCESS) {
         bvh__team team; /* no threads to be had: the calling thread copies them all */
         memset(&team, 0, sizeof team);
         par->next = 0;
+        par->end = par->nsub;
         bvh__sm_copy_fn(par, 0, 1, &team);
     }
     return BVH_SUCCESS;
@@ -4493,9 +4488,22 @@ static bvh_result bvh__sm_parallel(bvh__sm *s, bvh__sm_task root, uint32_t nt, b
         if (!par.order || !par.arena_nodes || !par.arena_refs || !par.scratch || !par.cons) r = BVH_ERROR_OUT_OF_MEMORY;
     }
     if (r == BVH_SUCCESS) {
+        size_t lo, hi;
         for (i = 0; i < nt; i++) par.ts[i] = *s; /* s->par is NULL: the subtrees' passes are serial */
-        r = bvh__run(c, nt, 0, bvh__sm_sub_fn, &par);
-        if (r == BVH_SUCCESS && (par.stop || bvh__report(c->prog, 1.0))) r = BVH_ERROR_CANCELLED;
+        /* in rounds of about BVH__PROGRESS_WORK / 2 references per thread at each level of a
+           subtree (the serial loop ticks every BVH__PROGRESS_WORK), largest first, with a report after each on this
+           thread: the same calls for any schedule, and a cancel between them */
+        for (lo = 0; r == BVH_SUCCESS && lo < par.nsub; lo = hi) {
+            uint64_t work = 0;
+            for (hi = lo; hi < par.nsub && (hi - lo < nt || work < (uint64_t)nt * BVH__PROGRESS_WORK / 2); hi++) {
+                const uint32_t m = par.sub[par.order[hi]].t.count;
+                work += (uint64_t)m * (bvh__sm_log2(m) + 1);
+            }
+            par.next = lo;
+            par.end = hi;
+            r = bvh__run(c, nt, 0, bvh__sm_sub_fn, &par);
+            if (r == BVH_SUCCESS && bvh__report(c->prog, (double)hi / par.nsub)) r = BVH_ERROR_CANCELLED;
+        }
     }
     if (r == BVH_SUCCESS) r = bvh__sm_assemble(&par, o);
     bvh__sm_par_free(c, &par);
@@ -4559,7 +4567,7 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
     }
     o->node_count = 1;
     stack[0] = root;
-    r = bvh__sm_run(s, stack, 1, c->prog, NULL);
+    r = bvh__sm_run(s, stack, 1, c->prog);
 done:
     BVH_ASSERT(s->extra <= s->budget);
     if (r != BVH_SUCCESS) bvh__out_free(c, o);

@@ -4075,6 +4075,7 @@ struct bvh__sm_par {
     uint32_t *arena_refs, *cons; /* cons: the subtrees' nodes' ranges (bvh__sm.cons) */
     uint32_t nt, threshold, in_used, nrec, rec_cap, nsub, sub_cap, pending, scratch_cap;
     size_t next, end; /* the next subtree of `order` no thread has taken, the end of the round */
+    int oom;          /* phase A: a pass could not have its threads */
     bvh__out *out;    /* the assembly's */
 };
 #define BVH__SM_FALLBACK ((bvh_result)-1000) /* internal: phase A needs an exact budget */
@@ -4133,7 +4134,10 @@ static int bvh__sm_pass_team(bvh__sm *s, int pass, uint32_t b, uint32_t m, uint3
     j.x = x;
     j.slots = slots;
     j.clip = clip;
-    if (bvh__run(s->c, par->nt, 0, bvh__sm_pass_fn, &j) != BVH_SUCCESS || !j.used) return 0;
+    if (bvh__run(s->c, par->nt, 0, bvh__sm_pass_fn, &j) != BVH_SUCCESS || !j.used) {
+        par->oom = 1; /* the team's bookkeeping: the build fails once this node is decided */
+        return 0;
+    }
     if (pass == 1)
         for (a = 0; a < 3; a++)
             for (k = 0; k < slots[a]; k++) {
@@ -4206,6 +4210,7 @@ static bvh_result bvh__sm_phase_a(bvh__sm_par *par, bvh__sm_task root) {
         }
         s->tight = 0;
         bvh__sm_decide(s, &t, &ch);
+        if (par->oom) return BVH_ERROR_OUT_OF_MEMORY;
         BVH_ASSERT(ch.kind != BVH__SM_NONE); /* m > max_leaf */
         rec->dups = bvh__sm_children(s, &t, &ch, &tl, &tr);
         if (s->tight && par->pending && s->budget) return BVH__SM_FALLBACK; /* without splits budgets are 0 */
@@ -4419,14 +4424,7 @@ static bvh_result bvh__sm_assemble(bvh__sm_par *par, bvh__out *o) {
     par->out = o;
     par->next = 0;
     par->end = par->nsub;
-    if (bvh__run(c, par->nt, 0, bvh__sm_copy_fn, par) != BVH_SUCCESS) {
-        bvh__team team; /* no threads to be had: the calling thread copies them all */
-        memset(&team, 0, sizeof team);
-        par->next = 0;
-        par->end = par->nsub;
-        bvh__sm_copy_fn(par, 0, 1, &team);
-    }
-    return BVH_SUCCESS;
+    return bvh__run(c, par->nt, 0, bvh__sm_copy_fn, par);
 }
 
 static void bvh__sm_par_free(const bvh__ctx *c, bvh__sm_par *par) {

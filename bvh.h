@@ -127,6 +127,13 @@
             tree, on bvh_load_desc.threads) and checks the binary tree in linear passes; the
             payload checksum is per 256 KiB piece. Version 1 files are refused
             (BVH_ERROR_UNSUPPORTED_FORMAT).
+            sah-midpoint builds on the build's threads (desc.threads, or the
+            caller's pool; bvh_builder_info.uses_threads is now 1 for it), with the same tree
+            byte for byte for any thread count and as before on one thread: the top nodes' passes
+            over the references on the threads, the subtrees below them built in parallel and
+            numbered in the serial order; a subtree whose decisions depended on a budget it could
+            not know yet is built again (docs/DESIGN.md, sah-midpoint). bvhbench: a "build 1t"
+            column (build_ms_1t in the JSON) for the builders that use threads.
      0.6.0  The public surface made regular. Builder-specific options moved into nested structs,
             zero still the default (the same trees): desc.ploc_radius -> desc.ploc.radius,
             desc.ploc_top -> desc.ploc.top, desc.max_bytes_per_prim ->
@@ -385,7 +392,7 @@ typedef struct bvh_build_desc {
     uint32_t box_count;
     uint32_t max_leaf_size; /* 0 = the builder's (bvh_builder_info.max_leaf_size: 4 for top-down
                                and bottom-up, 8 for the SAH-collapsed builders); above 255 refused */
-    uint32_t threads;       /* ploc-parallel: 0 = all online CPUs; above 256 clamped to 256;
+    uint32_t threads;       /* ploc-parallel, sah-midpoint: 0 = all online CPUs; above 256 clamped;
                                at most one per 8192 primitives (the tree is the same) */
     bvh_costs costs;        /* build-time SAH costs, zero = (1, 0, 1) (PLOC's collapse: (1.2,
                                0, 1), for smaller trees at the same SAH); negative/NaN refused */
@@ -3396,7 +3403,8 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
    halving is needed to stay within BVH_MAX_DEPTH. Added to the study (desc.sah_midpoint.bins;
    BVH_OFF = the study's variant): binned SAH object splits, C_S costed only where children
    overlap, reference unsplitting. Nodes come out depth-first, children adjacent and after their
-   parent. One thread. The method in full, and the differences from the paper: docs/DESIGN.md. */
+   parent. On the build's threads: see "on the build's threads" below; the same tree for any
+   count. The method in full, and the differences from the paper: docs/DESIGN.md. */
 /* ============================================================================================ */
 #ifndef BVH__SAH_MIDPOINT_ALPHA
 #define BVH__SAH_MIDPOINT_ALPHA 1e-3
@@ -3415,6 +3423,8 @@ typedef struct bvh__sm_ref {
 typedef struct bvh__sm_task {
     uint32_t node, count, depth; /* its references are work[top - count, top) when it is popped */
     uint32_t budget;             /* extra references this subtree may still create */
+    uint32_t parent, right;      /* parallel builds: the parent's record (bvh__sm_rec), second child */
+    uint32_t guess;              /* phase A: the budget if no subtree before it made duplicates */
     bvh_aabb box, cbox;          /* bounds of the references and of their centroids */
 } bvh__sm_task;
 
@@ -3428,11 +3438,18 @@ typedef struct bvh__sm_choice {
     uint32_t n_left, n_right;
 } bvh__sm_choice;
 
+typedef struct bvh__sm_par bvh__sm_par;
 typedef struct bvh__sm {
     const bvh__ctx *c;
+    bvh__sm_par *par; /* phase A of a parallel build: its passes over the references on the threads */
     bvh__out *o;
     bvh__sm_ref *work;
     uint32_t top, cap, budget, extra, carry, node_max, bins;
+    int tight;       /* a comparison with the budget decided something: more budget might change it */
+    uint32_t lo, hi; /* the node's decisions are the same for any budget in [lo, hi] */
+    uint32_t room;   /* at most this many duplicates in all (a subtree's slot), else overflow */
+    int overflow;    /* a duplicate was not made for want of room: the result is not used */
+    uint32_t *cons;  /* NULL, or per node: lo, hi, first child's references, duplicates */
     double root_area;
     /* evaluation scratch, per axis */
     bvh_aabb bin[3][BVH__SM_MAX_BINS + 1]; /* one more: the bin holding the mid-point, cut */
@@ -3573,6 +3590,86 @@ BVH__INLINE uint32_t bvh__sm_slot(const bvh__sm_ref *r, int a, float c, const bv
     return k + (uint32_t)(k > x->kp) + ((uint32_t)(k == x->kp) & right);
 }
 
+/* Pass 2's sums per axis: the references wholly left and right of the plane, the straddlers'
+   clipped parts on each side, the straddlers referenced on both; over: more of those than the
+   budget (the rest of the range was not looked at). Boxes merge by min and max and counts add,
+   so the sums of a node cut into ranges are the same in any order. */
+typedef struct bvh__sm_sums {
+    bvh_aabb dl[3], dr[3], sl[3], sr[3];
+    uint32_t ndl[3], ndr[3], nsl[3], nsr[3], dup[3];
+    int over[3];
+} bvh__sm_sums;
+typedef bvh_aabb bvh__sm_bins[3][BVH__SM_MAX_BINS + 1];
+typedef uint32_t bvh__sm_counts[3][BVH__SM_MAX_BINS + 1];
+
+/* Pass 1 over work[i, e): the slots of every axis that has two or more, cleared first. */
+BVH__INLINE void bvh__sm_pass1(const bvh__sm_ref *w, uint32_t i, uint32_t e, const bvh__sm_axis *x,
+                               const uint32_t *slots, bvh__sm_bins bin, bvh__sm_counts bin_n) {
+    uint32_t k;
+    int a;
+    for (a = 0; a < 3; a++)
+        for (k = 0; k < slots[a]; k++) {
+            bin[a][k] = bvh__empty();
+            bin_n[a][k] = 0;
+        }
+    for (; i < e; i++) {
+        const bvh__sm_ref *r = &w[i];
+        for (a = 0; a < 3; a++) {
+            if (slots[a] < 2) continue;
+            k = bvh__sm_slot(r, a, bvh__sm_centre(r, a), &x[a]);
+            bin[a][k] = bvh__merge(bin[a][k], r->box);
+            bin_n[a][k]++;
+        }
+    }
+}
+/* Pass 2 over work[i, e) for the axes of clip[]. */
+BVH__INLINE void bvh__sm_pass2(const bvh__ctx *c, const bvh__sm_ref *w, uint32_t i, uint32_t e, const bvh__sm_axis *x,
+                               const int *clip_in, uint32_t budget, bvh__sm_sums *u) {
+    int clip[3], a;
+    for (a = 0; a < 3; a++) {
+        clip[a] = clip_in[a];
+        u->dl[a] = u->dr[a] = u->sl[a] = u->sr[a] = bvh__empty();
+        u->ndl[a] = u->ndr[a] = u->nsl[a] = u->nsr[a] = u->dup[a] = 0;
+        u->over[a] = 0;
+    }
+    for (; i < e; i++) {
+        const bvh__sm_ref *r = &w[i];
+        for (a = 0; a < 3; a++) {
+            bvh__sm_ref lp, rp;
+            int mask;
+            float p = x[a].p;
+            if (!clip[a]) continue;
+            if (bvh__at(&r->box.max, a) <= p) {
+                u->dl[a] = bvh__merge(u->dl[a], r->box);
+                u->ndl[a]++;
+                continue;
+            }
+            if (bvh__at(&r->box.min, a) >= p) {
+                u->dr[a] = bvh__merge(u->dr[a], r->box);
+                u->ndr[a]++;
+                continue;
+            }
+            mask = bvh__sm_clip(c, r, a, p, &lp, &rp);
+            if (mask & 1) {
+                u->sl[a] = bvh__merge(u->sl[a], lp.box);
+                u->nsl[a]++;
+            }
+            if (mask & 2) {
+                u->sr[a] = bvh__merge(u->sr[a], rp.box);
+                u->nsr[a]++;
+            }
+            if (mask == 3 && ++u->dup[a] > budget) { /* over budget: not a candidate */
+                clip[a] = 0;
+                u->over[a] = 1;
+            }
+        }
+    }
+}
+/* Phase A: a pass over work[b, b + m) on the build's threads, merged into s->bin or *sums;
+   0 when the threads could not be had (then the caller makes the pass). */
+static int bvh__sm_pass_team(bvh__sm *s, int pass, uint32_t b, uint32_t m, uint32_t budget, const bvh__sm_axis *x,
+                             const uint32_t *slots, const int *clip, bvh__sm_sums *sums);
+
 /* Costs every candidate of the node work[b, b + m) with bounds nb and centroid bounds cb, allowed
    `budget` duplicates; *best gets the cheapest (BVH__SM_NONE when nothing separates). Pass 1 bins
    the references (C_O and the object splits come out of one sweep per axis); pass 2 sorts them
@@ -3581,10 +3678,11 @@ BVH__INLINE uint32_t bvh__sm_slot(const bvh__sm_ref *r, int a, float c, const bv
    of the root's area; without bins (the study's variant) C_S is always costed. */
 static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget, const bvh_aabb *nb,
                              const bvh_aabb *cb, bvh__sm_choice *best) {
-    const uint32_t bins = s->bins < m ? s->bins : m, e = b + m; /* small nodes: fewer bins */
+    const uint32_t bins = s->bins < m ? s->bins : m; /* small nodes: fewer bins */
     bvh__sm_axis x[3];
-    bvh_aabb dl[3], dr[3], sl[3], sr[3], lb, rb;
-    uint32_t ndl[3], ndr[3], nsl[3], nsr[3], dup[3], slots[3], i, k, best_slot = 0;
+    bvh__sm_sums u;
+    bvh_aabb lb, rb;
+    uint32_t slots[3], k, best_slot = 0;
     int mid_ok[3], clip[3], any_clip = 0, a;
     best->kind = BVH__SM_NONE;
     best->cost = 0.0;
@@ -3605,20 +3703,9 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         if (mid_ok[a] && clo <= xa->p && xa->p <= chi)
             xa->kp = xa->bins > 1 ? bvh__sm_bin_of(xa->p, xa->lo, xa->scale, xa->bins) : 0;
         slots[a] = xa->bins + (xa->kp < xa->bins);
-        for (k = 0; k < slots[a]; k++) {
-            s->bin[a][k] = bvh__empty();
-            s->bin_n[a][k] = 0;
-        }
     }
-    for (i = b; i < e; i++) { /* pass 1 */
-        const bvh__sm_ref *r = &s->work[i];
-        for (a = 0; a < 3; a++) {
-            if (slots[a] < 2) continue;
-            k = bvh__sm_slot(r, a, bvh__sm_centre(r, a), &x[a]);
-            s->bin[a][k] = bvh__merge(s->bin[a][k], r->box);
-            s->bin_n[a][k]++;
-        }
-    }
+    if (!s->par || !bvh__sm_pass_team(s, 1, b, m, budget, x, slots, NULL, NULL))
+        bvh__sm_pass1(s->work, b, b + m, x, slots, s->bin, s->bin_n);
     for (a = 0; a < 3; a++) { /* Wald 2007: sweep the slots from the right, then from the left */
         bvh_aabb acc;
         uint32_t n = 0;
@@ -3669,54 +3756,41 @@ static void bvh__sm_evaluate(bvh__sm *s, uint32_t b, uint32_t m, uint32_t budget
         }
         for (a = 0; a < 3; a++) {
             clip[a] = !gate && budget > 0 && mid_ok[a];
+            if (!gate && mid_ok[a] && budget == 0) { /* clipping was wanted: more budget may choose it */
+                s->tight = 1;
+                s->hi = 0;
+            }
             any_clip |= clip[a];
-            dl[a] = dr[a] = sl[a] = sr[a] = bvh__empty();
-            ndl[a] = ndr[a] = nsl[a] = nsr[a] = dup[a] = 0;
         }
     }
     if (!any_clip) return;
-    for (i = b; i < e; i++) { /* pass 2 */
-        const bvh__sm_ref *r = &s->work[i];
-        for (a = 0; a < 3; a++) {
-            bvh__sm_ref lp, rp;
-            int mask;
-            float p = x[a].p;
-            if (!clip[a]) continue;
-            if (bvh__at(&r->box.max, a) <= p) {
-                dl[a] = bvh__merge(dl[a], r->box);
-                ndl[a]++;
-                continue;
-            }
-            if (bvh__at(&r->box.min, a) >= p) {
-                dr[a] = bvh__merge(dr[a], r->box);
-                ndr[a]++;
-                continue;
-            }
-            mask = bvh__sm_clip(s->c, r, a, p, &lp, &rp);
-            if (mask & 1) {
-                sl[a] = bvh__merge(sl[a], lp.box);
-                nsl[a]++;
-            }
-            if (mask & 2) {
-                sr[a] = bvh__merge(sr[a], rp.box);
-                nsr[a]++;
-            }
-            if (mask == 3 && ++dup[a] > budget) clip[a] = 0; /* over budget: not a candidate */
-        }
-    }
+    if (!s->par || !bvh__sm_pass_team(s, 2, b, m, budget, x, slots, clip, &u))
+        bvh__sm_pass2(s->c, s->work, b, b + m, x, clip, budget, &u);
     for (a = 0; a < 3; a++) {
-        if (!clip[a] || !(nsl[a] + nsr[a]) || !(ndl[a] + nsl[a]) || !(ndr[a] + nsr[a])) continue;
-        lb = dl[a];
-        lb = bvh__merge(lb, sl[a]);
-        rb = dr[a];
-        rb = bvh__merge(rb, sr[a]);
+        if (!clip[a]) continue;
+        if (u.over[a] || u.dup[a] > budget) { /* over budget: not a candidate (more budget may choose it) */
+            s->tight = 1;
+            if (s->hi > budget) s->hi = budget;
+            continue;
+        }
+        if (!(u.nsl[a] + u.nsr[a]) || !(u.ndl[a] + u.nsl[a]) || !(u.ndr[a] + u.nsr[a])) continue;
+        lb = u.dl[a];
+        lb = bvh__merge(lb, u.sl[a]);
+        rb = u.dr[a];
+        rb = bvh__merge(rb, u.sr[a]);
         if (bvh__sm_offer(best, BVH__SM_SPLIT, a, x[a].p,
-                          bvh__half_area_d(lb) * (ndl[a] + nsl[a]) + bvh__half_area_d(rb) * (ndr[a] + nsr[a]))) {
+                          bvh__half_area_d(lb) * (u.ndl[a] + u.nsl[a]) +
+                              bvh__half_area_d(rb) * (u.ndr[a] + u.nsr[a]))) {
             best->left = lb;
             best->right = rb;
-            best->n_left = ndl[a] + nsl[a];
-            best->n_right = ndr[a] + nsr[a];
+            best->n_left = u.ndl[a] + u.nsl[a];
+            best->n_right = u.ndr[a] + u.nsr[a];
         }
+    }
+    /* less budget changes the choice only where it refuses the winner (a loser refused is no loss) */
+    if (best->kind == BVH__SM_SPLIT) {
+        const uint32_t need = u.dup[best->axis] > 1 ? u.dup[best->axis] : 1;
+        if (s->lo < need) s->lo = need;
     }
 }
 
@@ -3775,7 +3849,16 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
                 } /* touches one side only */
                 else {
                     side = s->bins ? bvh__sm_unsplit(ch, r) : 3; /* 1 or 2: whole, on that side */
-                    if (side == 3 && dups >= budget) side = bvh__sm_centre(r, a) < p ? 1 : 2;
+                    if (side == 3 && (dups >= budget || s->extra + dups >= s->room)) {
+                        side = bvh__sm_centre(r, a) < p ? 1 : 2;
+                        if (dups < budget)
+                            s->overflow = 1;
+                        else { /* this budget only */
+                            s->tight = 1;
+                            if (s->lo < budget) s->lo = budget;
+                            if (s->hi > budget) s->hi = budget;
+                        }
+                    }
                     if (side == 3) {
                         w[top + dups++] = lp;
                         *r = rp;
@@ -3795,6 +3878,7 @@ static uint32_t bvh__sm_partition(bvh__sm *s, uint32_t b, uint32_t budget, const
                 bvh__sm_swap(&w[mid], &w[hi]);
             }
         }
+        if (s->lo < dups) s->lo = dups;
         s->extra += dups;
         s->top = top + dups;
         return s->top - mid;
@@ -3867,11 +3951,600 @@ static bvh_result bvh__sm_reserve_pair(bvh__sm *s) {
     return BVH_SUCCESS;
 }
 
+/* Decides node t, whose references are work[top - t->count, top) and whose budget includes the
+   carry: ch->kind BVH__SM_NONE makes it a leaf, anything else says how to split it. */
+static void bvh__sm_decide(bvh__sm *s, const bvh__sm_task *t, bvh__sm_choice *ch) {
+    const bvh__ctx *c = s->c;
+    const uint32_t m = t->count, b = s->top - m;
+    memset(ch, 0, sizeof *ch);
+    ch->kind = BVH__SM_MEDIAN;
+    if (!bvh__fits_depth(t->depth, bvh__sm_log2(m) + 5)) { /* halve from here on: depth stays bounded */
+        if (m <= c->max_leaf) ch->kind = BVH__SM_NONE;
+    } else if (m <= 1) {
+        ch->kind = BVH__SM_NONE;
+    } else {
+        double area = bvh__half_area_d(t->box), split;
+        bvh__sm_evaluate(s, b, m, t->budget, &t->box, &t->cbox, ch);
+        /* E_r = C_i A(n) + C_t C; where nothing separates, a leaf whenever one may hold them */
+        split = ch->kind == BVH__SM_NONE ? HUGE_VAL : c->ci * area + c->ct * ch->cost;
+        if (bvh__sah_leaf(c, m, BVH__LEAF_COST(c, area, (double)m), split)) {
+            ch->kind = BVH__SM_NONE; /* leaf: E_t <= E_r */
+            s->lo = 0;               /* refusing the winner for want of budget leaves a dearer split: a leaf still */
+        } else if (ch->kind == BVH__SM_NONE || !(ch->cost < area * m))
+            ch->kind = BVH__SM_MEDIAN;
+    }
+}
+
+/* Splits node t as ch says: the children's references end on top of the work array (the first
+   child's above the second's), their counts, bounds, depth and budgets in *tl and *tr (the
+   budget the split leaves is shared by size). Returns the duplicates the split made. */
+static uint32_t bvh__sm_children(bvh__sm *s, const bvh__sm_task *t, const bvh__sm_choice *ch, bvh__sm_task *tl,
+                                 bvh__sm_task *tr) {
+    const uint32_t m = t->count, b = s->top - m;
+    uint32_t nl, nr, left;
+    tl->box = tl->cbox = tr->box = tr->cbox = bvh__empty();
+    nl = ch->kind == BVH__SM_MEDIAN ? 0 : bvh__sm_partition(s, b, t->budget, ch, tl, tr);
+    if (nl == 0 || nl == s->top - b) { /* median (no duplicates were made) */
+        nl = bvh__sm_median(s, b, m, &t->cbox);
+        bvh__sm_bounds(s->work + s->top - nl, nl, &tl->box, &tl->cbox);
+        bvh__sm_bounds(s->work + b, s->top - b - nl, &tr->box, &tr->cbox);
+    }
+    nr = s->top - b - nl;
+    left = t->budget - (s->top - b - m); /* shared by the children in proportion to their size */
+    tl->budget = (uint32_t)((uint64_t)left * nl / (nl + nr));
+    tr->budget = left - tl->budget;
+    tl->count = nl;
+    tr->count = nr;
+    tl->depth = tr->depth = t->depth + 1;
+    return s->top - b - m;
+}
+
+/* Builds the subtrees of the tasks on the stack, depth-first, into s->o: a node's children are
+   the next free pair when it is split, a leaf's references the next in s->o->refs. `prog`: NULL
+   on the threads of a parallel build (the calling thread reports between their rounds). */
+static bvh_result bvh__sm_run(bvh__sm *s, bvh__sm_task *stack, uint32_t sp, bvh__progress *prog) {
+    bvh__out *o = s->o;
+    uint32_t i;
+    bvh_result r;
+    while (sp) {
+        bvh__sm_task t = stack[--sp], tl, tr;
+        uint32_t m = t.count, b = s->top - m;
+        bvh__sm_choice ch;
+        bvh_aabb box;
+        bvh_node *node;
+        if (prog && bvh__tick(prog, m, (double)o->ref_count / (double)s->cap)) return BVH_ERROR_CANCELLED;
+        t.budget += s->carry; /* what the subtrees before this one left unused */
+        s->carry = 0;
+        s->lo = 0;
+        s->hi = 0xffffffffu;
+        bvh__sm_decide(s, &t, &ch);
+        node = &o->nodes[t.node];
+        if (ch.kind == BVH__SM_NONE) { /* leaf */
+            bvh__set_box(node, t.box);
+            node->index = o->ref_count;
+            node->count = m;
+            for (i = b; i < b + m; i++) o->refs[o->ref_count++] = s->work[i].id;
+            s->top = b;
+            s->carry = t.budget;
+            if (s->cons) {
+                uint32_t *k = s->cons + 4 * (size_t)t.node;
+                k[0] = s->lo;
+                k[1] = s->hi;
+                k[2] = k[3] = 0;
+            }
+            continue;
+        }
+        i = bvh__sm_children(s, &t, &ch, &tl, &tr);
+        if (s->cons) {
+            uint32_t *k = s->cons + 4 * (size_t)t.node;
+            k[0] = s->lo;
+            k[1] = s->hi;
+            k[2] = tl.count;
+            k[3] = i;
+        }
+        r = bvh__sm_reserve_pair(s);
+        if (r != BVH_SUCCESS) return r;
+        node = &o->nodes[t.node];
+        tl.node = o->node_count;
+        tr.node = o->node_count + 1;
+        o->node_count += 2;
+        box = tl.box;
+        box = bvh__merge(box, tr.box); /* split parts may be tighter than the node's references */
+        bvh__set_box(node, box);
+        node->index = tl.node;
+        node->count = 0;
+        BVH_ASSERT(sp + 2 <= BVH__SM_STACK);
+        stack[sp++] = tr;
+        stack[sp++] = tl;
+    }
+    return BVH_SUCCESS;
+}
+
+/* == on the build's threads ==
+   Phase A splits the nodes of at least `threshold` references on the calling thread, in the
+   serial order, and leaves the smaller ones (copied out of the work array) as subtrees that the
+   threads then build in any order, each into its own slot of an arena; the assembly numbers the
+   nodes and references in the serial order. The tree is the serial one if every node sees the
+   serial budget. Its one serial dependency is the carry: a subtree's unused budget goes to the
+   node after it. Phase A takes 0 for the carry of a subtree not yet built (a lower bound:
+   budgets only grow with it, and both children's shares grow with their parent's); a decision
+   that no comparison with the budget made (s->tight clear) is the one any larger budget makes,
+   and a node of phase A that compared with an inexact budget makes the build start again
+   serially. A subtree is built with a guess (the budget if no subtree before it made
+   duplicates: most of the budget is left unused and flows on) and records, per node, the range
+   of budgets that make the same decisions; the assembly walks the nodes in order with the exact
+   budgets, checks every node of a subtree against its range, and builds again, on the calling
+   thread, a subtree whose check fails or that had not the room for its duplicates (its slot is
+   sized for the lower bound). */
+typedef struct bvh__sm_rec {
+    uint32_t parent, right; /* the parent's record (BVH_INVALID: the root), 1: the second child */
+    uint32_t sub;           /* its subtree, or BVH_INVALID: a node phase A split */
+    uint32_t budget;        /* phase A: the budget it was split with; the exact one after assembly */
+    uint32_t dups, nl, nr;  /* phase A: duplicates the split made, the children's references */
+    uint32_t base;          /* phase A: its children's index (assembly) */
+    bvh_aabb box;
+} bvh__sm_rec;
+typedef struct bvh__sm_sub {
+    bvh__sm_task t;                  /* budget: the lower bound (its slot's room for duplicates) */
+    uint32_t in;                     /* its references: par->in[in, in + t.count) */
+    uint32_t node_off, ref_off;      /* its slot of the arena (and of par->cons) */
+    uint32_t built;                  /* the budget it was built with (t.guess, then the exact one) */
+    uint32_t nodes, refs, dups;      /* what it made */
+    uint32_t g, node_base, ref_base; /* assembly: its root's index, where its nodes and refs go */
+    int overflow, own;               /* own: built again into blocks of its own */
+    bvh_node *out_nodes;
+    uint32_t *out_refs;
+} bvh__sm_sub;
+struct bvh__sm_par {
+    bvh__sm *s;                /* phase A's (the build's work array) */
+    bvh__sm *ts;               /* one per thread (in phase A, their bins are the threads' pass 1) */
+    bvh__sm_sums *sums;        /* phase A: the threads' pass 2 */
+    bvh__sm_ref *in, *scratch; /* the subtrees' references; per thread, room for the largest */
+    bvh__sm_rec *rec;
+    bvh__sm_sub *sub;
+    uint32_t *order; /* the subtrees, largest first */
+    bvh_node *arena_nodes;
+    uint32_t *arena_refs, *cons; /* cons: the subtrees' nodes' ranges (bvh__sm.cons) */
+    uint32_t nt, threshold, in_used, nrec, rec_cap, nsub, sub_cap, pending, scratch_cap;
+    size_t next, end; /* the next subtree of `order` no thread has taken, the end of the round */
+    int oom;          /* phase A: a pass could not have its threads */
+    bvh__out *out;    /* the assembly's */
+};
+#define BVH__SM_FALLBACK ((bvh_result)-1000) /* internal: phase A needs an exact budget */
+#ifndef BVH__SM_EVENT /* private; the tests count the rare paths: BVH__SM_EVENT(rebuilt), (serial) */
+#define BVH__SM_EVENT(what) ((void)0)
+#endif
+
+static int bvh__sm_grow(const bvh__ctx *c, void **p, uint32_t *cap, uint32_t used, size_t size) {
+    void *q;
+    uint32_t n;
+    if (used < *cap) return 1;
+    n = *cap ? 2 * *cap : 64;
+    if (!(q = bvh__alloc(&c->al, n, size))) return 0;
+    if (used) memcpy(q, *p, (size_t)used * size);
+    bvh__free(&c->al, *p);
+    *p = q;
+    *cap = n;
+    return 1;
+}
+
+typedef struct bvh__sm_pass_job {
+    bvh__sm_par *par;
+    const bvh__sm *s;
+    int pass;
+    uint32_t b, m, budget, used; /* used: the threads the team had */
+    const bvh__sm_axis *x;
+    const uint32_t *slots;
+    const int *clip;
+} bvh__sm_pass_job;
+static void bvh__sm_pass_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__sm_pass_job *j = BVH__CAST(bvh__sm_pass_job *, arg);
+    size_t lo, hi;
+    (void)team;
+    if (tid == 0) j->used = nt;
+    bvh__range(j->m, tid, nt, &lo, &hi);
+    if (j->pass == 1)
+        bvh__sm_pass1(j->s->work, j->b + (uint32_t)lo, j->b + (uint32_t)hi, j->x, j->slots, j->par->ts[tid].bin,
+                      j->par->ts[tid].bin_n);
+    else
+        bvh__sm_pass2(j->s->c, j->s->work, j->b + (uint32_t)lo, j->b + (uint32_t)hi, j->x, j->clip, j->budget,
+                      &j->par->sums[tid]);
+}
+static int bvh__sm_pass_team(bvh__sm *s, int pass, uint32_t b, uint32_t m, uint32_t budget, const bvh__sm_axis *x,
+                             const uint32_t *slots, const int *clip, bvh__sm_sums *sums) {
+    bvh__sm_par *par = s->par;
+    bvh__sm_pass_job j;
+    uint32_t t, k;
+    int a;
+    j.par = par;
+    j.s = s;
+    j.pass = pass;
+    j.b = b;
+    j.m = m;
+    j.budget = budget;
+    j.used = 0;
+    j.x = x;
+    j.slots = slots;
+    j.clip = clip;
+    if (bvh__run(s->c, par->nt, 0, bvh__sm_pass_fn, &j) != BVH_SUCCESS || !j.used) {
+        par->oom = 1; /* the team's bookkeeping: the build fails once this node is decided */
+        return 0;
+    }
+    if (pass == 1)
+        for (a = 0; a < 3; a++)
+            for (k = 0; k < slots[a]; k++) {
+                s->bin[a][k] = par->ts[0].bin[a][k];
+                s->bin_n[a][k] = par->ts[0].bin_n[a][k];
+                for (t = 1; t < j.used; t++) {
+                    s->bin[a][k] = bvh__merge(s->bin[a][k], par->ts[t].bin[a][k]);
+                    s->bin_n[a][k] += par->ts[t].bin_n[a][k];
+                }
+            }
+    else {
+        *sums = par->sums[0];
+        for (t = 1; t < j.used; t++) {
+            const bvh__sm_sums *v = &par->sums[t];
+            for (a = 0; a < 3; a++) {
+                sums->dl[a] = bvh__merge(sums->dl[a], v->dl[a]);
+                sums->dr[a] = bvh__merge(sums->dr[a], v->dr[a]);
+                sums->sl[a] = bvh__merge(sums->sl[a], v->sl[a]);
+                sums->sr[a] = bvh__merge(sums->sr[a], v->sr[a]);
+                sums->ndl[a] += v->ndl[a];
+                sums->ndr[a] += v->ndr[a];
+                sums->nsl[a] += v->nsl[a];
+                sums->nsr[a] += v->nsr[a];
+                sums->dup[a] += v->dup[a];
+                sums->over[a] |= v->over[a];
+            }
+        }
+    }
+    return 1;
+}
+
+/* Phase A: the nodes of at least par->threshold references, in the serial order. */
+static bvh_result bvh__sm_phase_a(bvh__sm_par *par, bvh__sm_task root) {
+    bvh__sm *s = par->s;
+    const bvh__ctx *c = s->c;
+    bvh__sm_task stack[BVH__SM_STACK];
+    uint32_t sp = 1, gcarry = 0; /* gcarry: the guess's carry */
+    stack[0] = root;
+    while (sp) {
+        bvh__sm_task t = stack[--sp], tl, tr;
+        const uint32_t m = t.count, b = s->top - m;
+        uint32_t left;
+        bvh__sm_choice ch;
+        bvh__sm_rec *rec;
+        if (bvh__tick(c->prog, m, 0.0)) return BVH_ERROR_CANCELLED;
+        if (!bvh__sm_grow(c, (void **)&par->rec, &par->rec_cap, par->nrec, sizeof *par->rec))
+            return BVH_ERROR_OUT_OF_MEMORY;
+        rec = &par->rec[par->nrec++];
+        memset(rec, 0, sizeof *rec);
+        rec->parent = t.parent;
+        rec->right = t.right;
+        rec->sub = BVH_INVALID;
+        if (m < par->threshold) { /* a subtree for the threads */
+            bvh__sm_sub *u;
+            if (!bvh__sm_grow(c, (void **)&par->sub, &par->sub_cap, par->nsub, sizeof *par->sub))
+                return BVH_ERROR_OUT_OF_MEMORY;
+            rec->sub = par->nsub;
+            u = &par->sub[par->nsub++];
+            memset(u, 0, sizeof *u);
+            u->t = t;
+            u->t.node = 0;
+            u->t.guess = t.guess + gcarry;
+            gcarry = u->t.guess; /* as if it made no duplicates */
+            u->in = par->in_used;
+            memcpy(par->in + par->in_used, s->work + b, (size_t)m * sizeof *s->work);
+            par->in_used += m;
+            par->pending++;
+            s->top = b;
+            continue;
+        }
+        s->tight = 0;
+        bvh__sm_decide(s, &t, &ch);
+        if (par->oom) return BVH_ERROR_OUT_OF_MEMORY;
+        BVH_ASSERT(ch.kind != BVH__SM_NONE); /* m > max_leaf */
+        rec->dups = bvh__sm_children(s, &t, &ch, &tl, &tr);
+        if (s->tight && par->pending && s->budget) return BVH__SM_FALLBACK; /* without splits budgets are 0 */
+        rec->budget = t.budget;
+        rec->nl = tl.count;
+        rec->nr = tr.count;
+        t.guess += gcarry;
+        gcarry = 0;
+        left = t.guess - rec->dups;
+        tl.guess = (uint32_t)((uint64_t)left * tl.count / (tl.count + tr.count));
+        tr.guess = left - tl.guess;
+        rec->box = bvh__merge(tl.box, tr.box);
+        tl.parent = tr.parent = par->nrec - 1;
+        tl.right = 0;
+        tr.right = 1;
+        BVH_ASSERT(sp + 2 <= BVH__SM_STACK);
+        stack[sp++] = tr;
+        stack[sp++] = tl;
+    }
+    return BVH_SUCCESS;
+}
+
+/* Builds subtree u with `budget` from its references in par->in, with work room `work`, into
+   nodes and refs (room for 2 (count + budget) - 1 and count + budget). */
+static bvh_result bvh__sm_build_sub(bvh__sm_par *par, bvh__sm *st, bvh__sm_sub *u, uint32_t budget, uint32_t room,
+                                    bvh__sm_ref *work, bvh_node *nodes, uint32_t *refs, uint32_t *cons) {
+    bvh__out o;
+    bvh__sm_task stack[BVH__SM_STACK];
+    bvh_result r;
+    const uint32_t m = u->t.count;
+    memcpy(work, par->in + u->in, (size_t)m * sizeof *work);
+    memset(&o, 0, sizeof o);
+    o.nodes = nodes;
+    o.refs = refs;
+    o.node_count = 1;
+    st->o = &o;
+    st->work = work;
+    st->top = m;
+    st->budget = budget;
+    st->room = room;
+    st->cap = m + room;
+    st->node_max = o.node_cap = 2 * st->cap - 1;
+    o.ref_cap = st->cap;
+    st->extra = st->carry = 0;
+    st->tight = st->overflow = 0;
+    st->cons = cons;
+    stack[0] = u->t;
+    stack[0].budget = budget;
+    r = bvh__sm_run(st, stack, 1, NULL); /* the caller reports between rounds */
+    BVH_ASSERT(r != BVH_SUCCESS || st->extra <= budget);
+    u->built = budget;
+    u->nodes = o.node_count;
+    u->refs = o.ref_count;
+    u->dups = st->extra;
+    u->overflow = st->overflow;
+    u->out_nodes = nodes;
+    u->out_refs = refs;
+    return r;
+}
+
+static size_t bvh__sm_take(bvh__sm_par *par, uint32_t tid, uint32_t nt, size_t *k) {
+#if defined(__GNUC__) || defined(__clang__)
+    (void)tid;
+    (void)nt;
+    (void)k;
+    return __atomic_fetch_add(&par->next, (size_t)1, __ATOMIC_RELAXED);
+#else
+    size_t i = *k; /* no atomics: every nt-th subtree from tid on */
+    *k += nt;
+    return par->next + tid + i;
+#endif
+}
+static void bvh__sm_sub_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__sm_par *par = BVH__CAST(bvh__sm_par *, arg);
+    bvh__sm *st = &par->ts[tid];
+    size_t k = 0, i;
+    (void)team;
+    while ((i = bvh__sm_take(par, tid, nt, &k)) < par->end)
+        (void)bvh__sm_build_sub(par, st, &par->sub[par->order[i]], par->sub[par->order[i]].t.guess,
+                                par->sub[par->order[i]].t.budget, par->scratch + (size_t)tid * par->scratch_cap,
+                                par->arena_nodes + par->sub[par->order[i]].node_off,
+                                par->arena_refs + par->sub[par->order[i]].ref_off,
+                                par->cons + 4 * (size_t)par->sub[par->order[i]].node_off);
+}
+
+/* The subtrees' nodes and references into the tree, renumbered: children (local index >= 1)
+   follow node_base, a leaf's references ref_base. */
+static void bvh__sm_copy_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__sm_par *par = BVH__CAST(bvh__sm_par *, arg);
+    bvh__out *o = par->out;
+    size_t k = 0, i;
+    uint32_t j;
+    (void)team;
+    while ((i = bvh__sm_take(par, tid, nt, &k)) < par->end) {
+        const bvh__sm_sub *u = &par->sub[i];
+        for (j = 0; j < u->nodes; j++) {
+            bvh_node nd = u->out_nodes[j];
+            nd.index += nd.count ? u->ref_base : u->node_base - 1;
+            o->nodes[j ? u->node_base + j - 1 : u->g] = nd;
+        }
+        memcpy(o->refs + u->ref_base, u->out_refs, (size_t)u->refs * sizeof *o->refs);
+    }
+}
+
+/* Whether subtree u, built with u->built, is the one the exact budget makes: the budgets flow
+   through its nodes as in bvh__sm_run, each within the range its decisions hold for. */
+static int bvh__sm_same(const bvh__sm_par *par, const bvh__sm_sub *u, uint32_t budget) {
+    const uint32_t *cons = par->cons + 4 * (size_t)u->node_off;
+    uint32_t stack[3 * BVH__SM_STACK], sp = 0, carry = 0;
+    if (budget == u->built) return 1;
+    stack[sp++] = 0; /* node, budget, references */
+    stack[sp++] = budget;
+    stack[sp++] = u->t.count;
+    while (sp) {
+        const uint32_t m = stack[--sp], j = stack[sp - 2], *k = cons + 4 * (size_t)j;
+        uint32_t b = stack[sp - 1] + carry, left, first, nr;
+        sp -= 2;
+        carry = 0;
+        if (b < k[0] || b > k[1]) return 0;
+        if (u->out_nodes[j].count) { /* a leaf */
+            carry = b;
+            continue;
+        }
+        left = b - k[3];
+        nr = m + k[3] - k[2];
+        first = (uint32_t)((uint64_t)left * k[2] / (k[2] + nr));
+        BVH_ASSERT(sp + 6 <= 3 * BVH__SM_STACK);
+        stack[sp++] = u->out_nodes[j].index + 1;
+        stack[sp++] = left - first;
+        stack[sp++] = nr;
+        stack[sp++] = u->out_nodes[j].index;
+        stack[sp++] = first;
+        stack[sp++] = k[2];
+    }
+    return 1;
+}
+
+/* The walk in the serial order: exact budgets (a subtree built with less and tight is built
+   again), then the nodes and references numbered as the serial build numbers them. */
+static bvh_result bvh__sm_assemble(bvh__sm_par *par, bvh__out *o) {
+    bvh__sm *s = par->s;
+    const bvh__ctx *c = s->c;
+    uint32_t i, carry = 0, nodes = 1, refs = 0, next_node = 1, next_ref = 0;
+    for (i = 0; i < par->nrec; i++) {
+        bvh__sm_rec *x = &par->rec[i];
+        uint32_t budget;
+        if (x->parent == BVH_INVALID)
+            budget = s->budget;
+        else {
+            const bvh__sm_rec *p = &par->rec[x->parent];
+            uint32_t left = p->budget - p->dups, first = (uint32_t)((uint64_t)left * p->nl / (p->nl + p->nr));
+            budget = x->right ? left - first : first;
+        }
+        budget += carry;
+        carry = 0;
+        if (x->sub == BVH_INVALID) {
+            BVH_ASSERT(budget >= x->budget);
+            x->budget = budget;
+            nodes += 2;
+            continue;
+        }
+        {
+            bvh__sm_sub *u = &par->sub[x->sub];
+            BVH_ASSERT(budget >= u->t.budget);
+            if (u->overflow || !bvh__sm_same(par, u, budget)) { /* built again with its exact budget */
+                const uint32_t cap = u->t.count + budget;
+                bvh_node *bn = BVH__ALLOC(&c->al, bvh_node, 2 * (size_t)cap - 1);
+                uint32_t *br = BVH__ALLOC(&c->al, uint32_t, cap);
+                bvh_result r;
+                if (!bn || !br) {
+                    bvh__free(&c->al, bn);
+                    bvh__free(&c->al, br);
+                    return BVH_ERROR_OUT_OF_MEMORY;
+                }
+                u->own = 1;
+                BVH__SM_EVENT(rebuilt);
+                r = bvh__sm_build_sub(par, &par->ts[0], u, budget, budget, s->work, bn, br, NULL);
+                if (r != BVH_SUCCESS) return r;
+                if (bvh__report(c->prog, 0.0)) return BVH_ERROR_CANCELLED;
+            }
+            carry = budget - u->dups;
+            nodes += u->nodes - 1;
+            refs += u->refs;
+        }
+    }
+    o->nodes = BVH__ALLOC(&c->al, bvh_node, nodes);
+    o->refs = BVH__ALLOC(&c->al, uint32_t, refs);
+    if (!o->nodes || !o->refs) return BVH_ERROR_OUT_OF_MEMORY;
+    o->node_count = o->node_cap = nodes;
+    o->ref_count = o->ref_cap = refs;
+    for (i = 0; i < par->nrec; i++) {
+        bvh__sm_rec *x = &par->rec[i];
+        const uint32_t g = x->parent == BVH_INVALID ? 0 : par->rec[x->parent].base + x->right;
+        if (x->sub == BVH_INVALID) {
+            bvh_node *node = &o->nodes[g];
+            x->base = next_node;
+            next_node += 2;
+            bvh__set_box(node, x->box);
+            node->index = x->base;
+            node->count = 0;
+        } else {
+            bvh__sm_sub *u = &par->sub[x->sub];
+            u->g = g; /* copied by the threads (bvh__sm_copy_fn) */
+            u->node_base = next_node;
+            u->ref_base = next_ref;
+            next_node += u->nodes - 1;
+            next_ref += u->refs;
+        }
+    }
+    BVH_ASSERT(next_node == nodes && next_ref == refs);
+    par->out = o;
+    par->next = 0;
+    par->end = par->nsub;
+    return bvh__run(c, par->nt, 0, bvh__sm_copy_fn, par);
+}
+
+static void bvh__sm_par_free(const bvh__ctx *c, bvh__sm_par *par) {
+    uint32_t i;
+    for (i = 0; i < par->nsub; i++)
+        if (par->sub[i].own) {
+            bvh__free(&c->al, par->sub[i].out_nodes);
+            bvh__free(&c->al, par->sub[i].out_refs);
+        }
+    bvh__free(&c->al, par->ts);
+    bvh__free(&c->al, par->sums);
+    bvh__free(&c->al, par->in);
+    bvh__free(&c->al, par->scratch);
+    bvh__free(&c->al, par->rec);
+    bvh__free(&c->al, par->sub);
+    bvh__free(&c->al, par->order);
+    bvh__free(&c->al, par->arena_nodes);
+    bvh__free(&c->al, par->arena_refs);
+    bvh__free(&c->al, par->cons);
+}
+
+/* Phase A, the subtrees on the threads, the assembly. BVH__SM_FALLBACK: build serially. */
+static bvh_result bvh__sm_parallel(bvh__sm *s, bvh__sm_task root, uint32_t nt, bvh__out *o) {
+    const bvh__ctx *c = s->c;
+    bvh__sm_par par;
+    bvh_result r;
+    uint32_t i, j, nodes = 0, refs = 0;
+    memset(&par, 0, sizeof par);
+    par.s = s;
+    par.nt = nt;
+    /* every node of phase A is split (more references than a leaf may hold); about 8 subtrees
+       per thread balance the threads */
+    par.threshold = c->n / (8 * nt) > c->max_leaf ? c->n / (8 * nt) : c->max_leaf + 1;
+    par.in = BVH__ALLOC(&c->al, bvh__sm_ref, s->cap);
+    par.ts = BVH__ALLOC(&c->al, bvh__sm, nt);
+    par.sums = BVH__ALLOC(&c->al, bvh__sm_sums, nt);
+    s->par = &par;
+    r = par.in && par.ts && par.sums ? bvh__sm_phase_a(&par, root) : BVH_ERROR_OUT_OF_MEMORY;
+    s->par = NULL;
+    if (r == BVH_SUCCESS) {
+        /* the arena: each subtree's slot holds what its budget allows (2 (m + budget) - 1 nodes);
+           the budgets are shares of the root's, so the slots fit in the serial build's bound */
+        par.order = BVH__ALLOC(&c->al, uint32_t, par.nsub);
+        for (i = 0; par.order && i < par.nsub; i++) {
+            bvh__sm_sub *u = &par.sub[i];
+            const uint32_t cap = u->t.count + u->t.budget;
+            u->node_off = nodes;
+            u->ref_off = refs;
+            nodes += 2 * cap - 1;
+            refs += cap;
+            if (cap > par.scratch_cap) par.scratch_cap = cap;
+            for (j = i; j > 0 && par.sub[par.order[j - 1]].t.count < u->t.count; j--) par.order[j] = par.order[j - 1];
+            par.order[j] = i; /* largest first, ties in order */
+        }
+        par.arena_nodes = BVH__ALLOC(&c->al, bvh_node, nodes ? nodes : 1);
+        par.cons = BVH__ALLOC(&c->al, uint32_t, 4 * (size_t)(nodes ? nodes : 1));
+        par.arena_refs = BVH__ALLOC(&c->al, uint32_t, refs ? refs : 1);
+        par.scratch = BVH__ALLOC(&c->al, bvh__sm_ref, (size_t)nt * par.scratch_cap);
+        if (!par.order || !par.arena_nodes || !par.arena_refs || !par.scratch || !par.cons) r = BVH_ERROR_OUT_OF_MEMORY;
+    }
+    if (r == BVH_SUCCESS) {
+        size_t lo, hi;
+        for (i = 0; i < nt; i++) par.ts[i] = *s; /* s->par is NULL: the subtrees' passes are serial */
+        /* in rounds of about BVH__PROGRESS_WORK / 2 references per thread at each level of a
+           subtree (the serial loop ticks every BVH__PROGRESS_WORK), largest first, with a report after each on this
+           thread: the same calls for any schedule, and a cancel between them */
+        for (lo = 0; r == BVH_SUCCESS && lo < par.nsub; lo = hi) {
+            uint64_t work = 0;
+            for (hi = lo; hi < par.nsub && (hi - lo < nt || work < (uint64_t)nt * BVH__PROGRESS_WORK / 2); hi++) {
+                const uint32_t m = par.sub[par.order[hi]].t.count;
+                work += (uint64_t)m * (bvh__sm_log2(m) + 1);
+            }
+            par.next = lo;
+            par.end = hi;
+            r = bvh__run(c, nt, 0, bvh__sm_sub_fn, &par);
+            if (r == BVH_SUCCESS && bvh__report(c->prog, (double)hi / par.nsub)) r = BVH_ERROR_CANCELLED;
+        }
+    }
+    if (r == BVH_SUCCESS) r = bvh__sm_assemble(&par, o);
+    bvh__sm_par_free(c, &par);
+    return r;
+}
+
 /* The builder; bins = 0 is the study's variant (mid-point candidates only). */
 static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32_t bins) {
     bvh__sm *s;
-    bvh__sm_task stack[BVH__SM_STACK];
-    uint32_t sp = 0, i;
+    bvh__sm_task root, stack[BVH__SM_STACK];
+    uint32_t i;
     bvh_result r = BVH_SUCCESS;
     double budget = c->split_budget > 0.0f ? floor((double)c->split_budget * (double)c->n) : 0.0;
     memset(o, 0, sizeof *o);
@@ -3885,11 +4558,7 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
     s->cap = c->n + s->budget;
     s->node_max = 2 * s->cap - 1;
     s->work = BVH__ALLOC(&c->al, bvh__sm_ref, s->cap);
-    o->refs = BVH__ALLOC(&c->al, uint32_t, s->cap);
-    o->node_cap = c->n < 1024 ? s->node_max : c->n; /* grown by half when full */
-    o->nodes = BVH__ALLOC(&c->al, bvh_node, o->node_cap);
-    o->ref_cap = s->cap;
-    if (!s->work || !o->refs || !o->nodes) {
+    if (!s->work) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
@@ -3898,81 +4567,37 @@ static bvh_result bvh__sah_midpoint_build(const bvh__ctx *c, bvh__out *o, uint32
         s->work[i].id = i;
     }
     s->top = c->n;
-    o->node_count = 1;
-    stack[0].node = 0;
-    stack[0].count = c->n;
-    stack[0].depth = 1;
-    stack[0].budget = s->budget;
-    bvh__sm_bounds(s->work, c->n, &stack[0].box, &stack[0].cbox);
-    s->root_area = bvh__half_area_d(stack[0].box);
-    sp = 1;
-    while (sp) {
-        bvh__sm_task t = stack[--sp], tl, tr;
-        uint32_t m = t.count, b = s->top - m, nl, nr, left;
-        bvh__sm_choice ch;
-        bvh_aabb box;
-        bvh_node *node;
-        if (bvh__tick(c->prog, m, (double)o->ref_count / (double)s->cap)) {
-            r = BVH_ERROR_CANCELLED;
-            goto done;
+    memset(&root, 0, sizeof root);
+    root.count = c->n;
+    root.depth = 1;
+    root.budget = root.guess = s->budget;
+    root.parent = BVH_INVALID;
+    s->room = 0xffffffffu;
+    bvh__sm_bounds(s->work, c->n, &root.box, &root.cbox);
+    s->root_area = bvh__half_area_d(root.box);
+    if (c->threads > 1) {
+        r = bvh__sm_parallel(s, root, c->threads, o);
+        if (r != BVH__SM_FALLBACK) goto done;
+        r = BVH_SUCCESS; /* start again, serially */
+        BVH__SM_EVENT(serial);
+        for (i = 0; i < c->n; i++) {
+            s->work[i].box = c->boxes[i];
+            s->work[i].id = i;
         }
-        memset(&ch, 0, sizeof ch);
-        ch.kind = BVH__SM_MEDIAN;
-        t.budget += s->carry; /* what the subtrees before this one left unused */
-        s->carry = 0;
-        if (!bvh__fits_depth(t.depth, bvh__sm_log2(m) + 5)) { /* halve from here on: depth stays bounded */
-            if (m <= c->max_leaf) ch.kind = BVH__SM_NONE;
-        } else if (m <= 1) {
-            ch.kind = BVH__SM_NONE;
-        } else {
-            double area = bvh__half_area_d(t.box), split;
-            bvh__sm_evaluate(s, b, m, t.budget, &t.box, &t.cbox, &ch);
-            /* E_r = C_i A(n) + C_t C; where nothing separates, a leaf whenever one may hold them */
-            split = ch.kind == BVH__SM_NONE ? HUGE_VAL : c->ci * area + c->ct * ch.cost;
-            if (bvh__sah_leaf(c, m, BVH__LEAF_COST(c, area, (double)m), split))
-                ch.kind = BVH__SM_NONE; /* leaf: E_t <= E_r */
-            else if (ch.kind == BVH__SM_NONE || !(ch.cost < area * m))
-                ch.kind = BVH__SM_MEDIAN;
-        }
-        node = &o->nodes[t.node];
-        if (ch.kind == BVH__SM_NONE) { /* leaf */
-            bvh__set_box(node, t.box);
-            node->index = o->ref_count;
-            node->count = m;
-            for (i = b; i < b + m; i++) o->refs[o->ref_count++] = s->work[i].id;
-            s->top = b;
-            s->carry = t.budget;
-            continue;
-        }
-        tl.box = tl.cbox = tr.box = tr.cbox = bvh__empty();
-        nl = ch.kind == BVH__SM_MEDIAN ? 0 : bvh__sm_partition(s, b, t.budget, &ch, &tl, &tr);
-        if (nl == 0 || nl == s->top - b) { /* median (no duplicates were made) */
-            nl = bvh__sm_median(s, b, m, &t.cbox);
-            bvh__sm_bounds(s->work + s->top - nl, nl, &tl.box, &tl.cbox);
-            bvh__sm_bounds(s->work + b, s->top - b - nl, &tr.box, &tr.cbox);
-        }
-        nr = s->top - b - nl;
-        left = t.budget - (s->top - b - m); /* shared by the children in proportion to their size */
-        tl.budget = (uint32_t)((uint64_t)left * nl / (nl + nr));
-        tr.budget = left - tl.budget;
-        r = bvh__sm_reserve_pair(s);
-        if (r != BVH_SUCCESS) goto done;
-        node = &o->nodes[t.node];
-        tl.node = o->node_count;
-        tr.node = o->node_count + 1;
-        o->node_count += 2;
-        tl.count = nl;
-        tr.count = nr;
-        tl.depth = tr.depth = t.depth + 1;
-        box = tl.box;
-        box = bvh__merge(box, tr.box); /* split parts may be tighter than the node's references */
-        bvh__set_box(node, box);
-        node->index = tl.node;
-        node->count = 0;
-        BVH_ASSERT(sp + 2 <= BVH__SM_STACK);
-        stack[sp++] = tr;
-        stack[sp++] = tl;
+        s->top = c->n;
+        s->extra = s->carry = 0;
     }
+    o->refs = BVH__ALLOC(&c->al, uint32_t, s->cap);
+    o->node_cap = c->n < 1024 ? s->node_max : c->n; /* grown by half when full */
+    o->nodes = BVH__ALLOC(&c->al, bvh_node, o->node_cap);
+    o->ref_cap = s->cap;
+    if (!o->refs || !o->nodes) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    o->node_count = 1;
+    stack[0] = root;
+    r = bvh__sm_run(s, stack, 1, c->prog);
 done:
     BVH_ASSERT(s->extra <= s->budget);
     if (r != BVH_SUCCESS) bvh__out_free(c, o);
@@ -4016,7 +4641,7 @@ static const bvh__builder_row bvh__builders[BVH_BUILDER_COUNT] = {
     {{"default", 8, BVH__PLOC_INTERIOR, 1, 0, BVH__PLOC_DEFAULTS, BVH__NO_SAH_MIDPOINT}, bvh__build_ploc_team},
     {{"top-down", 4, 1.0f, 0, 0, BVH__NO_PLOC, BVH__NO_SAH_MIDPOINT}, bvh__build_top_down_row},
     {{"bottom-up", 4, 1.0f, 0, 0, BVH__NO_PLOC, BVH__NO_SAH_MIDPOINT}, bvh__build_bottom_up_row},
-    {{"sah-midpoint", 8, 1.0f, 0, 1, BVH__NO_PLOC, BVH__SAH_MIDPOINT_DEFAULTS}, bvh__build_sah_midpoint_row},
+    {{"sah-midpoint", 8, 1.0f, 1, 1, BVH__NO_PLOC, BVH__SAH_MIDPOINT_DEFAULTS}, bvh__build_sah_midpoint_row},
     {{"ploc", 8, BVH__PLOC_INTERIOR, 0, 0, BVH__PLOC_DEFAULTS, BVH__NO_SAH_MIDPOINT}, bvh__build_ploc_one},
     {{"ploc-parallel", 8, BVH__PLOC_INTERIOR, 1, 0, BVH__PLOC_DEFAULTS, BVH__NO_SAH_MIDPOINT}, bvh__build_ploc_team},
 };

@@ -12,7 +12,9 @@
    Scenes: files or generators as build/render takes them (see --help). None given: the study's
    four sizes, gen:random:500, the Stanford bunny (~70K), gen:field:15 (~1M), gen:field:44 (~3M).
 
-   Per scene and row: build time (median, min and max of R builds after one warm-up), SAH with
+   Per scene and row: build time (median, min and max of R builds after one warm-up; for the
+   builders that use threads, ploc-parallel and sah-midpoint, on N threads, and "build 1t" the
+   median of R more on one thread), SAH with
    costs (1, 0, 1), tree statistics, bytes per triangle of the binary tree (nodes + references)
    and of the 8-wide copy CPU traversal uses (built by default, --trace-width), peak memory of
    the build (a counting bvh_allocator), the standard camera's primary rays (bvh_camera_standard
@@ -139,6 +141,7 @@ typedef struct row {
     row_state state;
     char note[200]; /* why skipped or failed */
     double build_ms, build_min, build_max;
+    double build_1t; /* bvh.h rows: median build ms on one thread (the builders that use threads) */
     double sah, nodes, leaves, refs, max_depth, max_leaf, bvh_bytes, tri_bytes, wide_bytes, peak_bytes;
     double ms_1t, mrays_1t, ms_mt, mrays_mt, ms_cl, mrays_cl, cl_kernel_ms;
     double frame_ms, fps, hits, t_sum;
@@ -226,7 +229,7 @@ static void row_init(row *r, row_kind kind, const char *name) {
     memset(r, 0, sizeof *r);
     r->kind = kind;
     snprintf(r->name, sizeof r->name, "%s", name);
-    r->build_ms = r->build_min = r->build_max = NAN;
+    r->build_ms = r->build_min = r->build_max = r->build_1t = NAN;
     r->sah = r->nodes = r->leaves = r->refs = r->max_depth = r->max_leaf = NAN;
     r->bvh_bytes = r->tri_bytes = r->wide_bytes = r->peak_bytes = NAN;
     r->ms_1t = r->mrays_1t = r->ms_mt = r->mrays_mt = r->ms_cl = r->mrays_cl = r->cl_kernel_ms = NAN;
@@ -755,6 +758,26 @@ static int build_repeated(run_ctx *c, row *r, bvh_tree *tree) {
     }
     median_range(ms, o->repeat, &r->build_ms, &r->build_min, &r->build_max);
     r->peak_bytes = peak;
+    r->build_1t = r->build_ms;
+    if (desc.threads != 1 && o->nthreads > 1) {
+        bvh_builder_info info;
+        if (bvh_builder_get_info(r->builder, &info) == BVH_SUCCESS && info.uses_threads) {
+            desc.threads = 1;
+            for (rep = 0; rep < o->repeat; rep++) {
+                double t0;
+                progress("%s: %s, build on 1 thread %u/%u", c->out->name, r->name, rep + 1, o->repeat);
+                bvh_free(tree);
+                t0 = scene_now_ms();
+                if (bvh_build(tree, &desc) != BVH_SUCCESS) {
+                    r->state = ROW_FAILED;
+                    snprintf(r->note, sizeof r->note, "failed on 1 thread");
+                    return 1;
+                }
+                ms[rep] = scene_now_ms() - t0;
+            }
+            r->build_1t = scene_median(ms, o->repeat);
+        }
+    }
     return 0;
 }
 
@@ -1713,6 +1736,7 @@ enum {
     C_BUILDER,
     C_BUILD,
     C_RANGE,
+    C_BUILD1,
     C_SAH,
     C_NODES,
     C_LEAVES,
@@ -1747,6 +1771,7 @@ static const column g_cols[C_COUNT] = {
     {"builder", "Builder", 14, 0},
     {"build ms", "Build ms (median)", 9, -1},
     {"min-max", "min-max", 15, 0},
+    {"build 1t", "Build ms 1 thread", 9, -1},
     {"SAH", "SAH (1,0,1)", 9, -1},
     {"nodes", "Nodes", 9, 0},
     {"leaves", "Leaves", 8, 0},
@@ -1805,6 +1830,9 @@ static double cell(const bench_scene *s, const row *r, int col, char *b, size_t 
         fmt_ms(hi, sizeof hi, r->build_max);
         snprintf(b, n, "%s-%s", lo, hi);
         return NAN;
+    case C_BUILD1:
+        fmt_ms(b, n, r->build_1t);
+        return r->build_1t;
     case C_SAH:
         fmt_num(b, n, r->sah, 2);
         return r->sah;
@@ -2225,6 +2253,7 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "build_ms", r->build_ms, 4);
         json_num(f, "build_ms_min", r->build_min, 4);
         json_num(f, "build_ms_max", r->build_max, 4);
+        json_num(f, "build_ms_1t", r->build_1t, 4);
         json_num(f, "sah", r->sah, 6);
         json_num(f, "nodes", r->nodes, 0);
         json_num(f, "leaves", r->leaves, 0);
@@ -2507,7 +2536,8 @@ static void usage(FILE *f) {
             "                   none, top-down, bottom-up, sah-midpoint, ploc, ploc-parallel\n"
             "                   (none = brute force, the study's first row)\n"
             "  --embree LIST    'all' (default: low,medium,high), 'none', or a comma list\n"
-            "  --threads N      ploc-parallel, multi-thread tracing and Embree; 0 = all cores (default)\n"
+            "  --threads N      ploc-parallel, sah-midpoint, multi-thread tracing and Embree; 0 = all\n"
+            "                   cores (default); their 'build 1t' column: the same builds on 1 thread\n"
             "  --repeat R       timed builds after one warm-up; the median is reported (default 5)\n"
             "  --size WxH       frame size (default 1024x1024)\n"
             "  --trace-width W  8: builds add the 8-wide copy CPU tracing uses (default); 2: binary only\n"

@@ -11,6 +11,10 @@
    BVH__PROGRESS_WORK-ish slice of work and never leaves a long gap. */
 #define BVH_IMPLEMENTATION
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
+/* sah-midpoint's rare paths, counted (on the calling thread): a subtree built again with its
+   exact budget, a parallel build started again serially */
+static struct { unsigned rebuilt, serial; } sm_events;
+#define BVH__SM_EVENT(what) (sm_events.what++)
 #include "bvh.h"
 #include "test_util.h"
 #include "tree_diff.h"
@@ -120,7 +124,8 @@ static void pool_same_tree(void **state) {
                     fail_msg("%s/%s: pool %s with %u tasks: %s differs from the internal pool's", s.name,
                              bvh_builder_name(builder), pool_names[h], tasks[k], diff);
                 /* the builders that use threads hand their phases to the pool */
-                if (tasks[k] > 1 && s.tri_count >= 64 && builder == BVH_BUILDER_PLOC_PARALLEL && ps.runs == 0)
+                if (tasks[k] > 1 && s.tri_count >= 64 &&
+                    (builder == BVH_BUILDER_PLOC_PARALLEL || builder == BVH_BUILDER_SAH_MIDPOINT) && ps.runs == 0)
                     fail_msg("%s/%s: the pool was never asked to run anything", s.name, bvh_builder_name(builder));
                 bvh_free(&t);
             }
@@ -365,10 +370,83 @@ static void progress_cadence(void **state) {
     tu_scene_free(&s);
 }
 
+/* The sanitizers slow some loops tenfold: the slowest scenes are left out under them. */
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define POOL_SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define POOL_SANITIZED 1
+#endif
+#endif
+#ifndef POOL_SANITIZED
+#define POOL_SANITIZED 0
+#endif
+
+/* sah-midpoint on the threads: byte for byte the 1-thread tree on 2, 3 and 8 threads and on a
+   pool (shuffled, 5 tasks), with reference splits (the default), without (split_budget off) and
+   in the study's variant (bins off), on random triangles, random triangles of which every tenth
+   is a long sliver (also with a small split budget) and the bunny (not under the sanitizers:
+   slow there). The scenes take the rare paths (sm_events) at least once each (a subtree built
+   again: the bunny's). */
+static void sah_midpoint_threads_same_tree(void **state) {
+    static const uint32_t threads[] = {2, 3, 8};
+    tu_scene sc[3];
+    int ns = 0, i, v;
+    size_t k;
+    (void)state;
+    tu_scene_random(&sc[ns++], 20000, 0x534d5041ULL);
+    tu_scene_random(&sc[ns], 3000, 0x534d5042ULL);
+    for (k = 0; k < sc[ns].tri_count; k += 10) { /* slivers: splits pay at the top nodes */
+        float *p = tu_vertex(&sc[ns], 3 * (uint32_t)k), *q = tu_vertex(&sc[ns], 3 * (uint32_t)k + 1);
+        tu_set3(p, q[0] + 40 * (p[0] - q[0]), q[1] + 40 * (p[1] - q[1]), q[2] + 40 * (p[2] - q[2]));
+    }
+    ns++;
+    if (!POOL_SANITIZED && tu_scene_bunny(&sc[ns])) ns++;
+    memset(&sm_events, 0, sizeof sm_events);
+    for (i = 0; i < ns; i++)
+        for (v = 0; v < (i == 1 ? 4 : 3); v++) {
+            bvh_build_desc d = tu_scene_desc(&sc[i], BVH_BUILDER_SAH_MIDPOINT);
+            bvh_tree ref, t;
+            pool_state ps;
+            const char *diff;
+            if (v == 1) d.sah_midpoint.split_budget = BVH_OFF;
+            if (v == 2) d.sah_midpoint.bins = BVH_OFF;
+            if (v == 3) d.sah_midpoint.split_budget = 0.02f; /* budgets bind: phase A starts again serially */
+            d.threads = 1;
+            assert_int_equal(bvh_build(&ref, &d), BVH_SUCCESS);
+            for (k = 0; k <= sizeof threads / sizeof threads[0]; k++) {
+                memset(&ps, 0, sizeof ps);
+                if (k == sizeof threads / sizeof threads[0]) { /* the pool */
+                    ps.order = 2;
+                    ps.workers = 3;
+                    ps.seed = 17 + (uint64_t)v;
+                    d.pool.run = pool_run;
+                    d.pool.user = &ps;
+                    d.threads = 5;
+                } else
+                    d.threads = threads[k];
+                assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+                diff = tree_diff(&ref, &t);
+                if (diff)
+                    fail_msg("%u triangles, variant %d, %u threads%s: %s differs from 1 thread's", sc[i].tri_count, v,
+                             d.threads, d.pool.run ? " (pool)" : "", diff);
+                if (d.pool.run && ps.runs == 0) fail_msg("the pool was never asked to run anything");
+                bvh_free(&t);
+            }
+            bvh_free(&ref);
+        }
+    print_message("sah-midpoint: %u subtrees built again, %u builds started again serially\n", sm_events.rebuilt,
+                  sm_events.serial);
+    if (ns == 3) assert_true(sm_events.rebuilt > 0); /* the bunny's subtrees (random ones rarely) */
+    assert_true(sm_events.serial > 0);
+    for (i = 0; i < ns; i++) tu_scene_free(&sc[i]);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         TU_EVERY_SCENE(pool_same_tree),
         cmocka_unit_test(pool_same_tree_options),
+        cmocka_unit_test(sah_midpoint_threads_same_tree),
         cmocka_unit_test(pool_batch_same_hits),
         cmocka_unit_test(progress_small_builds),
         cmocka_unit_test(progress_cancel_every_call),

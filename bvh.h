@@ -2421,6 +2421,7 @@ static bvh_result bvh__optimize_emit(const bvh__ctx *c, const bvh_node *src, uin
     uint8_t *touched = NULL;
     bvh_node *back = NULL;
     bvh_result r = BVH_SUCCESS;
+    memset(out, 0, sizeof *out); /* what bvh__emit frees when it fails */
     memset(&o, 0, sizeof o);
     o.c = c;
     o.node = BVH__ALLOC(&c->al, bvh_node, node_cap);

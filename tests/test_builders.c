@@ -502,7 +502,6 @@ static void morton_sort_alone(void **state) {
             }
 }
 
-
 /* The optimizer (desc.optimize) on every builder and scene: the tree is valid (with caller boxes
    too), its statistics add up, it is the same byte for byte on 1, 2, 3 and 8 threads, and on
    the bunny it costs less (SAH) than the builder's own tree for the builders whose trees it is
@@ -549,7 +548,8 @@ static void optimizer_valid(void **state) {
         if (id == TU_SCENE_BUNNY)
             print_message("%-18s %-14s SAH %.3f, optimized %.3f\n", s.name, bvh_builder_name(tu_builder(b)), sah_plain,
                           sah_opt);
-        if (id == TU_SCENE_BUNNY && (tu_builder(b) == BVH_BUILDER_PLOC_PARALLEL || tu_builder(b) == BVH_BUILDER_SAH_MIDPOINT) &&
+        if (id == TU_SCENE_BUNNY &&
+            (tu_builder(b) == BVH_BUILDER_PLOC_PARALLEL || tu_builder(b) == BVH_BUILDER_SAH_MIDPOINT) &&
             !(sah_opt < sah_plain))
             fail_msg("%s/%s+opt: SAH %g, not below the builder's %g", s.name, bvh_builder_name(tu_builder(b)), sah_opt,
                      sah_plain);

@@ -2412,14 +2412,14 @@ static void bvh__opt_store(const bvh__opt *o, bvh_node *out) {
 }
 /* Optimizes the binary tree below src[root] (children adjacent, leaves indexing map) for
    c->opt_rounds rounds on `threads` threads, then emits it as bvh__emit does (collapse: by the
-   SAH). The tree has at most node_cap nodes. */
-static bvh_result bvh__optimize_emit(const bvh__ctx *c, const bvh_node *src, uint32_t root, uint32_t node_cap,
+   SAH). The tree has at most node_cap nodes; src is overwritten (the optimized tree goes there
+   for bvh__emit: no second copy of the nodes). */
+static bvh_result bvh__optimize_emit(const bvh__ctx *c, bvh_node *src, uint32_t root, uint32_t node_cap,
                                      const uint32_t *map, int collapse, uint32_t threads, bvh__out *out) {
     bvh__opt o;
     uint32_t round, want, per, *vals = NULL;
     uint64_t *keys = NULL;
     uint8_t *touched = NULL;
-    bvh_node *back = NULL;
     bvh_result r = BVH_SUCCESS;
     memset(out, 0, sizeof *out); /* what bvh__emit frees when it fails */
     memset(&o, 0, sizeof o);
@@ -2454,16 +2454,11 @@ static bvh_result bvh__optimize_emit(const bvh__ctx *c, const bvh_node *src, uin
     }
     if (r != BVH_SUCCESS) goto done;
 emit:
-    if (!(back = BVH__ALLOC(&c->al, bvh_node, o.count))) {
-        r = BVH_ERROR_OUT_OF_MEMORY;
-        goto done;
-    }
-    bvh__opt_store(&o, back);
+    bvh__opt_store(&o, src);
     bvh__free(&c->al, o.node); /* before emission, which needs its own */
     o.node = NULL;
-    r = bvh__emit(c, back, o.count, map, collapse, threads, NULL, 0, out);
+    r = bvh__emit(c, src, o.count, map, collapse, threads, NULL, 0, out);
 done:
-    bvh__free(&c->al, back);
     bvh__free(&c->al, touched);
     bvh__free(&c->al, vals);
     bvh__free(&c->al, keys);

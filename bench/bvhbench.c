@@ -2517,9 +2517,11 @@ static int run_plot_script(const char *argv0, const char *dir) {
 static void usage(FILE *f) {
     fprintf(f,
             "usage: bvhbench [options] [SCENE...]\n"
-            "  --builder LIST   'all' (default: none + the five builders) or a comma list of\n"
-            "                   none, top-down, bottom-up, sah-midpoint, ploc, ploc-parallel\n"
-            "                   (none = brute force, the study's first row)\n"
+            "  --builder LIST   'all' (default: none + the five builders + ploc-parallel+opt and\n"
+            "                   sah-midpoint+opt) or a comma list of none, top-down, bottom-up,\n"
+            "                   sah-midpoint, ploc, ploc-parallel, each optionally with '+opt' (the\n"
+            "                   tree optimizer, desc.optimize: 8 rounds); none = brute force, the\n"
+            "                   study's first row\n"
             "  --embree LIST    'all' (default: low,medium,high), 'none', or a comma list\n"
             "  --threads N      ploc-parallel, multi-thread tracing and Embree; 0 = all cores (default)\n"
             "  --repeat R       timed builds after one warm-up; the median is reported (default 5)\n"
@@ -2663,7 +2665,7 @@ static int parse_args(int argc, char **argv, options *o) {
             if (parse_builders(v, o)) {
                 fprintf(stderr,
                         "bvhbench: --builder wants all or a comma list of none, top-down, bottom-up, "
-                        "sah-midpoint, ploc, ploc-parallel, not '%s'\n",
+                        "sah-midpoint, ploc, ploc-parallel (each may end in +opt), not '%s'\n",
                         v);
                 return 2;
             }

@@ -2254,15 +2254,17 @@ typedef struct bvh__opt_move {
 } bvh__opt_move;
 typedef struct bvh__opt {
     const bvh__ctx *c;
-    bvh_node *node;   /* count slots: the root at 0, sibling pairs at (1, 2), (3, 4)...; an interior
-                         node's index is its children's pair, as in bvh_node */
+    bvh_node *node;   /* count slots: the root at 1 (0 unused), sibling pairs at (2, 3), (4, 5)...,
+                         each in one cache line; an interior node's index is its children's pair,
+                         as in bvh_node */
     uint32_t *parent; /* per slot (the root's: BVH_INVALID) */
     uint32_t count;
     uint32_t *cand; /* this round's candidates (slots, ascending) */
     uint32_t cand_count;
     bvh__opt_move *move; /* per candidate */
 } bvh__opt;
-BVH__INLINE uint32_t bvh__opt_sibling(uint32_t i) { return ((i - 1) ^ 1u) + 1; }
+#define BVH__OPT_ROOT 1u
+BVH__INLINE uint32_t bvh__opt_sibling(uint32_t i) { return i ^ 1u; }
 BVH__INLINE float bvh__opt_area(const bvh_node *n) { return bvh__half_area(bvh__node_box(n)); }
 /* Best insertion below slot s for a node of box b and half area ab, when removing it saves d
    (more than best->gain so far): a branch-and-bound walk. Inserting at y costs the merged box,
@@ -2309,7 +2311,7 @@ static bvh__opt_move bvh__opt_search(const bvh__opt *o, uint32_t f) {
     best.gain = 0.0f;
     best.to = BVH_INVALID;
     bvh__opt_probe(nd, s, d, b, ab, s, &best); /* f's sibling itself: the tree as it is */
-    while (x != 0) {
+    while (x != BVH__OPT_ROOT) {
         const uint32_t y = o->parent[x];
         s = bvh__opt_sibling(x);
         bvh__opt_probe(nd, s, d, b, ab, BVH_INVALID, &best);
@@ -2332,12 +2334,12 @@ static void bvh__opt_search_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *
 static void bvh__opt_candidates(bvh__opt *o, uint32_t round, uint32_t per, uint32_t want) {
     uint32_t i;
     o->cand_count = 0;
-    for (i = 1; i < o->count && o->cand_count < want; i++)
+    for (i = BVH__OPT_ROOT + 1; i < o->count && o->cand_count < want; i++)
         if (((i * 2654435761u) >> 8) % per == round % per) o->cand[o->cand_count++] = i;
 }
 /* Refits the boxes of the ancestors of slot i. */
 static void bvh__opt_refit(bvh__opt *o, uint32_t i) {
-    while (i != 0) {
+    while (i != BVH__OPT_ROOT) {
         bvh_node *p;
         i = o->parent[i];
         p = &o->node[i];
@@ -2356,7 +2358,7 @@ static int bvh__opt_apply(bvh__opt *o, uint32_t f, uint32_t t, uint8_t *touched)
     uint32_t x;
     bvh_node keep;
     if (touched[f] || touched[s] || touched[p] || touched[t] || touched[pt] || t == p || t == s) return 0;
-    for (x = t; x != 0; x = o->parent[x])
+    for (x = t; x != BVH__OPT_ROOT; x = o->parent[x])
         if (x == f) return 0;
     touched[f] = touched[s] = touched[p] = touched[t] = touched[pt] = 1;
     keep = o->node[t];
@@ -2388,19 +2390,26 @@ static bvh_result bvh__opt_round(bvh__opt *o, uint32_t threads, uint64_t *keys, 
     for (i = 0; i < m; i++) (void)bvh__opt_apply(o, o->cand[vals[i]], o->move[vals[i]].to, touched);
     return BVH_SUCCESS;
 }
-/* Copies the tree below src[root] into o's slots, breadth first: the slots themselves are the
-   queue, and each interior node's children pair is appended when the node is reached. */
-static void bvh__opt_load(bvh__opt *o, const bvh_node *src, uint32_t root) {
-    uint32_t i, next = 1;
-    o->node[0] = src[root];
-    o->parent[0] = BVH_INVALID;
-    for (i = 0; i < next; i++) {
+/* Copies the tree below src[root] into o's slots, depth first (a node's children pair is
+   appended when the node is reached, the left child's subtree next): the searches climb from a
+   node to the root and walk down subtrees, and in this order the nodes of a subtree lie close
+   together. `stack` has room for the tree's interior nodes. */
+static void bvh__opt_load(bvh__opt *o, const bvh_node *src, uint32_t root, uint32_t *stack) {
+    uint32_t sp = 0, next = BVH__OPT_ROOT + 1;
+    memset(&o->node[0], 0, sizeof o->node[0]);
+    o->node[BVH__OPT_ROOT] = src[root];
+    o->parent[0] = o->parent[BVH__OPT_ROOT] = BVH_INVALID;
+    stack[sp++] = BVH__OPT_ROOT;
+    while (sp) {
+        const uint32_t i = stack[--sp];
         bvh_node *n = &o->node[i];
         if (n->count) continue;
         o->node[next] = src[n->index];
         o->node[next + 1] = src[n->index + 1];
         o->parent[next] = o->parent[next + 1] = i;
         n->index = next;
+        stack[sp++] = next + 1;
+        stack[sp++] = next;
         next += 2;
     }
     o->count = next;
@@ -2409,8 +2418,8 @@ static void bvh__opt_load(bvh__opt *o, const bvh_node *src, uint32_t root) {
    parent, the root last), breadth first from the end: a copied node's index still names its
    children's slots until its own turn comes. */
 static void bvh__opt_store(const bvh__opt *o, bvh_node *out) {
-    uint32_t i = o->count, next = o->count - 1;
-    out[next] = o->node[0];
+    uint32_t i = o->count - 1, next = o->count - 2;
+    out[next] = o->node[BVH__OPT_ROOT];
     while (i-- > 0) {
         bvh_node *n = &out[i];
         if (n->count) continue;
@@ -2434,17 +2443,24 @@ static bvh_result bvh__optimize_emit(const bvh__ctx *c, bvh_node *src, uint32_t 
     memset(out, 0, sizeof *out); /* what bvh__emit frees when it fails */
     memset(&o, 0, sizeof o);
     o.c = c;
-    o.node = BVH__ALLOC(&c->al, bvh_node, node_cap);
-    o.parent = BVH__ALLOC(&c->al, uint32_t, node_cap);
+    o.node = BVH__CAST(bvh_node *, bvh__alloc_lines(&c->al, ((size_t)node_cap + 1) * sizeof(bvh_node)));
+    o.parent = BVH__ALLOC(&c->al, uint32_t, (size_t)node_cap + 1);
     if (!o.node || !o.parent) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
-    bvh__opt_load(&o, src, root);
+    o.cand = BVH__ALLOC(&c->al, uint32_t, node_cap); /* the load's stack first */
+    if (!o.cand) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    bvh__opt_load(&o, src, root, o.cand);
+    bvh__free(&c->al, o.cand);
+    o.cand = NULL;
     per = (uint32_t)(1.0f / c->opt_batch + 0.5f);
     want = o.count / per + o.count / 64 + 1; /* a subset's size, and room for its spread */
-    want = want > o.count - 1 ? o.count - 1 : want;
-    if (o.count < 3) goto emit; /* a single leaf */
+    want = want > o.count - 2 ? o.count - 2 : want;
+    if (o.count - 1 < 3) goto emit; /* a single leaf */
     o.cand = BVH__ALLOC(&c->al, uint32_t, want);
     o.move = BVH__ALLOC(&c->al, bvh__opt_move, want);
     keys = BVH__ALLOC(&c->al, uint64_t, 2 * (size_t)want);
@@ -2465,9 +2481,9 @@ static bvh_result bvh__optimize_emit(const bvh__ctx *c, bvh_node *src, uint32_t 
     if (r != BVH_SUCCESS) goto done;
 emit:
     bvh__opt_store(&o, src);
-    bvh__free(&c->al, o.node); /* before emission, which needs its own */
+    bvh__free_lines(&c->al, o.node); /* before emission, which needs its own */
     o.node = NULL;
-    r = bvh__emit(c, src, o.count, map, collapse, threads, NULL, 0, out);
+    r = bvh__emit(c, src, o.count - 1, map, collapse, threads, NULL, 0, out);
 done:
     bvh__free(&c->al, touched);
     bvh__free(&c->al, vals);
@@ -2475,7 +2491,7 @@ done:
     bvh__free(&c->al, o.move);
     bvh__free(&c->al, o.cand);
     bvh__free(&c->al, o.parent);
-    bvh__free(&c->al, o.node);
+    bvh__free_lines(&c->al, o.node);
     return r;
 }
 

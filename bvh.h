@@ -2240,9 +2240,10 @@ done:
    first, skipping a move that touches a node an earlier move of the round changed, and refits
    the boxes above each. Leaves move with all their primitives; the collapse and the layouts
    follow as for the builder. Differences from the paper: the candidates are a subset of the
-   nodes each round (not every node) and the rounds a fixed number (no convergence test), so that
-   nothing depends on time and the tree is the same for any thread count; a move whose target now lies below the
-   moved node is refused (two moves of one round could otherwise close a cycle). */
+   nodes each round (not every node) and the rounds a fixed number (no convergence test), so
+   that nothing depends on time and the tree is the same for any thread count; a move whose
+   target now lies below the moved node is refused (two moves of one round could otherwise
+   close a cycle). */
 /* ============================================================================================ */
 #ifndef BVH__OPT_BATCH
 #define BVH__OPT_BATCH 0.1f /* desc.optimize.batch's default */

@@ -110,7 +110,7 @@
             (Bittner et al. 2013, Meister & Bittner 2018) on any builder's binary tree before
             the collapse to leaves, on desc.threads or desc.pool, the same tree for any thread
             count; rounds above 1024 and a batch outside [2^-16, 1] are refused. 8 rounds: SAH
-            2-6% below PLOC's and 0.5-6% below sah-midpoint's (docs/DESIGN.md); bvhbench rows
+            2.5-6% below PLOC's and 0.5-7% below sah-midpoint's (docs/DESIGN.md); bvhbench rows
             `<builder>+opt` (--builder ploc-parallel+opt...; `all` adds ploc-parallel+opt and
             sah-midpoint+opt).
      0.6.0  The public surface made regular. Builder-specific options moved into nested structs,

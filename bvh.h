@@ -66,8 +66,9 @@
      bvh_load_desc.threads (a memory buffer's copy and checks, and the 8-wide packets).
      Parallel builders create their worker threads once per build phase (six per build, eight
      with the 8-wide copy, one more for PLOC's SAH top, one per extra collapse pass when PLOC's
-     memory budget applies), never per iteration. At barriers they spin briefly before sleeping,
-     unless the build has more threads than the machine has CPUs.
+     memory budget applies, one per round of the optimizer), never per iteration. At barriers
+     they spin briefly before sleeping, unless the build has more threads than the machine has
+     CPUs.
      Tracing only reads the tree (every call that takes a const bvh_tree *): any number of
      threads may trace one tree at once, batch calls included, while none builds into or frees it.
      Your own pool: desc.pool (and bvh_batch_desc.pool for bvh_intersect_batch_ex and
@@ -134,6 +135,14 @@
             numbered in the serial order; a subtree whose decisions depended on a budget it could
             not know yet is built again (docs/DESIGN.md, sah-midpoint). bvhbench: a "build 1t"
             column (build_ms_1t in the JSON) for the builders that use threads.
+            The tree optimizer: bvh_build_desc.optimize (bvh_optimize_options:
+            rounds, 0 = off, the default; batch, 0 = 0.1) runs rounds of parallel reinsertion
+            (Bittner et al. 2013, Meister & Bittner 2018) on any builder's binary tree before
+            the collapse to leaves, on desc.threads or desc.pool, the same tree for any thread
+            count; rounds above 1024 and a batch outside [2^-16, 1] are refused. 8 rounds: SAH
+            2.5-6% below PLOC's and 0.5-7% below sah-midpoint's (docs/DESIGN.md); bvhbench rows
+            `<builder>+opt` (--builder ploc-parallel+opt...; `all` adds ploc-parallel+opt and
+            sah-midpoint+opt).
      0.6.0  The public surface made regular. Builder-specific options moved into nested structs,
             zero still the default (the same trees): desc.ploc_radius -> desc.ploc.radius,
             desc.ploc_top -> desc.ploc.top, desc.max_bytes_per_prim ->
@@ -371,6 +380,19 @@ typedef struct bvh_sah_midpoint_options {
                            above 1 refused */
 } bvh_sah_midpoint_options;
 
+/* The tree optimizer, for every builder (off by default): rounds of parallel reinsertion
+   (Meister & Bittner 2018) on the binary tree before its collapse to leaves, on desc.threads (or
+   desc.pool) whatever the builder, the same tree for any thread count. Each round a `batch`
+   fraction of the nodes (another subset each round) look for the place where they lower the SAH
+   most and move there. A lower SAH and faster tracing for more build time (docs/DESIGN.md;
+   bvhbench's `<builder>+opt` rows: rounds = BENCH_OPT_ROUNDS, batch 0). */
+typedef struct bvh_optimize_options {
+    uint32_t rounds; /* 0 = off; above 1024 refused */
+    float batch;     /* fraction of the binary tree's nodes that may move each round (1 / batch
+                        rounds offer every node once); 0 = 0.1; NaN, below 2^-16 or above 1
+                        refused */
+} bvh_optimize_options;
+
 /* An application's own workers (a job system, TBB, OpenMP...) in place of the library's
    pthreads. run must call task(task_arg, i) exactly once for every i in [0, count), on any of
    its threads, in any order, concurrently or one after another, and return when all have
@@ -392,7 +414,8 @@ typedef struct bvh_build_desc {
     uint32_t box_count;
     uint32_t max_leaf_size; /* 0 = the builder's (bvh_builder_info.max_leaf_size: 4 for top-down
                                and bottom-up, 8 for the SAH-collapsed builders); above 255 refused */
-    uint32_t threads;       /* ploc-parallel, sah-midpoint: 0 = all online CPUs; above 256 clamped;
+    uint32_t threads;       /* ploc-parallel, sah-midpoint and the optimizer (desc.optimize, any
+                               builder): 0 = all online CPUs; above 256 clamped to 256;
                                at most one per 8192 primitives (the tree is the same) */
     bvh_costs costs;        /* build-time SAH costs, zero = (1, 0, 1) (PLOC's collapse: (1.2,
                                0, 1), for smaller trees at the same SAH); negative/NaN refused */
@@ -415,6 +438,7 @@ typedef struct bvh_build_desc {
     bvh_allocator allocator; /* both functions or neither (a half pair is refused) */
     bvh_ploc_options ploc;
     bvh_sah_midpoint_options sah_midpoint;
+    bvh_optimize_options optimize;
 } bvh_build_desc;
 
 /* ---- the tree ------------------------------------------------------------------------------ */
@@ -1502,6 +1526,9 @@ typedef struct bvh__ctx {
     uint32_t max_leaf, threads, radius, sah_bins, ploc_top; /* sah_bins, ploc_top: 0 = off; else ploc_top >= 2 */
     uint32_t budget; /* collapse: tree bytes per primitive at most; 0 = no limit */
     float ci, cl, ct, split_budget;
+    uint32_t opt_rounds, opt_threads; /* desc.optimize: 0 rounds = off; threads: desc.threads' */
+    float opt_batch;
+    int opt_done; /* the builder ran the optimizer before its own collapse */
 } bvh__ctx;
 
 typedef struct bvh__out {
@@ -2238,6 +2265,273 @@ done:
     bvh__free(&c->al, height);
     bvh__free(&c->al, size);
     bvh__free(&c->al, cnt);
+    return r;
+}
+
+/* ============================================================================================ */
+/* == tree optimizer: parallel reinsertion (desc.optimize) ======================================= */
+/* Insertion-based optimization (Bittner, Hapala & Havran 2013) in the parallel form of Meister &
+   Bittner 2018, on the binary tree a builder gives before the collapse to leaves. Each round,
+   a `batch` fraction of the nodes (bvh__opt_candidates) each look for the move that lowers the
+   sum of interior areas most: the node leaves its place (its parent goes, its sibling takes
+   the parent's place) and becomes the sibling of another node under a new parent. The searches
+   run on the build's threads against the same tree; then one thread applies the moves best
+   first, skipping a move that touches a node an earlier move of the round changed, and refits
+   the boxes above each. Leaves move with all their primitives; the collapse and the layouts
+   follow as for the builder. Differences from the paper: the candidates are a subset of the
+   nodes each round (not every node) and the rounds a fixed number (no convergence test), so
+   that nothing depends on time and the tree is the same for any thread count; a move whose
+   target now lies below the moved node is refused (two moves of one round could otherwise
+   close a cycle). */
+/* ============================================================================================ */
+#ifndef BVH__OPT_BATCH
+#define BVH__OPT_BATCH 0.1f /* desc.optimize.batch's default */
+#endif
+#define BVH__OPT_STACK 128 /* pending nodes of one search; a full stack skips the rest, alike on every run */
+typedef struct bvh__opt_move {
+    float gain;  /* half area the move saves (0: none found) */
+    uint32_t to; /* the new sibling's slot */
+} bvh__opt_move;
+typedef struct bvh__opt {
+    const bvh__ctx *c;
+    bvh_node *node;   /* count slots: the root at 1 (0 unused), sibling pairs at (2, 3), (4, 5)...,
+                         each in one cache line; an interior node's index is its children's pair,
+                         as in bvh_node */
+    uint32_t *parent; /* per slot (the root's: BVH_INVALID) */
+    uint32_t count;
+    uint32_t *cand; /* this round's candidates (slots, ascending) */
+    uint32_t cand_count;
+    bvh__opt_move *move; /* per candidate */
+} bvh__opt;
+#define BVH__OPT_ROOT 1u
+BVH__INLINE uint32_t bvh__opt_sibling(uint32_t i) { return i ^ 1u; }
+BVH__INLINE float bvh__opt_area(const bvh_node *n) { return bvh__half_area(bvh__node_box(n)); }
+/* Best insertion below slot s for a node of box b and half area ab, when removing it saves d
+   (more than best->gain so far): a branch-and-bound walk. Inserting at y costs the merged box,
+   and every node from s down to y's parent grows to include b; no insertion below y can save
+   more than what is left at y minus ab. `skip`: a slot not to take (the node's sibling). */
+static void bvh__opt_probe(const bvh_node *nd, uint32_t s, float d, bvh_aabb b, float ab, uint32_t skip,
+                           bvh__opt_move *best) {
+    uint32_t stack[BVH__OPT_STACK], sp = 0;
+    float left[BVH__OPT_STACK];
+    stack[sp] = s;
+    left[sp++] = d;
+    while (sp) {
+        const uint32_t y = stack[--sp];
+        const float v = left[sp];
+        const bvh_node *n = &nd[y];
+        float g;
+        if (!(v - ab > best->gain)) continue;
+        g = v - bvh__half_area(bvh__merge(bvh__node_box(n), b));
+        if (g > best->gain && y != skip) {
+            best->gain = g;
+            best->to = y;
+        }
+        if (!n->count && sp + 2 <= BVH__OPT_STACK) {
+            const float below = g + bvh__opt_area(n); /* y grows from its area to the merged one */
+            stack[sp] = n->index + 1;
+            left[sp++] = below;
+            stack[sp] = n->index;
+            left[sp++] = below;
+        }
+    }
+}
+/* The best move of the node in slot f (not the root). Going up from f, at each ancestor x the
+   other child's subtree is searched: an insertion there leaves every box from x's parent up as
+   it was, and d holds what the removal saves below: f's parent (gone) and the shrinking of each
+   ancestor between it and x's parent. */
+static bvh__opt_move bvh__opt_search(const bvh__opt *o, uint32_t f) {
+    const bvh_node *nd = o->node;
+    const bvh_aabb b = bvh__node_box(&nd[f]);
+    const float ab = bvh__half_area(b);
+    uint32_t x = o->parent[f], s = bvh__opt_sibling(f);
+    bvh_aabb nb = bvh__node_box(&nd[s]); /* the box of x's place once f is gone */
+    float d = bvh__opt_area(&nd[x]);
+    bvh__opt_move best;
+    best.gain = 0.0f;
+    best.to = BVH_INVALID;
+    bvh__opt_probe(nd, s, d, b, ab, s, &best); /* f's sibling itself: the tree as it is */
+    while (x != BVH__OPT_ROOT) {
+        const uint32_t y = o->parent[x];
+        s = bvh__opt_sibling(x);
+        bvh__opt_probe(nd, s, d, b, ab, BVH_INVALID, &best);
+        nb = bvh__merge(nb, bvh__node_box(&nd[s]));
+        d += bvh__opt_area(&nd[y]) - bvh__half_area(nb);
+        x = y;
+    }
+    return best;
+}
+static void bvh__opt_search_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    const bvh__opt *o = BVH__CAST(const bvh__opt *, arg);
+    uint32_t i;
+    (void)team;
+    for (i = tid; i < o->cand_count; i += nt) o->move[i] = bvh__opt_search(o, o->cand[i]);
+}
+/* The round's candidates: one of `per` subsets of the slots (root excluded), by a hash of the
+   slot, the next subset each round, so that `per` rounds offer every node once (taking the
+   largest nodes every round instead offers the same ones again: they seldom move, and the tree
+   improves several times less for the same work). At most `want` of them, lowest slots first. */
+static void bvh__opt_candidates(bvh__opt *o, uint32_t round, uint32_t per, uint32_t want) {
+    uint32_t i;
+    o->cand_count = 0;
+    for (i = BVH__OPT_ROOT + 1; i < o->count && o->cand_count < want; i++)
+        if (((i * 2654435761u) >> 8) % per == round % per) o->cand[o->cand_count++] = i;
+}
+/* Refits the boxes of the ancestors of slot i. */
+static void bvh__opt_refit(bvh__opt *o, uint32_t i) {
+    while (i != BVH__OPT_ROOT) {
+        bvh_node *p;
+        i = o->parent[i];
+        p = &o->node[i];
+        bvh__set_box(p, bvh__merge(bvh__node_box(&o->node[p->index]), bvh__node_box(&o->node[p->index + 1])));
+    }
+}
+BVH__INLINE void bvh__opt_adopt(bvh__opt *o, uint32_t at) {
+    const bvh_node *n = &o->node[at];
+    if (!n->count) o->parent[n->index] = o->parent[n->index + 1] = at;
+}
+/* Applies the move of f next to t unless a slot it changes was changed this round, or t now lies
+   below f. The pair of f and its sibling s becomes t's children: s's content moves up into the
+   parent's slot p, t's content into s, and t holds the new parent. */
+static int bvh__opt_apply(bvh__opt *o, uint32_t f, uint32_t t, uint8_t *touched) {
+    const uint32_t s = bvh__opt_sibling(f), p = o->parent[f], pt = o->parent[t];
+    uint32_t x;
+    bvh_node keep;
+    if (touched[f] || touched[s] || touched[p] || touched[t] || touched[pt] || t == p || t == s) return 0;
+    for (x = t; x != BVH__OPT_ROOT; x = o->parent[x])
+        if (x == f) return 0;
+    touched[f] = touched[s] = touched[p] = touched[t] = touched[pt] = 1;
+    keep = o->node[t];
+    o->node[p] = o->node[s];
+    bvh__opt_adopt(o, p);
+    o->node[s] = keep;
+    bvh__opt_adopt(o, s);
+    bvh__set_box(&o->node[t], bvh__merge(bvh__node_box(&o->node[f]), bvh__node_box(&keep)));
+    o->node[t].count = 0;
+    o->node[t].index = f < s ? f : s;
+    o->parent[f] = o->parent[s] = t;
+    bvh__opt_refit(o, t);
+    bvh__opt_refit(o, p);
+    return 1;
+}
+/* One round: search in parallel, then apply best first (ties: the lowest slot). The moves are
+   sorted by a key of the gain's bits (positive floats order as their bits) above the slot. */
+static bvh_result bvh__opt_round(bvh__opt *o, uint32_t threads, uint64_t *keys, uint32_t *vals, uint8_t *touched) {
+    uint32_t i, m = 0;
+    bvh_result r = bvh__run(o->c, threads, 0, bvh__opt_search_fn, o);
+    if (r != BVH_SUCCESS) return r;
+    for (i = 0; i < o->cand_count; i++)
+        if (o->move[i].gain > 0.0f) {
+            keys[m] = (uint64_t)~bvh__bits(o->move[i].gain) << 32 | o->cand[i];
+            vals[m++] = i;
+        }
+    bvh__msd_local(keys, vals, keys + o->cand_count, vals + o->cand_count, 0, m, 64, 0);
+    memset(touched, 0, o->count);
+    for (i = 0; i < m; i++) (void)bvh__opt_apply(o, o->cand[vals[i]], o->move[vals[i]].to, touched);
+    return BVH_SUCCESS;
+}
+/* Copies the tree below src[root] into o's slots, depth first (a node's children pair is
+   appended when the node is reached, the left child's subtree next): the searches climb from a
+   node to the root and walk down subtrees, and in this order the nodes of a subtree lie close
+   together. `stack` has room for the tree's interior nodes. */
+static void bvh__opt_load(bvh__opt *o, const bvh_node *src, uint32_t root, uint32_t *stack) {
+    uint32_t sp = 0, next = BVH__OPT_ROOT + 1;
+    memset(&o->node[0], 0, sizeof o->node[0]);
+    o->node[BVH__OPT_ROOT] = src[root];
+    o->parent[0] = o->parent[BVH__OPT_ROOT] = BVH_INVALID;
+    stack[sp++] = BVH__OPT_ROOT;
+    while (sp) {
+        const uint32_t i = stack[--sp];
+        bvh_node *n = &o->node[i];
+        if (n->count) continue;
+        o->node[next] = src[n->index];
+        o->node[next + 1] = src[n->index + 1];
+        o->parent[next] = o->parent[next + 1] = i;
+        n->index = next;
+        stack[sp++] = next + 1;
+        stack[sp++] = next;
+        next += 2;
+    }
+    o->count = next;
+}
+/* Writes o's tree to out as a source tree for bvh__emit (children adjacent and before their
+   parent, the root last), breadth first from the end: a copied node's index still names its
+   children's slots until its own turn comes. */
+static void bvh__opt_store(const bvh__opt *o, bvh_node *out) {
+    uint32_t i = o->count - 1, next = o->count - 2;
+    out[next] = o->node[BVH__OPT_ROOT];
+    while (i-- > 0) {
+        bvh_node *n = &out[i];
+        if (n->count) continue;
+        next -= 2;
+        out[next] = o->node[n->index];
+        out[next + 1] = o->node[n->index + 1];
+        n->index = next;
+    }
+}
+/* Optimizes the binary tree below src[root] (children adjacent, leaves indexing map) for
+   c->opt_rounds rounds on `threads` threads, then emits it as bvh__emit does (collapse: by the
+   SAH). The tree has at most node_cap nodes; src is overwritten (the optimized tree goes there
+   for bvh__emit: no second copy of the nodes). */
+static bvh_result bvh__optimize_emit(const bvh__ctx *c, bvh_node *src, uint32_t root, uint32_t node_cap,
+                                     const uint32_t *map, int collapse, uint32_t threads, bvh__out *out) {
+    bvh__opt o;
+    uint32_t round, want, per, *vals = NULL;
+    uint64_t *keys = NULL;
+    uint8_t *touched = NULL;
+    bvh_result r = BVH_SUCCESS;
+    memset(out, 0, sizeof *out); /* what bvh__emit frees when it fails */
+    memset(&o, 0, sizeof o);
+    o.c = c;
+    o.node = BVH__CAST(bvh_node *, bvh__alloc_lines(&c->al, ((size_t)node_cap + 1) * sizeof(bvh_node)));
+    o.parent = BVH__ALLOC(&c->al, uint32_t, (size_t)node_cap + 1);
+    if (!o.node || !o.parent) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    o.cand = BVH__ALLOC(&c->al, uint32_t, node_cap); /* the load's stack first */
+    if (!o.cand) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    bvh__opt_load(&o, src, root, o.cand);
+    bvh__free(&c->al, o.cand);
+    o.cand = NULL;
+    per = (uint32_t)(1.0f / c->opt_batch + 0.5f);
+    want = o.count / per + o.count / 64 + 1; /* a subset's size, and room for its spread */
+    want = want > o.count - 2 ? o.count - 2 : want;
+    if (o.count - 1 < 3) goto emit; /* a single leaf */
+    o.cand = BVH__ALLOC(&c->al, uint32_t, want);
+    o.move = BVH__ALLOC(&c->al, bvh__opt_move, want);
+    keys = BVH__ALLOC(&c->al, uint64_t, 2 * (size_t)want);
+    vals = BVH__ALLOC(&c->al, uint32_t, 2 * (size_t)want);
+    touched = BVH__ALLOC(&c->al, uint8_t, o.count);
+    if (!o.cand || !o.move || !keys || !vals || !touched) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    for (round = 0; round < c->opt_rounds && r == BVH_SUCCESS; round++) {
+        if (bvh__report(c->prog, (double)round / (double)c->opt_rounds)) {
+            r = BVH_ERROR_CANCELLED;
+            break;
+        }
+        bvh__opt_candidates(&o, round, per, want);
+        r = bvh__opt_round(&o, threads, keys, vals, touched);
+    }
+    if (r != BVH_SUCCESS) goto done;
+emit:
+    bvh__opt_store(&o, src);
+    bvh__free_lines(&c->al, o.node); /* before emission, which needs its own */
+    o.node = NULL;
+    r = bvh__emit(c, src, o.count - 1, map, collapse, threads, NULL, 0, out);
+done:
+    bvh__free(&c->al, touched);
+    bvh__free(&c->al, vals);
+    bvh__free(&c->al, keys);
+    bvh__free(&c->al, o.move);
+    bvh__free(&c->al, o.cand);
+    bvh__free(&c->al, o.parent);
+    bvh__free_lines(&c->al, o.node);
     return r;
 }
 
@@ -3380,7 +3674,10 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     bvh__free(&c->al, p.role);
     bvh__free(&c->al, p.merges);
     bvh__free(&c->al, p.survivors);
-    if (r == BVH_SUCCESS)
+    c->opt_done = 1; /* the optimizer, when asked for, runs here: before the collapse */
+    if (r == BVH_SUCCESS && c->opt_rounds)
+        r = bvh__optimize_emit(c, p.src, p.root, 2 * (uint32_t)n - 1, p.mj.sort.vals, 1, c->opt_threads, o);
+    else if (r == BVH_SUCCESS)
         r = bvh__emit(c, p.src, p.root + 1, p.mj.sort.vals, 1, nthreads, p.block_count <= p.block_cap ? p.blocks : NULL,
                       p.block_count, o);
     bvh__free(&c->al, p.mj.sort.vals);
@@ -4698,6 +4995,9 @@ static bvh_result bvh__check_desc(const bvh_build_desc *d, uint32_t *count) {
     if (d->trace_width != 0 && d->trace_width != 2 && d->trace_width != 8) return BVH_ERROR_INVALID_ARGUMENT;
     if (d->sah_midpoint.bins > 64 && d->sah_midpoint.bins != BVH_OFF) return BVH_ERROR_INVALID_ARGUMENT;
     if (!bvh__costs_valid(&d->costs)) return BVH_ERROR_INVALID_ARGUMENT;
+    if (d->optimize.rounds > 1024 || !(d->optimize.batch <= 1.0f) || /* NaN too */
+        (d->optimize.batch != 0.0f && !(d->optimize.batch >= 1.0f / 65536.0f)))
+        return BVH_ERROR_INVALID_ARGUMENT;
     if (!bvh__split_budget_off(d->sah_midpoint.split_budget) &&
         !(d->sah_midpoint.split_budget >= 0.0f && d->sah_midpoint.split_budget <= 1.0f)) /* NaN too */
         return BVH_ERROR_INVALID_ARGUMENT;
@@ -4856,6 +5156,11 @@ static void bvh__resolve(const bvh_build_desc *d, bvh_builder builder, uint32_t 
     c->split_budget =
         d->sah_midpoint.split_budget == 0.0f ? row->sah_midpoint.split_budget : d->sah_midpoint.split_budget;
     if (bvh__split_budget_off(c->split_budget)) c->split_budget = 0.0f;
+    c->opt_rounds = d->optimize.rounds;
+    c->opt_batch = d->optimize.batch == 0.0f ? BVH__OPT_BATCH : d->optimize.batch;
+    c->opt_threads = bvh__resolve_threads(d->threads); /* every builder's optimizer runs on them */
+    if (c->opt_threads > 1 && count / BVH__MIN_PRIMS_PER_THREAD < c->opt_threads)
+        c->opt_threads = count / BVH__MIN_PRIMS_PER_THREAD > 1 ? count / BVH__MIN_PRIMS_PER_THREAD : 1;
 }
 
 static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, const bvh_thread_pool *pool,
@@ -4951,6 +5256,14 @@ BVH_API bvh_result bvh_build(bvh_tree *tree, const bvh_build_desc *desc) {
     bvh__stage(&prog, BVH__STAGE_BUILD_LO, BVH__STAGE_BUILD_HI);
     if ((r = bvh__builders[builder].build(&c, &o)) != BVH_SUCCESS) goto fail;
     bvh__stage(&prog, BVH__STAGE_BUILD_HI, BVH__STAGE_WIDE_LO);
+    if (c.opt_rounds && !c.opt_done) { /* builders without their own collapse: the optimizer here */
+        bvh__out opt;
+        r = bvh__optimize_emit(&c, o.nodes, 0, o.node_count, o.refs, !bvh__builders[builder].info.splits_references,
+                               c.opt_threads, &opt);
+        bvh__out_free(&c, &o);
+        if (r != BVH_SUCCESS) goto fail;
+        o = opt;
+    }
     if (bvh__report(&prog, 0.0)) {
         r = BVH_ERROR_CANCELLED;
         goto fail;

@@ -90,11 +90,12 @@
 
 #define BENCH_MAX_PIXELS (64u * 1024u * 1024u)
 #define BENCH_MAX_SCENES 64
-#define BENCH_MAX_ROWS (1 + BVH_BUILDER_COUNT + 3)
+#define BENCH_MAX_ROWS (1 + 2 * BVH_BUILDER_COUNT + 3)
 #define BENCH_MAX_REPEAT 1000
 #define BENCH_TRACE_REPEAT 3  /* frames per CPU, OpenCL and Embree tracer; median time */
 #define BENCH_BRUTE_TESTS 1e9 /* brute force: at most this many ray-triangle tests per frame */
 #define BENCH_BUNNY "/usr/share/glmark2/models/bunny.obj"
+#define BENCH_OPT_ROUNDS 8 /* desc.optimize.rounds of the <builder>+opt rows */
 #define BENCH_SET_TOLERANCE                                                                                            \
     1e-3 /* Embree may answer another way on this fraction of a secondary                                              \
             set's rays (grazing rays, float noise) before it disagrees */
@@ -103,7 +104,8 @@ typedef struct options {
     const char *scenes[BENCH_MAX_SCENES];
     int nscenes;
     int brute; /* the "none" row */
-    bvh_builder builders[BVH_BUILDER_COUNT];
+    bvh_builder builders[2 * BVH_BUILDER_COUNT];
+    int opt[2 * BVH_BUILDER_COUNT]; /* the row's tree goes through the optimizer (<builder>+opt) */
     int nbuilders;
     emb_quality qualities[3];
     int nqualities;
@@ -136,6 +138,7 @@ typedef enum row_state { ROW_OK, ROW_SKIPPED, ROW_FAILED } row_state;
 typedef struct row {
     row_kind kind;
     bvh_builder builder;
+    int opt; /* desc.optimize as BENCH_OPT_ROUNDS gives it (<builder>+opt) */
     emb_quality quality;
     char name[24];
     row_state state;
@@ -712,10 +715,11 @@ thread_fail:
    through the counting allocator for the peak memory; the timed ones use the library's default
    allocator, as a user's would (no atomic counting in the timings, and on Linux the library's
    huge-page advice, which it gives only to its default allocator's blocks). */
-static void bench_desc(const run_ctx *c, bvh_builder builder, bvh_build_desc *desc) {
+static void bench_desc(const run_ctx *c, const row *r, bvh_build_desc *desc) {
     const options *o = c->o;
     memset(desc, 0, sizeof *desc);
-    desc->builder = builder;
+    desc->builder = r->builder;
+    desc->optimize.rounds = r->opt ? BENCH_OPT_ROUNDS : 0;
     desc->threads = o->threads;
     desc->trace_width = o->trace_width;
     desc->ploc.top = o->ploc_top;
@@ -730,7 +734,7 @@ static int build_repeated(run_ctx *c, row *r, bvh_tree *tree) {
     bvh_build_desc desc;
     double ms[BENCH_MAX_REPEAT], peak = 0.0;
     uint32_t rep;
-    bench_desc(c, r->builder, &desc);
+    bench_desc(c, r, &desc);
     for (rep = 0; rep <= o->repeat; rep++) {
         double t0;
         size_t live;
@@ -965,7 +969,9 @@ static void animate(run_ctx *c, row *r, bvh_tree *tree) {
         res = bvh_refit(tree, &rd);
         refit[f - 1] = scene_now_ms() - t0;
         if (res != BVH_SUCCESS) break;
-        bench_desc(c, BVH_BUILDER_BOTTOM_UP, &desc);
+        bench_desc(c, r, &desc);
+        desc.builder = BVH_BUILDER_BOTTOM_UP; /* the rebuild: the fastest builder, as it is */
+        desc.optimize.rounds = 0;
         desc.triangles.positions = moved;
         t0 = scene_now_ms();
         res = bvh_build(&fresh, &desc);
@@ -973,7 +979,7 @@ static void animate(run_ctx *c, row *r, bvh_tree *tree) {
         bvh_free(&fresh);
     }
     if (res == BVH_SUCCESS) {
-        bench_desc(c, r->builder, &desc);
+        bench_desc(c, r, &desc);
         desc.triangles.positions = moved;
         res = bvh_build(&fresh, &desc);
     }
@@ -1370,7 +1376,7 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
     for (i = 0; i < out->nrows; i++) {
         bvh_build_desc desc;
         if (out->rows[i].kind != ROW_BVH || out->rows[i].state != ROW_OK) continue;
-        bench_desc(c, out->rows[i].builder, &desc);
+        bench_desc(c, &out->rows[i], &desc);
         if (bvh_build(&trees[i], &desc) != BVH_SUCCESS) {
             say("%s: paired tracing: build failed", out->name);
             goto done;
@@ -1488,7 +1494,7 @@ static void run_paired(run_ctx *c, bench_scene *out) {
             double t0;
             if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
             progress("%s: paired round %u/%u%s, %s", out->name, k, o->paired, k ? "" : " (warm-up)", r->name);
-            bench_desc(c, r->builder, &desc);
+            bench_desc(c, r, &desc);
             t0 = scene_now_ms();
             if (bvh_build(&t, &desc) != BVH_SUCCESS) {
                 say("%s: paired rounds: %s failed", out->name, r->name);
@@ -1578,7 +1584,12 @@ static int run_instances(run_ctx *c, bench_scene *out) {
     if (!n) return 0;
     while (side * side * side < n) side++;
     progress("%s: %u instances, building the tree", out->name, n);
-    bench_desc(c, BVH_BUILDER_DEFAULT, &desc);
+    {
+        row def;
+        memset(&def, 0, sizeof def);
+        def.builder = BVH_BUILDER_DEFAULT;
+        bench_desc(c, &def, &desc);
+    }
     if ((r = bvh_build(&tree, &desc)) != BVH_SUCCESS) {
         say("%s: instances: %s", out->name, bvh_result_string(r));
         return 1;
@@ -1688,8 +1699,11 @@ static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene
     if (o->brute) row_init(&out->rows[out->nrows++], ROW_BRUTE, "none");
     for (i = 0; i < o->nbuilders; i++) {
         row *r = &out->rows[out->nrows++];
-        row_init(r, ROW_BVH, bvh_builder_name(o->builders[i]));
+        char name[24];
+        snprintf(name, sizeof name, "%s%s", bvh_builder_name(o->builders[i]), o->opt[i] ? "+opt" : "");
+        row_init(r, ROW_BVH, name);
         r->builder = o->builders[i];
+        r->opt = o->opt[i];
     }
     for (i = 0; emb_available() && i < o->nqualities; i++) {
         row *r = &out->rows[out->nrows++];
@@ -2532,9 +2546,11 @@ static int run_plot_script(const char *argv0, const char *dir) {
 static void usage(FILE *f) {
     fprintf(f,
             "usage: bvhbench [options] [SCENE...]\n"
-            "  --builder LIST   'all' (default: none + the five builders) or a comma list of\n"
-            "                   none, top-down, bottom-up, sah-midpoint, ploc, ploc-parallel\n"
-            "                   (none = brute force, the study's first row)\n"
+            "  --builder LIST   'all' (default: none + the five builders + ploc-parallel+opt and\n"
+            "                   sah-midpoint+opt) or a comma list of none, top-down, bottom-up,\n"
+            "                   sah-midpoint, ploc, ploc-parallel, each optionally with '+opt' (the\n"
+            "                   tree optimizer, desc.optimize: 8 rounds); none = brute force, the\n"
+            "                   study's first row\n"
             "  --embree LIST    'all' (default: low,medium,high), 'none', or a comma list\n"
             "  --threads N      ploc-parallel, sah-midpoint, multi-thread tracing and Embree; 0 = all\n"
             "                   cores (default); their 'build 1t' column: the same builds on 1 thread\n"
@@ -2590,20 +2606,38 @@ static int parse_builders(const char *list, options *o) {
     strcpy(buf, list);
     for (tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
         bvh_builder b;
+        char *plus = strchr(tok, '+');
+        int opt = 0;
         if (!strcmp(tok, "all")) {
             o->brute = 1;
             o->nbuilders = 0;
-            for (i = BVH_BUILDER_TOP_DOWN; i < BVH_BUILDER_COUNT; i++) o->builders[o->nbuilders++] = (bvh_builder)i;
+            for (i = BVH_BUILDER_TOP_DOWN; i < BVH_BUILDER_COUNT; i++) {
+                o->opt[o->nbuilders] = 0;
+                o->builders[o->nbuilders++] = (bvh_builder)i;
+            }
+            /* the optimizer on the fastest builder of good trees and on the best one */
+            o->opt[o->nbuilders] = 1;
+            o->builders[o->nbuilders++] = BVH_BUILDER_PLOC_PARALLEL;
+            o->opt[o->nbuilders] = 1;
+            o->builders[o->nbuilders++] = BVH_BUILDER_SAH_MIDPOINT;
             continue;
         }
         if (!strcmp(tok, "none")) {
             o->brute = 1;
             continue;
         }
-        if (bvh_builder_from_name(tok, &b) != BVH_SUCCESS || b == BVH_BUILDER_DEFAULT) return 1;
-        for (i = 0; i < o->nbuilders && o->builders[i] != b; i++) {
+        if (plus) {
+            if (strcmp(plus, "+opt")) return 1;
+            *plus = 0;
+            opt = 1;
         }
-        if (i == o->nbuilders) o->builders[o->nbuilders++] = b;
+        if (bvh_builder_from_name(tok, &b) != BVH_SUCCESS || b == BVH_BUILDER_DEFAULT) return 1;
+        for (i = 0; i < o->nbuilders && (o->builders[i] != b || o->opt[i] != opt); i++) {
+        }
+        if (i == o->nbuilders) {
+            o->opt[o->nbuilders] = opt;
+            o->builders[o->nbuilders++] = b;
+        }
     }
     return 0;
 }
@@ -2661,7 +2695,7 @@ static int parse_args(int argc, char **argv, options *o) {
             if (parse_builders(v, o)) {
                 fprintf(stderr,
                         "bvhbench: --builder wants all or a comma list of none, top-down, bottom-up, "
-                        "sah-midpoint, ploc, ploc-parallel, not '%s'\n",
+                        "sah-midpoint, ploc, ploc-parallel (each may end in +opt), not '%s'\n",
                         v);
                 return 2;
             }

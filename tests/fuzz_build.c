@@ -155,6 +155,7 @@ static void fz_parse_options(fz_in *in, fz_case *c, uint8_t *flags, uint8_t *ext
     d->max_leaf_size = (*extra & 4) ? fz_u16(in) : lf;
     d->ploc.radius = rad >= 240 ? 256u + (rad - 240u) % 3u : rad % 20u;
     d->threads = 1u + th % 3u;
+    d->optimize.rounds = (th / 60u) % 2u ? 2u : 0u; /* the optimizer on some inputs (the byte's top) */
     { /* PLOC's SAH top: default, every other cut, off (the byte's other bits) */
         static const uint32_t tops[5] = {0, 2, 3, 1, BVH_OFF};
         d->ploc.top = tops[(th / 3u) % 5u];

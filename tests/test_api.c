@@ -148,6 +148,24 @@ static void build_argument_errors(void **state) {
         d = ok;
         d.sah_midpoint.split_budget = NAN;
         build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
+        { /* the optimizer: rounds above 1024, a batch outside [2^-16, 1] (0: the default) or NaN */
+            static const float batches[] = {-0.5f, 1.5f, 1e-6f, NAN, BVH_INF};
+            d = ok;
+            d.optimize.rounds = 1025;
+            build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
+            d.optimize.rounds = BVH_OFF;
+            build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
+            d.optimize.rounds = 1024;
+            d.optimize.batch = 1.0f;
+            build_expect(&d, BVH_SUCCESS);
+            d.optimize.rounds = 3;
+            d.optimize.batch = 1.0f / 65536.0f;
+            build_expect(&d, BVH_SUCCESS);
+            for (k = 0; k < 5; k++) {
+                d.optimize.batch = batches[k];
+                build_expect(&d, BVH_ERROR_INVALID_ARGUMENT);
+            }
+        }
         for (k = 0; k < 5; k++) {
             d = ok;
             d.costs = bad_costs[k];

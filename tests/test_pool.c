@@ -134,19 +134,21 @@ static void pool_same_tree(void **state) {
     tu_scene_free(&s);
 }
 
-/* PLOC over its memory budget (a soup: bvh__fit_budget) and with the SAH top off, on a pool. */
+/* PLOC over its memory budget (a soup: bvh__fit_budget), with the SAH top off, and the optimizer
+   on PLOC and sah-midpoint trees, on a pool. */
 static void pool_same_tree_options(void **state) {
     tu_scene s;
     int v;
     (void)state;
     tu_scene_random(&s, 30000, 0x504f4f4cULL);
-    for (v = 0; v < 3; v++) {
-        bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC_PARALLEL);
+    for (v = 0; v < 5; v++) {
+        bvh_build_desc d = tu_scene_desc(&s, v == 4 ? BVH_BUILDER_SAH_MIDPOINT : BVH_BUILDER_PLOC_PARALLEL);
         bvh_tree ref, t;
         pool_state ps;
         const char *diff;
         if (v == 1) d.ploc.top = BVH_OFF;
         if (v == 2) d.ploc.max_bytes_per_prim = 24;
+        if (v >= 3) d.optimize.rounds = 3; /* the optimizer's searches run on the pool */
         d.threads = 3;
         assert_int_equal(bvh_build(&ref, &d), BVH_SUCCESS);
         memset(&ps, 0, sizeof ps);
@@ -442,6 +444,51 @@ static void sah_midpoint_threads_same_tree(void **state) {
     for (i = 0; i < ns; i++) tu_scene_free(&sc[i]);
 }
 
+/* The optimizer's budget: a build with k rounds reports exactly k more times than without (one
+   report per round; plus the collapse's for a builder without one of its own), and a cancel at any of its calls returns
+   BVH_ERROR_CANCELLED with nothing leaked; for a builder that collapses its own tree (PLOC) and
+   one whose tree is optimized after it (top-down). */
+static void progress_optimizer_rounds(void **state) {
+    static const bvh_builder builders[] = {BVH_BUILDER_PLOC_PARALLEL, BVH_BUILDER_TOP_DOWN};
+    tu_scene s;
+    size_t b;
+    (void)state;
+    tu_scene_random(&s, 20000, 0x4f505452ULL);
+    for (b = 0; b < sizeof builders / sizeof builders[0]; b++) {
+        bvh_build_desc d = tu_scene_desc(&s, builders[b]);
+        count_alloc ca = {0};
+        prog_state p;
+        bvh_tree t;
+        uint32_t plain, k;
+        d.threads = 2;
+        d.progress = on_progress;
+        d.progress_user = &p;
+        d.allocator.alloc = ca_alloc;
+        d.allocator.free = ca_free;
+        d.allocator.user = &ca;
+        prog_init(&p, 0);
+        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+        bvh_free(&t);
+        plain = p.calls;
+        d.optimize.rounds = 5;
+        prog_init(&p, 0);
+        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+        bvh_free(&t);
+        /* top-down has no collapse of its own: the one after the optimizer reports once more */
+        plain += builders[b] == BVH_BUILDER_TOP_DOWN;
+        if (p.calls != plain + 5 || !p.rising || p.ones != 1)
+            fail_msg("%s: %u calls with 5 rounds, %u without (rising %d, %u ones)", bvh_builder_name(builders[b]),
+                     p.calls, plain, p.rising, p.ones);
+        for (k = 1; k < plain + 5; k++) {
+            prog_init(&p, k);
+            assert_int_equal(bvh_build(&t, &d), BVH_ERROR_CANCELLED);
+            assert_null(t.nodes);
+            assert_int_equal(ca.live, 0);
+        }
+    }
+    tu_scene_free(&s);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         TU_EVERY_SCENE(pool_same_tree),
@@ -451,6 +498,7 @@ int main(void) {
         cmocka_unit_test(progress_small_builds),
         cmocka_unit_test(progress_cancel_every_call),
         cmocka_unit_test(progress_cadence),
+        cmocka_unit_test(progress_optimizer_rounds),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -62,6 +62,7 @@ static void exact_hits(void **state) {
     bvh_hit *want, *want2;
     size_t n2, bad = 0, hits = 0, i;
     bvh_tree trees[TU_BUILDER_COUNT];
+    int w;
     if (!tu_scene_make(id, &s)) {
         skip();
         return;
@@ -99,6 +100,19 @@ static void exact_hits(void **state) {
                         bvh_builder_name(tu_builder(b)), bad_b, TU_RAYS + n2);
         bad += bad_b;
         bvh_free(&bin);
+        /* the optimizer's tree (<builder>+opt), on both layouts: two rounds over half the nodes */
+        d.optimize.rounds = 2;
+        d.optimize.batch = 0.5f;
+        for (w = 0; w < 2; w++) {
+            d.trace_width = w ? 2 : 8;
+            tu_build_valid(&s, &d, &bin);
+            bad_b = compare(&s, &bin, rays, want, TU_RAYS) + compare(&s, &bin, rays2, want2, n2);
+            if (bad_b)
+                print_error("%s/%s+opt, trace_width %u: %zu of %zu rays differ from the brute force\n", s.name,
+                            bvh_builder_name(tu_builder(b)), d.trace_width, bad_b, TU_RAYS + n2);
+            bad += bad_b;
+            bvh_free(&bin);
+        }
     }
     for (b = 0; b < TU_BUILDER_COUNT; b++) bvh_free(&trees[b]);
     free(rays);

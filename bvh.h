@@ -1,4 +1,4 @@
-/* bvh.h - v0.6.0 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.7.0 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -106,43 +106,39 @@
      MIT, see the end of this file.
 
    CHANGELOG
-     0.7.0  (in progress) The 8-wide layout fills free slots: leaf slots are opened into their
-            children where the packet tests' expected cost falls and no packet is added (the
-            same memory; different tree.nodes8 and tree.tri4 contents than 0.6.0, the same
-            hits). Closest and any hit run as separate functions, with fewer mispredicted
-            branches per incoherent ray.
-            cl/bvh_cl.h 0.4.0 (in progress): two-level scenes on OpenCL. bvh_cl_scene_upload
-            copies a bvh_scene (top-level tree, instances, each distinct bottom-level tree once)
-            to the device, bvh_cl_scene_free releases it; bvh_cl_scene_intersect /
-            bvh_cl_scene_occluded trace batches with one mask per call and give
-            bvh_scene_intersect's bvh_scene_hit (instance, id, triangle, t, u, v, world normal),
-            to the bit on an exact device. trace.cl's one traversal loop gained a level switch (a
-            top-level leaf hands its instances to it), shared with the one-level kernels.
-            examples/pathtrace.c --trace opencl|auto: wavefronts on the device, the spheres and
-            the shading on the host, the CPU's image byte for byte.
-            bvh_refit updates the 8-wide layout in one pass over it (boxes and packets
-            in place, from each wide node's grouping), no longer replaying the build's grouping
-            pass; the tree no longer keeps a byte per binary node for it: bvh_node8 gains head and
-            shape (in its padding; pad is now 4 words). Save format version 2: the 8-wide nodes are
-            stored, bvh_load remakes only their packets and boxes (checked against the binary
-            tree, on bvh_load_desc.threads) and checks the binary tree in linear passes; the
-            payload checksum is per 256 KiB piece. Version 1 files are refused
-            (BVH_ERROR_UNSUPPORTED_FORMAT).
-            sah-midpoint builds on the build's threads (desc.threads, or the
-            caller's pool; bvh_builder_info.uses_threads is now 1 for it), with the same tree
-            byte for byte for any thread count and as before on one thread: the top nodes' passes
-            over the references on the threads, the subtrees below them built in parallel and
-            numbered in the serial order; a subtree whose decisions depended on a budget it could
-            not know yet is built again (docs/DESIGN.md, sah-midpoint). bvhbench: a "build 1t"
-            column (build_ms_1t in the JSON) for the builders that use threads.
-            The tree optimizer: bvh_build_desc.optimize (bvh_optimize_options:
-            rounds, 0 = off, the default; batch, 0 = 0.1) runs rounds of parallel reinsertion
-            (Bittner et al. 2013, Meister & Bittner 2018) on any builder's binary tree before
-            the collapse to leaves, on desc.threads or desc.pool, the same tree for any thread
-            count; rounds above 1024 and a batch outside [2^-16, 1] are refused. 8 rounds: SAH
-            2.5-6% below PLOC's and 0.5-7% below sah-midpoint's (docs/DESIGN.md); bvhbench rows
-            `<builder>+opt` (--builder ploc-parallel+opt...; `all` adds ploc-parallel+opt and
-            sah-midpoint+opt).
+     0.7.0  CPU tracing: the 8-wide layout fills free slots (leaf slots are opened into their
+            children where the packet tests' expected cost falls and no packet is added: the
+            same memory, different tree.nodes8 and tree.tri4 contents, the same hits); closest
+            and any hit run as separate functions with fewer mispredicted branches per ray; a
+            scene hit takes its normal's vertices from the packet just tested.
+            Instances of custom primitives: bvh_instance.custom (a bvh_custom_desc) traces an
+            instance of a tree built from boxes with the caller's test in the instance's space,
+            or decides for each triangle of a triangle tree (alpha testing); such hits' normal is
+            zero for box trees. bvh_cl_scene_upload refuses instances with a callback.
+            bvh_refit updates the 8-wide layout in one pass over it (boxes and packets in place,
+            from each wide node's grouping: bvh_node8 gains head and shape in its padding, pad is
+            now 4 words) instead of replaying the build's grouping; the tree no longer keeps a
+            byte per binary node for it. Save format version 2 stores the 8-wide nodes; bvh_load
+            remakes only their packets and boxes (checked against the binary tree, on
+            bvh_load_desc.threads) and checks the binary tree in linear passes; the payload
+            checksum is per 256 KiB piece. Version 1 files are refused
+            (BVH_ERROR_UNSUPPORTED_FORMAT): build and save again.
+            sah-midpoint builds on the build's threads (desc.threads or the caller's pool;
+            bvh_builder_info.uses_threads is now 1 for it), the same tree byte for byte for any
+            thread count and as before on one thread.
+            The tree optimizer: bvh_build_desc.optimize (bvh_optimize_options: rounds, 0 = off,
+            the default; batch, 0 = 0.1) runs rounds of parallel reinsertion (Bittner et al.
+            2013, Meister & Bittner 2018) on any builder's binary tree before the collapse to
+            leaves, on desc.threads or desc.pool, the same tree for any thread count; rounds
+            above 1024 and a batch outside [2^-16, 1] are refused.
+            cl/bvh_cl.h 0.4.0: two-level scenes on OpenCL. bvh_cl_scene_upload copies a
+            bvh_scene (top-level tree, instances, each distinct bottom-level tree once) to the
+            device, bvh_cl_scene_free releases it; bvh_cl_scene_intersect / bvh_cl_scene_occluded
+            trace batches with one mask per call and give bvh_scene_intersect's bvh_scene_hit, to
+            the bit on an exact device. trace.cl's one traversal loop gained a level switch.
+            Tools: bvhbench's "build 1t" column and `<builder>+opt` rows; examples/pathtrace.c
+            --trace opencl|auto (the CPU's image byte for byte), --embree (the same scene on
+            Embree 3: instances and a user geometry), --add MODEL, --json.
      0.6.0  The public surface made regular. Builder-specific options moved into nested structs,
             zero still the default (the same trees): desc.ploc_radius -> desc.ploc.radius,
             desc.ploc_top -> desc.ploc.top, desc.max_bytes_per_prim ->
@@ -203,7 +199,7 @@
 #define BVH_H_INCLUDED
 
 #define BVH_VERSION_MAJOR 0
-#define BVH_VERSION_MINOR 6
+#define BVH_VERSION_MINOR 7
 #define BVH_VERSION_PATCH 0
 
 #include <math.h>
@@ -616,18 +612,24 @@ BVH_API bvh_vec3 bvh_offset_origin(bvh_vec3 p, bvh_vec3 n);
 BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit, bvh_vec3 *point, bvh_vec3 *normal);
 
 /* ---- instances: two-level scenes ------------------------------------------------------------ */
-/* A scene places bottom-level trees (one per mesh, built by bvh_build from triangles, any
-   builder) in the world by instances, under a top-level tree over the instances' world boxes
-   (a box tree, built by bvh_build). Tracing transforms the ray into each instance's space it
-   reaches (origin and direction, not normalised: t stays in world units) and traces the
-   instance's tree there. Rebuild the scene (bvh_scene_build) when instances move; the
-   bottom-level trees are not touched. */
+/* A scene places bottom-level trees (one per mesh, built by bvh_build, any builder) in the world
+   by instances, under a top-level tree over the instances' world boxes (a box tree, built by
+   bvh_build). Tracing transforms the ray into each instance's space it reaches (origin and
+   direction, not normalised: t stays in world units) and traces the instance's tree there. A
+   bottom-level tree built from boxes (custom primitives: spheres, curves...) is traced by the
+   instance's bvh_custom_desc, given the ray in the instance's space, as bvh_intersect_custom
+   does; a triangle tree with one lets the callback decide for each triangle (alpha testing).
+   Rebuild the scene (bvh_scene_build) when instances move; the bottom-level trees are not
+   touched. */
 typedef struct bvh_instance {
-    const bvh_tree *tree; /* bottom level; must stay valid (and unchanged) while the scene is used */
-    float transform[12];  /* object to world, row-major 3x4: world = M * local + (m[3], m[7], m[11]),
-                             M = rows (m[0..2]), (m[4..6]), (m[8..10]); finite and invertible */
-    uint32_t id;          /* the caller's, reported in hits */
-    uint32_t mask;        /* a ray whose mask shares no bit with it skips the instance */
+    const bvh_tree *tree;          /* bottom level; must stay valid (and unchanged) while the scene is used */
+    float transform[12];           /* object to world, row-major 3x4: world = M * local + (m[3], m[7], m[11]),
+                                      M = rows (m[0..2]), (m[4..6]), (m[8..10]); finite and invertible */
+    uint32_t id;                   /* the caller's, reported in hits */
+    uint32_t mask;                 /* a ray whose mask shares no bit with it skips the instance */
+    const bvh_custom_desc *custom; /* NULL: the tree's triangles. Else the primitives' test (a tree
+                                      built from boxes needs one); the desc must stay valid while
+                                      the scene is used, and is called as bvh_intersect_custom's */
 } bvh_instance;
 typedef struct bvh_scene_desc {
     const bvh_instance *instances; /* copied: the array may be freed when bvh_scene_build returns */
@@ -652,15 +654,17 @@ typedef struct bvh_scene_hit {
     float t, u, v;     /* world t (units of the world ray's dir), barycentrics in the triangle */
     uint32_t instance; /* index into desc.instances; BVH_INVALID for a miss */
     uint32_t id;       /* that instance's id */
-    uint32_t prim;     /* the triangle's index in its mesh (the bottom-level build's input) */
+    uint32_t prim;     /* the triangle's (or custom primitive's) index in its mesh (the
+                          bottom-level build's input) */
     bvh_vec3 normal;   /* unit geometric normal in world space: (v1 - v0) x (v2 - v0) in object
-                          space, by the inverse transpose of M (zero for a miss) */
+                          space, by the inverse transpose of M; zero for a miss and for a custom
+                          primitive of a box tree (its normal is the caller's: prim, u, v, t) */
 } bvh_scene_hit;
 /* SUCCESS (also for zero instances); ARGUMENT: scene or desc NULL, instances NULL with a count,
-   an instance whose tree is NULL or was built from boxes, a half allocator pair, a builder out
-   of range; GEOMETRY: a transform with a NaN or Inf, or singular (no inverse in float);
-   TOO_MANY_PRIMITIVES: more than 2^30 instances; OUT_OF_MEMORY. On failure *scene is zeroed and
-   nothing is leaked. An instance of an empty tree is never hit. */
+   an instance whose tree is NULL, or was built from boxes and has no custom test (custom or
+   custom->intersect NULL), a half allocator pair, a builder out of range; GEOMETRY: a transform with a NaN or Inf, or
+   singular (no inverse in float); TOO_MANY_PRIMITIVES: more than 2^30 instances; OUT_OF_MEMORY. On failure *scene is
+   zeroed and nothing is leaked. An instance of an empty tree is never hit. */
 BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc);
 /* Releases what bvh_scene_build allocated (not the bottom-level trees). NULL is ignored. */
 BVH_API void bvh_scene_free(bvh_scene *scene);
@@ -7559,7 +7563,8 @@ BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc)
     if (n > BVH__MAX_PRIMS) return BVH_ERROR_TOO_MANY_PRIMITIVES;
     for (i = 0; i < n; i++) {
         const bvh_tree *t = desc->instances[i].tree;
-        if (!t || (t->node_count && !t->tris)) return BVH_ERROR_INVALID_ARGUMENT;
+        const bvh_custom_desc *cu = desc->instances[i].custom;
+        if (!t || (cu && !cu->intersect) || (t->node_count && !t->tris && !cu)) return BVH_ERROR_INVALID_ARGUMENT;
     }
     scene->allocator = desc->allocator;
     scene->instance_count = n;
@@ -7607,9 +7612,11 @@ static int bvh__instance_step(void *arg, bvh_ray *ray, bvh__rayx *rx, uint32_t r
     (void)ref;
     if (!(in->mask & c->mask)) return 0;
     local = bvh_ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
-    if (c->any) return bvh_occluded(in->tree, &local);
+    if (c->any) return in->custom ? bvh_occluded_custom(in->tree, &local, in->custom) : bvh_occluded(in->tree, &local);
     memset(&at, 0, sizeof at);
-    if (in->tree->nodes8 && in->tree->tris) { /* the packet keeps the hit's vertices for the normal */
+    if (in->custom) {
+        if (!bvh_intersect_custom(in->tree, &local, &h, in->custom)) return 0;
+    } else if (in->tree->nodes8 && in->tree->tris) { /* the packet keeps the hit's vertices for the normal */
         if (!bvh__traverse8_at(in->tree, &local, &h, &at, 0)) return 0;
     } else if (!bvh_intersect(in->tree, &local, &h))
         return 0;
@@ -7634,6 +7641,7 @@ static bvh_vec3 bvh__scene_normal(const bvh_scene *scene, const bvh__scene_ctx *
         t = v;
     } else {
         const bvh_tree *tree = scene->instances[c->instance].tree;
+        if (!tree->tris) return out; /* a custom primitive: the caller's normal */
         t = tree->tris + 9 * (size_t)scene->ref_of_prim[scene->ref_base[scene->mesh[c->instance]] + c->hit.prim];
     }
     for (k = 0; k < 3; k++) {

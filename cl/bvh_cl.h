@@ -1,4 +1,4 @@
-/* bvh_cl.h - v0.3.0 - OpenCL companion of bvh.h: trace bvh.h trees on any OpenCL 1.2 device
+/* bvh_cl.h - v0.4.0 - OpenCL companion of bvh.h: trace bvh.h trees on any OpenCL 1.2 device
 
    WHAT
      Uploads a bvh_tree (nodes, reference-ordered triangles, primitive ids) to an OpenCL device as
@@ -73,7 +73,7 @@
 #endif
 
 #define BVH_CL_VERSION_MAJOR 0
-#define BVH_CL_VERSION_MINOR 3
+#define BVH_CL_VERSION_MINOR 4
 #define BVH_CL_VERSION_PATCH 0
 
 #ifndef BVH_CL_API
@@ -192,7 +192,8 @@ BVH_CL_API bvh_cl_result bvh_cl_render_frame(bvh_cl_tree *tree, const bvh_camera
    (world-to-object transforms, masks, ids) and each distinct bottom-level tree once, however many
    instances use it (the scene and its trees may be freed or changed afterwards: upload again after
    bvh_scene_build). SUCCESS; ARGUMENT: ctx, scene or out NULL, a scene whose arrays are missing,
-   an instance whose tree is NULL or built from boxes; BUFFER_TOO_LARGE: the bottom-level trees
+   an instance whose tree is NULL or built from boxes, or that has a custom test (a device cannot
+   call the host's callback: trace those instances on the CPU); BUFFER_TOO_LARGE: the bottom-level trees
    together exceed a buffer (they lie in one) or the global memory; OUT_OF_RESOURCES; OPENCL. */
 BVH_CL_API bvh_cl_result bvh_cl_scene_upload(bvh_cl_context *ctx, const bvh_scene *scene, bvh_cl_scene **out);
 BVH_CL_API void bvh_cl_scene_free(bvh_cl_scene *scene); /* NULL is ignored */
@@ -2020,7 +2021,8 @@ static bvh_cl_result bvh_cl__scene_trees(const bvh_scene *sc, const bvh_tree **t
     for (i = 0; i < sc->instance_count; i++) {
         const bvh_tree *t = sc->instances[i].tree;
         m = sc->mesh[i];
-        if (m >= sc->mesh_count || !t || (t->node_count && (!t->nodes || !t->prims || !t->tris)))
+        if (m >= sc->mesh_count || !t || sc->instances[i].custom ||
+            (t->node_count && (!t->nodes || !t->prims || !t->tris)))
             return BVH_CL_ERROR_INVALID_ARGUMENT;
         trees[m] = t;
     }

@@ -1102,8 +1102,16 @@ static void scene_edges(void **state) {
     free(none.v);
 }
 
+static int never_hit(const bvh_ray *ray, uint32_t prim, void *user, bvh_hit *hit) {
+    (void)ray;
+    (void)prim;
+    (void)user;
+    (void)hit;
+    return 0;
+}
 /* Bad arguments get BVH_CL_ERROR_INVALID_ARGUMENT and leave *out NULL; count 0 is no error. */
 static void scene_invalid_arguments(void **state) {
+    bvh_custom_desc host_test = {never_hit, NULL};
     static const float v[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
     bvh_cl_scene *g = (bvh_cl_scene *)&g;
     bvh_build_desc d;
@@ -1139,10 +1147,15 @@ static void scene_invalid_arguments(void **state) {
     assert_null(g);
     assert_int_equal(bvh_cl_scene_upload(g_cl, NULL, &g), BVH_CL_ERROR_INVALID_ARGUMENT);
     assert_int_equal(bvh_cl_scene_upload(g_cl, &sc, NULL), BVH_CL_ERROR_INVALID_ARGUMENT);
-    broken = sc; /* an instance of a tree built from boxes (bvh_scene_build refuses those) */
+    broken = sc; /* an instance of a tree built from boxes, without and with its callback */
     broken.instances = &inst;
     inst.tree = &boxes;
     assert_int_equal(bvh_cl_scene_upload(g_cl, &broken, &g), BVH_CL_ERROR_INVALID_ARGUMENT);
+    inst.custom = &host_test; /* a device cannot call the host: refused, on a triangle tree too */
+    assert_int_equal(bvh_cl_scene_upload(g_cl, &broken, &g), BVH_CL_ERROR_INVALID_ARGUMENT);
+    inst.tree = &t;
+    assert_int_equal(bvh_cl_scene_upload(g_cl, &broken, &g), BVH_CL_ERROR_INVALID_ARGUMENT);
+    inst.custom = NULL;
     inst.tree = NULL;
     assert_int_equal(bvh_cl_scene_upload(g_cl, &broken, &g), BVH_CL_ERROR_INVALID_ARGUMENT);
     inst.tree = &t;

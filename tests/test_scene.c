@@ -108,9 +108,7 @@ static int brute(const world *w, const bvh_scene *sc, const bvh_ray *ray, uint32
     return best->instance != BVH_INVALID;
 }
 /* The world normal computed here: object normal in double by the inverse transpose. */
-static bvh_vec3 expected_normal(const world *w, const bvh_scene *sc, const bvh_scene_hit *h) {
-    const float *t = w->tris[w->mesh_of[h->instance]] + 9 * (size_t)h->prim,
-                *inv = sc->inverse + 12 * (size_t)h->instance;
+static bvh_vec3 tri_normal(const float *t, const float *inv) {
     double e1[3], e2[3], n[3], o[3], l;
     int k;
     for (k = 0; k < 3; k++) {
@@ -123,6 +121,9 @@ static bvh_vec3 expected_normal(const world *w, const bvh_scene *sc, const bvh_s
     for (k = 0; k < 3; k++) o[k] = inv[k] * n[0] + inv[4 + k] * n[1] + inv[8 + k] * n[2];
     l = sqrt(o[0] * o[0] + o[1] * o[1] + o[2] * o[2]);
     return tu_v3((float)(o[0] / l), (float)(o[1] / l), (float)(o[2] / l));
+}
+static bvh_vec3 expected_normal(const world *w, const bvh_scene *sc, const bvh_scene_hit *h) {
+    return tri_normal(w->tris[w->mesh_of[h->instance]] + 9 * (size_t)h->prim, sc->inverse + 12 * (size_t)h->instance);
 }
 
 static void make_world_rays(const world *w, const bvh_scene *sc, bvh_ray *rays, uint32_t *masks, size_t count) {
@@ -286,6 +287,7 @@ static void scene_errors(void **state) {
     bvh_scene_desc sd;
     bvh_scene sc;
     bvh_ray ray = {{0.2f, 0.2f, -1}, 0.0f, {0, 0, 1}, BVH_INF};
+    bvh_custom_desc no_test = {NULL, NULL};
     (void)state;
     memset(&d, 0, sizeof d);
     d.triangles.positions = v;
@@ -316,8 +318,13 @@ static void scene_errors(void **state) {
     sd.allocator.free = NULL;
     inst.tree = NULL;
     assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_ARGUMENT);
-    inst.tree = &boxes; /* box trees need a callback: not an instance's tree */
+    inst.tree = &boxes; /* a box tree needs a callback */
     assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_ARGUMENT);
+    inst.custom = &no_test; /* ... that is set */
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_ARGUMENT);
+    inst.tree = &mesh; /* on a triangle tree too */
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_ARGUMENT);
+    inst.custom = NULL;
     inst.tree = &mesh;
     inst.transform[10] = 0.0f; /* singular */
     assert_int_equal(bvh_scene_build(&sc, &sd), BVH_ERROR_INVALID_GEOMETRY);
@@ -344,6 +351,174 @@ static void scene_errors(void **state) {
     bvh_scene_free(&sc);
     bvh_free(&mesh);
     bvh_free(&boxes);
+}
+
+/* Custom primitives through instances: spheres in a tree built from boxes, placed by four
+   instances (one the twin of another: every hit on it ties) among the world's triangle instances,
+   and an alpha-tested instance (a callback on a triangle tree that drops every third triangle).
+   For every builder at the bottom, bvh_scene_intersect equals the brute force over the instances
+   in order that calls the same callbacks on every primitive (bits of t, u, v); the normal of a
+   sphere hit is zero, of an alpha-tested triangle the triangle's; bvh_scene_occluded agrees. */
+#define BALLS 40
+#define ALL (INSTANCES + 5)
+typedef struct ball {
+    float c[3], r;
+} ball;
+static int hit_ball(const bvh_ray *ray, uint32_t i, void *user, bvh_hit *hit) {
+    const ball *b = (const ball *)user + i;
+    float o[3] = {ray->origin.x - b->c[0], ray->origin.y - b->c[1], ray->origin.z - b->c[2]};
+    float d[3] = {ray->dir.x, ray->dir.y, ray->dir.z};
+    float a = d[0] * d[0] + d[1] * d[1] + d[2] * d[2], hb = o[0] * d[0] + o[1] * d[1] + o[2] * d[2];
+    float disc = hb * hb - a * (o[0] * o[0] + o[1] * o[1] + o[2] * o[2] - b->r * b->r), t;
+    if (!(disc >= 0.0f)) return 0;
+    t = (-hb - sqrtf(disc)) / a;
+    if (t < ray->tmin) t = (-hb + sqrtf(disc)) / a; /* from inside */
+    if (!(t >= ray->tmin && t <= ray->tmax)) return 0;
+    hit->t = t;
+    hit->u = (float)i;
+    hit->v = 0.25f;
+    return 1;
+}
+static int hit_alpha(const bvh_ray *ray, uint32_t i, void *user, bvh_hit *hit) {
+    const float *t = (const float *)user + 9 * (size_t)i;
+    return i % 3 != 0 && bvh_intersect_triangle(ray, t, t + 3, t + 6, hit);
+}
+static void custom_instances_exact(void **state) {
+    static world w;
+    static bvh_ray rays[SCENE_RAYS];
+    static uint32_t masks[SCENE_RAYS];
+    static ball balls[BALLS];
+    static bvh_instance all[ALL];
+    bvh_aabb boxes[BALLS];
+    bvh_custom_desc balls_test = {hit_ball, balls}, alpha_test;
+    tu_rng r = tu_rng_make(0x42414c4cULL);
+    bvh_tree bottom[MESHES], sphere_tree;
+    uint32_t i, k, count[ALL];
+    int b;
+    (void)state;
+    world_make(&w);
+    for (i = 0; i < BALLS; i++) {
+        for (k = 0; k < 3; k++) balls[i].c[k] = tu_range(&r, -3.0f, 3.0f);
+        balls[i].r = tu_range(&r, 0.2f, 0.8f);
+        for (k = 0; k < 3; k++) {
+            (&boxes[i].min.x)[k] = balls[i].c[k] - balls[i].r;
+            (&boxes[i].max.x)[k] = balls[i].c[k] + balls[i].r;
+        }
+    }
+    alpha_test.intersect = hit_alpha;
+    alpha_test.user = w.tris[0];
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_builder bb = tu_builder(b);
+        bvh_build_desc d;
+        bvh_scene_desc sd;
+        bvh_scene sc;
+        size_t bad = 0, on_balls = 0, on_alpha = 0, n;
+        for (k = 0; k < MESHES; k++) {
+            d = tu_scene_desc(&w.mesh[k], bb);
+            assert_int_equal(bvh_build(&bottom[k], &d), BVH_SUCCESS);
+        }
+        memset(&d, 0, sizeof d);
+        d.builder = bb;
+        d.boxes = boxes;
+        d.box_count = BALLS;
+        assert_int_equal(bvh_build(&sphere_tree, &d), BVH_SUCCESS);
+        for (i = 0; i < ALL; i++) {
+            if (i < INSTANCES) {
+                all[i] = w.inst[i];
+                all[i].tree = &bottom[w.mesh_of[i]];
+                count[i] = w.mesh[w.mesh_of[i]].tri_count;
+                continue;
+            }
+            memset(&all[i], 0, sizeof all[i]);
+            make_transform(&r, all[i].transform, 30.0f);
+            all[i].id = 2000 + i;
+            all[i].mask = ~0u;
+            all[i].tree = &sphere_tree;
+            all[i].custom = &balls_test;
+            count[i] = BALLS;
+        }
+        memcpy(all[INSTANCES + 2].transform, all[INSTANCES].transform, sizeof all[0].transform); /* the twin */
+        all[ALL - 1].tree = &bottom[0];                                                          /* alpha-tested */
+        all[ALL - 1].custom = &alpha_test;
+        count[ALL - 1] = w.mesh[0].tri_count;
+        memset(&sd, 0, sizeof sd);
+        sd.instances = all;
+        sd.instance_count = ALL;
+        assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+        make_world_rays(&w, &sc, rays, masks, SCENE_RAYS);
+        for (n = 0; n < SCENE_RAYS; n++) { /* half the rays aimed at the sphere instances */
+            if (n % 2) {
+                const float *m = all[INSTANCES + n / 2 % 5].transform;
+                rays[n].dir = tu_sub(tu_v3(m[3], m[7], m[11]), rays[n].origin);
+                rays[n].tmax = BVH_INF;
+            }
+        }
+        for (n = 0; n < SCENE_RAYS; n++) {
+            bvh_scene_hit h, want;
+            bvh_ray rr = rays[n];
+            int found, occ, ok;
+            want.instance = want.prim = BVH_INVALID;
+            want.t = want.u = want.v = 0.0f;
+            for (i = 0; i < ALL; i++) { /* the brute force */
+                bvh_ray local;
+                bvh_hit best, hh;
+                uint32_t p;
+                int got = 0;
+                if (!(all[i].mask & masks[n])) continue;
+                local = bvh_ray_transform(&rr, sc.inverse + 12 * (size_t)i);
+                if (!all[i].custom) {
+                    got = tu_brute(w.tris[w.mesh_of[i]], count[i], &local, &best);
+                } else
+                    for (p = 0; p < count[i]; p++) {
+                        bvh_ray lr = local;
+                        if (got) lr.tmax = best.t;
+                        if (!all[i].custom->intersect(&lr, p, all[i].custom->user, &hh) || (got && !(hh.t < best.t)))
+                            continue;
+                        best = hh;
+                        best.prim = p;
+                        got = 1;
+                    }
+                if (!got || (want.instance != BVH_INVALID && !(best.t < rr.tmax))) continue;
+                want.t = best.t;
+                want.u = best.u;
+                want.v = best.v;
+                want.prim = best.prim;
+                want.instance = i;
+                rr.tmax = best.t;
+            }
+            found = bvh_scene_intersect(&sc, &rays[n], masks[n], &h);
+            occ = bvh_scene_occluded(&sc, &rays[n], masks[n]);
+            ok = found == (want.instance != BVH_INVALID) && occ == found && h.instance == want.instance &&
+                 h.prim == want.prim;
+            if (ok && found) {
+                ok = tu_fbits(h.t) == tu_fbits(want.t) && tu_fbits(h.u) == tu_fbits(want.u) &&
+                     tu_fbits(h.v) == tu_fbits(want.v) && h.id == all[h.instance].id;
+                if (all[h.instance].tree == &sphere_tree) {
+                    ok = ok && h.normal.x == 0.0f && h.normal.y == 0.0f && h.normal.z == 0.0f;
+                    on_balls++;
+                } else if (h.instance == ALL - 1) {
+                    bvh_vec3 e = tri_normal(w.tris[0] + 9 * (size_t)h.prim, sc.inverse + 12 * (size_t)h.instance);
+                    ok = ok && h.prim % 3 != 0 && fabsf(e.x - h.normal.x) < 1e-5f && fabsf(e.y - h.normal.y) < 1e-5f &&
+                         fabsf(e.z - h.normal.z) < 1e-5f;
+                    on_alpha++;
+                }
+            }
+            if (ok) continue;
+            if (bad++ < 4) {
+                print_error("bottom %s ray %zu mask %x: found %d occluded %d; instance %u/%u prim %u/%u t %a/%a\n",
+                            bvh_builder_name(bb), n, masks[n], found, occ, h.instance, want.instance, h.prim, want.prim,
+                            (double)h.t, (double)want.t);
+                tu_print_ray(&rays[n]);
+            }
+        }
+        if (b == 0) print_message("%zu rays end on a sphere, %zu on the alpha-tested instance\n", on_balls, on_alpha);
+        assert_true(on_balls > SCENE_RAYS / 20 && on_alpha > 0);
+        if (bad) fail_msg("bottom %s: %zu rays differ", bvh_builder_name(bb), bad);
+        bvh_scene_free(&sc);
+        bvh_free(&sphere_tree);
+        for (k = 0; k < MESHES; k++) bvh_free(&bottom[k]);
+    }
+    world_free(&w);
 }
 
 /* An allocator that fails from its k-th call on, and counts what is live. */
@@ -413,10 +588,8 @@ static void scene_out_of_memory(void **state) {
 
 int main(void) {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(scenes_exact),
-        cmocka_unit_test(masks_select),
-        cmocka_unit_test(scene_errors),
-        cmocka_unit_test(scene_out_of_memory),
+        cmocka_unit_test(scenes_exact), cmocka_unit_test(masks_select),        cmocka_unit_test(custom_instances_exact),
+        cmocka_unit_test(scene_errors), cmocka_unit_test(scene_out_of_memory),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -117,7 +117,7 @@ static int add_instance(world *w, uint32_t i, const float m[12]) {
         w->instances = p;
         w->instance_cap = cap;
     }
-    w->instances[w->instance_count] = (bvh_instance){&w->meshes[i].tree, {0}, i, ~0u};
+    w->instances[w->instance_count] = (bvh_instance){&w->meshes[i].tree, {0}, i, ~0u, NULL};
     memcpy(w->instances[w->instance_count++].transform, m, 12 * sizeof(float));
     return 0;
 }

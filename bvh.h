@@ -110,7 +110,9 @@
             children where the packet tests' expected cost falls and no packet is added: the
             same memory, different tree.nodes8 and tree.tri4 contents, the same hits); closest
             and any hit run as separate functions with fewer mispredicted branches per ray; a
-            scene hit takes its normal's vertices from the packet just tested.
+            scene hit takes its normal's vertices from the packet just tested; a top-level leaf
+            tests each instance's own world box (bvh_scene.boxes, kept from the build) before
+            the ray is transformed.
             Instances of custom primitives: bvh_instance.custom (a bvh_custom_desc) traces an
             instance of a tree built from boxes with the caller's test in the instance's space,
             or decides for each triangle of a triangle tree (alpha testing); such hits' normal is
@@ -644,6 +646,8 @@ typedef struct bvh_scene {
     bvh_tree top;            /* over the instances' world boxes; prims = instance indices */
     bvh_instance *instances; /* instance_count copies of desc.instances */
     float *inverse;          /* 12 floats per instance: world to object (bvh_ray_transform) */
+    bvh_aabb *boxes;         /* per instance: its world box, which a ray must reach before it
+                                is transformed (the boxes the top level was built on) */
     uint32_t instance_count;
     uint32_t *mesh;        /* per instance: its tree's number among the distinct trees */
     size_t *ref_base;      /* per distinct tree: its first entry in ref_of_prim */
@@ -5915,6 +5919,14 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
                        (f[r->near[1] ^ 4] - r->o[1]) * r->inv[1], (f[r->near[2]] - r->o[2]) * r->inv[2],
                        (f[r->near[2] ^ 4] - r->o[2]) * r->inv[2]);
 }
+/* The same for a box (bvh_aabb: min at 0..2, max at 3..5). */
+BVH__INLINE float bvh__slab_box(const bvh__rayx *r, const bvh_aabb *b, float tfar) {
+    const float *f = &b->min.x;
+    int n0 = r->near[0] >> 2, n1 = r->near[1] >> 2, n2 = r->near[2] >> 2; /* 1: the max plane is near */
+    return bvh__slab_t(r->tmin, r->kz, tfar, (f[3 * n0] - r->o[0]) * r->inv[0], (f[3 - 3 * n0] - r->o[0]) * r->inv[0],
+                       (f[1 + 3 * n1] - r->o[1]) * r->inv[1], (f[4 - 3 * n1] - r->o[1]) * r->inv[1],
+                       (f[2 + 3 * n2] - r->o[2]) * r->inv[2], (f[5 - 3 * n2] - r->o[2]) * r->inv[2]);
+}
 
 /* == 8-wide traversal layout =================================================================== */
 /* bvh_build turns the binary tree into 8-wide nodes (tree.nodes8) whose leaves are packets of four
@@ -7494,6 +7506,7 @@ BVH_API void bvh_scene_free(bvh_scene *scene) {
     bvh_free(&scene->top);
     bvh__free(&al, scene->instances);
     bvh__free(&al, scene->inverse);
+    bvh__free(&al, scene->boxes);
     bvh__free(&al, scene->mesh);
     bvh__free(&al, scene->ref_base);
     bvh__free(&al, scene->ref_of_prim);
@@ -7592,7 +7605,7 @@ BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc)
         td.skip_invalid = 1; /* the empty box of an instance of an empty tree: left out */
         r = bvh_build(&scene->top, &td);
     }
-    bvh__free(&scene->allocator, boxes);
+    scene->boxes = boxes; /* freed with the scene, also on failure */
     if (r != BVH_SUCCESS) bvh_scene_free(scene);
     return r;
 }
@@ -7610,9 +7623,12 @@ static int bvh__instance_step(void *arg, bvh_ray *ray, bvh__rayx *rx, uint32_t r
     bvh_ray local;
     bvh_hit h;
     bvh__best at;
-    (void)rx;
     (void)ref;
     if (!(in->mask & c->mask)) return 0;
+    /* a top-level leaf holds several instances: each one's own box first, as the top level's
+       nodes are tested (the same slab test, so no hit inside it is culled), before the ray's
+       transform and the bottom level's set-up */
+    if (bvh__slab_box(rx, &c->scene->boxes[inst], ray->tmax) == BVH_INF) return 0;
     local = bvh_ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
     if (c->any) return in->custom ? bvh_occluded_custom(in->tree, &local, in->custom) : bvh_occluded(in->tree, &local);
     memset(&at, 0, sizeof at);

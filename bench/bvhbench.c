@@ -2,7 +2,7 @@
    extended: every builder of bvh.h on a set of scenes, side by side with Embree 3.
 
    build/bvhbench [--builder all|LIST] [--embree all|none|LIST] [--threads N] [--repeat R]
-                  [--size WxH] [--trace cpu|opencl|both|none] [--brute-max N] [--strict]
+                  [--size WxH] [--camera outside|inside] [--trace cpu|opencl|both|none] [--brute-max N] [--strict]
                   [--paired N] [--ploc-top N|off] [--max-bytes N|off] [--trace-width 2|8]
                   [--instances N] [--refit N] [--save-load]
                   [--md FILE] [--json FILE|-] [--plots DIR] [--quiet] [SCENE...]
@@ -116,6 +116,7 @@ typedef struct options {
     uint32_t instances; /* instances of the scene's tree for the top-level rebuild (0: none) */
     uint32_t refit;     /* frames of the animated case (--refit; 0: none) */
     int save_load;      /* --save-load: time bvh_save and bvh_load of every tree */
+    int inside;         /* --camera inside: rays.h's interior view instead of the standard camera */
     int trace_cpu, trace_cl, trace_auto;
     const char *md, *json, *plots, *argv0;
     int quiet, strict;
@@ -518,10 +519,17 @@ static void check_frame(run_ctx *c, row *r, const char *tracer, const bvh_hit *h
         flag(c, r, "%s %s: hits or t_sum differ from the row's first frame", r->name, tracer);
 }
 
+/* The frame's camera over bounds: the standard one (outside, looking at the centre) or, with
+   --camera inside, rays.h's interior view (a path tracer's rays inside a room). */
+static bvh_camera bench_camera(const options *o, bvh_aabb bounds) {
+    return o->inside ? rays_camera_inside(bounds, o->width, o->height)
+                     : bvh_camera_standard(bounds, o->width, o->height);
+}
+
 static void make_rays(run_ctx *c, bvh_aabb bounds, bvh_camera *cam) {
     uint32_t x, y;
     size_t i = 0;
-    *cam = bvh_camera_standard(bounds, c->o->width, c->o->height);
+    *cam = bench_camera(c->o, bounds);
     for (y = 0; y < c->o->height; y++)
         for (x = 0; x < c->o->width; x++) c->rays[i++] = bvh_camera_ray(cam, x, y);
 }
@@ -535,7 +543,7 @@ static int make_sets(run_ctx *c) {
     size_t n;
     if (c->has_sets) return 0;
     if (!c->has_ref) return 1;
-    cam = bvh_camera_standard(c->bounds, c->o->width, c->o->height);
+    cam = bench_camera(c->o, c->bounds);
     if (rays_make(&cam, c->ref, c->s->v, c->bounds, &c->sets)) return 1;
     n = c->sets.ndiffuse ? c->sets.ndiffuse : 1; /* nshadow <= ndiffuse */
     c->dhits = (bvh_hit *)malloc(n * sizeof *c->dhits);
@@ -1107,7 +1115,7 @@ static int ours_loses(const run_ctx *c, const bvh_ray *ray, uint32_t e, uint32_t
 
 static void referee_embree(run_ctx *c, row *r) {
     const options *o = c->o;
-    bvh_camera cam = bvh_camera_standard(c->bounds, o->width, o->height);
+    bvh_camera cam = bench_camera(o, c->bounds);
     size_t i, diff = 0, lost = 0, first = 0, first_lost = 0, x, y;
     char pb[32], pe[32];
     for (i = 0; i < c->npix; i++) {
@@ -1253,8 +1261,10 @@ static void run_embree(run_ctx *c, row *r) {
     emb_scene_result res;
     emb_sah_desc sd;
     emb_sah_result sah;
+    bvh_camera cam = bench_camera(o, c->bounds);
     int st;
     memset(&d, 0, sizeof d);
+    d.camera = &cam;
     d.quality = r->quality;
     d.threads = o->threads;
     d.repeat = o->repeat;
@@ -1324,7 +1334,7 @@ static void run_embree(run_ctx *c, row *r) {
 static void paired_opencl(run_ctx *c, bench_scene *out, bvh_tree *trees, int made, double *ratio) {
     const options *o = c->o;
     bvh_cl_tree *g[BENCH_MAX_ROWS];
-    bvh_camera cam = bvh_camera_standard(c->bounds, o->width, o->height);
+    bvh_camera cam = bench_camera(o, c->bounds);
     int i, ok = 1;
     uint32_t k;
     memset(g, 0, sizeof g);
@@ -2186,10 +2196,11 @@ static void header_lines(FILE *f, const options *o, const header_info *h, const 
                 o->max_bytes ? o->max_bytes : ploc.ploc.max_bytes_per_prim);
     fprintf(f, "%sOpenCL: %s\n", prefix, h->opencl);
     fprintf(f,
-            "%sbuild: median of %u timed build(s) after one warm-up; frame: %ux%u primary rays of the standard camera, "
+            "%sbuild: median of %u timed build(s) after one warm-up; frame: %ux%u primary rays of the %s, "
             "traced %s (CPU, OpenCL and Embree: median of %d frames); frame ms = fastest tracer; CPU tracing walks the "
             "%s\n",
-            prefix, o->repeat, o->width, o->height, h->trace, BENCH_TRACE_REPEAT,
+            prefix, o->repeat, o->width, o->height, o->inside ? "interior camera (--camera inside)" : "standard camera",
+            h->trace, BENCH_TRACE_REPEAT,
             o->trace_width == 2 ? "binary nodes (--trace-width 2)" : "8-wide copy (OpenCL: the binary nodes)");
 }
 
@@ -2254,7 +2265,7 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         double tris = (double)s->triangles;
         fputs("{\"scene\":", f);
         scene_json_string(f, s->name);
-        fprintf(f, ",\"triangles\":%u,\"builder\":", s->triangles);
+        fprintf(f, ",\"triangles\":%u,\"camera\":\"%s\",\"builder\":", s->triangles, o->inside ? "inside" : "outside");
         scene_json_string(f, r->name);
         fprintf(f, ",\"kind\":\"%s\",\"status\":\"%s\",\"threads\":%u,\"repeat\":%u",
                 r->kind == ROW_BRUTE ? "brute-force"
@@ -2556,6 +2567,9 @@ static void usage(FILE *f) {
             "                   cores (default); their 'build 1t' column: the same builds on 1 thread\n"
             "  --repeat R       timed builds after one warm-up; the median is reported (default 5)\n"
             "  --size WxH       frame size (default 1024x1024)\n"
+            "  --camera C       outside (default: bvh_camera_standard, outside the scene looking at\n"
+            "                   its centre) or inside (low near one end, looking along the longer\n"
+            "                   side: an interior's rays, as build/pathtrace --inside)\n"
             "  --trace-width W  8: builds add the 8-wide copy CPU tracing uses (default); 2: binary only\n"
             "  --ploc-top N     ploc builders: binned-SAH top over the last n/N clusters, kept where\n"
             "                   cheaper (0 = the library's default, 8); 'off': PLOC alone, as the study\n"
@@ -2736,6 +2750,12 @@ static int parse_args(int argc, char **argv, options *o) {
                         v ? v : "");
                 return 2;
             }
+        } else if (!strcmp(a, "--camera")) {
+            if (!v || (strcmp(v, "outside") && strcmp(v, "inside"))) {
+                fprintf(stderr, "bvhbench: --camera wants outside or inside, not '%s'\n", v ? v : "");
+                return 2;
+            }
+            o->inside = !strcmp(v, "inside");
         } else if (!strcmp(a, "--trace-width")) {
             if (scene_parse_u32(v, 2, 8, &o->trace_width, NULL) || (o->trace_width != 2 && o->trace_width != 8)) {
                 fprintf(stderr, "bvhbench: --trace-width wants 2 or 8, not '%s'\n", v);

@@ -93,18 +93,19 @@ typedef struct emb_timing {
 } emb_timing; /* ms = median */
 
 typedef struct emb_scene_desc {
-    emb_quality quality;    /* DEFAULT = MEDIUM */
-    uint32_t threads;       /* Embree device "threads=N" for the build; 0 = all hardware threads */
-    uint32_t repeat;        /* timed builds after one warm-up; 0 = 5; at most 100000 */
-    uint32_t width, height; /* the frame; 0 (either) = build only */
-    uint32_t trace_threads; /* pthreads for the multi-threaded frame; 0 = online CPUs */
-    uint32_t trace_repeat;  /* frames traced per thread count, the median time reported; 0 = 1 */
-    int robust;             /* 1: RTC_SCENE_FLAG_ROBUST (watertight-ish hits); 0: as embree_ref */
-    const bvh_aabb *bounds; /* camera bounds; NULL = bounds of the finite vertices (= the root
-                               box of a bvh.h tree over the same triangles) */
-    float *t_out;           /* optional, width*height: hit t per pixel (y = 0 at the top), +inf
-                               for a miss, from the 1-thread frame */
-    uint32_t *prim_out;     /* optional, width*height: triangle index, BVH_INVALID for a miss */
+    emb_quality quality;      /* DEFAULT = MEDIUM */
+    uint32_t threads;         /* Embree device "threads=N" for the build; 0 = all hardware threads */
+    uint32_t repeat;          /* timed builds after one warm-up; 0 = 5; at most 100000 */
+    uint32_t width, height;   /* the frame; 0 (either) = build only */
+    uint32_t trace_threads;   /* pthreads for the multi-threaded frame; 0 = online CPUs */
+    uint32_t trace_repeat;    /* frames traced per thread count, the median time reported; 0 = 1 */
+    int robust;               /* 1: RTC_SCENE_FLAG_ROBUST (watertight-ish hits); 0: as embree_ref */
+    const bvh_aabb *bounds;   /* camera bounds; NULL = bounds of the finite vertices (= the root
+                                 box of a bvh.h tree over the same triangles) */
+    const bvh_camera *camera; /* the frame's camera; NULL = bvh_camera_standard over the bounds */
+    float *t_out;             /* optional, width*height: hit t per pixel (y = 0 at the top), +inf
+                                 for a miss, from the 1-thread frame */
+    uint32_t *prim_out;       /* optional, width*height: triangle index, BVH_INVALID for a miss */
 } emb_scene_desc;
 
 typedef struct emb_scene_result {
@@ -755,7 +756,7 @@ EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *de
 
     if (d.width) {
         bvh_aabb b = d.bounds ? *d.bounds : emb__bounds(v, n);
-        bvh_camera cam = bvh_camera_standard(b, d.width, d.height);
+        bvh_camera cam = d.camera ? *d.camera : bvh_camera_standard(b, d.width, d.height);
         uint32_t x, y;
         double ms1 = 0.0, ms2 = 0.0;
         npix = (size_t)d.width * d.height;

@@ -41,6 +41,8 @@
 #include "cl/bvh_cl.h" /* without BVH_HAVE_OPENCL its calls return BVH_CL_ERROR_NOT_AVAILABLE */
 #define SCENE_IMPLEMENTATION
 #include "scene.h" /* image writing, clock, command-line numbers, the OBJ reader */
+#define RAYS_IMPLEMENTATION
+#include "rays.h" /* the interior view (--inside) */
 
 #ifdef BVH_HAVE_ASSIMP
 #include <assimp/cimport.h>
@@ -835,19 +837,15 @@ static int open_device(const world *w, int required, bvh_cl_context **ctx, bvh_c
 }
 
 /* The view of the scene's box b: from above, looking down at its centre; or, with --inside (for
-   interiors such as Sponza's atrium), from low near one end of its longer side, looking along it.
-   Vertical fov 60; right and up scaled by tan(fov / 2), as bvh_camera_standard's. */
+   interiors such as Sponza's atrium), rays.h's interior view (bvhbench --camera inside has the
+   same). Vertical fov 60; right and up scaled by tan(fov / 2), as bvh_camera_standard's. */
 static bvh_camera view(bvh_aabb b, int inside, uint32_t width, uint32_t height) {
     bvh_vec3 c = bvh_aabb_centroid(b), d = sub(b.max, b.min), f, r;
     float th = tanf(PI / 6);
     bvh_camera cam;
-    if (inside) {
-        f = d.x > d.z ? v3(1.0f, -0.12f, 0.0f) : v3(0.0f, -0.12f, 1.0f);
-        cam.eye = v3(c.x - 0.4f * f.x * d.x, b.min.y + 0.3f * d.y, c.z - 0.4f * f.z * d.z);
-    } else {
-        f = v3(-0.35f, -1.0f, -0.6f);
-        cam.eye = sub(c, scale(normalize(f), 0.75f * sqrtf(dot(d, d))));
-    }
+    if (inside) return rays_camera_inside(b, width, height);
+    f = v3(-0.35f, -1.0f, -0.6f);
+    cam.eye = sub(c, scale(normalize(f), 0.75f * sqrtf(dot(d, d))));
     cam.forward = f = normalize(f);
     r = normalize(v3(-f.z, 0.0f, f.x)); /* forward x (0, 1, 0) */
     cam.right = scale(r, th * (float)width / (float)height);

@@ -60,6 +60,11 @@ int rays_make(const bvh_camera *cam, const bvh_hit *hits, const float *tris, bvh
 void rays_free(rays_set *s);
 /* the unit light direction of the shadow rays */
 bvh_vec3 rays_light(void);
+/* An interior view of the box b (Sponza's atrium, a room): the eye low near one end of the box's
+   longer horizontal side, looking along it and slightly down; vertical field of view 60 degrees,
+   right and up scaled as bvh_camera_standard's. build/bvhbench --camera inside and
+   build/pathtrace --inside use it: rays that start inside the model and travel through it. */
+bvh_camera rays_camera_inside(bvh_aabb b, uint32_t width, uint32_t height);
 
 #endif /* RAYS_H_INCLUDED */
 
@@ -93,6 +98,28 @@ static bvh_vec3 rays__v(float x, float y, float z) {
 bvh_vec3 rays_light(void) {
     float len = sqrtf(RAYS_LIGHT_X * RAYS_LIGHT_X + RAYS_LIGHT_Y * RAYS_LIGHT_Y + RAYS_LIGHT_Z * RAYS_LIGHT_Z);
     return rays__v(RAYS_LIGHT_X / len, RAYS_LIGHT_Y / len, RAYS_LIGHT_Z / len);
+}
+
+static bvh_vec3 rays__unit3(bvh_vec3 a) {
+    float k = 1.0f / sqrtf(a.x * a.x + a.y * a.y + a.z * a.z);
+    return rays__v(a.x * k, a.y * k, a.z * k);
+}
+
+bvh_camera rays_camera_inside(bvh_aabb b, uint32_t width, uint32_t height) {
+    bvh_vec3 c = bvh_aabb_centroid(b), d = rays__v(b.max.x - b.min.x, b.max.y - b.min.y, b.max.z - b.min.z), f, r;
+    float th = tanf(3.14159265f / 6);
+    bvh_camera cam;
+    f = d.x > d.z ? rays__v(1.0f, -0.12f, 0.0f) : rays__v(0.0f, -0.12f, 1.0f);
+    cam.eye = rays__v(c.x - 0.4f * f.x * d.x, b.min.y + 0.3f * d.y, c.z - 0.4f * f.z * d.z);
+    cam.forward = f = rays__unit3(f);
+    r = rays__unit3(rays__v(-f.z, 0.0f, f.x)); /* forward x (0, 1, 0) */
+    cam.right = rays__v(r.x * th * (float)width / (float)height, r.y * th * (float)width / (float)height,
+                        r.z * th * (float)width / (float)height);
+    cam.up = rays__v((r.y * f.z - r.z * f.y) * th, (r.z * f.x - r.x * f.z) * th,
+                     (r.x * f.y - r.y * f.x) * th); /* right x forward */
+    cam.width = width;
+    cam.height = height;
+    return cam;
 }
 
 /* Cosine-weighted direction about the unit normal n (Malley: a uniform point on the unit disk

@@ -646,8 +646,10 @@ typedef struct bvh_scene {
     bvh_tree top;            /* over the instances' world boxes; prims = instance indices */
     bvh_instance *instances; /* instance_count copies of desc.instances */
     float *inverse;          /* 12 floats per instance: world to object (bvh_ray_transform) */
-    bvh_aabb *boxes;         /* per instance: its world box, which a ray must reach before it
-                                is transformed (the boxes the top level was built on) */
+    bvh_aabb *boxes;         /* per instance: its world box (the boxes the top level was built
+                                on), which a ray must reach before it is transformed ... */
+    uint8_t *own_box;        /* ... when own_box[i] is 1: its top-level leaf holds other
+                                instances (alone in a leaf, the leaf's box is its own) */
     uint32_t instance_count;
     uint32_t *mesh;        /* per instance: its tree's number among the distinct trees */
     size_t *ref_base;      /* per distinct tree: its first entry in ref_of_prim */
@@ -7507,6 +7509,7 @@ BVH_API void bvh_scene_free(bvh_scene *scene) {
     bvh__free(&al, scene->instances);
     bvh__free(&al, scene->inverse);
     bvh__free(&al, scene->boxes);
+    bvh__free(&al, scene->own_box);
     bvh__free(&al, scene->mesh);
     bvh__free(&al, scene->ref_base);
     bvh__free(&al, scene->ref_of_prim);
@@ -7606,6 +7609,15 @@ BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc)
         r = bvh_build(&scene->top, &td);
     }
     scene->boxes = boxes; /* freed with the scene, also on failure */
+    if (r == BVH_SUCCESS && !(scene->own_box = BVH__ALLOC(&scene->allocator, uint8_t, n ? n : 1)))
+        r = BVH_ERROR_OUT_OF_MEMORY;
+    if (r == BVH_SUCCESS) memset(scene->own_box, 0, n ? n : 1); /* culling only: 0 never loses a hit */
+    for (i = 0; r == BVH_SUCCESS && i < scene->top.node_count; i++) {
+        const bvh_node *nd = &scene->top.nodes[i];
+        uint32_t k;
+        for (k = nd->index; nd->count && k < nd->index + nd->count; k++)
+            scene->own_box[scene->top.prims[k]] = nd->count > 1;
+    }
     if (r != BVH_SUCCESS) bvh_scene_free(scene);
     return r;
 }
@@ -7628,7 +7640,7 @@ static int bvh__instance_step(void *arg, bvh_ray *ray, bvh__rayx *rx, uint32_t r
     /* a top-level leaf holds several instances: each one's own box first, as the top level's
        nodes are tested (the same slab test, so no hit inside it is culled), before the ray's
        transform and the bottom level's set-up */
-    if (bvh__slab_box(rx, &c->scene->boxes[inst], ray->tmax) == BVH_INF) return 0;
+    if (c->scene->own_box[inst] && bvh__slab_box(rx, &c->scene->boxes[inst], ray->tmax) == BVH_INF) return 0;
     local = bvh_ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
     if (c->any) return in->custom ? bvh_occluded_custom(in->tree, &local, in->custom) : bvh_occluded(in->tree, &local);
     memset(&at, 0, sizeof at);

@@ -361,6 +361,7 @@ static void scene_errors(void **state) {
    sphere hit is zero, of an alpha-tested triangle the triangle's; bvh_scene_occluded agrees. */
 #define BALLS 40
 #define ALL (INSTANCES + 5)
+#define CUSTOM_RAYS 2000
 typedef struct ball {
     float c[3], r;
 } ball;
@@ -383,10 +384,46 @@ static int hit_alpha(const bvh_ray *ray, uint32_t i, void *user, bvh_hit *hit) {
     const float *t = (const float *)user + 9 * (size_t)i;
     return i % 3 != 0 && bvh_intersect_triangle(ray, t, t + 3, t + 6, hit);
 }
+/* The brute force over all: instances in order, each transformed as the traversal does, every
+   primitive through tu_brute or the instance's callback; ties: lowest instance, lowest primitive. */
+static void brute_all(const world *w, const bvh_instance *all, const uint32_t *count, const bvh_scene *sc,
+                      const bvh_ray *ray, uint32_t mask, bvh_scene_hit *want) {
+    bvh_ray rr = *ray;
+    uint32_t i, p;
+    want->instance = want->prim = BVH_INVALID;
+    want->t = want->u = want->v = 0.0f;
+    for (i = 0; i < ALL; i++) {
+        bvh_ray local;
+        bvh_hit best, hh;
+        int got = 0;
+        memset(&best, 0, sizeof best);
+        if (!(all[i].mask & mask)) continue;
+        local = bvh_ray_transform(&rr, sc->inverse + 12 * (size_t)i);
+        if (!all[i].custom) {
+            got = tu_brute(w->tris[w->mesh_of[i]], count[i], &local, &best);
+        } else
+            for (p = 0; p < count[i]; p++) {
+                bvh_ray lr = local;
+                if (got) lr.tmax = best.t;
+                if (!all[i].custom->intersect(&lr, p, all[i].custom->user, &hh) || (got && !(hh.t < best.t))) continue;
+                best = hh;
+                best.prim = p;
+                got = 1;
+            }
+        if (!got || (want->instance != BVH_INVALID && !(best.t < rr.tmax))) continue;
+        want->t = best.t;
+        want->u = best.u;
+        want->v = best.v;
+        want->prim = best.prim;
+        want->instance = i;
+        rr.tmax = best.t;
+    }
+}
 static void custom_instances_exact(void **state) {
     static world w;
-    static bvh_ray rays[SCENE_RAYS];
-    static uint32_t masks[SCENE_RAYS];
+    static bvh_ray rays[CUSTOM_RAYS];
+    static uint32_t masks[CUSTOM_RAYS];
+    static bvh_scene_hit want[CUSTOM_RAYS];
     static ball balls[BALLS];
     static bvh_instance all[ALL];
     bvh_aabb boxes[BALLS];
@@ -407,6 +444,22 @@ static void custom_instances_exact(void **state) {
     }
     alpha_test.intersect = hit_alpha;
     alpha_test.user = w.tris[0];
+    for (i = 0; i < ALL; i++) { /* the world's instances, four of the spheres, one alpha-tested */
+        if (i < INSTANCES) {
+            all[i] = w.inst[i];
+            count[i] = w.mesh[w.mesh_of[i]].tri_count;
+            continue;
+        }
+        memset(&all[i], 0, sizeof all[i]);
+        make_transform(&r, all[i].transform, 30.0f);
+        all[i].id = 2000 + i;
+        all[i].mask = ~0u;
+        all[i].custom = &balls_test;
+        count[i] = BALLS;
+    }
+    memcpy(all[INSTANCES + 2].transform, all[INSTANCES].transform, sizeof all[0].transform); /* the twin */
+    all[ALL - 1].custom = &alpha_test;
+    count[ALL - 1] = w.mesh[0].tri_count;
     for (b = 0; b < TU_BUILDER_COUNT; b++) {
         bvh_builder bb = tu_builder(b);
         bvh_build_desc d;
@@ -422,77 +475,30 @@ static void custom_instances_exact(void **state) {
         d.boxes = boxes;
         d.box_count = BALLS;
         assert_int_equal(bvh_build(&sphere_tree, &d), BVH_SUCCESS);
-        for (i = 0; i < ALL; i++) {
-            if (i < INSTANCES) {
-                all[i] = w.inst[i];
-                all[i].tree = &bottom[w.mesh_of[i]];
-                count[i] = w.mesh[w.mesh_of[i]].tri_count;
-                continue;
-            }
-            memset(&all[i], 0, sizeof all[i]);
-            make_transform(&r, all[i].transform, 30.0f);
-            all[i].id = 2000 + i;
-            all[i].mask = ~0u;
-            all[i].tree = &sphere_tree;
-            all[i].custom = &balls_test;
-            count[i] = BALLS;
-        }
-        memcpy(all[INSTANCES + 2].transform, all[INSTANCES].transform, sizeof all[0].transform); /* the twin */
-        all[ALL - 1].tree = &bottom[0];                                                          /* alpha-tested */
-        all[ALL - 1].custom = &alpha_test;
-        count[ALL - 1] = w.mesh[0].tri_count;
+        for (i = 0; i < ALL; i++)
+            all[i].tree = i == ALL - 1 ? &bottom[0] : all[i].custom ? &sphere_tree : &bottom[w.mesh_of[i]];
         memset(&sd, 0, sizeof sd);
         sd.instances = all;
         sd.instance_count = ALL;
         assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
-        make_world_rays(&w, &sc, rays, masks, SCENE_RAYS);
-        for (n = 0; n < SCENE_RAYS; n++) { /* half the rays aimed at the sphere instances */
-            if (n % 2) {
+        if (b == 0) { /* the oracle depends on the transforms only: once */
+            make_world_rays(&w, &sc, rays, masks, CUSTOM_RAYS);
+            for (n = 1; n < CUSTOM_RAYS; n += 2) { /* half the rays aimed at the sphere instances */
                 const float *m = all[INSTANCES + n / 2 % 5].transform;
                 rays[n].dir = tu_sub(tu_v3(m[3], m[7], m[11]), rays[n].origin);
                 rays[n].tmax = BVH_INF;
             }
+            for (n = 0; n < CUSTOM_RAYS; n++) brute_all(&w, all, count, &sc, &rays[n], masks[n], &want[n]);
         }
-        for (n = 0; n < SCENE_RAYS; n++) {
-            bvh_scene_hit h, want;
-            bvh_ray rr = rays[n];
-            int found, occ, ok;
-            want.instance = want.prim = BVH_INVALID;
-            want.t = want.u = want.v = 0.0f;
-            for (i = 0; i < ALL; i++) { /* the brute force */
-                bvh_ray local;
-                bvh_hit best, hh;
-                uint32_t p;
-                int got = 0;
-                if (!(all[i].mask & masks[n])) continue;
-                local = bvh_ray_transform(&rr, sc.inverse + 12 * (size_t)i);
-                if (!all[i].custom) {
-                    got = tu_brute(w.tris[w.mesh_of[i]], count[i], &local, &best);
-                } else
-                    for (p = 0; p < count[i]; p++) {
-                        bvh_ray lr = local;
-                        if (got) lr.tmax = best.t;
-                        if (!all[i].custom->intersect(&lr, p, all[i].custom->user, &hh) || (got && !(hh.t < best.t)))
-                            continue;
-                        best = hh;
-                        best.prim = p;
-                        got = 1;
-                    }
-                if (!got || (want.instance != BVH_INVALID && !(best.t < rr.tmax))) continue;
-                want.t = best.t;
-                want.u = best.u;
-                want.v = best.v;
-                want.prim = best.prim;
-                want.instance = i;
-                rr.tmax = best.t;
-            }
-            found = bvh_scene_intersect(&sc, &rays[n], masks[n], &h);
-            occ = bvh_scene_occluded(&sc, &rays[n], masks[n]);
-            ok = found == (want.instance != BVH_INVALID) && occ == found && h.instance == want.instance &&
-                 h.prim == want.prim;
+        for (n = 0; n < CUSTOM_RAYS; n++) {
+            bvh_scene_hit h;
+            int found = bvh_scene_intersect(&sc, &rays[n], masks[n], &h),
+                occ = bvh_scene_occluded(&sc, &rays[n], masks[n]);
+            int ok = found == (want[n].instance != BVH_INVALID) && occ == found && h.instance == want[n].instance &&
+                     h.prim == want[n].prim;
             if (ok && found) {
-                ok = tu_fbits(h.t) == tu_fbits(want.t) && tu_fbits(h.u) == tu_fbits(want.u) &&
-                     tu_fbits(h.v) == tu_fbits(want.v) && h.id == all[h.instance].id;
+                ok = tu_fbits(h.t) == tu_fbits(want[n].t) && tu_fbits(h.u) == tu_fbits(want[n].u) &&
+                     tu_fbits(h.v) == tu_fbits(want[n].v) && h.id == all[h.instance].id;
                 if (all[h.instance].tree == &sphere_tree) {
                     ok = ok && h.normal.x == 0.0f && h.normal.y == 0.0f && h.normal.z == 0.0f;
                     on_balls++;
@@ -506,13 +512,13 @@ static void custom_instances_exact(void **state) {
             if (ok) continue;
             if (bad++ < 4) {
                 print_error("bottom %s ray %zu mask %x: found %d occluded %d; instance %u/%u prim %u/%u t %a/%a\n",
-                            bvh_builder_name(bb), n, masks[n], found, occ, h.instance, want.instance, h.prim, want.prim,
-                            (double)h.t, (double)want.t);
+                            bvh_builder_name(bb), n, masks[n], found, occ, h.instance, want[n].instance, h.prim,
+                            want[n].prim, (double)h.t, (double)want[n].t);
                 tu_print_ray(&rays[n]);
             }
         }
         if (b == 0) print_message("%zu rays end on a sphere, %zu on the alpha-tested instance\n", on_balls, on_alpha);
-        assert_true(on_balls > SCENE_RAYS / 20 && on_alpha > 0);
+        assert_true(on_balls > CUSTOM_RAYS / 20 && on_alpha > 0);
         if (bad) fail_msg("bottom %s: %zu rays differ", bvh_builder_name(bb), bad);
         bvh_scene_free(&sc);
         bvh_free(&sphere_tree);

@@ -59,22 +59,29 @@ static void check_tree(const tu_scene *s, const float *tris, const bvh_aabb *box
                     root.max.x == bounds.max.x && root.max.y == bounds.max.y && root.max.z == bounds.max.z);
 }
 
+/* The state's scene (0 when it is not there: the test is skipped), its triangles and a box
+   per triangle (both malloc'd). */
+static int scene_with_boxes(void **state, tu_scene *s, float **tris, bvh_aabb **boxes) {
+    uint32_t i;
+    if (!tu_scene_make(tu_state_id(state), s)) {
+        skip();
+        return 0;
+    }
+    *tris = tu_scene_tris(s);
+    *boxes = (bvh_aabb *)malloc(s->tri_count * sizeof **boxes);
+    assert_non_null(*boxes);
+    for (i = 0; i < s->tri_count; i++) (*boxes)[i] = tu_tri_box(*tris + 9 * (size_t)i);
+    return 1;
+}
+
 static void every_builder_valid(void **state) {
     static const uint32_t threads[] = {1, 2, 3, 8, 0};
-    int id = tu_state_id(state), b;
+    int b;
     size_t th;
     tu_scene s;
     float *tris;
     bvh_aabb *boxes;
-    uint32_t i;
-    if (!tu_scene_make(id, &s)) {
-        skip();
-        return;
-    }
-    tris = tu_scene_tris(&s);
-    boxes = (bvh_aabb *)malloc(s.tri_count * sizeof *boxes);
-    assert_non_null(boxes);
-    for (i = 0; i < s.tri_count; i++) boxes[i] = tu_tri_box(tris + 9 * (size_t)i);
+    if (!scene_with_boxes(state, &s, &tris, &boxes)) return;
     for (b = 0; b < TU_BUILDER_COUNT; b++) {
         bvh_tree t, again;
         bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
@@ -513,15 +520,7 @@ static void optimizer_valid(void **state) {
     tu_scene s;
     float *tris;
     bvh_aabb *boxes;
-    uint32_t i;
-    if (!tu_scene_make(id, &s)) {
-        skip();
-        return;
-    }
-    tris = tu_scene_tris(&s);
-    boxes = (bvh_aabb *)malloc(s.tri_count * sizeof *boxes);
-    assert_non_null(boxes);
-    for (i = 0; i < s.tri_count; i++) boxes[i] = tu_tri_box(tris + 9 * (size_t)i);
+    if (!scene_with_boxes(state, &s, &tris, &boxes)) return;
     for (b = 0; b < TU_BUILDER_COUNT; b++) {
         bvh_tree t, again, plain;
         bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));

@@ -59,6 +59,23 @@ static void check_tree(const tu_scene *s, const float *tris, const bvh_aabb *box
                     root.max.x == bounds.max.x && root.max.y == bounds.max.y && root.max.z == bounds.max.z);
 }
 
+/* The tree d builds on each of the thread counts is t, every array of it (tag: the row's suffix
+   in the message). */
+static void same_on_threads(const tu_scene *s, bvh_build_desc d, const bvh_tree *t, const uint32_t *threads, size_t n,
+                            const char *tag) {
+    size_t th;
+    for (th = 0; th < n; th++) {
+        bvh_tree again;
+        const char *diff;
+        d.threads = threads[th];
+        tu_build_valid(s, &d, &again);
+        diff = tree_diff(t, &again);
+        if (diff)
+            fail_msg("%s/%s%s: %s differ on %u threads", s->name, bvh_builder_name(d.builder), tag, diff, threads[th]);
+        bvh_free(&again);
+    }
+}
+
 /* The state's scene (0 when it is not there: the test is skipped), its triangles and a box
    per triangle (both malloc'd). */
 static int scene_with_boxes(void **state, tu_scene *s, float **tris, bvh_aabb **boxes) {
@@ -77,27 +94,18 @@ static int scene_with_boxes(void **state, tu_scene *s, float **tris, bvh_aabb **
 static void every_builder_valid(void **state) {
     static const uint32_t threads[] = {1, 2, 3, 8, 0};
     int b;
-    size_t th;
     tu_scene s;
     float *tris;
     bvh_aabb *boxes;
     if (!scene_with_boxes(state, &s, &tris, &boxes)) return;
     for (b = 0; b < TU_BUILDER_COUNT; b++) {
-        bvh_tree t, again;
+        bvh_tree t;
         bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
         tu_build_valid(&s, &d, &t);
         check_tree(&s, tris, boxes, &t, tu_builder(b));
         check_stats(&s, &t, tu_default_leaf(tu_builder(b)));
         /* deterministic: the same input gives the same tree, every array of it, on any threads */
-        for (th = 0; th < sizeof threads / sizeof threads[0]; th++) {
-            const char *diff;
-            d.threads = threads[th];
-            tu_build_valid(&s, &d, &again);
-            diff = tree_diff(&t, &again);
-            if (diff)
-                fail_msg("%s/%s: %s differ on %u threads", s.name, bvh_builder_name(tu_builder(b)), diff, threads[th]);
-            bvh_free(&again);
-        }
+        same_on_threads(&s, d, &t, threads, sizeof threads / sizeof threads[0], "");
         bvh_free(&t);
     }
     free(boxes);
@@ -516,13 +524,12 @@ static void morton_sort_alone(void **state) {
 static void optimizer_valid(void **state) {
     static const uint32_t threads[] = {2, 3, 8};
     int id = tu_state_id(state), b;
-    size_t th;
     tu_scene s;
     float *tris;
     bvh_aabb *boxes;
     if (!scene_with_boxes(state, &s, &tris, &boxes)) return;
     for (b = 0; b < TU_BUILDER_COUNT; b++) {
-        bvh_tree t, again, plain;
+        bvh_tree t, plain;
         bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
         double sah_opt, sah_plain;
         tu_build_valid(&s, &d, &plain);
@@ -532,16 +539,7 @@ static void optimizer_valid(void **state) {
         tu_build_valid(&s, &d, &t);
         check_tree(&s, tris, boxes, &t, tu_builder(b));
         check_stats(&s, &t, tu_default_leaf(tu_builder(b)));
-        for (th = 0; th < sizeof threads / sizeof threads[0]; th++) {
-            const char *diff;
-            d.threads = threads[th];
-            tu_build_valid(&s, &d, &again);
-            diff = tree_diff(&t, &again);
-            if (diff)
-                fail_msg("%s/%s+opt: %s differ on %u threads", s.name, bvh_builder_name(tu_builder(b)), diff,
-                         threads[th]);
-            bvh_free(&again);
-        }
+        same_on_threads(&s, d, &t, threads, sizeof threads / sizeof threads[0], "+opt");
         assert_int_equal(bvh_sah(&t, NULL, &sah_opt), BVH_SUCCESS);
         assert_int_equal(bvh_sah(&plain, NULL, &sah_plain), BVH_SUCCESS);
         if (id == TU_SCENE_BUNNY)

@@ -251,6 +251,16 @@ static void prog_init(prog_state *p, uint32_t cancel_at) {
     p->t_last = now_s();
 }
 
+/* A build on 2 threads that reports to p and allocates through ca. */
+static void watch_build(bvh_build_desc *d, prog_state *p, count_alloc *ca) {
+    d->threads = 2;
+    d->progress = on_progress;
+    d->progress_user = p;
+    d->allocator.alloc = ca_alloc;
+    d->allocator.free = ca_free;
+    d->allocator.user = ca;
+}
+
 /* For every builder, with and without a pool: a completed build reports rising fractions ending
    in one 1; a cancel at each call k in turn returns BVH_ERROR_CANCELLED, an empty tree and no
    block left allocated. */
@@ -275,12 +285,7 @@ static void progress_cancel_every_call(void **state) {
                 d.pool.run = pool_run;
                 d.pool.user = &ps;
             }
-            d.threads = 2;
-            d.progress = on_progress;
-            d.progress_user = &p;
-            d.allocator.alloc = ca_alloc;
-            d.allocator.free = ca_free;
-            d.allocator.user = &ca;
+            watch_build(&d, &p, &ca);
             prog_init(&p, 0);
             assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
             if (!p.rising || p.ones != 1 || p.last != 1.0f || p.calls < 3)
@@ -460,12 +465,7 @@ static void progress_optimizer_rounds(void **state) {
         prog_state p;
         bvh_tree t;
         uint32_t plain, k;
-        d.threads = 2;
-        d.progress = on_progress;
-        d.progress_user = &p;
-        d.allocator.alloc = ca_alloc;
-        d.allocator.free = ca_free;
-        d.allocator.user = &ca;
+        watch_build(&d, &p, &ca);
         prog_init(&p, 0);
         assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
         bvh_free(&t);

@@ -646,10 +646,11 @@ typedef struct bvh_scene {
     bvh_tree top;            /* over the instances' world boxes; prims = instance indices */
     bvh_instance *instances; /* instance_count copies of desc.instances */
     float *inverse;          /* 12 floats per instance: world to object (bvh_ray_transform) */
-    bvh_aabb *boxes;         /* per instance: its world box (the boxes the top level was built
-                                on), which a ray must reach before it is transformed ... */
-    uint8_t *own_box;        /* ... when own_box[i] is 1: its top-level leaf holds other
-                                instances (alone in a leaf, the leaf's box is its own) */
+    bvh_aabb *boxes;         /* per instance: its world box (the boxes the top level was built on) */
+    bvh_node8 *top8;         /* the top level as CPU tracing reads it: 8-wide nodes whose leaf
+                                slots hold one instance each (child: its index, count 1), its box
+                                the slot's; built from top by bvh_scene_build */
+    uint32_t top8_count;
     uint32_t instance_count;
     uint32_t *mesh;        /* per instance: its tree's number among the distinct trees */
     size_t *ref_base;      /* per distinct tree: its first entry in ref_of_prim */
@@ -6836,28 +6837,39 @@ typedef struct bvh__ray8 {
 BVH__INLINE void bvh__push8(const bvh_node8 *nodes, const bvh_tri4 *tri4, const bvh_node8 *n, unsigned i,
                             const float *tn, bvh__entry8 *stack, uint32_t *sp) {
     const uint32_t c = n->child[i], k = n->count[i];
-    /* a select, not a branch: leaves and nodes alternate at random */
-    const uintptr_t leaf = (uintptr_t)0 - (uintptr_t)(k != 0);
-    const char *a = (const char *)(((uintptr_t)(tri4 + c) & leaf) | ((uintptr_t)(nodes + c) & ~leaf));
-    BVH__PREFETCH(a);
-    BVH__PREFETCH(a + 64);
-    BVH__PREFETCH(a + 128);
+    if (tri4) { /* NULL (a constant where inlined): leaves of instances, whose lines are elsewhere */
+        /* a select, not a branch: leaves and nodes alternate at random */
+        const uintptr_t leaf = (uintptr_t)0 - (uintptr_t)(k != 0);
+        const char *a = (const char *)(((uintptr_t)(tri4 + c) & leaf) | ((uintptr_t)(nodes + c) & ~leaf));
+        BVH__PREFETCH(a);
+        BVH__PREFETCH(a + 64);
+        BVH__PREFETCH(a + 128);
+    } else if (!k) {
+        BVH__PREFETCH(nodes + c);
+        BVH__PREFETCH((const char *)(nodes + c) + 64);
+        BVH__PREFETCH((const char *)(nodes + c) + 128);
+    }
     stack[*sp].child = c;
     stack[*sp].count = k;
     stack[*sp].t = tn[i];
     ++*sp;
 }
+/* A leaf step of the 8-wide loop for leaves that are not triangle packets (a scene's top level:
+   one instance a leaf slot): tests item `item` (the slot's child) with the world ray, whose tmax
+   is the best t so far; returns 1 when it took a hit as the new best and lowered ray->tmax to its
+   t. isa as bvh__traverse8_body's. */
+typedef int (*bvh__slot_step)(void *ctx, bvh_ray *ray, uint32_t item, int isa);
 /* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
-   order, unsorted), the farther ones on the stack; a leaf's packets tested at once. isa (a
-   constant: the loop is compiled once for each): 0 SSE or plain C, 1 AVX2 (the slab test in one
-   pass, the leaf test on eight lanes). */
-BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
-                                    bvh__best *loc, int any, int isa) {
+   order, unsorted), the farther ones on the stack; a leaf's packets tested at once, or, with a
+   step (and tri4 NULL), each leaf slot handed to it with the world ray wray. isa (a constant:
+   the loop is compiled once for each): 0 SSE or plain C, 1 AVX2 (the slab test in one pass, the
+   leaf test on eight lanes). */
+BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4, bvh__rayx *rx, const bvh__ray8 *q,
+                                    float tmax, bvh_hit *hit, bvh__best *loc, int any, int isa, bvh__slot_step step,
+                                    void *ctx, bvh_ray *wray) {
     bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
     uint32_t sp = 0, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first packet */
     bvh__best best;
-    const bvh_node8 *const nodes = tree->nodes8;
-    const bvh_tri4 *const tri4 = tree->tri4;
     int sheared = 0;
     float tbest = tmax; /* best.t, kept in a register: best itself lives in memory for the leaf test */
     best.t = tmax;
@@ -6918,6 +6930,12 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                 lc = n->count[i0];
                 continue;
             }
+        } else if (step) { /* a leaf slot: its item */
+            if (step(ctx, wray, cur, isa)) {
+                best.prim = cur;
+                best.t = tbest = wray->tmax;
+                if (any) goto out;
+            }
         } else { /* a leaf: its packets */
             if (!sheared) {
                 bvh__ray_shear(rx);
@@ -6958,10 +6976,13 @@ BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *h
     bvh__rayx rx;
     bvh__ray8 q;
 #ifdef BVH__SSE
-    if (bvh__ray8_start(ray, &rx, &q, !isa) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, loc, any, isa))
+    if (bvh__ray8_start(ray, &rx, &q, !isa) &&
+        bvh__traverse8_body(tree->nodes8, tree->tri4, &rx, &q, ray->tmax, hit, loc, any, isa, NULL, NULL, NULL))
         return 1;
 #else
-    if (bvh__ray_setup(ray, &rx) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, loc, any, isa)) return 1;
+    if (bvh__ray_setup(ray, &rx) &&
+        bvh__traverse8_body(tree->nodes8, tree->tri4, &rx, &q, ray->tmax, hit, loc, any, isa, NULL, NULL, NULL))
+        return 1;
 #endif
     if (hit) {
         hit->t = ray->tmax;
@@ -7426,7 +7447,7 @@ BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit
    found by a map from triangle to reference that the scene makes once per distinct
    bottom-level tree (walking the tree again to find it would cost about as much as the trace). */
 /* ============================================================================================ */
-BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]) {
+BVH__INLINE bvh_ray bvh__ray_transform(const bvh_ray *ray, const float *m) {
     bvh_ray r = *ray;
     const bvh_vec3 o = ray->origin, d = ray->dir;
     r.origin.x = m[0] * o.x + m[1] * o.y + m[2] * o.z + m[3];
@@ -7437,6 +7458,7 @@ BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]) {
     r.dir.z = m[8] * d.x + m[9] * d.y + m[10] * d.z;
     return r;
 }
+BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]) { return bvh__ray_transform(ray, m); }
 /* The inverse of a 3x4 affine transform, in double, rounded to float; 0 if m is not finite or
    singular (a zero determinant, or an inverse that is not finite in float). */
 static int bvh__invert34(const float m[12], float out[12]) {
@@ -7509,7 +7531,7 @@ BVH_API void bvh_scene_free(bvh_scene *scene) {
     bvh__free(&al, scene->instances);
     bvh__free(&al, scene->inverse);
     bvh__free(&al, scene->boxes);
-    bvh__free(&al, scene->own_box);
+    bvh__free(&al, scene->top8);
     bvh__free(&al, scene->mesh);
     bvh__free(&al, scene->ref_base);
     bvh__free(&al, scene->ref_of_prim);
@@ -7567,6 +7589,88 @@ static bvh_result bvh__scene_maps(bvh_scene *sc) {
     bvh__free(&sc->allocator, slot);
     return r;
 }
+/* The top level's 8-wide copy (bvh_scene.top8), so that a ray meets up to eight instance boxes in
+   one SIMD test, as in a bottom-level tree. Each wide node is made from an item, a binary
+   interior node or a run of a leaf's references, by opening the item of largest surface area
+   (a node into its two children, a run into its halves) until there are eight or none can be
+   opened; a run of one reference is a leaf slot: that instance, with its own world box (with
+   split references a leaf's box may be clipped; the whole instance box still holds every hit the
+   clipped part does). Children after their parent; recursion as deep as the binary tree plus
+   log2(BVH__MAX_LEAF). */
+typedef struct bvh__top_item {
+    uint32_t node;         /* a binary interior node, or BVH_INVALID: ... */
+    uint32_t first, count; /* ... references first .. first + count - 1 */
+} bvh__top_item;
+static bvh__top_item bvh__top8_item(const bvh_tree *top, uint32_t node) {
+    bvh__top_item it;
+    const bvh_node *n = &top->nodes[node];
+    it.node = n->count ? BVH_INVALID : node;
+    it.first = n->index;
+    it.count = n->count;
+    return it;
+}
+static bvh_aabb bvh__top8_box(const bvh_scene *s, bvh__top_item it) {
+    bvh_aabb b = bvh__empty();
+    uint32_t k;
+    if (it.node != BVH_INVALID) return bvh__node_box(&s->top.nodes[it.node]);
+    for (k = it.first; k < it.first + it.count; k++) b = bvh__merge(b, s->boxes[s->top.prims[k]]);
+    return b;
+}
+static uint32_t bvh__top8_node(bvh_scene *s, bvh__top_item it) {
+    const uint32_t w = s->top8_count++;
+    bvh_node8 *out = &s->top8[w];
+    bvh__top_item items[BVH__W];
+    uint32_t n = 1, i, a;
+    items[0] = it;
+    while (n < BVH__W) {
+        uint32_t best = BVH_INVALID;
+        float area = -1.0f;
+        for (i = 0; i < n; i++) {
+            float ai;
+            if (items[i].node == BVH_INVALID && items[i].count < 2) continue; /* an instance */
+            ai = bvh__half_area(bvh__top8_box(s, items[i]));
+            if (ai > area) {
+                area = ai;
+                best = i;
+            }
+        }
+        if (best == BVH_INVALID) break;
+        if (items[best].node != BVH_INVALID) {
+            const uint32_t c = s->top.nodes[items[best].node].index;
+            items[best] = bvh__top8_item(&s->top, c);
+            items[n++] = bvh__top8_item(&s->top, c + 1);
+        } else {
+            const uint32_t h = items[best].count / 2;
+            items[n] = items[best];
+            items[n].first += h;
+            items[n++].count -= h;
+            items[best].count = h;
+        }
+    }
+    memset(out, 0, sizeof *out);
+    for (i = 0; i < BVH__W; i++)
+        for (a = 0; a < 3; a++) { /* an empty slot: no ray enters it */
+            out->min[a][i] = BVH_INF;
+            out->max[a][i] = -BVH_INF;
+        }
+    for (i = 0; i < n; i++) {
+        const bvh_aabb b = bvh__top8_box(s, items[i]);
+        out->min[0][i] = b.min.x;
+        out->min[1][i] = b.min.y;
+        out->min[2][i] = b.min.z;
+        out->max[0][i] = b.max.x;
+        out->max[1][i] = b.max.y;
+        out->max[2][i] = b.max.z;
+        if (items[i].node == BVH_INVALID && items[i].count == 1) {
+            out->child[i] = s->top.prims[items[i].first];
+            out->count[i] = 1;
+        } else {
+            const uint32_t c = bvh__top8_node(s, items[i]); /* out stays valid: top8 is allocated whole */
+            s->top8[w].child[i] = c;
+        }
+    }
+    return w;
+}
 BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc) {
     bvh_build_desc td;
     bvh_aabb *boxes = NULL;
@@ -7609,14 +7713,13 @@ BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc)
         r = bvh_build(&scene->top, &td);
     }
     scene->boxes = boxes; /* freed with the scene, also on failure */
-    if (r == BVH_SUCCESS && !(scene->own_box = BVH__ALLOC(&scene->allocator, uint8_t, n ? n : 1)))
-        r = BVH_ERROR_OUT_OF_MEMORY;
-    if (r == BVH_SUCCESS) memset(scene->own_box, 0, n ? n : 1); /* culling only: 0 never loses a hit */
-    for (i = 0; r == BVH_SUCCESS && i < scene->top.node_count; i++) {
-        const bvh_node *nd = &scene->top.nodes[i];
-        uint32_t k;
-        for (k = nd->index; nd->count && k < nd->index + nd->count; k++)
-            scene->own_box[scene->top.prims[k]] = nd->count > 1;
+    if (r == BVH_SUCCESS && scene->top.node_count) {
+        /* at most one wide node per reference: each but the root opens an item of two or more */
+        scene->top8 = BVH__ALLOC(&scene->allocator, bvh_node8, scene->top.ref_count);
+        if (!scene->top8)
+            r = BVH_ERROR_OUT_OF_MEMORY;
+        else
+            bvh__top8_node(scene, bvh__top8_item(&scene->top, 0));
     }
     if (r != BVH_SUCCESS) bvh_scene_free(scene);
     return r;
@@ -7629,26 +7732,37 @@ typedef struct bvh__scene_ctx {
     bvh_hit hit;       /* its hit in the bottom-level tree (t is world t) */
     bvh__best at;      /* its packet and lane (pk NULL: a tree without the wide layout) */
 } bvh__scene_ctx;
-static int bvh__instance_step(void *arg, bvh_ray *ray, bvh__rayx *rx, uint32_t ref, uint32_t inst) {
+/* The 8-wide traversal of a tree with a wide layout, for the ISA the caller runs on (isa a
+   constant): no dispatch, no argument checks (a scene's trees were checked when it was built). */
+BVH__INLINE int bvh__trace8_isa(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc, int any,
+                                int isa) {
+#ifdef BVH__AVX2
+    if (isa) return any ? bvh__any8_avx2(tree, ray) : bvh__closest8_avx2(tree, ray, hit, loc);
+#endif
+    (void)isa;
+    return any ? bvh__any8_base(tree, ray) : bvh__closest8_base(tree, ray, hit, loc);
+}
+/* The top level's leaf step: instance `inst` skipped by mask, else the ray in its space and the
+   bottom-level tree traced there (its 8-wide layout where it has one). */
+BVH__INLINE int bvh__instance_step(void *arg, bvh_ray *ray, uint32_t inst, int isa) {
     bvh__scene_ctx *c = BVH__CAST(bvh__scene_ctx *, arg);
     const bvh_instance *in = &c->scene->instances[inst];
+    const bvh_tree *t = in->tree;
     bvh_ray local;
     bvh_hit h;
     bvh__best at;
-    (void)ref;
     if (!(in->mask & c->mask)) return 0;
-    /* a top-level leaf holds several instances: each one's own box first, as the top level's
-       nodes are tested (the same slab test, so no hit inside it is culled), before the ray's
-       transform and the bottom level's set-up */
-    if (c->scene->own_box[inst] && bvh__slab_box(rx, &c->scene->boxes[inst], ray->tmax) == BVH_INF) return 0;
-    local = bvh_ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
-    if (c->any) return in->custom ? bvh_occluded_custom(in->tree, &local, in->custom) : bvh_occluded(in->tree, &local);
-    memset(&at, 0, sizeof at);
+    local = bvh__ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
+    if (c->any) {
+        if (in->custom) return bvh_occluded_custom(t, &local, in->custom);
+        return t->nodes8 && t->tris ? bvh__trace8_isa(t, &local, NULL, NULL, 1, isa) : bvh_occluded(t, &local);
+    }
+    at.pk = NULL; /* a hit without a packet: the normal from tree.tris */
     if (in->custom) {
-        if (!bvh_intersect_custom(in->tree, &local, &h, in->custom)) return 0;
-    } else if (in->tree->nodes8 && in->tree->tris) { /* the packet keeps the hit's vertices for the normal */
-        if (!bvh__traverse8_at(in->tree, &local, &h, &at, 0)) return 0;
-    } else if (!bvh_intersect(in->tree, &local, &h))
+        if (!bvh_intersect_custom(t, &local, &h, in->custom)) return 0;
+    } else if (t->nodes8 && t->tris) { /* the packet keeps the hit's vertices for the normal */
+        if (!bvh__trace8_isa(t, &local, &h, &at, 0, isa)) return 0;
+    } else if (!bvh_intersect(t, &local, &h))
         return 0;
     if (h.t == ray->tmax && inst > c->instance) return 0; /* ties: the lowest instance */
     c->instance = inst;
@@ -7656,6 +7770,34 @@ static int bvh__instance_step(void *arg, bvh_ray *ray, bvh__rayx *rx, uint32_t r
     c->at = at;
     ray->tmax = h.t;
     return 1;
+}
+/* The top level's 8-wide traversal with the instance step, compiled for each ISA. */
+BVH__INLINE int bvh__scene_top8(const bvh_scene *scene, const bvh_ray *ray, bvh__scene_ctx *c, int any, int isa) {
+    bvh__rayx rx;
+    bvh__ray8 q;
+    bvh_ray w = *ray;
+#ifdef BVH__SSE
+    if (!bvh__ray8_start(ray, &rx, &q, !isa)) return 0;
+#else
+    if (!bvh__ray_setup(ray, &rx)) return 0;
+#endif
+    return bvh__traverse8_body(scene->top8, NULL, &rx, &q, ray->tmax, NULL, NULL, any, isa, bvh__instance_step, c, &w);
+}
+#ifdef BVH__AVX2
+__attribute__((target("avx2"))) static int bvh__scene_closest8_avx2(const bvh_scene *s, const bvh_ray *r,
+                                                                    bvh__scene_ctx *c) {
+    return bvh__scene_top8(s, r, c, 0, 1);
+}
+__attribute__((target("avx2"))) static int bvh__scene_any8_avx2(const bvh_scene *s, const bvh_ray *r,
+                                                                bvh__scene_ctx *c) {
+    return bvh__scene_top8(s, r, c, 1, 1);
+}
+#endif
+static int bvh__scene_closest8_base(const bvh_scene *s, const bvh_ray *r, bvh__scene_ctx *c) {
+    return bvh__scene_top8(s, r, c, 0, 0);
+}
+static int bvh__scene_any8_base(const bvh_scene *s, const bvh_ray *r, bvh__scene_ctx *c) {
+    return bvh__scene_top8(s, r, c, 1, 0);
 }
 /* The world normal of the best hit: M^-T times the object-space normal, normalised. The vertices
    come from the hit's packet, which the traversal has just read (the same floats as tree.tris),
@@ -7710,7 +7852,14 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
     c.hit.u = c.hit.v = 0.0f;
     c.hit.prim = BVH_INVALID;
     memset(&c.at, 0, sizeof c.at);
-    if (scene && ray && mask) found = bvh__trace_leaves(&scene->top, ray, any, bvh__instance_step, &c, NULL);
+    if (scene && ray && mask && scene->top8_count) {
+#ifdef BVH__AVX2
+        if (bvh__have_avx2())
+            found = any ? bvh__scene_any8_avx2(scene, ray, &c) : bvh__scene_closest8_avx2(scene, ray, &c);
+        else
+#endif
+            found = any ? bvh__scene_any8_base(scene, ray, &c) : bvh__scene_closest8_base(scene, ray, &c);
+    }
     if (!hit) return found;
     hit->t = ray ? ray->tmax : BVH_INF;
     hit->u = hit->v = 0.0f;

@@ -7439,10 +7439,10 @@ BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit
 
 /* ============================================================================================ */
 /* == instances: two-level scenes ================================================================ */
-/* The top level is a box tree over the instances' world boxes, traced by bvh__trace_leaves with
-   a leaf step that skips instances by mask, transforms the ray into the instance's space and
-   traces the bottom-level tree there with bvh_intersect / bvh_occluded (the 8-wide layout where
-   the tree has one). The best hit keeps the instance, the mesh's triangle and t; the normal of
+/* The top level is a box tree over the instances' world boxes (tree.nodes, for OpenCL and the
+   caller), traced on the CPU through its 8-wide copy (bvh_scene.top8) by the 8-wide loop with a
+   leaf step that skips instances by mask, transforms the ray into the instance's space and
+   traces the bottom-level tree there (its 8-wide layout where it has one, for the same ISA). The best hit keeps the instance, the mesh's triangle and t; the normal of
    the final hit is computed from the tree's copy of the triangle (tree.tris, in reference order),
    found by a map from triangle to reference that the scene makes once per distinct
    bottom-level tree (walking the tree again to find it would cost about as much as the trace). */

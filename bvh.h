@@ -648,8 +648,9 @@ typedef struct bvh_scene {
     float *inverse;          /* 12 floats per instance: world to object (bvh_ray_transform) */
     bvh_aabb *boxes;         /* per instance: its world box (the boxes the top level was built on) */
     bvh_node8 *top8;         /* the top level as CPU tracing reads it: 8-wide nodes whose leaf
-                                slots hold one instance each (child: its index, count 1), its box
-                                the slot's; built from top by bvh_scene_build */
+                                slots hold one instance each (child: its index; count 1, or 2
+                                where its transform is the identity), its box the slot's; built
+                                from top by bvh_scene_build */
     uint32_t top8_count;
     uint32_t instance_count;
     uint32_t *mesh;        /* per instance: its tree's number among the distinct trees */
@@ -6855,10 +6856,12 @@ BVH__INLINE void bvh__push8(const bvh_node8 *nodes, const bvh_tri4 *tri4, const 
     ++*sp;
 }
 /* A leaf step of the 8-wide loop for leaves that are not triangle packets (a scene's top level:
-   one instance a leaf slot): tests item `item` (the slot's child) with the world ray, whose tmax
-   is the best t so far; returns 1 when it took a hit as the new best and lowered ray->tmax to its
-   t. isa as bvh__traverse8_body's. */
-typedef int (*bvh__slot_step)(void *ctx, bvh_ray *ray, uint32_t item, int isa);
+   one instance a leaf slot): tests item `item` (the slot's child; count, the slot's count, says
+   what kind of item) with the world ray, whose tmax is the best t so far, set up as rx and q;
+   returns 1 when it took a hit as the new best and lowered ray->tmax to its t. isa as
+   bvh__traverse8_body's. */
+typedef int (*bvh__slot_step)(void *ctx, bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, uint32_t item,
+                              uint32_t count, int isa);
 /* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
    order, unsorted), the farther ones on the stack; a leaf's packets tested at once, or, with a
    step (and tri4 NULL), each leaf slot handed to it with the world ray wray. isa (a constant:
@@ -6931,7 +6934,7 @@ BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4
                 continue;
             }
         } else if (step) { /* a leaf slot: its item */
-            if (step(ctx, wray, cur, isa)) {
+            if (step(ctx, wray, rx, q, cur, lc, isa)) {
                 best.prim = cur;
                 best.t = tbest = wray->tmax;
                 if (any) goto out;
@@ -6968,49 +6971,74 @@ out:
     if (loc) *loc = best;
     return 1;
 }
-/* The ray's set-up and the loop in one function for each slab test, so that a ray that misses
-   after a node or two pays one call, and its set-up is not passed on through memory. hit, when given,
+/* The loop on a ray already set up (rx, q: bvh__ray8_start's, with sse = !isa), one function for
+   each ISA and kind, so that the public calls and a scene's instances share them. hit, when given,
    gets the miss record (t = tmax, prim BVH_INVALID) where no triangle is hit, as bvh__traverse;
-   loc, when given, the hit's packet and lane too (untouched on a miss). */
-BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc, int any, int isa) {
-    bvh__rayx rx;
-    bvh__ray8 q;
-#ifdef BVH__SSE
-    if (bvh__ray8_start(ray, &rx, &q, !isa) &&
-        bvh__traverse8_body(tree->nodes8, tree->tri4, &rx, &q, ray->tmax, hit, loc, any, isa, NULL, NULL, NULL))
-        return 1;
-#else
-    if (bvh__ray_setup(ray, &rx) &&
-        bvh__traverse8_body(tree->nodes8, tree->tri4, &rx, &q, ray->tmax, hit, loc, any, isa, NULL, NULL, NULL))
-        return 1;
-#endif
+   loc, when given, the hit's packet and lane too (untouched on a miss). rx gets the shear. */
+BVH__INLINE int bvh__trace8(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
+                            bvh__best *loc, int any, int isa) {
+    if (bvh__traverse8_body(tree->nodes8, tree->tri4, rx, q, tmax, hit, loc, any, isa, NULL, NULL, NULL)) return 1;
     if (hit) {
-        hit->t = ray->tmax;
+        hit->t = tmax;
         hit->u = hit->v = 0.0f;
         hit->prim = BVH_INVALID;
     }
     return 0;
 }
 #ifdef BVH__AVX2
-__attribute__((target("avx2"), flatten)) static int bvh__closest8_avx2(const bvh_tree *tree, const bvh_ray *ray,
-                                                                       bvh_hit *hit, bvh__best *loc) {
-    return bvh__trace8(tree, ray, hit, loc, 0, 1);
+__attribute__((target("avx2"), flatten)) static int bvh__closest8_avx2(const bvh_tree *tree, bvh__rayx *rx,
+                                                                       const bvh__ray8 *q, float tmax, bvh_hit *hit,
+                                                                       bvh__best *loc) {
+    return bvh__trace8(tree, rx, q, tmax, hit, loc, 0, 1);
 }
-__attribute__((target("avx2"), flatten)) static int bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray) {
-    return bvh__trace8(tree, ray, NULL, NULL, 1, 1);
+__attribute__((target("avx2"), flatten)) static int bvh__any8_avx2(const bvh_tree *tree, bvh__rayx *rx,
+                                                                   const bvh__ray8 *q, float tmax) {
+    return bvh__trace8(tree, rx, q, tmax, NULL, NULL, 1, 1);
 }
 #endif
-static int bvh__closest8_base(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc) {
-    return bvh__trace8(tree, ray, hit, loc, 0, 0);
+static int bvh__closest8_base(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
+                              bvh__best *loc) {
+    return bvh__trace8(tree, rx, q, tmax, hit, loc, 0, 0);
 }
-static int bvh__any8_base(const bvh_tree *tree, const bvh_ray *ray) { return bvh__trace8(tree, ray, NULL, NULL, 1, 0); }
-/* The wide traversal for the single-ray calls and the batches: tree->nodes8 is set only on a
-   tree with triangles and nodes (bvh__make_wide), which is all bvh__traverse checks first. */
-BVH__INLINE int bvh__traverse8_at(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc, int any) {
+static int bvh__any8_base(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax) {
+    return bvh__trace8(tree, rx, q, tmax, NULL, NULL, 1, 0);
+}
+/* The loop for the ISA isa (a constant where inlined) on a ray set up for it. */
+BVH__INLINE int bvh__trace8_isa(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
+                                bvh__best *loc, int any, int isa) {
 #ifdef BVH__AVX2
-    if (bvh__have_avx2()) return any ? bvh__any8_avx2(tree, ray) : bvh__closest8_avx2(tree, ray, hit, loc);
+    if (isa) return any ? bvh__any8_avx2(tree, rx, q, tmax) : bvh__closest8_avx2(tree, rx, q, tmax, hit, loc);
 #endif
-    return any ? bvh__any8_base(tree, ray) : bvh__closest8_base(tree, ray, hit, loc);
+    (void)isa;
+    return any ? bvh__any8_base(tree, rx, q, tmax) : bvh__closest8_base(tree, rx, q, tmax, hit, loc);
+}
+/* The ray's set-up for the wide loop (0: a ray no box can take, see bvh__ray_setup). */
+BVH__INLINE int bvh__ray8_setup(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int isa) {
+#ifdef BVH__SSE
+    return bvh__ray8_start(ray, rx, q, !isa);
+#else
+    (void)q;
+    (void)isa;
+    return bvh__ray_setup(ray, rx);
+#endif
+}
+/* The ray's set-up and the loop for an unknown ISA (the CPU's, asked once per ray: a cached
+   flag). */
+BVH__INLINE int bvh__traverse8_at(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc, int any) {
+    bvh__rayx rx;
+    bvh__ray8 q;
+#ifdef BVH__AVX2
+    const int isa = bvh__have_avx2();
+#else
+    const int isa = 0;
+#endif
+    if (bvh__ray8_setup(ray, &rx, &q, isa)) return bvh__trace8_isa(tree, &rx, &q, ray->tmax, hit, loc, any, isa);
+    if (hit) {
+        hit->t = ray->tmax;
+        hit->u = hit->v = 0.0f;
+        hit->prim = BVH_INVALID;
+    }
+    return 0;
 }
 BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
     return bvh__traverse8_at(tree, ray, hit, NULL, any);
@@ -7597,6 +7625,9 @@ static bvh_result bvh__scene_maps(bvh_scene *sc) {
    split references a leaf's box may be clipped; the whole instance box still holds every hit the
    clipped part does). Children after their parent; recursion as deep as the binary tree plus
    log2(BVH__MAX_LEAF). */
+#define BVH__TOP_MOVED 1u    /* a top8 leaf slot's count: the ray is transformed into the instance */
+#define BVH__TOP_IDENTITY 2u /* ... its transform is the identity (bit for bit): the world ray is it */
+static const float bvh__identity34[12] = {1.0f, 0.0f, 0.0f, 0.0f, 0.0f, 1.0f, 0.0f, 0.0f, 0.0f, 0.0f, 1.0f, 0.0f};
 typedef struct bvh__top_item {
     uint32_t node;         /* a binary interior node, or BVH_INVALID: ... */
     uint32_t first, count; /* ... references first .. first + count - 1 */
@@ -7662,8 +7693,11 @@ static uint32_t bvh__top8_node(bvh_scene *s, bvh__top_item it) {
         out->max[1][i] = b.max.y;
         out->max[2][i] = b.max.z;
         if (items[i].node == BVH_INVALID && items[i].count == 1) {
-            out->child[i] = s->top.prims[items[i].first];
-            out->count[i] = 1;
+            const uint32_t inst = s->top.prims[items[i].first];
+            out->child[i] = inst;
+            out->count[i] = (uint8_t)(memcmp(s->instances[inst].transform, bvh__identity34, sizeof bvh__identity34)
+                                          ? BVH__TOP_MOVED
+                                          : BVH__TOP_IDENTITY);
         } else {
             const uint32_t c = bvh__top8_node(s, items[i]); /* out stays valid: top8 is allocated whole */
             s->top8[w].child[i] = c;
@@ -7732,38 +7766,38 @@ typedef struct bvh__scene_ctx {
     bvh_hit hit;       /* its hit in the bottom-level tree (t is world t) */
     bvh__best at;      /* its packet and lane (pk NULL: a tree without the wide layout) */
 } bvh__scene_ctx;
-/* The 8-wide traversal of a tree with a wide layout, for the ISA the caller runs on (isa a
-   constant): no dispatch, no argument checks (a scene's trees were checked when it was built). */
-BVH__INLINE int bvh__trace8_isa(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc, int any,
-                                int isa) {
-#ifdef BVH__AVX2
-    if (isa) return any ? bvh__any8_avx2(tree, ray) : bvh__closest8_avx2(tree, ray, hit, loc);
-#endif
-    (void)isa;
-    return any ? bvh__any8_base(tree, ray) : bvh__closest8_base(tree, ray, hit, loc);
-}
 /* The top level's leaf step: instance `inst` skipped by mask, else the ray in its space and the
-   bottom-level tree traced there (its 8-wide layout where it has one). */
-BVH__INLINE int bvh__instance_step(void *arg, bvh_ray *ray, uint32_t inst, int isa) {
+   bottom-level tree traced there: its 8-wide layout (where it has one) for the same ISA, on the
+   world ray's own set-up (rx, q) where the instance's transform is the identity (kind
+   BVH__TOP_IDENTITY: the transform would give back the same ray). */
+BVH__INLINE int bvh__instance_step(void *arg, bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, uint32_t inst,
+                                   uint32_t kind, int isa) {
     bvh__scene_ctx *c = BVH__CAST(bvh__scene_ctx *, arg);
     const bvh_instance *in = &c->scene->instances[inst];
     const bvh_tree *t = in->tree;
+    const float *inv = c->scene->inverse + 12 * (size_t)inst;
     bvh_ray local;
+    bvh__rayx lrx;
+    bvh__ray8 lq;
     bvh_hit h;
     bvh__best at;
     if (!(in->mask & c->mask)) return 0;
-    local = bvh__ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
-    if (c->any) {
-        if (in->custom) return bvh_occluded_custom(t, &local, in->custom);
-        return t->nodes8 && t->tris ? bvh__trace8_isa(t, &local, NULL, NULL, 1, isa) : bvh_occluded(t, &local);
-    }
     at.pk = NULL; /* a hit without a packet: the normal from tree.tris */
-    if (in->custom) {
-        if (!bvh_intersect_custom(t, &local, &h, in->custom)) return 0;
-    } else if (t->nodes8 && t->tris) { /* the packet keeps the hit's vertices for the normal */
-        if (!bvh__trace8_isa(t, &local, &h, &at, 0, isa)) return 0;
-    } else if (!bvh_intersect(t, &local, &h))
-        return 0;
+    if (!in->custom && t->nodes8 && t->tris) {
+        if (kind != BVH__TOP_IDENTITY) {
+            local = bvh__ray_transform(ray, inv);
+            if (!bvh__ray8_setup(&local, &lrx, &lq, isa)) return 0;
+            rx = &lrx;
+            q = &lq;
+        }
+        if (c->any) return bvh__trace8_isa(t, rx, q, ray->tmax, NULL, NULL, 1, isa);
+        /* the packet keeps the hit's vertices for the normal */
+        if (!bvh__trace8_isa(t, rx, q, ray->tmax, &h, &at, 0, isa)) return 0;
+    } else {
+        local = bvh__ray_transform(ray, inv);
+        if (c->any) return in->custom ? bvh_occluded_custom(t, &local, in->custom) : bvh_occluded(t, &local);
+        if (in->custom ? !bvh_intersect_custom(t, &local, &h, in->custom) : !bvh_intersect(t, &local, &h)) return 0;
+    }
     if (h.t == ray->tmax && inst > c->instance) return 0; /* ties: the lowest instance */
     c->instance = inst;
     c->hit = h;
@@ -7776,11 +7810,7 @@ BVH__INLINE int bvh__scene_top8(const bvh_scene *scene, const bvh_ray *ray, bvh_
     bvh__rayx rx;
     bvh__ray8 q;
     bvh_ray w = *ray;
-#ifdef BVH__SSE
-    if (!bvh__ray8_start(ray, &rx, &q, !isa)) return 0;
-#else
-    if (!bvh__ray_setup(ray, &rx)) return 0;
-#endif
+    if (!bvh__ray8_setup(ray, &rx, &q, isa)) return 0;
     return bvh__traverse8_body(scene->top8, NULL, &rx, &q, ray->tmax, NULL, NULL, any, isa, bvh__instance_step, c, &w);
 }
 #ifdef BVH__AVX2

@@ -6694,8 +6694,8 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
    same bits as bvh__slab_t. */
 typedef struct bvh__ray8 {
     __m128 o[3], inv[3], tmin;
-    int near8[3], far8[3];
-    float so[3], sinv[3], stmin; /* the same as scalars, for the AVX2 test to broadcast */
+    int near8[4], far8[4];       /* [3]: unused (the AVX2 set-up stores four lanes) */
+    float so[4], sinv[4], stmin; /* the same as scalars, for the AVX2 test to broadcast */
 } bvh__ray8;
 /* bvh__ray_setup for the wide traversal, and the ray as the slab tests want it: the same bits (SSE
    rounds 1 / d as scalar code does), the three axes at once. Only what the SIMD wide traversal
@@ -6715,6 +6715,20 @@ BVH__INLINE void bvh__ray8_axis(bvh__ray8 *q, int a, int k, unsigned neg, const 
     q->near8[a] = 8 * k + 24 * n;
     q->far8[a] = 8 * k + 24 - 24 * n;
 }
+#ifdef BVH__AVX2
+/* bvh__ray8_axis on the three axes at once: o and inv permuted to (kx, ky, kz) and the plane
+   offsets from the sign bits, in vector registers (AVX2's variable permute and shift). */
+__attribute__((target("avx2"))) static inline void bvh__ray8_axes_avx2(bvh__ray8 *q, const bvh__rayx *rx, __m128 o,
+                                                                       __m128 inv, unsigned neg) {
+    const __m128i k = _mm_setr_epi32(rx->kx, rx->ky, rx->kz, 0);
+    const __m128i n = _mm_and_si128(_mm_srlv_epi32(_mm_set1_epi32((int)neg), k), _mm_set1_epi32(1));
+    const __m128i k8 = _mm_slli_epi32(k, 3), n24 = _mm_add_epi32(_mm_slli_epi32(n, 4), _mm_slli_epi32(n, 3));
+    _mm_storeu_ps(q->so, _mm_permutevar_ps(o, k));
+    _mm_storeu_ps(q->sinv, _mm_permutevar_ps(_mm_xor_ps(inv, _mm_set1_ps(-0.0f)), k)); /* -inv, bit for bit */
+    _mm_storeu_si128((__m128i *)(void *)q->near8, _mm_add_epi32(k8, n24));
+    _mm_storeu_si128((__m128i *)(void *)q->far8, _mm_sub_epi32(_mm_add_epi32(k8, _mm_set1_epi32(24)), n24));
+}
+#endif
 BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int sse) {
     const __m128 o = _mm_loadu_ps(&ray->origin.x), d0 = _mm_loadu_ps(&ray->dir.x); /* xyz, tmin / tmax */
     const __m128 absm = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)), inf = _mm_set1_ps(BVH_INF);
@@ -6743,9 +6757,16 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     rx->kx = bvh__kxy[neg >> rx->kz & 1u][rx->kz][0];
     rx->ky = bvh__kxy[neg >> rx->kz & 1u][rx->kz][1];
     /* the slab tests' axes in the order kx, ky, kz (kz last: its distances give the slack) */
-    bvh__ray8_axis(q, 0, rx->kx, neg, odi);
-    bvh__ray8_axis(q, 1, rx->ky, neg, odi);
-    bvh__ray8_axis(q, 2, rx->kz, neg, odi);
+#ifdef BVH__AVX2
+    if (!sse) /* the AVX2 loop's set-up */
+        bvh__ray8_axes_avx2(q, rx, o, inv, neg);
+    else
+#endif
+    {
+        bvh__ray8_axis(q, 0, rx->kx, neg, odi);
+        bvh__ray8_axis(q, 1, rx->ky, neg, odi);
+        bvh__ray8_axis(q, 2, rx->kz, neg, odi);
+    }
     q->stmin = rx->tmin;
     if (sse) {
         for (a = 0; a < 3; a++) {
@@ -6836,9 +6857,9 @@ typedef struct bvh__ray8 {
    nearer children are being tested (the nearest child is read at once: asking for it gains
    nothing). */
 BVH__INLINE void bvh__push8(const bvh_node8 *nodes, const bvh_tri4 *tri4, const bvh_node8 *n, unsigned i,
-                            const float *tn, bvh__entry8 *stack, uint32_t *sp) {
+                            const float *tn, bvh__entry8 *stack, uint32_t *sp, int packets) {
     const uint32_t c = n->child[i], k = n->count[i];
-    if (tri4) { /* NULL (a constant where inlined): leaves of instances, whose lines are elsewhere */
+    if (packets) { /* a constant where inlined; 0: leaves of instances, whose lines are elsewhere */
         /* a select, not a branch: leaves and nodes alternate at random */
         const uintptr_t leaf = (uintptr_t)0 - (uintptr_t)(k != 0);
         const char *a = (const char *)(((uintptr_t)(tri4 + c) & leaf) | ((uintptr_t)(nodes + c) & ~leaf));
@@ -6906,13 +6927,13 @@ BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4
                         i0 = i1;
                         i1 = x;
                     }
-                    bvh__push8(nodes, tri4, n, i1, tn, stack, &sp);
+                    bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step);
                 } else if (any) { /* any hit: in slot order */
                     m |= 1u << i1;
                     while (m) {
                         i1 = BVH__CTZ(m);
                         m &= m - 1;
-                        bvh__push8(nodes, tri4, n, i1, tn, stack, &sp);
+                        bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step);
                     }
                 } else { /* three or more: insertion by entry distance, nearest first */
                     uint32_t idx[BVH__W], k = 2, j;
@@ -6926,7 +6947,7 @@ BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4
                         k++;
                     }
                     for (j = k - 1; j > 0; j--) /* farthest at the bottom */
-                        bvh__push8(nodes, tri4, n, idx[j], tn, stack, &sp);
+                        bvh__push8(nodes, tri4, n, idx[j], tn, stack, &sp, !step);
                     i0 = idx[0];
                 }
                 cur = n->child[i0];
@@ -6971,47 +6992,6 @@ out:
     if (loc) *loc = best;
     return 1;
 }
-/* The loop on a ray already set up (rx, q: bvh__ray8_start's, with sse = !isa), one function for
-   each ISA and kind, so that the public calls and a scene's instances share them. hit, when given,
-   gets the miss record (t = tmax, prim BVH_INVALID) where no triangle is hit, as bvh__traverse;
-   loc, when given, the hit's packet and lane too (untouched on a miss). rx gets the shear. */
-BVH__INLINE int bvh__trace8(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
-                            bvh__best *loc, int any, int isa) {
-    if (bvh__traverse8_body(tree->nodes8, tree->tri4, rx, q, tmax, hit, loc, any, isa, NULL, NULL, NULL)) return 1;
-    if (hit) {
-        hit->t = tmax;
-        hit->u = hit->v = 0.0f;
-        hit->prim = BVH_INVALID;
-    }
-    return 0;
-}
-#ifdef BVH__AVX2
-__attribute__((target("avx2"), flatten)) static int bvh__closest8_avx2(const bvh_tree *tree, bvh__rayx *rx,
-                                                                       const bvh__ray8 *q, float tmax, bvh_hit *hit,
-                                                                       bvh__best *loc) {
-    return bvh__trace8(tree, rx, q, tmax, hit, loc, 0, 1);
-}
-__attribute__((target("avx2"), flatten)) static int bvh__any8_avx2(const bvh_tree *tree, bvh__rayx *rx,
-                                                                   const bvh__ray8 *q, float tmax) {
-    return bvh__trace8(tree, rx, q, tmax, NULL, NULL, 1, 1);
-}
-#endif
-static int bvh__closest8_base(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
-                              bvh__best *loc) {
-    return bvh__trace8(tree, rx, q, tmax, hit, loc, 0, 0);
-}
-static int bvh__any8_base(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax) {
-    return bvh__trace8(tree, rx, q, tmax, NULL, NULL, 1, 0);
-}
-/* The loop for the ISA isa (a constant where inlined) on a ray set up for it. */
-BVH__INLINE int bvh__trace8_isa(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
-                                bvh__best *loc, int any, int isa) {
-#ifdef BVH__AVX2
-    if (isa) return any ? bvh__any8_avx2(tree, rx, q, tmax) : bvh__closest8_avx2(tree, rx, q, tmax, hit, loc);
-#endif
-    (void)isa;
-    return any ? bvh__any8_base(tree, rx, q, tmax) : bvh__closest8_base(tree, rx, q, tmax, hit, loc);
-}
 /* The ray's set-up for the wide loop (0: a ray no box can take, see bvh__ray_setup). */
 BVH__INLINE int bvh__ray8_setup(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int isa) {
 #ifdef BVH__SSE
@@ -7022,23 +7002,66 @@ BVH__INLINE int bvh__ray8_setup(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     return bvh__ray_setup(ray, rx);
 #endif
 }
-/* The ray's set-up and the loop for an unknown ISA (the CPU's, asked once per ray: a cached
-   flag). */
-BVH__INLINE int bvh__traverse8_at(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc, int any) {
-    bvh__rayx rx;
-    bvh__ray8 q;
-#ifdef BVH__AVX2
-    const int isa = bvh__have_avx2();
-#else
-    const int isa = 0;
-#endif
-    if (bvh__ray8_setup(ray, &rx, &q, isa)) return bvh__trace8_isa(tree, &rx, &q, ray->tmax, hit, loc, any, isa);
+/* The ray's set-up and the loop in one function for each ISA and kind, so that a ray that misses
+   after a node or two pays one call, and its set-up is not passed on through memory; or, with
+   ray NULL, the loop on a ray already set up for this ISA (rx, q, tmax: a scene's world ray for
+   an instance placed by the identity; rx gets the shear). hit, when given, gets the miss record
+   (t = tmax, prim BVH_INVALID) where no triangle is hit, as bvh__traverse; loc, when given, the
+   hit's packet and lane too (untouched on a miss). */
+BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, float tmax,
+                            bvh_hit *hit, bvh__best *loc, int any, int isa) {
+    bvh__rayx own;
+    bvh__ray8 oq;
+    if (ray) {
+        tmax = ray->tmax;
+        rx = &own;
+        q = &oq;
+        if (!bvh__ray8_setup(ray, &own, &oq, isa)) goto miss;
+    }
+    if (bvh__traverse8_body(tree->nodes8, tree->tri4, rx, q, tmax, hit, loc, any, isa, NULL, NULL, NULL)) return 1;
+miss:
     if (hit) {
-        hit->t = ray->tmax;
+        hit->t = tmax;
         hit->u = hit->v = 0.0f;
         hit->prim = BVH_INVALID;
     }
     return 0;
+}
+#ifdef BVH__AVX2
+__attribute__((target("avx2"), flatten)) static int bvh__closest8_avx2(const bvh_tree *tree, const bvh_ray *ray,
+                                                                       bvh__rayx *rx, const bvh__ray8 *q, float tmax,
+                                                                       bvh_hit *hit, bvh__best *loc) {
+    return bvh__trace8(tree, ray, rx, q, tmax, hit, loc, 0, 1);
+}
+__attribute__((target("avx2"), flatten)) static int bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray,
+                                                                   bvh__rayx *rx, const bvh__ray8 *q, float tmax) {
+    return bvh__trace8(tree, ray, rx, q, tmax, NULL, NULL, 1, 1);
+}
+#endif
+static int bvh__closest8_base(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, float tmax,
+                              bvh_hit *hit, bvh__best *loc) {
+    return bvh__trace8(tree, ray, rx, q, tmax, hit, loc, 0, 0);
+}
+static int bvh__any8_base(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, float tmax) {
+    return bvh__trace8(tree, ray, rx, q, tmax, NULL, NULL, 1, 0);
+}
+/* bvh__trace8 for the ISA isa (a constant where inlined). */
+BVH__INLINE int bvh__trace8_isa(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q,
+                                float tmax, bvh_hit *hit, bvh__best *loc, int any, int isa) {
+#ifdef BVH__AVX2
+    if (isa) return any ? bvh__any8_avx2(tree, ray, rx, q, tmax) : bvh__closest8_avx2(tree, ray, rx, q, tmax, hit, loc);
+#endif
+    (void)isa;
+    return any ? bvh__any8_base(tree, ray, rx, q, tmax) : bvh__closest8_base(tree, ray, rx, q, tmax, hit, loc);
+}
+/* The wide traversal for the single-ray calls and the batches, on the CPU's ISA: tree->nodes8 is
+   set only on a tree with triangles and nodes (bvh__make_wide), which is all bvh__traverse
+   checks first. */
+BVH__INLINE int bvh__traverse8_at(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc, int any) {
+#ifdef BVH__AVX2
+    if (bvh__have_avx2()) return bvh__trace8_isa(tree, ray, NULL, NULL, 0.0f, hit, loc, any, 1);
+#endif
+    return bvh__trace8_isa(tree, ray, NULL, NULL, 0.0f, hit, loc, any, 0);
 }
 BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
     return bvh__traverse8_at(tree, ray, hit, NULL, any);
@@ -7777,22 +7800,19 @@ BVH__INLINE int bvh__instance_step(void *arg, bvh_ray *ray, bvh__rayx *rx, const
     const bvh_tree *t = in->tree;
     const float *inv = c->scene->inverse + 12 * (size_t)inst;
     bvh_ray local;
-    bvh__rayx lrx;
-    bvh__ray8 lq;
     bvh_hit h;
     bvh__best at;
     if (!(in->mask & c->mask)) return 0;
     at.pk = NULL; /* a hit without a packet: the normal from tree.tris */
     if (!in->custom && t->nodes8 && t->tris) {
+        const bvh_ray *r = NULL; /* NULL: the world ray's set-up */
         if (kind != BVH__TOP_IDENTITY) {
             local = bvh__ray_transform(ray, inv);
-            if (!bvh__ray8_setup(&local, &lrx, &lq, isa)) return 0;
-            rx = &lrx;
-            q = &lq;
+            r = &local;
         }
-        if (c->any) return bvh__trace8_isa(t, rx, q, ray->tmax, NULL, NULL, 1, isa);
+        if (c->any) return bvh__trace8_isa(t, r, rx, q, ray->tmax, NULL, NULL, 1, isa);
         /* the packet keeps the hit's vertices for the normal */
-        if (!bvh__trace8_isa(t, rx, q, ray->tmax, &h, &at, 0, isa)) return 0;
+        if (!bvh__trace8_isa(t, r, rx, q, ray->tmax, &h, &at, 0, isa)) return 0;
     } else {
         local = bvh__ray_transform(ray, inv);
         if (c->any) return in->custom ? bvh_occluded_custom(t, &local, in->custom) : bvh_occluded(t, &local);

@@ -6573,7 +6573,7 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
         __m256 x0, y0, z0, x1, y1, z1, x2, y2, z2, U, V, W, ft, det, neg, pos, T, ok, tn, tf, slack;
         const __m256 sz = _mm256_set1_ps(r->sz);
         unsigned m, zm;
-        int k;
+        int a;
         bvh__shear8(r, p, p1, 0, &x0, &y0, &z0);
         bvh__shear8(r, p, p1, 1, &x1, &y1, &z1);
         bvh__shear8(r, p, p1, 2, &x2, &y2, &z2);
@@ -6618,20 +6618,23 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
         m &= (unsigned)_mm256_movemask_ps(ok);
         if (!m) continue;
         /* bvh__reach4 on eight lanes: the triangles' boxes (bvh__tri_box) reached by ft */
+        /* the axes in the order kx, ky, kz (max and min ignore a NaN first operand, so the order
+           does not change the bits), kz's distances last for the slack; the near plane chosen
+           by the sign of inv in a blend: branches on a random direction would be random */
         tn = _mm256_set1_ps(r->tmin);
         tf = inf;
         slack = zero;
-        for (k = 0; k < 3; k++) {
+        for (a = 0; a < 3; a++) {
+            const int k = a == 0 ? r->kx : a == 1 ? r->ky : kz;
             const __m256 v0 = bvh__load8(p->v[0][k], p1->v[0][k]), v1 = bvh__load8(p->v[1][k], p1->v[1][k]);
             const __m256 v2 = bvh__load8(p->v[2][k], p1->v[2][k]);
             const __m256 lo = _mm256_min_ps(_mm256_min_ps(v0, v1), v2), hi = _mm256_max_ps(_mm256_max_ps(v0, v1), v2);
-            const __m256 o = _mm256_set1_ps(r->o[k]), inv = _mm256_set1_ps(r->inv[k]);
-            const int ng = r->inv[k] < 0.0f;
-            const __m256 t0 = _mm256_mul_ps(_mm256_sub_ps(ng ? hi : lo, o), inv);
-            const __m256 t1 = _mm256_mul_ps(_mm256_sub_ps(ng ? lo : hi, o), inv);
+            const __m256 o = _mm256_set1_ps(r->o[k]), inv = _mm256_set1_ps(r->inv[k]); /* inv: never -0 */
+            const __m256 t0 = _mm256_mul_ps(_mm256_sub_ps(_mm256_blendv_ps(lo, hi, inv), o), inv);
+            const __m256 t1 = _mm256_mul_ps(_mm256_sub_ps(_mm256_blendv_ps(hi, lo, inv), o), inv);
             tn = _mm256_max_ps(t0, tn);
             tf = _mm256_min_ps(t1, tf);
-            if (k == kz) slack = _mm256_max_ps(t1, _mm256_sub_ps(zero, t0));
+            if (a == 2) slack = _mm256_max_ps(t1, _mm256_sub_ps(zero, t0));
         }
         tf = _mm256_mul_ps(tf, _mm256_set1_ps(1.0000004f));
         tn = _mm256_sub_ps(tn, _mm256_mul_ps(slack, _mm256_set1_ps(3.814697265625e-6f)));

@@ -2720,8 +2720,11 @@ __attribute__((target("avx2"))) static void bvh__ploc_pairs8(bvh__nn *w, size_t 
         }
     }
 }
-/* 1 when the CPU runs AVX2 (the compiler's runtime check; the block search then takes 8 pairs). */
-static int bvh__have_avx2(void) { return __builtin_cpu_supports("avx2") ? 1 : 0; }
+/* 1 when the CPU runs AVX2 (the compiler's runtime check; the block search then takes 8 pairs).
+   POPCNT too, which the 8-wide traversal's AVX2 loop uses: every CPU with AVX2 has it. */
+static int bvh__have_avx2(void) {
+    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt") ? 1 : 0;
+}
 #else
 static int bvh__have_avx2(void) { return 0; }
 #endif
@@ -6844,6 +6847,27 @@ __attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh
         _mm256_and_ps(_mm256_cmp_ps(tn, tf, _CMP_LE_OQ), _mm256_cmp_ps(tn, inf, _CMP_LT_OQ)));
 }
 #define BVH__SLAB8(n, tfar, tn) (isa ? bvh__slab8_avx2(q, n, tfar, tn) : bvh__slab8q(q, n, tfar, tn))
+/* The slots of mask m (three or more) nearest first into idx, by rank rather than by insertion:
+   slot i's place is the number of slots of m whose key is below its own, counted from one compare
+   of all eight keys at once. A key is the distance's bits with the slot number in the lowest
+   three: unique, and in the order of the distances where they are not negative (a box the ray
+   starts in has a distance just below tmin; their order among themselves, reversed, only changes
+   which is visited first). No loop that depends on the distances, so no branch to mispredict but
+   the one over m. Returns the count. */
+__attribute__((target("avx2,popcnt"))) static inline uint32_t bvh__order8_avx2(const float tn[BVH__W], unsigned m,
+                                                                              uint32_t idx[BVH__W]) {
+    const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    const __m256i key =
+        _mm256_or_si256(_mm256_andnot_si256(_mm256_set1_epi32(7), _mm256_castps_si256(_mm256_loadu_ps(tn))), lane);
+    unsigned r = m;
+    while (r) {
+        const unsigned i = BVH__CTZ(r);
+        const __m256i ki = _mm256_permutevar8x32_epi32(key, _mm256_set1_epi32((int)i));
+        r &= r - 1;
+        idx[_mm_popcnt_u32(m & (unsigned)_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(ki, key))))] = i;
+    }
+    return (uint32_t)_mm_popcnt_u32(m);
+}
 #else
 #define BVH__SLAB8(n, tfar, tn) bvh__slab8q(q, n, tfar, tn)
 #endif
@@ -6938,16 +6962,23 @@ BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4
                         m &= m - 1;
                         bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step);
                     }
-                } else { /* three or more: insertion by entry distance, nearest first */
+                } else { /* three or more: nearest first (AVX2: by rank; else by insertion) */
                     uint32_t idx[BVH__W], k = 2, j;
-                    idx[0] = tn[i1] < tn[i0] ? i1 : i0;
-                    idx[1] = tn[i1] < tn[i0] ? i0 : i1;
-                    while (m) {
-                        unsigned i = BVH__CTZ(m);
-                        m &= m - 1;
-                        for (j = k; j > 0 && tn[idx[j - 1]] > tn[i]; j--) idx[j] = idx[j - 1];
-                        idx[j] = i;
-                        k++;
+#ifdef BVH__AVX2
+                    if (isa)
+                        k = bvh__order8_avx2(tn, m | 1u << i0 | 1u << i1, idx);
+                    else
+#endif
+                    {
+                        idx[0] = tn[i1] < tn[i0] ? i1 : i0;
+                        idx[1] = tn[i1] < tn[i0] ? i0 : i1;
+                        while (m) {
+                            unsigned i = BVH__CTZ(m);
+                            m &= m - 1;
+                            for (j = k; j > 0 && tn[idx[j - 1]] > tn[i]; j--) idx[j] = idx[j - 1];
+                            idx[j] = i;
+                            k++;
+                        }
                     }
                     for (j = k - 1; j > 0; j--) /* farthest at the bottom */
                         bvh__push8(nodes, tri4, n, idx[j], tn, stack, &sp, !step);
@@ -7031,12 +7062,12 @@ miss:
     return 0;
 }
 #ifdef BVH__AVX2
-__attribute__((target("avx2"), flatten)) static int bvh__closest8_avx2(const bvh_tree *tree, const bvh_ray *ray,
+__attribute__((target("avx2,popcnt"), flatten)) static int bvh__closest8_avx2(const bvh_tree *tree, const bvh_ray *ray,
                                                                        bvh__rayx *rx, const bvh__ray8 *q, float tmax,
                                                                        bvh_hit *hit, bvh__best *loc) {
     return bvh__trace8(tree, ray, rx, q, tmax, hit, loc, 0, 1);
 }
-__attribute__((target("avx2"), flatten)) static int bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray,
+__attribute__((target("avx2,popcnt"), flatten)) static int bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray,
                                                                    bvh__rayx *rx, const bvh__ray8 *q, float tmax) {
     return bvh__trace8(tree, ray, rx, q, tmax, NULL, NULL, 1, 1);
 }
@@ -7837,11 +7868,11 @@ BVH__INLINE int bvh__scene_top8(const bvh_scene *scene, const bvh_ray *ray, bvh_
     return bvh__traverse8_body(scene->top8, NULL, &rx, &q, ray->tmax, NULL, NULL, any, isa, bvh__instance_step, c, &w);
 }
 #ifdef BVH__AVX2
-__attribute__((target("avx2"))) static int bvh__scene_closest8_avx2(const bvh_scene *s, const bvh_ray *r,
+__attribute__((target("avx2,popcnt"))) static int bvh__scene_closest8_avx2(const bvh_scene *s, const bvh_ray *r,
                                                                     bvh__scene_ctx *c) {
     return bvh__scene_top8(s, r, c, 0, 1);
 }
-__attribute__((target("avx2"))) static int bvh__scene_any8_avx2(const bvh_scene *s, const bvh_ray *r,
+__attribute__((target("avx2,popcnt"))) static int bvh__scene_any8_avx2(const bvh_scene *s, const bvh_ray *r,
                                                                 bvh__scene_ctx *c) {
     return bvh__scene_top8(s, r, c, 1, 1);
 }

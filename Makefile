@@ -56,8 +56,8 @@ $(BUILD)/tests/%: tests/%.c $(HEADERS)
 # Compile checks of the header itself, built and run by `make test` (a warning or a wrong answer
 # fails it): C11 with BVH_STATIC, with and without threads (tests/compile_static.c); two C
 # translation units (tests/two_tu_*.c); C++11 (tests/compile_cpp.cpp); a C++ program linked with
-# the implementation compiled as C; BVH_MALLOC without BVH_FREE refused; the traversal test
-# without SSE (BVH_NO_SIMD), the builder tests without AVX2 (BVH_NO_AVX2). With $(CC)/$(CXX) in
+# the implementation compiled as C; BVH_MALLOC without BVH_FREE refused; the traversal and scene
+# tests without SSE (BVH_NO_SIMD) and without AVX2, the builder tests without AVX2 (BVH_NO_AVX2). With $(CC)/$(CXX) in
 # build/check/cc/, and with clang/clang++ in build/check/clang/ when present. No -D_GNU_SOURCE:
 # the header must build in strict ISO mode.
 CXXSTD      = -std=c++11
@@ -71,6 +71,7 @@ CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
            $(addprefix $(BUILD)/check/$(c)/,static static-no-threads two-tu cxx11 cxx11-links-c)) \
          $(if $(HAVE_CLANG),$(BUILD)/check/clang/fast-math-refused) \
          $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 \
+         $(BUILD)/check/scene-no-simd $(BUILD)/check/scene-no-avx2 \
          $(BUILD)/check/builders-no-avx2 \
          $(BUILD)/check/traversal-fast-math $(BUILD)/check/robust-fast-math \
          $(BUILD)/check/half-allocator-refused $(BUILD)/check/kernel-embedded \
@@ -89,6 +90,13 @@ $(BUILD)/check/traversal-no-simd: tests/test_traversal.c $(HEADERS)
 # The exact-hits traversal test again on the SSE paths only (BVH_NO_AVX2), where the CPU would
 # take the AVX2 slab and packet tests.
 $(BUILD)/check/traversal-no-avx2: tests/test_traversal.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX2 -I. $< -o $@ -lcmocka $(LDLIBS)
+# The scene test likewise: its top level runs the same 8-wide loop with the instance step.
+$(BUILD)/check/scene-no-simd: tests/test_scene.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_SIMD -I. $< -o $@ -lcmocka $(LDLIBS)
+$(BUILD)/check/scene-no-avx2: tests/test_scene.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX2 -I. $< -o $@ -lcmocka $(LDLIBS)
 # cl/bvh_cl.h holds the current cl/trace.cl (`make kernel` copies it in after an edit).

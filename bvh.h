@@ -646,10 +646,12 @@ typedef struct bvh_scene {
     bvh_tree top;            /* over the instances' world boxes; prims = instance indices */
     bvh_instance *instances; /* instance_count copies of desc.instances */
     float *inverse;          /* 12 floats per instance: world to object (bvh_ray_transform) */
-    bvh_aabb *boxes;         /* per instance: its world box (the boxes the top level was built
-                                on), which a ray must reach before it is transformed ... */
-    uint8_t *own_box;        /* ... when own_box[i] is 1: its top-level leaf holds other
-                                instances (alone in a leaf, the leaf's box is its own) */
+    bvh_aabb *boxes;         /* per instance: its world box (the boxes the top level was built on) */
+    bvh_node8 *top8;         /* the top level as CPU tracing reads it: 8-wide nodes whose leaf
+                                slots hold one instance each (child: its index; count 1, or 2
+                                where its transform is the identity), its box the slot's; built
+                                from top by bvh_scene_build */
+    uint32_t top8_count;
     uint32_t instance_count;
     uint32_t *mesh;        /* per instance: its tree's number among the distinct trees */
     size_t *ref_base;      /* per distinct tree: its first entry in ref_of_prim */
@@ -2718,8 +2720,11 @@ __attribute__((target("avx2"))) static void bvh__ploc_pairs8(bvh__nn *w, size_t 
         }
     }
 }
-/* 1 when the CPU runs AVX2 (the compiler's runtime check; the block search then takes 8 pairs). */
-static int bvh__have_avx2(void) { return __builtin_cpu_supports("avx2") ? 1 : 0; }
+/* 1 when the CPU runs AVX2 (the compiler's runtime check; the block search then takes 8 pairs).
+   POPCNT too, which the 8-wide traversal's AVX2 loop uses: every CPU with AVX2 has it. */
+static int bvh__have_avx2(void) {
+    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt") ? 1 : 0;
+}
 #else
 static int bvh__have_avx2(void) { return 0; }
 #endif
@@ -6571,7 +6576,7 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
         __m256 x0, y0, z0, x1, y1, z1, x2, y2, z2, U, V, W, ft, det, neg, pos, T, ok, tn, tf, slack;
         const __m256 sz = _mm256_set1_ps(r->sz);
         unsigned m, zm;
-        int k;
+        int a;
         bvh__shear8(r, p, p1, 0, &x0, &y0, &z0);
         bvh__shear8(r, p, p1, 1, &x1, &y1, &z1);
         bvh__shear8(r, p, p1, 2, &x2, &y2, &z2);
@@ -6616,20 +6621,23 @@ __attribute__((target("avx2"))) static inline int bvh__packets_avx2(const bvh__r
         m &= (unsigned)_mm256_movemask_ps(ok);
         if (!m) continue;
         /* bvh__reach4 on eight lanes: the triangles' boxes (bvh__tri_box) reached by ft */
+        /* the axes in the order kx, ky, kz (max and min ignore a NaN first operand, so the order
+           does not change the bits), kz's distances last for the slack; the near plane chosen
+           by the sign of inv in a blend: branches on a random direction would be random */
         tn = _mm256_set1_ps(r->tmin);
         tf = inf;
         slack = zero;
-        for (k = 0; k < 3; k++) {
+        for (a = 0; a < 3; a++) {
+            const int k = a == 0 ? r->kx : a == 1 ? r->ky : kz;
             const __m256 v0 = bvh__load8(p->v[0][k], p1->v[0][k]), v1 = bvh__load8(p->v[1][k], p1->v[1][k]);
             const __m256 v2 = bvh__load8(p->v[2][k], p1->v[2][k]);
             const __m256 lo = _mm256_min_ps(_mm256_min_ps(v0, v1), v2), hi = _mm256_max_ps(_mm256_max_ps(v0, v1), v2);
-            const __m256 o = _mm256_set1_ps(r->o[k]), inv = _mm256_set1_ps(r->inv[k]);
-            const int ng = r->inv[k] < 0.0f;
-            const __m256 t0 = _mm256_mul_ps(_mm256_sub_ps(ng ? hi : lo, o), inv);
-            const __m256 t1 = _mm256_mul_ps(_mm256_sub_ps(ng ? lo : hi, o), inv);
+            const __m256 o = _mm256_set1_ps(r->o[k]), inv = _mm256_set1_ps(r->inv[k]); /* inv: never -0 */
+            const __m256 t0 = _mm256_mul_ps(_mm256_sub_ps(_mm256_blendv_ps(lo, hi, inv), o), inv);
+            const __m256 t1 = _mm256_mul_ps(_mm256_sub_ps(_mm256_blendv_ps(hi, lo, inv), o), inv);
             tn = _mm256_max_ps(t0, tn);
             tf = _mm256_min_ps(t1, tf);
-            if (k == kz) slack = _mm256_max_ps(t1, _mm256_sub_ps(zero, t0));
+            if (a == 2) slack = _mm256_max_ps(t1, _mm256_sub_ps(zero, t0));
         }
         tf = _mm256_mul_ps(tf, _mm256_set1_ps(1.0000004f));
         tn = _mm256_sub_ps(tn, _mm256_mul_ps(slack, _mm256_set1_ps(3.814697265625e-6f)));
@@ -6692,8 +6700,8 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
    same bits as bvh__slab_t. */
 typedef struct bvh__ray8 {
     __m128 o[3], inv[3], tmin;
-    int near8[3], far8[3];
-    float so[3], sinv[3], stmin; /* the same as scalars, for the AVX2 test to broadcast */
+    int near8[4], far8[4];       /* [3]: unused (the AVX2 set-up stores four lanes) */
+    float so[4], sinv[4], stmin; /* the same as scalars, for the AVX2 test to broadcast */
 } bvh__ray8;
 /* bvh__ray_setup for the wide traversal, and the ray as the slab tests want it: the same bits (SSE
    rounds 1 / d as scalar code does), the three axes at once. Only what the SIMD wide traversal
@@ -6713,6 +6721,20 @@ BVH__INLINE void bvh__ray8_axis(bvh__ray8 *q, int a, int k, unsigned neg, const 
     q->near8[a] = 8 * k + 24 * n;
     q->far8[a] = 8 * k + 24 - 24 * n;
 }
+#ifdef BVH__AVX2
+/* bvh__ray8_axis on the three axes at once: o and inv permuted to (kx, ky, kz) and the plane
+   offsets from the sign bits, in vector registers (AVX2's variable permute and shift). */
+__attribute__((target("avx2"))) static inline void bvh__ray8_axes_avx2(bvh__ray8 *q, const bvh__rayx *rx, __m128 o,
+                                                                       __m128 inv, unsigned neg) {
+    const __m128i k = _mm_setr_epi32(rx->kx, rx->ky, rx->kz, 0);
+    const __m128i n = _mm_and_si128(_mm_srlv_epi32(_mm_set1_epi32((int)neg), k), _mm_set1_epi32(1));
+    const __m128i k8 = _mm_slli_epi32(k, 3), n24 = _mm_add_epi32(_mm_slli_epi32(n, 4), _mm_slli_epi32(n, 3));
+    _mm_storeu_ps(q->so, _mm_permutevar_ps(o, k));
+    _mm_storeu_ps(q->sinv, _mm_permutevar_ps(_mm_xor_ps(inv, _mm_set1_ps(-0.0f)), k)); /* -inv, bit for bit */
+    _mm_storeu_si128((__m128i *)(void *)q->near8, _mm_add_epi32(k8, n24));
+    _mm_storeu_si128((__m128i *)(void *)q->far8, _mm_sub_epi32(_mm_add_epi32(k8, _mm_set1_epi32(24)), n24));
+}
+#endif
 BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int sse) {
     const __m128 o = _mm_loadu_ps(&ray->origin.x), d0 = _mm_loadu_ps(&ray->dir.x); /* xyz, tmin / tmax */
     const __m128 absm = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)), inf = _mm_set1_ps(BVH_INF);
@@ -6741,9 +6763,16 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     rx->kx = bvh__kxy[neg >> rx->kz & 1u][rx->kz][0];
     rx->ky = bvh__kxy[neg >> rx->kz & 1u][rx->kz][1];
     /* the slab tests' axes in the order kx, ky, kz (kz last: its distances give the slack) */
-    bvh__ray8_axis(q, 0, rx->kx, neg, odi);
-    bvh__ray8_axis(q, 1, rx->ky, neg, odi);
-    bvh__ray8_axis(q, 2, rx->kz, neg, odi);
+#ifdef BVH__AVX2
+    if (!sse) /* the AVX2 loop's set-up */
+        bvh__ray8_axes_avx2(q, rx, o, inv, neg);
+    else
+#endif
+    {
+        bvh__ray8_axis(q, 0, rx->kx, neg, odi);
+        bvh__ray8_axis(q, 1, rx->ky, neg, odi);
+        bvh__ray8_axis(q, 2, rx->kz, neg, odi);
+    }
     q->stmin = rx->tmin;
     if (sse) {
         for (a = 0; a < 3; a++) {
@@ -6818,6 +6847,27 @@ __attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh
         _mm256_and_ps(_mm256_cmp_ps(tn, tf, _CMP_LE_OQ), _mm256_cmp_ps(tn, inf, _CMP_LT_OQ)));
 }
 #define BVH__SLAB8(n, tfar, tn) (isa ? bvh__slab8_avx2(q, n, tfar, tn) : bvh__slab8q(q, n, tfar, tn))
+/* The slots of mask m (three or more) nearest first into idx, by rank rather than by insertion:
+   slot i's place is the number of slots of m whose key is below its own, counted from one compare
+   of all eight keys at once. A key is the distance's bits with the slot number in the lowest
+   three: unique, and in the order of the distances where they are not negative (a box the ray
+   starts in has a distance just below tmin; their order among themselves, reversed, only changes
+   which is visited first). No loop that depends on the distances, so no branch to mispredict but
+   the one over m. Returns the count. */
+__attribute__((target("avx2,popcnt"))) static inline uint32_t bvh__order8_avx2(const float tn[BVH__W], unsigned m,
+                                                                              uint32_t idx[BVH__W]) {
+    const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    const __m256i key =
+        _mm256_or_si256(_mm256_andnot_si256(_mm256_set1_epi32(7), _mm256_castps_si256(_mm256_loadu_ps(tn))), lane);
+    unsigned r = m;
+    while (r) {
+        const unsigned i = BVH__CTZ(r);
+        const __m256i ki = _mm256_permutevar8x32_epi32(key, _mm256_set1_epi32((int)i));
+        r &= r - 1;
+        idx[_mm_popcnt_u32(m & (unsigned)_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(ki, key))))] = i;
+    }
+    return (uint32_t)_mm_popcnt_u32(m);
+}
 #else
 #define BVH__SLAB8(n, tfar, tn) bvh__slab8q(q, n, tfar, tn)
 #endif
@@ -6834,30 +6884,43 @@ typedef struct bvh__ray8 {
    nearer children are being tested (the nearest child is read at once: asking for it gains
    nothing). */
 BVH__INLINE void bvh__push8(const bvh_node8 *nodes, const bvh_tri4 *tri4, const bvh_node8 *n, unsigned i,
-                            const float *tn, bvh__entry8 *stack, uint32_t *sp) {
+                            const float *tn, bvh__entry8 *stack, uint32_t *sp, int packets) {
     const uint32_t c = n->child[i], k = n->count[i];
-    /* a select, not a branch: leaves and nodes alternate at random */
-    const uintptr_t leaf = (uintptr_t)0 - (uintptr_t)(k != 0);
-    const char *a = (const char *)(((uintptr_t)(tri4 + c) & leaf) | ((uintptr_t)(nodes + c) & ~leaf));
-    BVH__PREFETCH(a);
-    BVH__PREFETCH(a + 64);
-    BVH__PREFETCH(a + 128);
+    if (packets) { /* a constant where inlined; 0: leaves of instances, whose lines are elsewhere */
+        /* a select, not a branch: leaves and nodes alternate at random */
+        const uintptr_t leaf = (uintptr_t)0 - (uintptr_t)(k != 0);
+        const char *a = (const char *)(((uintptr_t)(tri4 + c) & leaf) | ((uintptr_t)(nodes + c) & ~leaf));
+        BVH__PREFETCH(a);
+        BVH__PREFETCH(a + 64);
+        BVH__PREFETCH(a + 128);
+    } else if (!k) {
+        BVH__PREFETCH(nodes + c);
+        BVH__PREFETCH((const char *)(nodes + c) + 64);
+        BVH__PREFETCH((const char *)(nodes + c) + 128);
+    }
     stack[*sp].child = c;
     stack[*sp].count = k;
     stack[*sp].t = tn[i];
     ++*sp;
 }
+/* A leaf step of the 8-wide loop for leaves that are not triangle packets (a scene's top level:
+   one instance a leaf slot): tests item `item` (the slot's child; count, the slot's count, says
+   what kind of item) with the world ray, whose tmax is the best t so far, set up as rx and q;
+   returns 1 when it took a hit as the new best and lowered ray->tmax to its t. isa as
+   bvh__traverse8_body's. */
+typedef int (*bvh__slot_step)(void *ctx, bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, uint32_t item,
+                              uint32_t count, int isa);
 /* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
-   order, unsorted), the farther ones on the stack; a leaf's packets tested at once. isa (a
-   constant: the loop is compiled once for each): 0 SSE or plain C, 1 AVX2 (the slab test in one
-   pass, the leaf test on eight lanes). */
-BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const bvh__ray8 *q, float tmax, bvh_hit *hit,
-                                    bvh__best *loc, int any, int isa) {
+   order, unsorted), the farther ones on the stack; a leaf's packets tested at once, or, with a
+   step (and tri4 NULL), each leaf slot handed to it with the world ray wray. isa (a constant:
+   the loop is compiled once for each): 0 SSE or plain C, 1 AVX2 (the slab test in one pass, the
+   leaf test on eight lanes). */
+BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4, bvh__rayx *rx, const bvh__ray8 *q,
+                                    float tmax, bvh_hit *hit, bvh__best *loc, int any, int isa, bvh__slot_step step,
+                                    void *ctx, bvh_ray *wray) {
     bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
     uint32_t sp = 0, cur = 0, lc = 0; /* lc > 0: cur is a leaf's first packet */
     bvh__best best;
-    const bvh_node8 *const nodes = tree->nodes8;
-    const bvh_tri4 *const tri4 = tree->tri4;
     int sheared = 0;
     float tbest = tmax; /* best.t, kept in a register: best itself lives in memory for the leaf test */
     best.t = tmax;
@@ -6891,32 +6954,45 @@ BVH__INLINE int bvh__traverse8_body(const bvh_tree *tree, bvh__rayx *rx, const b
                         i0 = i1;
                         i1 = x;
                     }
-                    bvh__push8(nodes, tri4, n, i1, tn, stack, &sp);
+                    bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step);
                 } else if (any) { /* any hit: in slot order */
                     m |= 1u << i1;
                     while (m) {
                         i1 = BVH__CTZ(m);
                         m &= m - 1;
-                        bvh__push8(nodes, tri4, n, i1, tn, stack, &sp);
+                        bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step);
                     }
-                } else { /* three or more: insertion by entry distance, nearest first */
+                } else { /* three or more: nearest first (AVX2: by rank; else by insertion) */
                     uint32_t idx[BVH__W], k = 2, j;
-                    idx[0] = tn[i1] < tn[i0] ? i1 : i0;
-                    idx[1] = tn[i1] < tn[i0] ? i0 : i1;
-                    while (m) {
-                        unsigned i = BVH__CTZ(m);
-                        m &= m - 1;
-                        for (j = k; j > 0 && tn[idx[j - 1]] > tn[i]; j--) idx[j] = idx[j - 1];
-                        idx[j] = i;
-                        k++;
+#ifdef BVH__AVX2
+                    if (isa)
+                        k = bvh__order8_avx2(tn, m | 1u << i0 | 1u << i1, idx);
+                    else
+#endif
+                    {
+                        idx[0] = tn[i1] < tn[i0] ? i1 : i0;
+                        idx[1] = tn[i1] < tn[i0] ? i0 : i1;
+                        while (m) {
+                            unsigned i = BVH__CTZ(m);
+                            m &= m - 1;
+                            for (j = k; j > 0 && tn[idx[j - 1]] > tn[i]; j--) idx[j] = idx[j - 1];
+                            idx[j] = i;
+                            k++;
+                        }
                     }
                     for (j = k - 1; j > 0; j--) /* farthest at the bottom */
-                        bvh__push8(nodes, tri4, n, idx[j], tn, stack, &sp);
+                        bvh__push8(nodes, tri4, n, idx[j], tn, stack, &sp, !step);
                     i0 = idx[0];
                 }
                 cur = n->child[i0];
                 lc = n->count[i0];
                 continue;
+            }
+        } else if (step) { /* a leaf slot: its item */
+            if (step(ctx, wray, rx, q, cur, lc, isa)) {
+                best.prim = cur;
+                best.t = tbest = wray->tmax;
+                if (any) goto out;
             }
         } else { /* a leaf: its packets */
             if (!sheared) {
@@ -6950,46 +7026,76 @@ out:
     if (loc) *loc = best;
     return 1;
 }
-/* The ray's set-up and the loop in one function for each slab test, so that a ray that misses
-   after a node or two pays one call, and its set-up is not passed on through memory. hit, when given,
-   gets the miss record (t = tmax, prim BVH_INVALID) where no triangle is hit, as bvh__traverse;
-   loc, when given, the hit's packet and lane too (untouched on a miss). */
-BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc, int any, int isa) {
-    bvh__rayx rx;
-    bvh__ray8 q;
+/* The ray's set-up for the wide loop (0: a ray no box can take, see bvh__ray_setup). */
+BVH__INLINE int bvh__ray8_setup(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int isa) {
 #ifdef BVH__SSE
-    if (bvh__ray8_start(ray, &rx, &q, !isa) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, loc, any, isa))
-        return 1;
+    return bvh__ray8_start(ray, rx, q, !isa);
 #else
-    if (bvh__ray_setup(ray, &rx) && bvh__traverse8_body(tree, &rx, &q, ray->tmax, hit, loc, any, isa)) return 1;
+    (void)q;
+    (void)isa;
+    return bvh__ray_setup(ray, rx);
 #endif
+}
+/* The ray's set-up and the loop in one function for each ISA and kind, so that a ray that misses
+   after a node or two pays one call, and its set-up is not passed on through memory; or, with
+   ray NULL, the loop on a ray already set up for this ISA (rx, q, tmax: a scene's world ray for
+   an instance placed by the identity; rx gets the shear). hit, when given, gets the miss record
+   (t = tmax, prim BVH_INVALID) where no triangle is hit, as bvh__traverse; loc, when given, the
+   hit's packet and lane too (untouched on a miss). */
+BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, float tmax,
+                            bvh_hit *hit, bvh__best *loc, int any, int isa) {
+    bvh__rayx own;
+    bvh__ray8 oq;
+    if (ray) {
+        tmax = ray->tmax;
+        rx = &own;
+        q = &oq;
+        if (!bvh__ray8_setup(ray, &own, &oq, isa)) goto miss;
+    }
+    if (bvh__traverse8_body(tree->nodes8, tree->tri4, rx, q, tmax, hit, loc, any, isa, NULL, NULL, NULL)) return 1;
+miss:
     if (hit) {
-        hit->t = ray->tmax;
+        hit->t = tmax;
         hit->u = hit->v = 0.0f;
         hit->prim = BVH_INVALID;
     }
     return 0;
 }
 #ifdef BVH__AVX2
-__attribute__((target("avx2"), flatten)) static int bvh__closest8_avx2(const bvh_tree *tree, const bvh_ray *ray,
+__attribute__((target("avx2,popcnt"), flatten)) static int bvh__closest8_avx2(const bvh_tree *tree, const bvh_ray *ray,
+                                                                       bvh__rayx *rx, const bvh__ray8 *q, float tmax,
                                                                        bvh_hit *hit, bvh__best *loc) {
-    return bvh__trace8(tree, ray, hit, loc, 0, 1);
+    return bvh__trace8(tree, ray, rx, q, tmax, hit, loc, 0, 1);
 }
-__attribute__((target("avx2"), flatten)) static int bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray) {
-    return bvh__trace8(tree, ray, NULL, NULL, 1, 1);
+__attribute__((target("avx2,popcnt"), flatten)) static int bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray,
+                                                                   bvh__rayx *rx, const bvh__ray8 *q, float tmax) {
+    return bvh__trace8(tree, ray, rx, q, tmax, NULL, NULL, 1, 1);
 }
 #endif
-static int bvh__closest8_base(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc) {
-    return bvh__trace8(tree, ray, hit, loc, 0, 0);
+static int bvh__closest8_base(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, float tmax,
+                              bvh_hit *hit, bvh__best *loc) {
+    return bvh__trace8(tree, ray, rx, q, tmax, hit, loc, 0, 0);
 }
-static int bvh__any8_base(const bvh_tree *tree, const bvh_ray *ray) { return bvh__trace8(tree, ray, NULL, NULL, 1, 0); }
-/* The wide traversal for the single-ray calls and the batches: tree->nodes8 is set only on a
-   tree with triangles and nodes (bvh__make_wide), which is all bvh__traverse checks first. */
+static int bvh__any8_base(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, float tmax) {
+    return bvh__trace8(tree, ray, rx, q, tmax, NULL, NULL, 1, 0);
+}
+/* bvh__trace8 for the ISA isa (a constant where inlined). */
+BVH__INLINE int bvh__trace8_isa(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q,
+                                float tmax, bvh_hit *hit, bvh__best *loc, int any, int isa) {
+#ifdef BVH__AVX2
+    if (isa) return any ? bvh__any8_avx2(tree, ray, rx, q, tmax) : bvh__closest8_avx2(tree, ray, rx, q, tmax, hit, loc);
+#endif
+    (void)isa;
+    return any ? bvh__any8_base(tree, ray, rx, q, tmax) : bvh__closest8_base(tree, ray, rx, q, tmax, hit, loc);
+}
+/* The wide traversal for the single-ray calls and the batches, on the CPU's ISA: tree->nodes8 is
+   set only on a tree with triangles and nodes (bvh__make_wide), which is all bvh__traverse
+   checks first. */
 BVH__INLINE int bvh__traverse8_at(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, bvh__best *loc, int any) {
 #ifdef BVH__AVX2
-    if (bvh__have_avx2()) return any ? bvh__any8_avx2(tree, ray) : bvh__closest8_avx2(tree, ray, hit, loc);
+    if (bvh__have_avx2()) return bvh__trace8_isa(tree, ray, NULL, NULL, 0.0f, hit, loc, any, 1);
 #endif
-    return any ? bvh__any8_base(tree, ray) : bvh__closest8_base(tree, ray, hit, loc);
+    return bvh__trace8_isa(tree, ray, NULL, NULL, 0.0f, hit, loc, any, 0);
 }
 BVH__INLINE int bvh__traverse8(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any) {
     return bvh__traverse8_at(tree, ray, hit, NULL, any);
@@ -7418,15 +7524,15 @@ BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit
 
 /* ============================================================================================ */
 /* == instances: two-level scenes ================================================================ */
-/* The top level is a box tree over the instances' world boxes, traced by bvh__trace_leaves with
-   a leaf step that skips instances by mask, transforms the ray into the instance's space and
-   traces the bottom-level tree there with bvh_intersect / bvh_occluded (the 8-wide layout where
-   the tree has one). The best hit keeps the instance, the mesh's triangle and t; the normal of
+/* The top level is a box tree over the instances' world boxes (tree.nodes, for OpenCL and the
+   caller), traced on the CPU through its 8-wide copy (bvh_scene.top8) by the 8-wide loop with a
+   leaf step that skips instances by mask, transforms the ray into the instance's space and
+   traces the bottom-level tree there (its 8-wide layout where it has one, for the same ISA). The best hit keeps the instance, the mesh's triangle and t; the normal of
    the final hit is computed from the tree's copy of the triangle (tree.tris, in reference order),
    found by a map from triangle to reference that the scene makes once per distinct
    bottom-level tree (walking the tree again to find it would cost about as much as the trace). */
 /* ============================================================================================ */
-BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]) {
+BVH__INLINE bvh_ray bvh__ray_transform(const bvh_ray *ray, const float *m) {
     bvh_ray r = *ray;
     const bvh_vec3 o = ray->origin, d = ray->dir;
     r.origin.x = m[0] * o.x + m[1] * o.y + m[2] * o.z + m[3];
@@ -7437,6 +7543,7 @@ BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]) {
     r.dir.z = m[8] * d.x + m[9] * d.y + m[10] * d.z;
     return r;
 }
+BVH_API bvh_ray bvh_ray_transform(const bvh_ray *ray, const float m[12]) { return bvh__ray_transform(ray, m); }
 /* The inverse of a 3x4 affine transform, in double, rounded to float; 0 if m is not finite or
    singular (a zero determinant, or an inverse that is not finite in float). */
 static int bvh__invert34(const float m[12], float out[12]) {
@@ -7509,7 +7616,7 @@ BVH_API void bvh_scene_free(bvh_scene *scene) {
     bvh__free(&al, scene->instances);
     bvh__free(&al, scene->inverse);
     bvh__free(&al, scene->boxes);
-    bvh__free(&al, scene->own_box);
+    bvh__free(&al, scene->top8);
     bvh__free(&al, scene->mesh);
     bvh__free(&al, scene->ref_base);
     bvh__free(&al, scene->ref_of_prim);
@@ -7567,6 +7674,94 @@ static bvh_result bvh__scene_maps(bvh_scene *sc) {
     bvh__free(&sc->allocator, slot);
     return r;
 }
+/* The top level's 8-wide copy (bvh_scene.top8), so that a ray meets up to eight instance boxes in
+   one SIMD test, as in a bottom-level tree. Each wide node is made from an item, a binary
+   interior node or a run of a leaf's references, by opening the item of largest surface area
+   (a node into its two children, a run into its halves) until there are eight or none can be
+   opened; a run of one reference is a leaf slot: that instance, with its own world box (with
+   split references a leaf's box may be clipped; the whole instance box still holds every hit the
+   clipped part does). Children after their parent; recursion as deep as the binary tree plus
+   log2(BVH__MAX_LEAF). */
+#define BVH__TOP_MOVED 1u    /* a top8 leaf slot's count: the ray is transformed into the instance */
+#define BVH__TOP_IDENTITY 2u /* ... its transform is the identity (bit for bit): the world ray is it */
+static const float bvh__identity34[12] = {1.0f, 0.0f, 0.0f, 0.0f, 0.0f, 1.0f, 0.0f, 0.0f, 0.0f, 0.0f, 1.0f, 0.0f};
+typedef struct bvh__top_item {
+    uint32_t node;         /* a binary interior node, or BVH_INVALID: ... */
+    uint32_t first, count; /* ... references first .. first + count - 1 */
+} bvh__top_item;
+static bvh__top_item bvh__top8_item(const bvh_tree *top, uint32_t node) {
+    bvh__top_item it;
+    const bvh_node *n = &top->nodes[node];
+    it.node = n->count ? BVH_INVALID : node;
+    it.first = n->index;
+    it.count = n->count;
+    return it;
+}
+static bvh_aabb bvh__top8_box(const bvh_scene *s, bvh__top_item it) {
+    bvh_aabb b = bvh__empty();
+    uint32_t k;
+    if (it.node != BVH_INVALID) return bvh__node_box(&s->top.nodes[it.node]);
+    for (k = it.first; k < it.first + it.count; k++) b = bvh__merge(b, s->boxes[s->top.prims[k]]);
+    return b;
+}
+static uint32_t bvh__top8_node(bvh_scene *s, bvh__top_item it) {
+    const uint32_t w = s->top8_count++;
+    bvh_node8 *out = &s->top8[w];
+    bvh__top_item items[BVH__W];
+    uint32_t n = 1, i, a;
+    items[0] = it;
+    while (n < BVH__W) {
+        uint32_t best = BVH_INVALID;
+        float area = -1.0f;
+        for (i = 0; i < n; i++) {
+            float ai;
+            if (items[i].node == BVH_INVALID && items[i].count < 2) continue; /* an instance */
+            ai = bvh__half_area(bvh__top8_box(s, items[i]));
+            if (ai > area) {
+                area = ai;
+                best = i;
+            }
+        }
+        if (best == BVH_INVALID) break;
+        if (items[best].node != BVH_INVALID) {
+            const uint32_t c = s->top.nodes[items[best].node].index;
+            items[best] = bvh__top8_item(&s->top, c);
+            items[n++] = bvh__top8_item(&s->top, c + 1);
+        } else {
+            const uint32_t h = items[best].count / 2;
+            items[n] = items[best];
+            items[n].first += h;
+            items[n++].count -= h;
+            items[best].count = h;
+        }
+    }
+    memset(out, 0, sizeof *out);
+    for (i = 0; i < BVH__W; i++)
+        for (a = 0; a < 3; a++) { /* an empty slot: no ray enters it */
+            out->min[a][i] = BVH_INF;
+            out->max[a][i] = -BVH_INF;
+        }
+    for (i = 0; i < n; i++) {
+        const bvh_aabb b = bvh__top8_box(s, items[i]);
+        out->min[0][i] = b.min.x;
+        out->min[1][i] = b.min.y;
+        out->min[2][i] = b.min.z;
+        out->max[0][i] = b.max.x;
+        out->max[1][i] = b.max.y;
+        out->max[2][i] = b.max.z;
+        if (items[i].node == BVH_INVALID && items[i].count == 1) {
+            const uint32_t inst = s->top.prims[items[i].first];
+            out->child[i] = inst;
+            out->count[i] = (uint8_t)(memcmp(s->instances[inst].transform, bvh__identity34, sizeof bvh__identity34)
+                                          ? BVH__TOP_MOVED
+                                          : BVH__TOP_IDENTITY);
+        } else {
+            const uint32_t c = bvh__top8_node(s, items[i]); /* out stays valid: top8 is allocated whole */
+            s->top8[w].child[i] = c;
+        }
+    }
+    return w;
+}
 BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc) {
     bvh_build_desc td;
     bvh_aabb *boxes = NULL;
@@ -7609,14 +7804,13 @@ BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc)
         r = bvh_build(&scene->top, &td);
     }
     scene->boxes = boxes; /* freed with the scene, also on failure */
-    if (r == BVH_SUCCESS && !(scene->own_box = BVH__ALLOC(&scene->allocator, uint8_t, n ? n : 1)))
-        r = BVH_ERROR_OUT_OF_MEMORY;
-    if (r == BVH_SUCCESS) memset(scene->own_box, 0, n ? n : 1); /* culling only: 0 never loses a hit */
-    for (i = 0; r == BVH_SUCCESS && i < scene->top.node_count; i++) {
-        const bvh_node *nd = &scene->top.nodes[i];
-        uint32_t k;
-        for (k = nd->index; nd->count && k < nd->index + nd->count; k++)
-            scene->own_box[scene->top.prims[k]] = nd->count > 1;
+    if (r == BVH_SUCCESS && scene->top.node_count) {
+        /* at most one wide node per reference: each but the root opens an item of two or more */
+        scene->top8 = BVH__ALLOC(&scene->allocator, bvh_node8, scene->top.ref_count);
+        if (!scene->top8)
+            r = BVH_ERROR_OUT_OF_MEMORY;
+        else
+            bvh__top8_node(scene, bvh__top8_item(&scene->top, 0));
     }
     if (r != BVH_SUCCESS) bvh_scene_free(scene);
     return r;
@@ -7629,33 +7823,65 @@ typedef struct bvh__scene_ctx {
     bvh_hit hit;       /* its hit in the bottom-level tree (t is world t) */
     bvh__best at;      /* its packet and lane (pk NULL: a tree without the wide layout) */
 } bvh__scene_ctx;
-static int bvh__instance_step(void *arg, bvh_ray *ray, bvh__rayx *rx, uint32_t ref, uint32_t inst) {
+/* The top level's leaf step: instance `inst` skipped by mask, else the ray in its space and the
+   bottom-level tree traced there: its 8-wide layout (where it has one) for the same ISA, on the
+   world ray's own set-up (rx, q) where the instance's transform is the identity (kind
+   BVH__TOP_IDENTITY: the transform would give back the same ray). */
+BVH__INLINE int bvh__instance_step(void *arg, bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, uint32_t inst,
+                                   uint32_t kind, int isa) {
     bvh__scene_ctx *c = BVH__CAST(bvh__scene_ctx *, arg);
     const bvh_instance *in = &c->scene->instances[inst];
+    const bvh_tree *t = in->tree;
+    const float *inv = c->scene->inverse + 12 * (size_t)inst;
     bvh_ray local;
     bvh_hit h;
     bvh__best at;
-    (void)ref;
     if (!(in->mask & c->mask)) return 0;
-    /* a top-level leaf holds several instances: each one's own box first, as the top level's
-       nodes are tested (the same slab test, so no hit inside it is culled), before the ray's
-       transform and the bottom level's set-up */
-    if (c->scene->own_box[inst] && bvh__slab_box(rx, &c->scene->boxes[inst], ray->tmax) == BVH_INF) return 0;
-    local = bvh_ray_transform(ray, c->scene->inverse + 12 * (size_t)inst);
-    if (c->any) return in->custom ? bvh_occluded_custom(in->tree, &local, in->custom) : bvh_occluded(in->tree, &local);
-    memset(&at, 0, sizeof at);
-    if (in->custom) {
-        if (!bvh_intersect_custom(in->tree, &local, &h, in->custom)) return 0;
-    } else if (in->tree->nodes8 && in->tree->tris) { /* the packet keeps the hit's vertices for the normal */
-        if (!bvh__traverse8_at(in->tree, &local, &h, &at, 0)) return 0;
-    } else if (!bvh_intersect(in->tree, &local, &h))
-        return 0;
+    at.pk = NULL; /* a hit without a packet: the normal from tree.tris */
+    if (!in->custom && t->nodes8 && t->tris) {
+        const bvh_ray *r = NULL; /* NULL: the world ray's set-up */
+        if (kind != BVH__TOP_IDENTITY) {
+            local = bvh__ray_transform(ray, inv);
+            r = &local;
+        }
+        if (c->any) return bvh__trace8_isa(t, r, rx, q, ray->tmax, NULL, NULL, 1, isa);
+        /* the packet keeps the hit's vertices for the normal */
+        if (!bvh__trace8_isa(t, r, rx, q, ray->tmax, &h, &at, 0, isa)) return 0;
+    } else {
+        local = bvh__ray_transform(ray, inv);
+        if (c->any) return in->custom ? bvh_occluded_custom(t, &local, in->custom) : bvh_occluded(t, &local);
+        if (in->custom ? !bvh_intersect_custom(t, &local, &h, in->custom) : !bvh_intersect(t, &local, &h)) return 0;
+    }
     if (h.t == ray->tmax && inst > c->instance) return 0; /* ties: the lowest instance */
     c->instance = inst;
     c->hit = h;
     c->at = at;
     ray->tmax = h.t;
     return 1;
+}
+/* The top level's 8-wide traversal with the instance step, compiled for each ISA. */
+BVH__INLINE int bvh__scene_top8(const bvh_scene *scene, const bvh_ray *ray, bvh__scene_ctx *c, int any, int isa) {
+    bvh__rayx rx;
+    bvh__ray8 q;
+    bvh_ray w = *ray;
+    if (!bvh__ray8_setup(ray, &rx, &q, isa)) return 0;
+    return bvh__traverse8_body(scene->top8, NULL, &rx, &q, ray->tmax, NULL, NULL, any, isa, bvh__instance_step, c, &w);
+}
+#ifdef BVH__AVX2
+__attribute__((target("avx2,popcnt"))) static int bvh__scene_closest8_avx2(const bvh_scene *s, const bvh_ray *r,
+                                                                    bvh__scene_ctx *c) {
+    return bvh__scene_top8(s, r, c, 0, 1);
+}
+__attribute__((target("avx2,popcnt"))) static int bvh__scene_any8_avx2(const bvh_scene *s, const bvh_ray *r,
+                                                                bvh__scene_ctx *c) {
+    return bvh__scene_top8(s, r, c, 1, 1);
+}
+#endif
+static int bvh__scene_closest8_base(const bvh_scene *s, const bvh_ray *r, bvh__scene_ctx *c) {
+    return bvh__scene_top8(s, r, c, 0, 0);
+}
+static int bvh__scene_any8_base(const bvh_scene *s, const bvh_ray *r, bvh__scene_ctx *c) {
+    return bvh__scene_top8(s, r, c, 1, 0);
 }
 /* The world normal of the best hit: M^-T times the object-space normal, normalised. The vertices
    come from the hit's packet, which the traversal has just read (the same floats as tree.tris),
@@ -7710,7 +7936,14 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
     c.hit.u = c.hit.v = 0.0f;
     c.hit.prim = BVH_INVALID;
     memset(&c.at, 0, sizeof c.at);
-    if (scene && ray && mask) found = bvh__trace_leaves(&scene->top, ray, any, bvh__instance_step, &c, NULL);
+    if (scene && ray && mask && scene->top8_count) {
+#ifdef BVH__AVX2
+        if (bvh__have_avx2())
+            found = any ? bvh__scene_any8_avx2(scene, ray, &c) : bvh__scene_closest8_avx2(scene, ray, &c);
+        else
+#endif
+            found = any ? bvh__scene_any8_base(scene, ray, &c) : bvh__scene_closest8_base(scene, ray, &c);
+    }
     if (!hit) return found;
     hit->t = ray ? ray->tmax : BVH_INF;
     hit->u = hit->v = 0.0f;

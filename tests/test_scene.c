@@ -1,7 +1,7 @@
 /* tests/test_scene.c - two-level scenes: instances of bottom-level trees under a top-level tree.
 
    Several meshes placed by instances (rotations, non-uniform scales, a mirror, a shear, far
-   translations, an exact duplicate for ties, an instance of an empty tree): for every builder as
+   translations, the identity, an exact duplicate for ties, an instance of an empty tree): for every builder as
    bottom level and as top level, bvh_scene_intersect equals a brute force that walks the instances
    in order, transforms the ray into each (bvh_ray_transform with the scene's inverse, as the
    traversal does) and tests every triangle (same instance, triangle, id and bits of t, u, v;
@@ -69,6 +69,11 @@ static void world_make(world *w) {
     w->inst[3].transform[8] = -w->inst[3].transform[8];
     w->inst[4].transform[1] += 0.7f;
     w->inst[5].transform[3] += 1e4f;
+    /* instances 9 and 10 are placed by the identity (the traversal keeps the world ray's set-up
+       for them) */
+    memset(w->inst[9].transform, 0, sizeof w->inst[9].transform);
+    w->inst[9].transform[0] = w->inst[9].transform[5] = w->inst[9].transform[10] = 1.0f;
+    memcpy(w->inst[10].transform, w->inst[9].transform, sizeof w->inst[9].transform);
     /* instance 7 is instance 1 again (same mesh, same transform): every hit on it ties */
     w->inst[7] = w->inst[1];
     w->mesh_of[7] = w->mesh_of[1];

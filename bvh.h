@@ -8388,25 +8388,41 @@ static bvh_result bvh__read_all(bvh__reader *rd, void *out, size_t size) {
     }
     return BVH_SUCCESS;
 }
-/* The payload's values a valid tree cannot hold and the validator does not look at: leaves of more
-   than BVH__MAX_LEAF references, as no builder makes (the 8-wide layout's leaf slots are gathered
-   in buffers of that size), and non-finite triangle coordinates (bvh_build refuses them,
-   traversal assumes none). Checked by bits, without branches. */
-static int bvh__leaves_small(const bvh_node *n, size_t count) {
+/* The checks of one node that need nothing but the node, its position g and the counts, made in the
+   read pass while the piece is in cache (bvh__validate_load does the rest): a valid box (not
+   NaN), a leaf's references inside the array and at most BVH__MAX_LEAF of them (no builder makes
+   more; the 8-wide layout's leaf slots are gathered in buffers of that size), an interior node's
+   children after it and inside the array. Branch-free: a valid tree takes no branch. */
+static int bvh__nodes_ok(const bvh_node *n, size_t count, size_t g, uint32_t node_count, uint32_t ref_count) {
     size_t i;
     uint32_t bad = 0;
-    for (i = 0; i < count; i++) bad |= n[i].count > BVH__MAX_LEAF;
+    for (i = 0; i < count; i++, g++) {
+        const bvh_node *x = &n[i];
+        bad |= (uint32_t)!(x->min.x <= x->max.x) | (uint32_t)!(x->min.y <= x->max.y) | (uint32_t)!(x->min.z <= x->max.z);
+        if (x->count) /* index > ref_count first: then the subtraction's wrap does not matter */
+            bad |= (uint32_t)(x->count > BVH__MAX_LEAF) | (uint32_t)(x->index > ref_count) |
+                   (uint32_t)(x->count > ref_count - x->index);
+        else
+            bad |= (uint32_t)(x->index <= g) | (uint32_t)(x->index >= node_count - 1);
+    }
     return !bad;
 }
-static int bvh__floats_finite(const float *t, size_t n) { return !bvh__any_nonfinite(t, n); }
+/* Every reference's primitive in range. */
+static int bvh__prims_ok(const uint32_t *p, size_t count, uint32_t prim_count) {
+    size_t i;
+    uint32_t bad = 0;
+    for (i = 0; i < count; i++) bad |= (uint32_t)(p[i] >= prim_count);
+    return !bad;
+}
 /* A payload array read in pieces (BVH__PIECE), each hashed (bvh__payload_check) and checked as
-   `kind` says (1 nodes, 2 triangles) while it is still in cache: one pass over the memory. From a
-   memory buffer, the pieces are spread over the load's team; from a stream, read in order. */
+   `kind` says (1 nodes: bvh__nodes_ok, 2 triangles: finite, as bvh_build demands and traversal
+   assumes, 4 references: bvh__prims_ok) while it is still in cache: one pass over the memory.
+   From a memory buffer, the pieces are spread over the load's team; from a stream, read in order. */
 typedef struct bvh__load_array {
     const unsigned char *src; /* the memory buffer's bytes; NULL: a stream */
     unsigned char *out;
     size_t size;
-    uint32_t array;
+    uint32_t array, node_count, ref_count, prim_count;
     int kind;
     uint64_t check[BVH__MAX_THREADS];
     int bad[BVH__MAX_THREADS];
@@ -8414,12 +8430,14 @@ typedef struct bvh__load_array {
 static void bvh__load_piece(bvh__load_array *a, size_t i, uint32_t tid) {
     unsigned char *p = a->out + i * BVH__PIECE;
     size_t n = a->size - i * BVH__PIECE < BVH__PIECE ? a->size - i * BVH__PIECE : BVH__PIECE;
+    void *v = p;
     if (a->src) memcpy(p, a->src + i * BVH__PIECE, n);
     a->check[tid] += bvh__piece_check(p, n, a->array, i);
     if (a->kind == 1)
-        a->bad[tid] |= !bvh__leaves_small(BVH__CAST(const bvh_node *, BVH__CAST(void *, p)), n / sizeof(bvh_node));
-    if (a->kind == 2)
-        a->bad[tid] |= !bvh__floats_finite(BVH__CAST(const float *, BVH__CAST(void *, p)), n / sizeof(float));
+        a->bad[tid] |= !bvh__nodes_ok(BVH__CAST(const bvh_node *, v), n / sizeof(bvh_node),
+                                      i * (BVH__PIECE / sizeof(bvh_node)), a->node_count, a->ref_count);
+    if (a->kind == 2) a->bad[tid] |= bvh__any_nonfinite(v, n / sizeof(float));
+    if (a->kind == 4) a->bad[tid] |= !bvh__prims_ok(BVH__CAST(const uint32_t *, v), n / sizeof(uint32_t), a->prim_count);
 }
 static void bvh__load_array_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__load_array *a = BVH__CAST(bvh__load_array *, arg);
@@ -8427,8 +8445,8 @@ static void bvh__load_array_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *
     (void)team;
     for (i = tid; i * BVH__PIECE < a->size; i += nt) bvh__load_piece(a, i, tid);
 }
-static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int kind, uint32_t array, uint32_t threads,
-                                  uint64_t *check, int *bad) {
+static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int kind, uint32_t array,
+                                  const bvh__file_header *h, uint32_t threads, uint64_t *check, int *bad) {
     bvh__load_array a;
     size_t i;
     bvh_result r;
@@ -8436,6 +8454,9 @@ static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int k
     a.out = BVH__CAST(unsigned char *, out);
     a.size = size;
     a.array = array;
+    a.node_count = h->node_count;
+    a.ref_count = h->ref_count;
+    a.prim_count = h->prim_count;
     a.kind = kind;
     if (!rd->d->read) { /* memory: the pieces on the team (at least 1 MiB each thread) */
         uint32_t nt = (uint32_t)(size >> 20) < threads ? (uint32_t)(size >> 20) : threads;
@@ -8490,62 +8511,141 @@ static bvh_result bvh__check_header(const bvh__file_header *h, const bvh_load_de
     if (d->max_bytes && payload > d->max_bytes) return BVH_ERROR_CORRUPT;
     return BVH_SUCCESS;
 }
-/* bvh_validate's checks of the binary tree in one forward pass, for bvh_load (and 8-wide nodes
-   left to bvh__wide_load): every builder stores children after their parent, so when node i is
-   met its parent, if it has one, was met before. Each node but the root must be reached exactly
-   once and no deeper than BVH_MAX_DEPTH (depth + 1 per node, a byte, 0 = not reached: then never),
-   its box valid and inside its parent's, a leaf's references inside the array, their primitives
-   in range (once each unless the builder splits) and their triangles in the leaf box. */
-static bvh_result bvh__validate_linear(const bvh_tree *t) {
-    bvh_allocator al = t->allocator;
-    uint8_t *depth = BVH__ALLOC(&al, uint8_t, t->node_count), *used = BVH__ALLOC(&al, uint8_t, t->prim_count);
-    uint64_t refs = 0;
-    uint32_t i, k, n_used = 0;
-    int splits = t->ref_count != t->prim_count - t->excluded;
-    bvh_result r = BVH_ERROR_INVALID_TREE;
-    if (!depth || !used) {
-        r = BVH_ERROR_OUT_OF_MEMORY;
-        goto done;
+/* bvh_validate's checks of the binary tree, for bvh_load (8-wide nodes left to bvh__wide_load). The
+   read pass checked each node alone (bvh__nodes_ok: boxes valid, indices in range, children after
+   their parent) and each reference's primitive (in range). Here, on the load's team, by node
+   ranges: children's boxes inside their parent's, a leaf's triangles in its box (overlapping it,
+   for a tree with split references); and by ranges of primitive ids, each thread reading every
+   reference but marking only its own ids (no two threads write one byte): the primitives used,
+   each once unless the builder splits. Then one cheap forward pass over the nodes' links on one
+   thread: every builder stores children after their parent, so when node i is met its parent, if
+   it has one, was met before; each node but the root must be reached exactly once and no deeper
+   than BVH_MAX_DEPTH (depth + 1 per node, a byte, 0 = not reached: then never), and the leaves'
+   reference ranges must not overlap and must cover the references. */
+#define BVH__CHECK_CHUNK 4096u /* nodes a thread takes at a time */
+typedef struct bvh__load_check {
+    const bvh_tree *t;
+    uint8_t *used, *depth, *cover;
+    int splits, leaf_tris; /* leaf_tris: check the leaves' triangles here (else bvh__wide_load does) */
+    size_t next;           /* the next chunk of nodes to take */
+    uint32_t distinct[BVH__MAX_THREADS];
+    int bad[BVH__MAX_THREADS], links_bad;
+} bvh__load_check;
+static int bvh__leaf_tris_ok(const float *tris, const bvh_node *n, int splits) {
+    bvh_aabb box = bvh__node_box(n);
+    uint32_t k;
+    if (!splits) return bvh_aabb_contains(box, bvh__tris_box(tris + 9 * (size_t)n->index, n->count));
+    for (k = n->index; k < n->index + n->count; k++) { /* a clipped reference: its triangle meets the box */
+        bvh_aabb pb = bvh__tri_box(tris + 9 * (size_t)k);
+        if (!(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z && pb.max.x >= box.min.x &&
+              pb.max.y >= box.min.y && pb.max.z >= box.min.z))
+            return 0;
     }
-    if (splits && !bvh__builders[t->builder].info.splits_references) goto done;
+    return 1;
+}
+/* The links pass (see above): 0 if a node is not reached, reached twice or too deep, or the leaves'
+   ranges overlap or leave references out. Indices are in range (bvh__nodes_ok). */
+static int bvh__load_links(const bvh_tree *t, uint8_t *depth, uint8_t *cover) {
+    uint64_t refs = 0;
+    uint32_t i, k;
     memset(depth, 0, t->node_count);
-    memset(used, 0, t->prim_count);
+    memset(cover, 0, t->ref_count);
     depth[0] = 1;
     for (i = 0; i < t->node_count; i++) {
         const bvh_node *n = &t->nodes[i];
-        bvh_aabb box = bvh__node_box(n);
-        if (!depth[i] || !(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z)) goto done;
+        uint32_t taken = 0;
+        if (!depth[i]) return 0;
         if (n->count) {
-            if (n->index > t->ref_count || n->count > t->ref_count - n->index) goto done;
             refs += n->count;
             for (k = n->index; k < n->index + n->count; k++) {
-                uint32_t p = t->prims[k];
-                bvh_aabb pb;
-                if (p >= t->prim_count || (used[p] && !splits)) goto done;
-                n_used += !used[p];
-                used[p] = 1;
-                if (!t->tris || !splits) continue;
-                pb = bvh__tri_box(t->tris + 9 * (size_t)k);
-                if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
-                               pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
-                           : !bvh_aabb_contains(box, pb))
-                    goto done;
+                taken |= cover[k];
+                cover[k] = 1;
             }
-            /* the triangles' box inside the leaf's: each triangle's is */
-            if (t->tris && !splits && !bvh_aabb_contains(box, bvh__tris_box(t->tris + 9 * (size_t)n->index, n->count)))
-                goto done;
+            if (taken) return 0;
             continue;
         }
-        if (n->index <= i || n->index >= t->node_count - 1 || depth[i] > BVH_MAX_DEPTH) goto done;
-        for (k = n->index; k < n->index + 2; k++) {
-            if (depth[k] || !bvh_aabb_contains(box, bvh__node_box(&t->nodes[k]))) goto done;
-            depth[k] = (uint8_t)(depth[i] + 1);
+        if (depth[i] > BVH_MAX_DEPTH || depth[n->index] || depth[n->index + 1]) return 0;
+        depth[n->index] = depth[n->index + 1] = (uint8_t)(depth[i] + 1);
+    }
+    return refs == t->ref_count;
+}
+/* Chunk k of the nodes: the boxes' nesting (and the leaves' triangles if asked). */
+static int bvh__load_check_nodes(const bvh__load_check *c, size_t b, size_t e) {
+    const bvh_tree *t = c->t;
+    size_t i;
+    for (i = b; i < e; i++) {
+        const bvh_node *n = &t->nodes[i];
+        if (i + 8 < e && !t->nodes[i + 8].count) /* the children lie anywhere after: ask ahead */
+            BVH__PREFETCH(&t->nodes[t->nodes[i + 8].index]);
+        if (n->count) {
+            if (c->leaf_tris && !bvh__leaf_tris_ok(t->tris, n, c->splits)) return 0;
+        } else if (!bvh_aabb_contains(bvh__node_box(n), bvh__node_box(&t->nodes[n->index])) ||
+                   !bvh_aabb_contains(bvh__node_box(n), bvh__node_box(&t->nodes[n->index + 1]))) {
+            return 0;
         }
     }
-    if (refs == t->ref_count && n_used == t->prim_count - t->excluded) r = BVH_SUCCESS;
+    return 1;
+}
+/* Thread 0 makes the links pass first, the others start on the chunks of nodes at once, and all
+   take chunks until none is left (without atomics: a fixed share each); then each thread marks
+   the primitives of its range of ids. */
+static void bvh__load_check_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__load_check *c = BVH__CAST(bvh__load_check *, arg);
+    const bvh_tree *t = c->t;
+    size_t b, e, i;
+    uint32_t lo, span, distinct = 0;
+    int bad = 0;
+    (void)team;
+    if (tid == 0) c->links_bad = !bvh__load_links(t, c->depth, c->cover);
+#if defined(__GNUC__) || defined(__clang__)
+    while (!bad && (b = __atomic_fetch_add(&c->next, (size_t)BVH__CHECK_CHUNK, __ATOMIC_RELAXED)) < t->node_count)
+        bad = !bvh__load_check_nodes(c, b, b + BVH__CHECK_CHUNK < t->node_count ? b + BVH__CHECK_CHUNK : t->node_count);
+#else
+    bvh__range(t->node_count, tid, nt, &b, &e);
+    bad = !bvh__load_check_nodes(c, b, e);
+#endif
+    bvh__range(t->prim_count, tid, nt, &b, &e);
+    lo = (uint32_t)b;
+    span = (uint32_t)(e - b);
+    for (i = 0; i < t->ref_count && !bad; i++) {
+        uint32_t p = t->prims[i];
+        if (p - lo >= span) continue; /* another thread's (unsigned: below lo wraps above span) */
+        bad = c->used[p] && !c->splits;
+        distinct += !c->used[p];
+        c->used[p] = 1;
+    }
+    c->distinct[tid] = distinct;
+    c->bad[tid] = bad;
+}
+static bvh_result bvh__validate_load(const bvh_tree *t, int leaf_tris, uint32_t threads) {
+    bvh_allocator al = t->allocator;
+    bvh__load_check c;
+    uint64_t distinct = 0;
+    uint32_t i, nt = t->ref_count / BVH__MIN_PRIMS_PER_THREAD;
+    bvh_result r = BVH_ERROR_INVALID_TREE;
+    memset(&c, 0, sizeof c);
+    c.depth = BVH__ALLOC(&al, uint8_t, t->node_count);
+    c.used = BVH__ALLOC(&al, uint8_t, t->prim_count);
+    c.cover = BVH__ALLOC(&al, uint8_t, t->ref_count);
+    if (!c.depth || !c.used || !c.cover) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    c.t = t;
+    c.splits = t->ref_count != t->prim_count - t->excluded;
+    c.leaf_tris = leaf_tris && t->tris;
+    if (c.splits && !bvh__builders[t->builder].info.splits_references) goto done;
+    memset(c.used, 0, t->prim_count);
+    bvh__team_run_always(&al, threads < nt ? threads : nt ? nt : 1, bvh__load_check_fn, &c);
+    for (i = 0; i < BVH__MAX_THREADS; i++) {
+        if (c.bad[i]) goto done;
+        distinct += c.distinct[i];
+    }
+    if (!c.links_bad && distinct == t->prim_count - t->excluded) r = BVH_SUCCESS;
 done:
-    bvh__free(&al, depth);
-    bvh__free(&al, used);
+    bvh__free(&al, c.depth);
+    bvh__free(&al, c.used);
+    bvh__free(&al, c.cover);
     return r;
 }
 /* The saved 8-wide nodes (in tree.nodes8, tree.node8_count; tree.tri4_count packets, the sum of
@@ -8556,12 +8656,15 @@ done:
    binary node in one grouping), each leaf slot's packets as many as its references fill, inside
    the array and in no other slot. Two linear passes: the links and packet ranges on one thread,
    then the groupings, boxes and packets on the team (each node writes only its own slots and
-   packets, whose ranges the first pass found disjoint). BVH_ERROR_CORRUPT where they do not fit. */
+   packets, whose ranges the first pass found disjoint). The leaf slots' walks meet every binary
+   leaf once, so the leaves' triangles are checked against their boxes here, while they are read
+   for the packets (bvh__validate_load leaves them to this pass). BVH_ERROR_CORRUPT where they do
+   not fit. */
 typedef struct bvh__wide_load_job {
     bvh_tree *tree;
     uint32_t bad[BVH__MAX_THREADS];
 } bvh__wide_load_job;
-static int bvh__wide_load_node(bvh_tree *t, uint32_t w, bvh__wnode_scratch *sc) {
+static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_scratch *sc) {
     bvh_node8 *n = &t->nodes8[w];
     bvh__group g;
     uint32_t i, a, npre = 0, nref = 0;
@@ -8577,9 +8680,12 @@ static int bvh__wide_load_node(bvh_tree *t, uint32_t w, bvh__wnode_scratch *sc) 
             continue;
         }
         if (n->count[i]) {
-            uint32_t r0 = nref;
+            uint32_t r0 = nref, p0 = npre, k;
             if (!bvh__slot_walk(t, g.slot[i], sc->pre, &npre, sc->refs, &nref)) return 0;
             if (n->count[i] != (nref - r0 + BVH__PACKET - 1) / BVH__PACKET) return 0;
+            for (k = p0; k < npre; k++) /* bvh__validate_load left the leaves' triangles to this pass */
+                if (t->nodes[sc->pre[k]].count && !bvh__leaf_tris_ok(t->tris, &t->nodes[sc->pre[k]], splits))
+                    return 0;
             bvh__packets_write(sc->refs + r0, nref - r0, t->prims, t->tris, t->tri4 + n->child[i]);
         } else if (t->nodes8[n->child[i]].head != g.slot[i]) {
             return 0;
@@ -8593,9 +8699,10 @@ static void bvh__wide_load_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
     bvh__wide_load_job *j = BVH__CAST(bvh__wide_load_job *, arg);
     bvh__wnode_scratch sc; /* 9 KiB of this thread's stack */
     size_t b, e, w;
+    int splits = j->tree->ref_count != j->tree->prim_count - j->tree->excluded;
     (void)team;
     bvh__range(j->tree->node8_count, tid, nt, &b, &e);
-    for (w = b; w < e && !j->bad[tid]; w++) j->bad[tid] += !bvh__wide_load_node(j->tree, (uint32_t)w, &sc);
+    for (w = b; w < e && !j->bad[tid]; w++) j->bad[tid] += !bvh__wide_load_node(j->tree, (uint32_t)w, splits, &sc);
 }
 static bvh_result bvh__wide_load(bvh_tree *t, uint32_t threads) {
     uint8_t *parent = BVH__ALLOC(&t->allocator, uint8_t, t->node8_count);
@@ -8636,13 +8743,23 @@ done:
     bvh__free(&t->allocator, cover);
     return r;
 }
+/* The packets n saved wide nodes at `nodes8` (any alignment: a caller's buffer) need, the sum of
+   their leaf counts, or BVH_INVALID if more than refs: each packet holds a reference of its own. */
+static uint32_t bvh__wide_packet_sum(const void *nodes8, uint32_t n, uint32_t refs) {
+    const unsigned char *c = BVH__CAST(const unsigned char *, nodes8) + offsetof(bvh_node8, count);
+    uint64_t sum = 0;
+    uint32_t i, k;
+    for (i = 0; i < n; i++, c += sizeof(bvh_node8))
+        for (k = 0; k < BVH__W; k++) sum += c[k];
+    return sum > refs ? BVH_INVALID : (uint32_t)sum;
+}
 BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
     bvh__file_header h;
     bvh__reader rd;
     bvh_result r;
     uint64_t check;
-    bvh_node8 *wide = NULL; /* the saved 8-wide nodes, until the block that holds the packets too */
-    uint32_t nodes8 = 0, packets = 0, i, k, nt;
+    bvh_node8 *wide = NULL; /* the saved 8-wide nodes from a stream, until the block that holds the packets too */
+    uint32_t nodes8 = 0, packets = 0, nt;
     int bad = 0;
     if (!tree) return BVH_ERROR_INVALID_ARGUMENT;
     memset(tree, 0, sizeof *tree);
@@ -8674,19 +8791,33 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         goto fail;
     }
     check = 0; /* bvh__payload_check's sum */
-    if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, 0, nt, &check, &bad)) !=
+    if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, 0, &h, nt, &check, &bad)) !=
             BVH_SUCCESS ||
-        (r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 0, 1, nt, &check, &bad)) !=
+        (r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 4, 1, &h, nt, &check, &bad)) !=
             BVH_SUCCESS ||
-        (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, 2, nt, &check,
-                                            &bad)) != BVH_SUCCESS))
+        (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, 2, &h, nt,
+                                            &check, &bad)) != BVH_SUCCESS))
         goto fail;
-    if (nodes8) {
+    if (nodes8 && desc->trace_width != 2 && !desc->read) {
+        /* from memory, the packets are counted in the buffer and the nodes read into their block,
+           not through a copy (the count only sizes the block: the checks below hold as for a
+           stream) */
+        const char *src = BVH__CAST(const char *, desc->data) + rd.pos;
+        if ((packets = bvh__wide_packet_sum(src, nodes8, h.ref_count)) == BVH_INVALID) {
+            r = BVH_ERROR_CORRUPT;
+            goto fail;
+        }
+        if ((r = bvh__wide_alloc(tree, &tree->allocator, nodes8, packets)) != BVH_SUCCESS ||
+            (r = bvh__read_array(&rd, tree->nodes8, (size_t)nodes8 * sizeof(bvh_node8), 0, 3, &h, nt, &check, &bad)) !=
+                BVH_SUCCESS)
+            goto fail;
+    } else if (nodes8) {
         if (!(wide = BVH__ALLOC(&tree->allocator, bvh_node8, nodes8))) {
             r = BVH_ERROR_OUT_OF_MEMORY;
             goto fail;
         }
-        if ((r = bvh__read_array(&rd, wide, (size_t)nodes8 * sizeof(bvh_node8), 0, 3, nt, &check, &bad)) != BVH_SUCCESS)
+        if ((r = bvh__read_array(&rd, wide, (size_t)nodes8 * sizeof(bvh_node8), 0, 3, &h, nt, &check, &bad)) !=
+            BVH_SUCCESS)
             goto fail;
     }
     tree->node_count = h.node_count;
@@ -8695,23 +8826,20 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         r = BVH_ERROR_CORRUPT;
         goto fail;
     }
-    if ((r = bvh__validate_linear(tree)) != BVH_SUCCESS) {
+    /* the leaves' triangles: in the checks, or in bvh__wide_load, where they are read anyway */
+    if ((r = bvh__validate_load(tree, !(nodes8 && desc->trace_width != 2), nt)) != BVH_SUCCESS) {
         if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT;
         goto fail;
     }
-    if (wide && desc->trace_width != 2) { /* the saved layout, its packets remade */
-        uint64_t sum = 0;
-        for (i = 0; i < nodes8; i++)
-            for (k = 0; k < BVH__W; k++) sum += wide[i].count[k];
-        if (sum > h.ref_count) { /* each packet holds a reference of its own */
+    if (wide && desc->trace_width != 2) { /* the saved layout from a stream, its packets remade */
+        if ((packets = bvh__wide_packet_sum(wide, nodes8, h.ref_count)) == BVH_INVALID) {
             r = BVH_ERROR_CORRUPT;
             goto fail;
         }
-        packets = (uint32_t)sum;
         if ((r = bvh__wide_alloc(tree, &tree->allocator, nodes8, packets)) != BVH_SUCCESS) goto fail;
         memcpy(tree->nodes8, wide, (size_t)nodes8 * sizeof(bvh_node8));
-        bvh__free(&tree->allocator, wide);
-        wide = NULL;
+    }
+    if (tree->nodes8) {
         if ((r = bvh__wide_load(tree, nt)) != BVH_SUCCESS) goto fail;
     } else if (tree->tris && desc->trace_width == 8) { /* saved without: made as bvh_build does */
         if ((r = bvh__make_wide(tree, &tree->allocator, NULL, nt)) != BVH_SUCCESS) {

@@ -7750,6 +7750,7 @@ typedef struct bvh__refit {
     const bvh_triangles *tris; /* the new triangles, or */
     const bvh_aabb *boxes;     /* the new boxes */
     uint32_t heads[BVH__REFIT_HEADS], top[BVH__REFIT_HEADS], nheads, ntop;
+    uint32_t next; /* the 8-wide pass: the next head to take */
     uint32_t bad[BVH__MAX_THREADS]; /* per thread: the precheck's failures; the walk's broken nodes */
 } bvh__refit;
 
@@ -8021,13 +8022,22 @@ static int bvh__refit_wsubtree(const bvh__refit *j, uint32_t h, bvh__wnode_scrat
     }
     return 1;
 }
+/* The heads taken one at a time by whichever thread is free (their subtrees vary a lot in size; a
+   fixed share left one thread waiting for the other); without atomics, every nt-th. Each box is
+   the same whoever computes it. */
 static void bvh__refit_wide_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__refit *j = BVH__CAST(bvh__refit *, arg);
     bvh__wnode_scratch sc; /* 9 KiB of this thread's stack */
     uint32_t i;
     (void)team;
+#if defined(__GNUC__) || defined(__clang__)
+    (void)nt;
+    while ((i = __atomic_fetch_add(&j->next, 1u, __ATOMIC_RELAXED)) < j->nheads)
+        if (!bvh__refit_wsubtree(j, j->heads[i], &sc)) j->bad[tid]++;
+#else
     for (i = tid; i < j->nheads; i += nt)
         if (!bvh__refit_wsubtree(j, j->heads[i], &sc)) j->bad[tid]++;
+#endif
 }
 /* The wide heads: from the root, each head with wide children is replaced by them, round after
    round, until there are BVH__REFIT_HEADS / 4 or more (or no more can be opened). The replaced

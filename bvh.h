@@ -7750,7 +7750,7 @@ typedef struct bvh__refit {
     const bvh_triangles *tris; /* the new triangles, or */
     const bvh_aabb *boxes;     /* the new boxes */
     uint32_t heads[BVH__REFIT_HEADS], top[BVH__REFIT_HEADS], nheads, ntop;
-    uint32_t next; /* the 8-wide pass: the next head to take */
+    uint32_t next;                  /* the 8-wide pass: the next head to take */
     uint32_t bad[BVH__MAX_THREADS]; /* per thread: the precheck's failures; the walk's broken nodes */
 } bvh__refit;
 
@@ -8398,41 +8398,25 @@ static bvh_result bvh__read_all(bvh__reader *rd, void *out, size_t size) {
     }
     return BVH_SUCCESS;
 }
-/* The checks of one node that need nothing but the node, its position g and the counts, made in the
-   read pass while the piece is in cache (bvh__validate_load does the rest): a valid box (not
-   NaN), a leaf's references inside the array and at most BVH__MAX_LEAF of them (no builder makes
-   more; the 8-wide layout's leaf slots are gathered in buffers of that size), an interior node's
-   children after it and inside the array. Branch-free: a valid tree takes no branch. */
-static int bvh__nodes_ok(const bvh_node *n, size_t count, size_t g, uint32_t node_count, uint32_t ref_count) {
+/* The payload's values a valid tree cannot hold and the validator does not look at: leaves of more
+   than BVH__MAX_LEAF references, as no builder makes (the 8-wide layout's leaf slots are gathered
+   in buffers of that size), and non-finite triangle coordinates (bvh_build refuses them,
+   traversal assumes none). Checked by bits, without branches. */
+static int bvh__leaves_small(const bvh_node *n, size_t count) {
     size_t i;
     uint32_t bad = 0;
-    for (i = 0; i < count; i++, g++) {
-        const bvh_node *x = &n[i];
-        bad |= (uint32_t)!(x->min.x <= x->max.x) | (uint32_t)!(x->min.y <= x->max.y) | (uint32_t)!(x->min.z <= x->max.z);
-        if (x->count) /* index > ref_count first: then the subtraction's wrap does not matter */
-            bad |= (uint32_t)(x->count > BVH__MAX_LEAF) | (uint32_t)(x->index > ref_count) |
-                   (uint32_t)(x->count > ref_count - x->index);
-        else
-            bad |= (uint32_t)(x->index <= g) | (uint32_t)(x->index >= node_count - 1);
-    }
+    for (i = 0; i < count; i++) bad |= n[i].count > BVH__MAX_LEAF;
     return !bad;
 }
-/* Every reference's primitive in range. */
-static int bvh__prims_ok(const uint32_t *p, size_t count, uint32_t prim_count) {
-    size_t i;
-    uint32_t bad = 0;
-    for (i = 0; i < count; i++) bad |= (uint32_t)(p[i] >= prim_count);
-    return !bad;
-}
+static int bvh__floats_finite(const float *t, size_t n) { return !bvh__any_nonfinite(t, n); }
 /* A payload array read in pieces (BVH__PIECE), each hashed (bvh__payload_check) and checked as
-   `kind` says (1 nodes: bvh__nodes_ok, 2 triangles: finite, as bvh_build demands and traversal
-   assumes, 4 references: bvh__prims_ok) while it is still in cache: one pass over the memory.
-   From a memory buffer, the pieces are spread over the load's team; from a stream, read in order. */
+   `kind` says (1 nodes, 2 triangles) while it is still in cache: one pass over the memory. From a
+   memory buffer, the pieces are spread over the load's team; from a stream, read in order. */
 typedef struct bvh__load_array {
     const unsigned char *src; /* the memory buffer's bytes; NULL: a stream */
     unsigned char *out;
     size_t size;
-    uint32_t array, node_count, ref_count, prim_count;
+    uint32_t array;
     int kind;
     uint64_t check[BVH__MAX_THREADS];
     int bad[BVH__MAX_THREADS];
@@ -8440,14 +8424,12 @@ typedef struct bvh__load_array {
 static void bvh__load_piece(bvh__load_array *a, size_t i, uint32_t tid) {
     unsigned char *p = a->out + i * BVH__PIECE;
     size_t n = a->size - i * BVH__PIECE < BVH__PIECE ? a->size - i * BVH__PIECE : BVH__PIECE;
-    void *v = p;
     if (a->src) memcpy(p, a->src + i * BVH__PIECE, n);
     a->check[tid] += bvh__piece_check(p, n, a->array, i);
     if (a->kind == 1)
-        a->bad[tid] |= !bvh__nodes_ok(BVH__CAST(const bvh_node *, v), n / sizeof(bvh_node),
-                                      i * (BVH__PIECE / sizeof(bvh_node)), a->node_count, a->ref_count);
-    if (a->kind == 2) a->bad[tid] |= bvh__any_nonfinite(v, n / sizeof(float));
-    if (a->kind == 4) a->bad[tid] |= !bvh__prims_ok(BVH__CAST(const uint32_t *, v), n / sizeof(uint32_t), a->prim_count);
+        a->bad[tid] |= !bvh__leaves_small(BVH__CAST(const bvh_node *, BVH__CAST(void *, p)), n / sizeof(bvh_node));
+    if (a->kind == 2)
+        a->bad[tid] |= !bvh__floats_finite(BVH__CAST(const float *, BVH__CAST(void *, p)), n / sizeof(float));
 }
 static void bvh__load_array_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__load_array *a = BVH__CAST(bvh__load_array *, arg);
@@ -8455,8 +8437,8 @@ static void bvh__load_array_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *
     (void)team;
     for (i = tid; i * BVH__PIECE < a->size; i += nt) bvh__load_piece(a, i, tid);
 }
-static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int kind, uint32_t array,
-                                  const bvh__file_header *h, uint32_t threads, uint64_t *check, int *bad) {
+static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int kind, uint32_t array, uint32_t threads,
+                                  uint64_t *check, int *bad) {
     bvh__load_array a;
     size_t i;
     bvh_result r;
@@ -8464,9 +8446,6 @@ static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int k
     a.out = BVH__CAST(unsigned char *, out);
     a.size = size;
     a.array = array;
-    a.node_count = h->node_count;
-    a.ref_count = h->ref_count;
-    a.prim_count = h->prim_count;
     a.kind = kind;
     if (!rd->d->read) { /* memory: the pieces on the team (at least 1 MiB each thread) */
         uint32_t nt = (uint32_t)(size >> 20) < threads ? (uint32_t)(size >> 20) : threads;
@@ -8521,31 +8500,62 @@ static bvh_result bvh__check_header(const bvh__file_header *h, const bvh_load_de
     if (d->max_bytes && payload > d->max_bytes) return BVH_ERROR_CORRUPT;
     return BVH_SUCCESS;
 }
-/* bvh_validate's checks of the binary tree, for bvh_load (8-wide nodes left to bvh__wide_load). The
-   read pass checked each node alone (bvh__nodes_ok: boxes valid, indices in range, children after
-   their parent) and each reference's primitive (in range). Here, on the load's team, by node
-   ranges: children's boxes inside their parent's, a leaf's triangles in its box (overlapping it,
-   for a tree with split references); and by ranges of primitive ids, each thread reading every
-   reference but marking only its own ids (no two threads write one byte): the primitives used,
-   each once unless the builder splits. Then one cheap forward pass over the nodes' links on one
-   thread: every builder stores children after their parent, so when node i is met its parent, if
-   it has one, was met before; each node but the root must be reached exactly once and no deeper
-   than BVH_MAX_DEPTH (depth + 1 per node, a byte, 0 = not reached: then never), and the leaves'
-   reference ranges must not overlap and must cover the references. */
-#define BVH__CHECK_CHUNK 4096u /* nodes a thread takes at a time */
-typedef struct bvh__load_check {
-    const bvh_tree *t;
-    uint8_t *used, *depth, *cover;
-    int splits, leaf_tris; /* leaf_tris: check the leaves' triangles here (else bvh__wide_load does) */
-    size_t next;           /* the next chunk of nodes to take */
-    uint32_t distinct[BVH__MAX_THREADS];
-    int bad[BVH__MAX_THREADS], links_bad;
-} bvh__load_check;
+/* bvh_validate's checks of the binary tree in one forward pass, for bvh_load (but the leaves'
+   triangles, checked on the team by bvh__load_checks, and the 8-wide nodes, by bvh__wide_load_node):
+   every builder stores children after their parent, so when node i is met its parent, if it has
+   one, was met before. Each node but the root must be reached exactly once and no deeper than
+   BVH_MAX_DEPTH (depth + 1 per node, a byte, 0 = not reached: then never), its box valid and
+   inside its parent's, a leaf's references inside the array, their primitives in range (once each
+   unless the builder splits). */
+static bvh_result bvh__validate_linear(const bvh_tree *t) {
+    bvh_allocator al = t->allocator;
+    uint8_t *depth = BVH__ALLOC(&al, uint8_t, t->node_count), *used = BVH__ALLOC(&al, uint8_t, t->prim_count);
+    uint64_t refs = 0;
+    uint32_t i, k, n_used = 0;
+    int splits = t->ref_count != t->prim_count - t->excluded;
+    bvh_result r = BVH_ERROR_INVALID_TREE;
+    if (!depth || !used) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    if (splits && !bvh__builders[t->builder].info.splits_references) goto done;
+    memset(depth, 0, t->node_count);
+    memset(used, 0, t->prim_count);
+    depth[0] = 1;
+    for (i = 0; i < t->node_count; i++) {
+        const bvh_node *n = &t->nodes[i];
+        bvh_aabb box = bvh__node_box(n);
+        if (!depth[i] || !(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z)) goto done;
+        if (n->count) {
+            if (n->index > t->ref_count || n->count > t->ref_count - n->index) goto done;
+            refs += n->count;
+            for (k = n->index; k < n->index + n->count; k++) {
+                uint32_t p = t->prims[k];
+                if (p >= t->prim_count || (used[p] && !splits)) goto done;
+                n_used += !used[p];
+                used[p] = 1;
+            }
+            continue;
+        }
+        if (n->index <= i || n->index >= t->node_count - 1 || depth[i] > BVH_MAX_DEPTH) goto done;
+        for (k = n->index; k < n->index + 2; k++) {
+            if (depth[k] || !bvh_aabb_contains(box, bvh__node_box(&t->nodes[k]))) goto done;
+            depth[k] = (uint8_t)(depth[i] + 1);
+        }
+    }
+    if (refs == t->ref_count && n_used == t->prim_count - t->excluded) r = BVH_SUCCESS;
+done:
+    bvh__free(&al, depth);
+    bvh__free(&al, used);
+    return r;
+}
+/* The triangles of leaf n inside its box (for split references, clipped: each overlapping it).
+   The leaf's range must have been checked. */
 static int bvh__leaf_tris_ok(const float *tris, const bvh_node *n, int splits) {
     bvh_aabb box = bvh__node_box(n);
     uint32_t k;
     if (!splits) return bvh_aabb_contains(box, bvh__tris_box(tris + 9 * (size_t)n->index, n->count));
-    for (k = n->index; k < n->index + n->count; k++) { /* a clipped reference: its triangle meets the box */
+    for (k = n->index; k < n->index + n->count; k++) {
         bvh_aabb pb = bvh__tri_box(tris + 9 * (size_t)k);
         if (!(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z && pb.max.x >= box.min.x &&
               pb.max.y >= box.min.y && pb.max.z >= box.min.z))
@@ -8553,127 +8563,19 @@ static int bvh__leaf_tris_ok(const float *tris, const bvh_node *n, int splits) {
     }
     return 1;
 }
-/* The links pass (see above): 0 if a node is not reached, reached twice or too deep, or the leaves'
-   ranges overlap or leave references out. Indices are in range (bvh__nodes_ok). */
-static int bvh__load_links(const bvh_tree *t, uint8_t *depth, uint8_t *cover) {
-    uint64_t refs = 0;
-    uint32_t i, k;
-    memset(depth, 0, t->node_count);
-    memset(cover, 0, t->ref_count);
-    depth[0] = 1;
-    for (i = 0; i < t->node_count; i++) {
-        const bvh_node *n = &t->nodes[i];
-        uint32_t taken = 0;
-        if (!depth[i]) return 0;
-        if (n->count) {
-            refs += n->count;
-            for (k = n->index; k < n->index + n->count; k++) {
-                taken |= cover[k];
-                cover[k] = 1;
-            }
-            if (taken) return 0;
-            continue;
-        }
-        if (depth[i] > BVH_MAX_DEPTH || depth[n->index] || depth[n->index + 1]) return 0;
-        depth[n->index] = depth[n->index + 1] = (uint8_t)(depth[i] + 1);
-    }
-    return refs == t->ref_count;
-}
-/* Chunk k of the nodes: the boxes' nesting (and the leaves' triangles if asked). */
-static int bvh__load_check_nodes(const bvh__load_check *c, size_t b, size_t e) {
-    const bvh_tree *t = c->t;
-    size_t i;
-    for (i = b; i < e; i++) {
-        const bvh_node *n = &t->nodes[i];
-        if (i + 8 < e && !t->nodes[i + 8].count) /* the children lie anywhere after: ask ahead */
-            BVH__PREFETCH(&t->nodes[t->nodes[i + 8].index]);
-        if (n->count) {
-            if (c->leaf_tris && !bvh__leaf_tris_ok(t->tris, n, c->splits)) return 0;
-        } else if (!bvh_aabb_contains(bvh__node_box(n), bvh__node_box(&t->nodes[n->index])) ||
-                   !bvh_aabb_contains(bvh__node_box(n), bvh__node_box(&t->nodes[n->index + 1]))) {
-            return 0;
-        }
-    }
-    return 1;
-}
-/* Thread 0 makes the links pass first, the others start on the chunks of nodes at once, and all
-   take chunks until none is left (without atomics: a fixed share each); then each thread marks
-   the primitives of its range of ids. */
-static void bvh__load_check_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
-    bvh__load_check *c = BVH__CAST(bvh__load_check *, arg);
-    const bvh_tree *t = c->t;
-    size_t b, e, i;
-    uint32_t lo, span, distinct = 0;
-    int bad = 0;
-    (void)team;
-    if (tid == 0) c->links_bad = !bvh__load_links(t, c->depth, c->cover);
-#if defined(__GNUC__) || defined(__clang__)
-    while (!bad && (b = __atomic_fetch_add(&c->next, (size_t)BVH__CHECK_CHUNK, __ATOMIC_RELAXED)) < t->node_count)
-        bad = !bvh__load_check_nodes(c, b, b + BVH__CHECK_CHUNK < t->node_count ? b + BVH__CHECK_CHUNK : t->node_count);
-#else
-    bvh__range(t->node_count, tid, nt, &b, &e);
-    bad = !bvh__load_check_nodes(c, b, e);
-#endif
-    bvh__range(t->prim_count, tid, nt, &b, &e);
-    lo = (uint32_t)b;
-    span = (uint32_t)(e - b);
-    for (i = 0; i < t->ref_count && !bad; i++) {
-        uint32_t p = t->prims[i];
-        if (p - lo >= span) continue; /* another thread's (unsigned: below lo wraps above span) */
-        bad = c->used[p] && !c->splits;
-        distinct += !c->used[p];
-        c->used[p] = 1;
-    }
-    c->distinct[tid] = distinct;
-    c->bad[tid] = bad;
-}
-static bvh_result bvh__validate_load(const bvh_tree *t, int leaf_tris, uint32_t threads) {
-    bvh_allocator al = t->allocator;
-    bvh__load_check c;
-    uint64_t distinct = 0;
-    uint32_t i, nt = t->ref_count / BVH__MIN_PRIMS_PER_THREAD;
-    bvh_result r = BVH_ERROR_INVALID_TREE;
-    memset(&c, 0, sizeof c);
-    c.depth = BVH__ALLOC(&al, uint8_t, t->node_count);
-    c.used = BVH__ALLOC(&al, uint8_t, t->prim_count);
-    c.cover = BVH__ALLOC(&al, uint8_t, t->ref_count);
-    if (!c.depth || !c.used || !c.cover) {
-        r = BVH_ERROR_OUT_OF_MEMORY;
-        goto done;
-    }
-    c.t = t;
-    c.splits = t->ref_count != t->prim_count - t->excluded;
-    c.leaf_tris = leaf_tris && t->tris;
-    if (c.splits && !bvh__builders[t->builder].info.splits_references) goto done;
-    memset(c.used, 0, t->prim_count);
-    bvh__team_run_always(&al, threads < nt ? threads : nt ? nt : 1, bvh__load_check_fn, &c);
-    for (i = 0; i < BVH__MAX_THREADS; i++) {
-        if (c.bad[i]) goto done;
-        distinct += c.distinct[i];
-    }
-    if (!c.links_bad && distinct == t->prim_count - t->excluded) r = BVH_SUCCESS;
-done:
-    bvh__free(&al, c.depth);
-    bvh__free(&al, c.used);
-    bvh__free(&al, c.cover);
-    return r;
-}
 /* The saved 8-wide nodes (in tree.nodes8, tree.node8_count; tree.tri4_count packets, the sum of
    their leaf counts) made whole: boxes from the binary nodes and packets from tree.tris, following
    each node's grouping, which must fit the binary tree (validated before): the root's head is the
    binary root, each interior slot a wide node after its parent whose head is that slot (so every
    wide node but the root has one parent: a tree, as deep as the binary one at most, and each
    binary node in one grouping), each leaf slot's packets as many as its references fill, inside
-   the array and in no other slot. Two linear passes: the links and packet ranges on one thread,
-   then the groupings, boxes and packets on the team (each node writes only its own slots and
-   packets, whose ranges the first pass found disjoint). The leaf slots' walks meet every binary
-   leaf once, so the leaves' triangles are checked against their boxes here, while they are read
-   for the packets (bvh__validate_load leaves them to this pass). BVH_ERROR_CORRUPT where they do
-   not fit. */
-typedef struct bvh__wide_load_job {
-    bvh_tree *tree;
-    uint32_t bad[BVH__MAX_THREADS];
-} bvh__wide_load_job;
+   the array and in no other slot. Two linear passes: the links and packet ranges on one thread
+   (bvh__wide_links), then the groupings, boxes and packets on the team (each node writes only its
+   own slots and packets, whose ranges the first pass found disjoint). The leaf slots' walks meet
+   every binary leaf once, so the leaves' triangles are checked against their boxes here, while
+   they are read for the packets. Each step checks the binary nodes it follows (indices in range,
+   children after their parent), so that this pass may run while bvh__validate_linear checks the
+   binary tree on another thread: the tree is accepted only if both pass. */
 static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_scratch *sc) {
     bvh_node8 *n = &t->nodes8[w];
     bvh__group g;
@@ -8694,8 +8596,7 @@ static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_s
             if (!bvh__slot_walk(t, g.slot[i], sc->pre, &npre, sc->refs, &nref)) return 0;
             if (n->count[i] != (nref - r0 + BVH__PACKET - 1) / BVH__PACKET) return 0;
             for (k = p0; k < npre; k++) /* bvh__validate_load left the leaves' triangles to this pass */
-                if (t->nodes[sc->pre[k]].count && !bvh__leaf_tris_ok(t->tris, &t->nodes[sc->pre[k]], splits))
-                    return 0;
+                if (t->nodes[sc->pre[k]].count && !bvh__leaf_tris_ok(t->tris, &t->nodes[sc->pre[k]], splits)) return 0;
             bvh__packets_write(sc->refs + r0, nref - r0, t->prims, t->tris, t->tri4 + n->child[i]);
         } else if (t->nodes8[n->child[i]].head != g.slot[i]) {
             return 0;
@@ -8705,49 +8606,95 @@ static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_s
     memset(n->pad, 0, sizeof n->pad);
     return 1;
 }
-static void bvh__wide_load_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
-    bvh__wide_load_job *j = BVH__CAST(bvh__wide_load_job *, arg);
-    bvh__wnode_scratch sc; /* 9 KiB of this thread's stack */
-    size_t b, e, w;
-    int splits = j->tree->ref_count != j->tree->prim_count - j->tree->excluded;
-    (void)team;
-    bvh__range(j->tree->node8_count, tid, nt, &b, &e);
-    for (w = b; w < e && !j->bad[tid]; w++) j->bad[tid] += !bvh__wide_load_node(j->tree, (uint32_t)w, splits, &sc);
-}
-static bvh_result bvh__wide_load(bvh_tree *t, uint32_t threads) {
-    uint8_t *parent = BVH__ALLOC(&t->allocator, uint8_t, t->node8_count);
-    uint8_t *cover = BVH__ALLOC(&t->allocator, uint8_t, t->tri4_count ? t->tri4_count : 1);
-    bvh__wide_load_job job;
-    bvh_result r = BVH_ERROR_CORRUPT;
-    uint32_t w, i, k, nt;
-    if (!parent || !cover) {
-        r = BVH_ERROR_OUT_OF_MEMORY;
-        goto done;
-    }
+/* The 8-wide nodes' links and packet ranges (see above), on one thread: 0 where they do not fit. */
+static int bvh__wide_links(const bvh_tree *t, uint8_t *parent, uint8_t *cover) {
+    uint32_t w, i, k;
     memset(parent, 0, t->node8_count);
     memset(cover, 0, t->tri4_count ? t->tri4_count : 1);
-    if (t->nodes8[0].head != 0) goto done;
+    if (t->nodes8[0].head != 0) return 0;
     for (w = 0; w < t->node8_count; w++) {
         const bvh_node8 *n = &t->nodes8[w];
         for (i = 0; i < BVH__W; i++)
             if (n->count[i]) {
-                if (n->child[i] > t->tri4_count || n->count[i] > t->tri4_count - n->child[i]) goto done;
+                if (n->child[i] > t->tri4_count || n->count[i] > t->tri4_count - n->child[i]) return 0;
                 for (k = n->child[i]; k < n->child[i] + n->count[i]; k++)
-                    if (cover[k]++) goto done;
+                    if (cover[k]++) return 0;
             } else if (n->child[i] && (n->child[i] <= w || n->child[i] >= t->node8_count || parent[n->child[i]]++)) {
-                goto done;
+                return 0;
             }
     }
     for (w = 1; w < t->node8_count; w++)
-        if (!parent[w]) goto done;
+        if (!parent[w]) return 0;
+    return 1; /* packets: each in one slot, and as many as the slots' counts */
+}
+/* The checks of a loaded tree and the remaking of its 8-wide layout in one team pass: thread 0
+   runs bvh__validate_linear, the one pass that needs order, while every thread takes chunks of
+   the work that needs none (an atomic counter; without it a fixed share each): the 8-wide nodes
+   (bvh__wide_load_node, which checks the leaves' triangles as it packs them), or, without the
+   8-wide layout, the leaves' triangles by chunks of binary nodes. */
+#define BVH__LOAD_CHUNK 64u /* 8-wide nodes a thread takes at a time (binary nodes: 64 times more) */
+typedef struct bvh__load_job {
+    bvh_tree *tree;
+    size_t next, count; /* the next chunk; the items (8-wide nodes, else binary nodes) */
+    uint32_t chunk;
+    int splits;
+    bvh_result checked; /* bvh__validate_linear's */
+    uint32_t bad[BVH__MAX_THREADS];
+} bvh__load_job;
+static int bvh__load_items(bvh__load_job *j, size_t b, size_t e, bvh__wnode_scratch *sc) {
+    bvh_tree *t = j->tree;
+    size_t i;
+    for (i = b; i < e; i++) {
+        if (t->nodes8) {
+            if (!bvh__wide_load_node(t, (uint32_t)i, j->splits, sc)) return 0;
+        } else {
+            const bvh_node *n = &t->nodes[i]; /* its range is checked here: the linear pass may not be there yet */
+            if (n->count && (n->index > t->ref_count || n->count > t->ref_count - n->index ||
+                             !bvh__leaf_tris_ok(t->tris, n, j->splits)))
+                return 0;
+        }
+    }
+    return 1;
+}
+static void bvh__load_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__load_job *j = BVH__CAST(bvh__load_job *, arg);
+    bvh__wnode_scratch sc; /* 9 KiB of this thread's stack */
+    size_t b, e;
+    (void)team;
+    if (tid == 0) j->checked = bvh__validate_linear(j->tree);
+#if defined(__GNUC__) || defined(__clang__)
+    (void)nt;
+    while (!j->bad[tid] && (b = __atomic_fetch_add(&j->next, (size_t)j->chunk, __ATOMIC_RELAXED)) < j->count) {
+        e = j->count - b < j->chunk ? j->count : b + j->chunk;
+        j->bad[tid] = !bvh__load_items(j, b, e, &sc);
+    }
+#else
+    bvh__range(j->count, tid, nt, &b, &e);
+    j->bad[tid] = !bvh__load_items(j, b, e, &sc);
+#endif
+}
+static bvh_result bvh__load_checks(bvh_tree *t, uint32_t threads) {
+    size_t marks = t->nodes8 ? t->node8_count : 1, covers = t->nodes8 && t->tri4_count ? t->tri4_count : 1;
+    uint8_t *parent = BVH__ALLOC(&t->allocator, uint8_t, marks), *cover = BVH__ALLOC(&t->allocator, uint8_t, covers);
+    bvh__load_job job;
+    bvh_result r = BVH_ERROR_CORRUPT;
+    uint32_t i, nt;
     memset(&job, 0, sizeof job);
+    if (!parent || !cover) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    if (t->nodes8 && !bvh__wide_links(t, parent, cover)) goto done;
     job.tree = t;
+    job.splits = t->ref_count != t->prim_count - t->excluded;
+    job.count = t->nodes8 ? t->node8_count : t->tris ? t->node_count : 0;
+    job.chunk = t->nodes8 ? BVH__LOAD_CHUNK : 64 * BVH__LOAD_CHUNK;
     nt = t->ref_count / BVH__MIN_PRIMS_PER_THREAD;
     nt = threads < nt ? threads : nt ? nt : 1;
-    bvh__team_run_always(&t->allocator, nt, bvh__wide_load_fn, &job);
+    bvh__team_run_always(&t->allocator, nt, bvh__load_fn, &job);
+    if ((r = job.checked) != BVH_SUCCESS) goto done; /* INVALID_TREE: the caller says CORRUPT */
     for (i = 0; i < BVH__MAX_THREADS; i++)
-        if (job.bad[i]) goto done;
-    r = BVH_SUCCESS; /* packets: each in one slot, and as many as the slots' counts */
+        if (job.bad[i]) r = BVH_ERROR_CORRUPT;
 done:
     bvh__free(&t->allocator, parent);
     bvh__free(&t->allocator, cover);
@@ -8801,12 +8748,12 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         goto fail;
     }
     check = 0; /* bvh__payload_check's sum */
-    if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, 0, &h, nt, &check, &bad)) !=
+    if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, 0, nt, &check, &bad)) !=
             BVH_SUCCESS ||
-        (r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 4, 1, &h, nt, &check, &bad)) !=
+        (r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 0, 1, nt, &check, &bad)) !=
             BVH_SUCCESS ||
-        (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, 2, &h, nt,
-                                            &check, &bad)) != BVH_SUCCESS))
+        (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, 2, nt, &check,
+                                            &bad)) != BVH_SUCCESS))
         goto fail;
     if (nodes8 && desc->trace_width != 2 && !desc->read) {
         /* from memory, the packets are counted in the buffer and the nodes read into their block,
@@ -8818,7 +8765,7 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
             goto fail;
         }
         if ((r = bvh__wide_alloc(tree, &tree->allocator, nodes8, packets)) != BVH_SUCCESS ||
-            (r = bvh__read_array(&rd, tree->nodes8, (size_t)nodes8 * sizeof(bvh_node8), 0, 3, &h, nt, &check, &bad)) !=
+            (r = bvh__read_array(&rd, tree->nodes8, (size_t)nodes8 * sizeof(bvh_node8), 0, 3, nt, &check, &bad)) !=
                 BVH_SUCCESS)
             goto fail;
     } else if (nodes8) {
@@ -8826,19 +8773,13 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
             r = BVH_ERROR_OUT_OF_MEMORY;
             goto fail;
         }
-        if ((r = bvh__read_array(&rd, wide, (size_t)nodes8 * sizeof(bvh_node8), 0, 3, &h, nt, &check, &bad)) !=
-            BVH_SUCCESS)
+        if ((r = bvh__read_array(&rd, wide, (size_t)nodes8 * sizeof(bvh_node8), 0, 3, nt, &check, &bad)) != BVH_SUCCESS)
             goto fail;
     }
     tree->node_count = h.node_count;
     tree->ref_count = h.ref_count;
     if (check != h.payload_check || bad) {
         r = BVH_ERROR_CORRUPT;
-        goto fail;
-    }
-    /* the leaves' triangles: in the checks, or in bvh__wide_load, where they are read anyway */
-    if ((r = bvh__validate_load(tree, !(nodes8 && desc->trace_width != 2), nt)) != BVH_SUCCESS) {
-        if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT;
         goto fail;
     }
     if (wide && desc->trace_width != 2) { /* the saved layout from a stream, its packets remade */
@@ -8849,9 +8790,11 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         if ((r = bvh__wide_alloc(tree, &tree->allocator, nodes8, packets)) != BVH_SUCCESS) goto fail;
         memcpy(tree->nodes8, wide, (size_t)nodes8 * sizeof(bvh_node8));
     }
-    if (tree->nodes8) {
-        if ((r = bvh__wide_load(tree, nt)) != BVH_SUCCESS) goto fail;
-    } else if (tree->tris && desc->trace_width == 8) { /* saved without: made as bvh_build does */
+    if ((r = bvh__load_checks(tree, nt)) != BVH_SUCCESS) { /* and the 8-wide layout remade */
+        if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT;
+        goto fail;
+    }
+    if (!tree->nodes8 && tree->tris && desc->trace_width == 8) { /* saved without: made as bvh_build does */
         if ((r = bvh__make_wide(tree, &tree->allocator, NULL, nt)) != BVH_SUCCESS) {
             if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT; /* children before their parent */
             goto fail;

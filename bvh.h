@@ -5968,7 +5968,31 @@ BVH__INLINE uint32_t bvh__wide_refs(const bvh__wide_src *s, uint32_t b) { return
 BVH__INLINE uint32_t bvh__wide_packets(const bvh__wide_src *s, uint32_t b) {
     return (bvh__wide_refs(s, b) + BVH__PACKET - 1) / BVH__PACKET;
 }
-/* The packets of n references (tree positions refs[], their triangles in tris), four to a packet. */
+#ifdef BVH__SSE
+/* Whether any of four triangles, by coordinate in lanes (x0 = the first vertices' x, ...), has
+   zero area: bvh__tri_zero_area's double arithmetic, two lanes at a time, so the same answer. */
+BVH__INLINE __m128d bvh__pd(__m128 v, int high) { return _mm_cvtps_pd(high ? _mm_movehl_ps(v, v) : v); }
+static int bvh__any_zero_area4(__m128 x0, __m128 y0, __m128 z0, __m128 x1, __m128 y1, __m128 z1, __m128 x2, __m128 y2,
+                               __m128 z2) {
+    const __m128d zero = _mm_setzero_pd();
+    int h, m = 0;
+    for (h = 0; h < 2; h++) {
+        __m128d ax = bvh__pd(x0, h), ay = bvh__pd(y0, h), az = bvh__pd(z0, h);
+        __m128d e1x = _mm_sub_pd(bvh__pd(x1, h), ax), e1y = _mm_sub_pd(bvh__pd(y1, h), ay);
+        __m128d e1z = _mm_sub_pd(bvh__pd(z1, h), az), e2x = _mm_sub_pd(bvh__pd(x2, h), ax);
+        __m128d e2y = _mm_sub_pd(bvh__pd(y2, h), ay), e2z = _mm_sub_pd(bvh__pd(z2, h), az);
+        __m128d cx = _mm_sub_pd(_mm_mul_pd(e1y, e2z), _mm_mul_pd(e1z, e2y));
+        __m128d cy = _mm_sub_pd(_mm_mul_pd(e1z, e2x), _mm_mul_pd(e1x, e2z));
+        __m128d cz = _mm_sub_pd(_mm_mul_pd(e1x, e2y), _mm_mul_pd(e1y, e2x));
+        m |= _mm_movemask_pd(
+            _mm_and_pd(_mm_cmpeq_pd(cx, zero), _mm_and_pd(_mm_cmpeq_pd(cy, zero), _mm_cmpeq_pd(cz, zero))));
+    }
+    return m != 0;
+}
+#endif
+/* The packets of n references (tree positions refs[], their triangles in tris), four to a packet.
+   A packet with a zero-area triangle (flat) holds each such one as a point; the lanes past the
+   references repeat lane 0, so they add no zero-area triangle of their own. */
 static void bvh__packets_write(const uint32_t *refs, uint32_t n, const uint32_t *prims, const float *tris,
                                bvh_tri4 *out) {
     uint32_t i, j, v, a;
@@ -5976,32 +6000,35 @@ static void bvh__packets_write(const uint32_t *refs, uint32_t n, const uint32_t 
         bvh_tri4 *p = &out[i];
         uint32_t lane[4];
         int flat = 0;
-        for (j = 0; j < 4; j++) {
-            lane[j] = refs[4 * i + (4 * i + j < n ? j : 0)];
-            flat |= (j == 0 || lane[j] != lane[0]) && bvh__tri_zero_area(tris + 9 * (size_t)lane[j]);
-        }
+        for (j = 0; j < 4; j++) lane[j] = refs[4 * i + (4 * i + j < n ? j : 0)];
 #ifdef BVH__SSE
-        if (!flat) { /* the common case: a 4 x 9 transpose, the same floats */
+        { /* the common case: a 4 x 9 transpose, the same floats */
             const float *t0 = tris + 9 * (size_t)lane[0], *t1 = tris + 9 * (size_t)lane[1];
             const float *t2 = tris + 9 * (size_t)lane[2], *t3 = tris + 9 * (size_t)lane[3];
             float *o = &p->v[0][0][0];
             __m128 a0 = _mm_loadu_ps(t0), a1 = _mm_loadu_ps(t1), a2 = _mm_loadu_ps(t2), a3 = _mm_loadu_ps(t3);
             __m128 b0 = _mm_loadu_ps(t0 + 4), b1 = _mm_loadu_ps(t1 + 4), b2 = _mm_loadu_ps(t2 + 4);
-            __m128 b3 = _mm_loadu_ps(t3 + 4);
+            __m128 b3 = _mm_loadu_ps(t3 + 4), c = _mm_setr_ps(t0[8], t1[8], t2[8], t3[8]);
             _MM_TRANSPOSE4_PS(a0, a1, a2, a3);
             _MM_TRANSPOSE4_PS(b0, b1, b2, b3);
-            _mm_storeu_ps(o, a0);
-            _mm_storeu_ps(o + 4, a1);
-            _mm_storeu_ps(o + 8, a2);
-            _mm_storeu_ps(o + 12, a3);
-            _mm_storeu_ps(o + 16, b0);
-            _mm_storeu_ps(o + 20, b1);
-            _mm_storeu_ps(o + 24, b2);
-            _mm_storeu_ps(o + 28, b3);
-            _mm_storeu_ps(o + 32, _mm_setr_ps(t0[8], t1[8], t2[8], t3[8]));
-            for (j = 0; j < 4; j++) p->prim[j] = prims[lane[j]];
-            continue;
+            flat = bvh__any_zero_area4(a0, a1, a2, a3, b0, b1, b2, b3, c);
+            if (!flat) {
+                _mm_storeu_ps(o, a0);
+                _mm_storeu_ps(o + 4, a1);
+                _mm_storeu_ps(o + 8, a2);
+                _mm_storeu_ps(o + 12, a3);
+                _mm_storeu_ps(o + 16, b0);
+                _mm_storeu_ps(o + 20, b1);
+                _mm_storeu_ps(o + 24, b2);
+                _mm_storeu_ps(o + 28, b3);
+                _mm_storeu_ps(o + 32, c);
+                for (j = 0; j < 4; j++) p->prim[j] = prims[lane[j]];
+                continue;
+            }
         }
+#else
+        for (j = 0; j < 4; j++)
+            flat |= (j == 0 || lane[j] != lane[0]) && bvh__tri_zero_area(tris + 9 * (size_t)lane[j]);
 #endif
         for (j = 0; j < 4; j++) {
             uint32_t k = lane[j];

@@ -8246,10 +8246,11 @@ BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
    memory, then the 8-wide nodes when the tree has them (their count is what the payload size
    leaves for them). Packets are not stored: they are a copy of tree.tris in the order the wide
    nodes' groupings give, remade on load in one linear pass that checks each grouping against the
-   binary tree (bvh__wide_load), as fast as a copy and a check of a stored copy would be, for 40%
+   binary tree (bvh__wide_load_node), as fast as a copy and a check of a stored copy would be, for 40%
    fewer bytes. A reader checks the byte-order marker, the header's checksum, then every size
    against the others and against caps before it allocates, then the payload's checksum, then the
-   tree's structure, so that no input makes it read or allocate out of bounds. Version 1 (0.6.0,
+   tree's structure (bvh__load_checks, with the packets), so that no input makes it read or
+   allocate out of bounds. Version 1 (0.6.0,
    no 8-wide nodes) is refused with BVH_ERROR_UNSUPPORTED_FORMAT: save such a tree again. */
 /* ============================================================================================ */
 #define BVH__FILE_VERSION 2u
@@ -8622,7 +8623,7 @@ static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_s
             uint32_t r0 = nref, p0 = npre, k;
             if (!bvh__slot_walk(t, g.slot[i], sc->pre, &npre, sc->refs, &nref)) return 0;
             if (n->count[i] != (nref - r0 + BVH__PACKET - 1) / BVH__PACKET) return 0;
-            for (k = p0; k < npre; k++) /* bvh__validate_load left the leaves' triangles to this pass */
+            for (k = p0; k < npre; k++) /* bvh__validate_linear leaves them to this pass */
                 if (t->nodes[sc->pre[k]].count && !bvh__leaf_tris_ok(t->tris, &t->nodes[sc->pre[k]], splits)) return 0;
             bvh__packets_write(sc->refs + r0, nref - r0, t->prims, t->tris, t->tri4 + n->child[i]);
         } else if (t->nodes8[n->child[i]].head != g.slot[i]) {

@@ -106,6 +106,21 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     Unreleased
+            bvh_load: the ordered checks of the binary tree (one forward pass) run on one thread
+            while the load's team remakes the 8-wide layout, whose steps check every index they
+            follow and which checks each leaf's triangles against its box as it reads them for
+            the packets (no pass of its own over tree.tris); without the 8-wide layout the
+            leaves' triangles are checked on the team. From a memory buffer the 8-wide nodes are
+            read straight into their block (the packets counted in the buffer first), not
+            through a copy. The format is unchanged (version 2). bvh_refit's 8-wide pass hands
+            its subtrees to whichever thread is free. A packet's zero-area test runs in SSE2 on
+            the transposed coordinates (byte-identical packets). On a shared, busy 2-core VM
+            (docs/bench/README.md, medians of three alternated runs): load of the dragon 87 ->
+            46 ms (bottom-up tree), 130 -> 99 (ploc-parallel), 177 -> 85 (sah-midpoint); of
+            gen:field:15 58 -> 65, 143 -> 97, 108 -> 99; rebuild / load 1.3-3.1x, rebuild /
+            refit 2.8-6.7x (refit unchanged within the noise): issue #17's 5x and 10x are not
+            met, both bound by memory bandwidth and first-touch page faults.
      0.7.0  CPU tracing: the 8-wide layout fills free slots (leaf slots are opened into their
             children where the packet tests' expected cost falls and no packet is added: the
             same memory, different tree.nodes8 and tree.tri4 contents, the same hits); closest
@@ -5973,7 +5988,31 @@ BVH__INLINE uint32_t bvh__wide_refs(const bvh__wide_src *s, uint32_t b) { return
 BVH__INLINE uint32_t bvh__wide_packets(const bvh__wide_src *s, uint32_t b) {
     return (bvh__wide_refs(s, b) + BVH__PACKET - 1) / BVH__PACKET;
 }
-/* The packets of n references (tree positions refs[], their triangles in tris), four to a packet. */
+#ifdef BVH__SSE
+/* Whether any of four triangles, by coordinate in lanes (x0 = the first vertices' x, ...), has
+   zero area: bvh__tri_zero_area's double arithmetic, two lanes at a time, so the same answer. */
+BVH__INLINE __m128d bvh__pd(__m128 v, int high) { return _mm_cvtps_pd(high ? _mm_movehl_ps(v, v) : v); }
+static int bvh__any_zero_area4(__m128 x0, __m128 y0, __m128 z0, __m128 x1, __m128 y1, __m128 z1, __m128 x2, __m128 y2,
+                               __m128 z2) {
+    const __m128d zero = _mm_setzero_pd();
+    int h, m = 0;
+    for (h = 0; h < 2; h++) {
+        __m128d ax = bvh__pd(x0, h), ay = bvh__pd(y0, h), az = bvh__pd(z0, h);
+        __m128d e1x = _mm_sub_pd(bvh__pd(x1, h), ax), e1y = _mm_sub_pd(bvh__pd(y1, h), ay);
+        __m128d e1z = _mm_sub_pd(bvh__pd(z1, h), az), e2x = _mm_sub_pd(bvh__pd(x2, h), ax);
+        __m128d e2y = _mm_sub_pd(bvh__pd(y2, h), ay), e2z = _mm_sub_pd(bvh__pd(z2, h), az);
+        __m128d cx = _mm_sub_pd(_mm_mul_pd(e1y, e2z), _mm_mul_pd(e1z, e2y));
+        __m128d cy = _mm_sub_pd(_mm_mul_pd(e1z, e2x), _mm_mul_pd(e1x, e2z));
+        __m128d cz = _mm_sub_pd(_mm_mul_pd(e1x, e2y), _mm_mul_pd(e1y, e2x));
+        m |= _mm_movemask_pd(
+            _mm_and_pd(_mm_cmpeq_pd(cx, zero), _mm_and_pd(_mm_cmpeq_pd(cy, zero), _mm_cmpeq_pd(cz, zero))));
+    }
+    return m != 0;
+}
+#endif
+/* The packets of n references (tree positions refs[], their triangles in tris), four to a packet.
+   A packet with a zero-area triangle (flat) holds each such one as a point; the lanes past the
+   references repeat lane 0, so they add no zero-area triangle of their own. */
 static void bvh__packets_write(const uint32_t *refs, uint32_t n, const uint32_t *prims, const float *tris,
                                bvh_tri4 *out) {
     uint32_t i, j, v, a;
@@ -5981,32 +6020,35 @@ static void bvh__packets_write(const uint32_t *refs, uint32_t n, const uint32_t 
         bvh_tri4 *p = &out[i];
         uint32_t lane[4];
         int flat = 0;
-        for (j = 0; j < 4; j++) {
-            lane[j] = refs[4 * i + (4 * i + j < n ? j : 0)];
-            flat |= (j == 0 || lane[j] != lane[0]) && bvh__tri_zero_area(tris + 9 * (size_t)lane[j]);
-        }
+        for (j = 0; j < 4; j++) lane[j] = refs[4 * i + (4 * i + j < n ? j : 0)];
 #ifdef BVH__SSE
-        if (!flat) { /* the common case: a 4 x 9 transpose, the same floats */
+        { /* the common case: a 4 x 9 transpose, the same floats */
             const float *t0 = tris + 9 * (size_t)lane[0], *t1 = tris + 9 * (size_t)lane[1];
             const float *t2 = tris + 9 * (size_t)lane[2], *t3 = tris + 9 * (size_t)lane[3];
             float *o = &p->v[0][0][0];
             __m128 a0 = _mm_loadu_ps(t0), a1 = _mm_loadu_ps(t1), a2 = _mm_loadu_ps(t2), a3 = _mm_loadu_ps(t3);
             __m128 b0 = _mm_loadu_ps(t0 + 4), b1 = _mm_loadu_ps(t1 + 4), b2 = _mm_loadu_ps(t2 + 4);
-            __m128 b3 = _mm_loadu_ps(t3 + 4);
+            __m128 b3 = _mm_loadu_ps(t3 + 4), c = _mm_setr_ps(t0[8], t1[8], t2[8], t3[8]);
             _MM_TRANSPOSE4_PS(a0, a1, a2, a3);
             _MM_TRANSPOSE4_PS(b0, b1, b2, b3);
-            _mm_storeu_ps(o, a0);
-            _mm_storeu_ps(o + 4, a1);
-            _mm_storeu_ps(o + 8, a2);
-            _mm_storeu_ps(o + 12, a3);
-            _mm_storeu_ps(o + 16, b0);
-            _mm_storeu_ps(o + 20, b1);
-            _mm_storeu_ps(o + 24, b2);
-            _mm_storeu_ps(o + 28, b3);
-            _mm_storeu_ps(o + 32, _mm_setr_ps(t0[8], t1[8], t2[8], t3[8]));
-            for (j = 0; j < 4; j++) p->prim[j] = prims[lane[j]];
-            continue;
+            flat = bvh__any_zero_area4(a0, a1, a2, a3, b0, b1, b2, b3, c);
+            if (!flat) {
+                _mm_storeu_ps(o, a0);
+                _mm_storeu_ps(o + 4, a1);
+                _mm_storeu_ps(o + 8, a2);
+                _mm_storeu_ps(o + 12, a3);
+                _mm_storeu_ps(o + 16, b0);
+                _mm_storeu_ps(o + 20, b1);
+                _mm_storeu_ps(o + 24, b2);
+                _mm_storeu_ps(o + 28, b3);
+                _mm_storeu_ps(o + 32, c);
+                for (j = 0; j < 4; j++) p->prim[j] = prims[lane[j]];
+                continue;
+            }
         }
+#else
+        for (j = 0; j < 4; j++)
+            flat |= (j == 0 || lane[j] != lane[0]) && bvh__tri_zero_area(tris + 9 * (size_t)lane[j]);
 #endif
         for (j = 0; j < 4; j++) {
             uint32_t k = lane[j];
@@ -7983,6 +8025,7 @@ typedef struct bvh__refit {
     const bvh_triangles *tris; /* the new triangles, or */
     const bvh_aabb *boxes;     /* the new boxes */
     uint32_t heads[BVH__REFIT_HEADS], top[BVH__REFIT_HEADS], nheads, ntop;
+    uint32_t next;                  /* the 8-wide pass: the next head to take */
     uint32_t bad[BVH__MAX_THREADS]; /* per thread: the precheck's failures; the walk's broken nodes */
 } bvh__refit;
 
@@ -8254,13 +8297,22 @@ static int bvh__refit_wsubtree(const bvh__refit *j, uint32_t h, bvh__wnode_scrat
     }
     return 1;
 }
+/* The heads taken one at a time by whichever thread is free (their subtrees vary a lot in size; a
+   fixed share left one thread waiting for the other); without atomics, every nt-th. Each box is
+   the same whoever computes it. */
 static void bvh__refit_wide_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__refit *j = BVH__CAST(bvh__refit *, arg);
     bvh__wnode_scratch sc; /* 9 KiB of this thread's stack */
     uint32_t i;
     (void)team;
+#if defined(__GNUC__) || defined(__clang__)
+    (void)nt;
+    while ((i = __atomic_fetch_add(&j->next, 1u, __ATOMIC_RELAXED)) < j->nheads)
+        if (!bvh__refit_wsubtree(j, j->heads[i], &sc)) j->bad[tid]++;
+#else
     for (i = tid; i < j->nheads; i += nt)
         if (!bvh__refit_wsubtree(j, j->heads[i], &sc)) j->bad[tid]++;
+#endif
 }
 /* The wide heads: from the root, each head with wide children is replaced by them, round after
    round, until there are BVH__REFIT_HEADS / 4 or more (or no more can be opened). The replaced
@@ -8442,10 +8494,11 @@ BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
    memory, then the 8-wide nodes when the tree has them (their count is what the payload size
    leaves for them). Packets are not stored: they are a copy of tree.tris in the order the wide
    nodes' groupings give, remade on load in one linear pass that checks each grouping against the
-   binary tree (bvh__wide_load), as fast as a copy and a check of a stored copy would be, for 40%
+   binary tree (bvh__wide_load_node), as fast as a copy and a check of a stored copy would be, for 40%
    fewer bytes. A reader checks the byte-order marker, the header's checksum, then every size
    against the others and against caps before it allocates, then the payload's checksum, then the
-   tree's structure, so that no input makes it read or allocate out of bounds. Version 1 (0.6.0,
+   tree's structure (bvh__load_checks, with the packets), so that no input makes it read or
+   allocate out of bounds. Version 1 (0.6.0,
    no 8-wide nodes) is refused with BVH_ERROR_UNSUPPORTED_FORMAT: save such a tree again. */
 /* ============================================================================================ */
 #define BVH__FILE_VERSION 2u
@@ -8723,12 +8776,13 @@ static bvh_result bvh__check_header(const bvh__file_header *h, const bvh_load_de
     if (d->max_bytes && payload > d->max_bytes) return BVH_ERROR_CORRUPT;
     return BVH_SUCCESS;
 }
-/* bvh_validate's checks of the binary tree in one forward pass, for bvh_load (and 8-wide nodes
-   left to bvh__wide_load): every builder stores children after their parent, so when node i is
-   met its parent, if it has one, was met before. Each node but the root must be reached exactly
-   once and no deeper than BVH_MAX_DEPTH (depth + 1 per node, a byte, 0 = not reached: then never),
-   its box valid and inside its parent's, a leaf's references inside the array, their primitives
-   in range (once each unless the builder splits) and their triangles in the leaf box. */
+/* bvh_validate's checks of the binary tree in one forward pass, for bvh_load (but the leaves'
+   triangles, checked on the team by bvh__load_checks, and the 8-wide nodes, by bvh__wide_load_node):
+   every builder stores children after their parent, so when node i is met its parent, if it has
+   one, was met before. Each node but the root must be reached exactly once and no deeper than
+   BVH_MAX_DEPTH (depth + 1 per node, a byte, 0 = not reached: then never), its box valid and
+   inside its parent's, a leaf's references inside the array, their primitives in range (once each
+   unless the builder splits). */
 static bvh_result bvh__validate_linear(const bvh_tree *t) {
     bvh_allocator al = t->allocator;
     uint8_t *depth = BVH__ALLOC(&al, uint8_t, t->node_count), *used = BVH__ALLOC(&al, uint8_t, t->prim_count);
@@ -8753,20 +8807,10 @@ static bvh_result bvh__validate_linear(const bvh_tree *t) {
             refs += n->count;
             for (k = n->index; k < n->index + n->count; k++) {
                 uint32_t p = t->prims[k];
-                bvh_aabb pb;
                 if (p >= t->prim_count || (used[p] && !splits)) goto done;
                 n_used += !used[p];
                 used[p] = 1;
-                if (!t->tris || !splits) continue;
-                pb = bvh__tri_box(t->tris + 9 * (size_t)k);
-                if (splits ? !(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z &&
-                               pb.max.x >= box.min.x && pb.max.y >= box.min.y && pb.max.z >= box.min.z)
-                           : !bvh_aabb_contains(box, pb))
-                    goto done;
             }
-            /* the triangles' box inside the leaf's: each triangle's is */
-            if (t->tris && !splits && !bvh_aabb_contains(box, bvh__tris_box(t->tris + 9 * (size_t)n->index, n->count)))
-                goto done;
             continue;
         }
         if (n->index <= i || n->index >= t->node_count - 1 || depth[i] > BVH_MAX_DEPTH) goto done;
@@ -8781,20 +8825,34 @@ done:
     bvh__free(&al, used);
     return r;
 }
+/* The triangles of leaf n inside its box (for split references, clipped: each overlapping it).
+   The leaf's range must have been checked. */
+static int bvh__leaf_tris_ok(const float *tris, const bvh_node *n, int splits) {
+    bvh_aabb box = bvh__node_box(n);
+    uint32_t k;
+    if (!splits) return bvh_aabb_contains(box, bvh__tris_box(tris + 9 * (size_t)n->index, n->count));
+    for (k = n->index; k < n->index + n->count; k++) {
+        bvh_aabb pb = bvh__tri_box(tris + 9 * (size_t)k);
+        if (!(pb.min.x <= box.max.x && pb.min.y <= box.max.y && pb.min.z <= box.max.z && pb.max.x >= box.min.x &&
+              pb.max.y >= box.min.y && pb.max.z >= box.min.z))
+            return 0;
+    }
+    return 1;
+}
 /* The saved 8-wide nodes (in tree.nodes8, tree.node8_count; tree.tri4_count packets, the sum of
    their leaf counts) made whole: boxes from the binary nodes and packets from tree.tris, following
    each node's grouping, which must fit the binary tree (validated before): the root's head is the
    binary root, each interior slot a wide node after its parent whose head is that slot (so every
    wide node but the root has one parent: a tree, as deep as the binary one at most, and each
    binary node in one grouping), each leaf slot's packets as many as its references fill, inside
-   the array and in no other slot. Two linear passes: the links and packet ranges on one thread,
-   then the groupings, boxes and packets on the team (each node writes only its own slots and
-   packets, whose ranges the first pass found disjoint). BVH_ERROR_CORRUPT where they do not fit. */
-typedef struct bvh__wide_load_job {
-    bvh_tree *tree;
-    uint32_t bad[BVH__MAX_THREADS];
-} bvh__wide_load_job;
-static int bvh__wide_load_node(bvh_tree *t, uint32_t w, bvh__wnode_scratch *sc) {
+   the array and in no other slot. Two linear passes: the links and packet ranges on one thread
+   (bvh__wide_links), then the groupings, boxes and packets on the team (each node writes only its
+   own slots and packets, whose ranges the first pass found disjoint). The leaf slots' walks meet
+   every binary leaf once, so the leaves' triangles are checked against their boxes here, while
+   they are read for the packets. Each step checks the binary nodes it follows (indices in range,
+   children after their parent), so that this pass may run while bvh__validate_linear checks the
+   binary tree on another thread: the tree is accepted only if both pass. */
+static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_scratch *sc) {
     bvh_node8 *n = &t->nodes8[w];
     bvh__group g;
     uint32_t i, a, npre = 0, nref = 0;
@@ -8810,9 +8868,11 @@ static int bvh__wide_load_node(bvh_tree *t, uint32_t w, bvh__wnode_scratch *sc) 
             continue;
         }
         if (n->count[i]) {
-            uint32_t r0 = nref;
+            uint32_t r0 = nref, p0 = npre, k;
             if (!bvh__slot_walk(t, g.slot[i], sc->pre, &npre, sc->refs, &nref)) return 0;
             if (n->count[i] != (nref - r0 + BVH__PACKET - 1) / BVH__PACKET) return 0;
+            for (k = p0; k < npre; k++) /* bvh__validate_linear leaves them to this pass */
+                if (t->nodes[sc->pre[k]].count && !bvh__leaf_tris_ok(t->tris, &t->nodes[sc->pre[k]], splits)) return 0;
             bvh__packets_write(sc->refs + r0, nref - r0, t->prims, t->tris, t->tri4 + n->child[i]);
         } else if (t->nodes8[n->child[i]].head != g.slot[i]) {
             return 0;
@@ -8822,60 +8882,117 @@ static int bvh__wide_load_node(bvh_tree *t, uint32_t w, bvh__wnode_scratch *sc) 
     memset(n->pad, 0, sizeof n->pad);
     return 1;
 }
-static void bvh__wide_load_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
-    bvh__wide_load_job *j = BVH__CAST(bvh__wide_load_job *, arg);
-    bvh__wnode_scratch sc; /* 9 KiB of this thread's stack */
-    size_t b, e, w;
-    (void)team;
-    bvh__range(j->tree->node8_count, tid, nt, &b, &e);
-    for (w = b; w < e && !j->bad[tid]; w++) j->bad[tid] += !bvh__wide_load_node(j->tree, (uint32_t)w, &sc);
-}
-static bvh_result bvh__wide_load(bvh_tree *t, uint32_t threads) {
-    uint8_t *parent = BVH__ALLOC(&t->allocator, uint8_t, t->node8_count);
-    uint8_t *cover = BVH__ALLOC(&t->allocator, uint8_t, t->tri4_count ? t->tri4_count : 1);
-    bvh__wide_load_job job;
-    bvh_result r = BVH_ERROR_CORRUPT;
-    uint32_t w, i, k, nt;
-    if (!parent || !cover) {
-        r = BVH_ERROR_OUT_OF_MEMORY;
-        goto done;
-    }
+/* The 8-wide nodes' links and packet ranges (see above), on one thread: 0 where they do not fit. */
+static int bvh__wide_links(const bvh_tree *t, uint8_t *parent, uint8_t *cover) {
+    uint32_t w, i, k;
     memset(parent, 0, t->node8_count);
     memset(cover, 0, t->tri4_count ? t->tri4_count : 1);
-    if (t->nodes8[0].head != 0) goto done;
+    if (t->nodes8[0].head != 0) return 0;
     for (w = 0; w < t->node8_count; w++) {
         const bvh_node8 *n = &t->nodes8[w];
         for (i = 0; i < BVH__W; i++)
             if (n->count[i]) {
-                if (n->child[i] > t->tri4_count || n->count[i] > t->tri4_count - n->child[i]) goto done;
+                if (n->child[i] > t->tri4_count || n->count[i] > t->tri4_count - n->child[i]) return 0;
                 for (k = n->child[i]; k < n->child[i] + n->count[i]; k++)
-                    if (cover[k]++) goto done;
+                    if (cover[k]++) return 0;
             } else if (n->child[i] && (n->child[i] <= w || n->child[i] >= t->node8_count || parent[n->child[i]]++)) {
-                goto done;
+                return 0;
             }
     }
     for (w = 1; w < t->node8_count; w++)
-        if (!parent[w]) goto done;
+        if (!parent[w]) return 0;
+    return 1; /* packets: each in one slot, and as many as the slots' counts */
+}
+/* The checks of a loaded tree and the remaking of its 8-wide layout in one team pass: thread 0
+   runs bvh__validate_linear, the one pass that needs order, while every thread takes chunks of
+   the work that needs none (an atomic counter; without it a fixed share each): the 8-wide nodes
+   (bvh__wide_load_node, which checks the leaves' triangles as it packs them), or, without the
+   8-wide layout, the leaves' triangles by chunks of binary nodes. */
+#define BVH__LOAD_CHUNK 64u /* 8-wide nodes a thread takes at a time (binary nodes: 64 times more) */
+typedef struct bvh__load_job {
+    bvh_tree *tree;
+    size_t next, count; /* the next chunk; the items (8-wide nodes, else binary nodes) */
+    uint32_t chunk;
+    int splits;
+    bvh_result checked; /* bvh__validate_linear's */
+    uint32_t bad[BVH__MAX_THREADS];
+} bvh__load_job;
+static int bvh__load_items(bvh__load_job *j, size_t b, size_t e, bvh__wnode_scratch *sc) {
+    bvh_tree *t = j->tree;
+    size_t i;
+    for (i = b; i < e; i++) {
+        if (t->nodes8) {
+            if (!bvh__wide_load_node(t, (uint32_t)i, j->splits, sc)) return 0;
+        } else {
+            const bvh_node *n = &t->nodes[i]; /* its range is checked here: the linear pass may not be there yet */
+            if (n->count && (n->index > t->ref_count || n->count > t->ref_count - n->index ||
+                             !bvh__leaf_tris_ok(t->tris, n, j->splits)))
+                return 0;
+        }
+    }
+    return 1;
+}
+static void bvh__load_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__load_job *j = BVH__CAST(bvh__load_job *, arg);
+    bvh__wnode_scratch sc; /* 9 KiB of this thread's stack */
+    size_t b, e;
+    (void)team;
+    if (tid == 0) j->checked = bvh__validate_linear(j->tree);
+#if defined(__GNUC__) || defined(__clang__)
+    (void)nt;
+    while (!j->bad[tid] && (b = __atomic_fetch_add(&j->next, (size_t)j->chunk, __ATOMIC_RELAXED)) < j->count) {
+        e = j->count - b < j->chunk ? j->count : b + j->chunk;
+        j->bad[tid] = !bvh__load_items(j, b, e, &sc);
+    }
+#else
+    bvh__range(j->count, tid, nt, &b, &e);
+    j->bad[tid] = !bvh__load_items(j, b, e, &sc);
+#endif
+}
+static bvh_result bvh__load_checks(bvh_tree *t, uint32_t threads) {
+    size_t marks = t->nodes8 ? t->node8_count : 1, covers = t->nodes8 && t->tri4_count ? t->tri4_count : 1;
+    uint8_t *parent = BVH__ALLOC(&t->allocator, uint8_t, marks), *cover = BVH__ALLOC(&t->allocator, uint8_t, covers);
+    bvh__load_job job;
+    bvh_result r = BVH_ERROR_CORRUPT;
+    uint32_t i, nt;
     memset(&job, 0, sizeof job);
+    if (!parent || !cover) {
+        r = BVH_ERROR_OUT_OF_MEMORY;
+        goto done;
+    }
+    if (t->nodes8 && !bvh__wide_links(t, parent, cover)) goto done;
     job.tree = t;
+    job.splits = t->ref_count != t->prim_count - t->excluded;
+    job.count = t->nodes8 ? t->node8_count : t->tris ? t->node_count : 0;
+    job.chunk = t->nodes8 ? BVH__LOAD_CHUNK : 64 * BVH__LOAD_CHUNK;
     nt = t->ref_count / BVH__MIN_PRIMS_PER_THREAD;
     nt = threads < nt ? threads : nt ? nt : 1;
-    bvh__team_run_always(&t->allocator, nt, bvh__wide_load_fn, &job);
+    bvh__team_run_always(&t->allocator, nt, bvh__load_fn, &job);
+    if ((r = job.checked) != BVH_SUCCESS) goto done; /* INVALID_TREE: the caller says CORRUPT */
     for (i = 0; i < BVH__MAX_THREADS; i++)
-        if (job.bad[i]) goto done;
-    r = BVH_SUCCESS; /* packets: each in one slot, and as many as the slots' counts */
+        if (job.bad[i]) r = BVH_ERROR_CORRUPT;
 done:
     bvh__free(&t->allocator, parent);
     bvh__free(&t->allocator, cover);
     return r;
+}
+/* The packets n saved wide nodes at `nodes8` (any alignment: a caller's buffer) need, the sum of
+   their leaf counts, or BVH_INVALID if more than refs: each packet holds a reference of its own. */
+static uint32_t bvh__wide_packet_sum(const void *nodes8, uint32_t n, uint32_t refs) {
+    const unsigned char *c = BVH__CAST(const unsigned char *, nodes8) + offsetof(bvh_node8, count);
+    uint64_t sum = 0;
+    uint32_t i, k;
+    for (i = 0; i < n; i++, c += sizeof(bvh_node8))
+        for (k = 0; k < BVH__W; k++) sum += c[k];
+    return sum > refs ? BVH_INVALID : (uint32_t)sum;
 }
 BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
     bvh__file_header h;
     bvh__reader rd;
     bvh_result r;
     uint64_t check;
-    bvh_node8 *wide = NULL; /* the saved 8-wide nodes, until the block that holds the packets too */
-    uint32_t nodes8 = 0, packets = 0, i, k, nt;
+    bvh_node8 *wide = NULL; /* the saved 8-wide nodes from a stream, until the block that holds the packets too */
+    uint32_t nodes8 = 0, packets = 0, nt;
     int bad = 0;
     if (!tree) return BVH_ERROR_INVALID_ARGUMENT;
     memset(tree, 0, sizeof *tree);
@@ -8914,7 +9031,20 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, 2, nt, &check,
                                             &bad)) != BVH_SUCCESS))
         goto fail;
-    if (nodes8) {
+    if (nodes8 && desc->trace_width != 2 && !desc->read) {
+        /* from memory, the packets are counted in the buffer and the nodes read into their block,
+           not through a copy (the count only sizes the block: the checks below hold as for a
+           stream) */
+        const char *src = BVH__CAST(const char *, desc->data) + rd.pos;
+        if ((packets = bvh__wide_packet_sum(src, nodes8, h.ref_count)) == BVH_INVALID) {
+            r = BVH_ERROR_CORRUPT;
+            goto fail;
+        }
+        if ((r = bvh__wide_alloc(tree, &tree->allocator, nodes8, packets)) != BVH_SUCCESS ||
+            (r = bvh__read_array(&rd, tree->nodes8, (size_t)nodes8 * sizeof(bvh_node8), 0, 3, nt, &check, &bad)) !=
+                BVH_SUCCESS)
+            goto fail;
+    } else if (nodes8) {
         if (!(wide = BVH__ALLOC(&tree->allocator, bvh_node8, nodes8))) {
             r = BVH_ERROR_OUT_OF_MEMORY;
             goto fail;
@@ -8928,25 +9058,19 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         r = BVH_ERROR_CORRUPT;
         goto fail;
     }
-    if ((r = bvh__validate_linear(tree)) != BVH_SUCCESS) {
-        if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT;
-        goto fail;
-    }
-    if (wide && desc->trace_width != 2) { /* the saved layout, its packets remade */
-        uint64_t sum = 0;
-        for (i = 0; i < nodes8; i++)
-            for (k = 0; k < BVH__W; k++) sum += wide[i].count[k];
-        if (sum > h.ref_count) { /* each packet holds a reference of its own */
+    if (wide && desc->trace_width != 2) { /* the saved layout from a stream, its packets remade */
+        if ((packets = bvh__wide_packet_sum(wide, nodes8, h.ref_count)) == BVH_INVALID) {
             r = BVH_ERROR_CORRUPT;
             goto fail;
         }
-        packets = (uint32_t)sum;
         if ((r = bvh__wide_alloc(tree, &tree->allocator, nodes8, packets)) != BVH_SUCCESS) goto fail;
         memcpy(tree->nodes8, wide, (size_t)nodes8 * sizeof(bvh_node8));
-        bvh__free(&tree->allocator, wide);
-        wide = NULL;
-        if ((r = bvh__wide_load(tree, nt)) != BVH_SUCCESS) goto fail;
-    } else if (tree->tris && desc->trace_width == 8) { /* saved without: made as bvh_build does */
+    }
+    if ((r = bvh__load_checks(tree, nt)) != BVH_SUCCESS) { /* and the 8-wide layout remade */
+        if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT;
+        goto fail;
+    }
+    if (!tree->nodes8 && tree->tris && desc->trace_width == 8) { /* saved without: made as bvh_build does */
         if ((r = bvh__make_wide(tree, &tree->allocator, NULL, nt)) != BVH_SUCCESS) {
             if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT; /* children before their parent */
             goto fail;

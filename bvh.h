@@ -1,4 +1,4 @@
-/* bvh.h - v0.7.0 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.8.0 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -106,7 +106,17 @@
      MIT, see the end of this file.
 
    CHANGELOG
-     Unreleased
+     0.8.0  Scenes: the CPU traces a scene's top level through an 8-wide copy of it
+            (bvh_scene.top8, one instance a leaf slot with its own world box) with the 8-wide
+            loop and a leaf step, not the binary walk with scalar tests; bvh_scene.own_box is
+            gone (every slot is an instance's own box). An instance whose transform is exactly
+            the identity is traced on the world ray's set-up (no transform, no second set-up).
+            The instance step calls the bottom level's loop for the same ISA directly. The AVX2
+            loop sets up the ray's three axes in vector registers, orders three or more entered
+            children by rank (no loop on the distances) and picks the packets' box planes by a
+            blend: fewer mispredicted branches. The AVX2 paths now also require POPCNT (every
+            AVX2 CPU has it). A path tracer's rays inside Sponza with three bunnies: 2,613 ->
+            2,134 instructions a ray (callgrind; Embree 3: 1,658).
             bvh_load: the ordered checks of the binary tree (one forward pass) run on one thread
             while the load's team remakes the 8-wide layout, whose steps check every index they
             follow and which checks each leaf's triangles against its box as it reads them for
@@ -218,7 +228,7 @@
 #define BVH_H_INCLUDED
 
 #define BVH_VERSION_MAJOR 0
-#define BVH_VERSION_MINOR 7
+#define BVH_VERSION_MINOR 8
 #define BVH_VERSION_PATCH 0
 
 #include <math.h>

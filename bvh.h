@@ -2747,9 +2747,7 @@ __attribute__((target("avx2"))) static void bvh__ploc_pairs8(bvh__nn *w, size_t 
 }
 /* 1 when the CPU runs AVX2 (the compiler's runtime check; the block search then takes 8 pairs).
    POPCNT too, which the 8-wide traversal's AVX2 loop uses: every CPU with AVX2 has it. */
-static int bvh__have_avx2(void) {
-    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt") ? 1 : 0;
-}
+static int bvh__have_avx2(void) { return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt") ? 1 : 0; }
 #else
 static int bvh__have_avx2(void) { return 0; }
 #endif
@@ -6907,7 +6905,7 @@ __attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh
    which is visited first). No loop that depends on the distances, so no branch to mispredict but
    the one over m. Returns the count. */
 __attribute__((target("avx2,popcnt"))) static inline uint32_t bvh__order8_avx2(const float tn[BVH__W], unsigned m,
-                                                                              uint32_t idx[BVH__W]) {
+                                                                               uint32_t idx[BVH__W]) {
     const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
     const __m256i key =
         _mm256_or_si256(_mm256_andnot_si256(_mm256_set1_epi32(7), _mm256_castps_si256(_mm256_loadu_ps(tn))), lane);
@@ -6960,8 +6958,8 @@ BVH__INLINE void bvh__push8(const bvh_node8 *nodes, const bvh_tri4 *tri4, const 
    what kind of item) with the world ray, whose tmax is the best t so far, set up as rx and q;
    returns 1 when it took a hit as the new best and lowered ray->tmax to its t. isa as
    bvh__traverse8_body's. */
-typedef int (*bvh__slot_step)(void *ctx, bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, uint32_t item,
-                              uint32_t count, int isa);
+typedef int (*bvh__slot_step)(void *ctx, bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, uint32_t item, uint32_t count,
+                              int isa);
 /* One loop for closest and any hit: a node's entered children nearest first (any hit: in slot
    order, unsorted), the farther ones on the stack; a leaf's packets tested at once, or, with a
    step (and tri4 NULL), each leaf slot handed to it with the world ray wray. isa (a constant:
@@ -7115,12 +7113,13 @@ miss:
 }
 #ifdef BVH__AVX2
 __attribute__((target("avx2,popcnt"), flatten)) static int bvh__closest8_avx2(const bvh_tree *tree, const bvh_ray *ray,
-                                                                       bvh__rayx *rx, const bvh__ray8 *q, float tmax,
-                                                                       bvh_hit *hit, bvh__best *loc) {
+                                                                              bvh__rayx *rx, const bvh__ray8 *q,
+                                                                              float tmax, bvh_hit *hit,
+                                                                              bvh__best *loc) {
     return bvh__trace8(tree, ray, rx, q, tmax, hit, loc, 0, 1);
 }
-__attribute__((target("avx2,popcnt"), flatten)) static int bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray,
-                                                                   bvh__rayx *rx, const bvh__ray8 *q, float tmax) {
+__attribute__((target("avx2,popcnt"), flatten)) static int
+bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, float tmax) {
     return bvh__trace8(tree, ray, rx, q, tmax, NULL, NULL, 1, 1);
 }
 #endif
@@ -7132,8 +7131,8 @@ static int bvh__any8_base(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *r
     return bvh__trace8(tree, ray, rx, q, tmax, NULL, NULL, 1, 0);
 }
 /* bvh__trace8 for the ISA isa (a constant where inlined). */
-BVH__INLINE int bvh__trace8_isa(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q,
-                                float tmax, bvh_hit *hit, bvh__best *loc, int any, int isa) {
+BVH__INLINE int bvh__trace8_isa(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, float tmax,
+                                bvh_hit *hit, bvh__best *loc, int any, int isa) {
 #ifdef BVH__AVX2
     if (isa) return any ? bvh__any8_avx2(tree, ray, rx, q, tmax) : bvh__closest8_avx2(tree, ray, rx, q, tmax, hit, loc);
 #endif
@@ -7579,9 +7578,9 @@ BVH_API bvh_result bvh_hit_surface(const bvh_triangles *mesh, const bvh_hit *hit
 /* The top level is a box tree over the instances' world boxes (tree.nodes, for OpenCL and the
    caller), traced on the CPU through its 8-wide copy (bvh_scene.top8) by the 8-wide loop with a
    leaf step that skips instances by mask, transforms the ray into the instance's space and
-   traces the bottom-level tree there (its 8-wide layout where it has one, for the same ISA). The best hit keeps the instance, the mesh's triangle and t; the normal of
-   the final hit is computed from the tree's copy of the triangle (tree.tris, in reference order),
-   found by a map from triangle to reference that the scene makes once per distinct
+   traces the bottom-level tree there (its 8-wide layout where it has one, for the same ISA). The best hit keeps the
+   instance, the mesh's triangle and t; the normal of the final hit is computed from the tree's copy of the triangle
+   (tree.tris, in reference order), found by a map from triangle to reference that the scene makes once per distinct
    bottom-level tree (walking the tree again to find it would cost about as much as the trace). */
 /* ============================================================================================ */
 BVH__INLINE bvh_ray bvh__ray_transform(const bvh_ray *ray, const float *m) {
@@ -7921,11 +7920,11 @@ BVH__INLINE int bvh__scene_top8(const bvh_scene *scene, const bvh_ray *ray, bvh_
 }
 #ifdef BVH__AVX2
 __attribute__((target("avx2,popcnt"))) static int bvh__scene_closest8_avx2(const bvh_scene *s, const bvh_ray *r,
-                                                                    bvh__scene_ctx *c) {
+                                                                           bvh__scene_ctx *c) {
     return bvh__scene_top8(s, r, c, 0, 1);
 }
 __attribute__((target("avx2,popcnt"))) static int bvh__scene_any8_avx2(const bvh_scene *s, const bvh_ray *r,
-                                                                bvh__scene_ctx *c) {
+                                                                       bvh__scene_ctx *c) {
     return bvh__scene_top8(s, r, c, 1, 1);
 }
 #endif

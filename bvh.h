@@ -5949,14 +5949,6 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
                        (f[r->near[1] ^ 4] - r->o[1]) * r->inv[1], (f[r->near[2]] - r->o[2]) * r->inv[2],
                        (f[r->near[2] ^ 4] - r->o[2]) * r->inv[2]);
 }
-/* The same for a box (bvh_aabb: min at 0..2, max at 3..5). */
-BVH__INLINE float bvh__slab_box(const bvh__rayx *r, const bvh_aabb *b, float tfar) {
-    const float *f = &b->min.x;
-    int n0 = r->near[0] >> 2, n1 = r->near[1] >> 2, n2 = r->near[2] >> 2; /* 1: the max plane is near */
-    return bvh__slab_t(r->tmin, r->kz, tfar, (f[3 * n0] - r->o[0]) * r->inv[0], (f[3 - 3 * n0] - r->o[0]) * r->inv[0],
-                       (f[1 + 3 * n1] - r->o[1]) * r->inv[1], (f[4 - 3 * n1] - r->o[1]) * r->inv[1],
-                       (f[2 + 3 * n2] - r->o[2]) * r->inv[2], (f[5 - 3 * n2] - r->o[2]) * r->inv[2]);
-}
 
 /* == 8-wide traversal layout =================================================================== */
 /* bvh_build turns the binary tree into 8-wide nodes (tree.nodes8) whose leaves are packets of four
@@ -6199,6 +6191,26 @@ static uint32_t bvh__wide_gather(const bvh__wide_src *s, uint32_t b, uint32_t ou
     k = bvh__wide_open_slots(s, out, k);
     return k;
 }
+/* A wide node with no slot filled: links zero, every box empty (+inf min, -inf max), which no
+   ray enters. */
+static void bvh__node8_clear(bvh_node8 *w) {
+    uint32_t i, a;
+    memset(w, 0, sizeof *w);
+    for (i = 0; i < BVH__W; i++)
+        for (a = 0; a < 3; a++) {
+            w->min[a][i] = BVH_INF;
+            w->max[a][i] = -BVH_INF;
+        }
+}
+/* Slot i's box. */
+BVH__INLINE void bvh__node8_box(bvh_node8 *w, uint32_t i, bvh_vec3 lo, bvh_vec3 hi) {
+    w->min[0][i] = lo.x;
+    w->min[1][i] = lo.y;
+    w->min[2][i] = lo.z;
+    w->max[0][i] = hi.x;
+    w->max[1][i] = hi.y;
+    w->max[2][i] = hi.z;
+}
 /* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
    gets the binary children in ascending order, so that nodes are read in memory order. Leaf slots
    take their packets from *packet on (written when s->packets is set). */
@@ -6218,25 +6230,13 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *ou
             }
     }
     if (out) {
-        memset(out, 0, sizeof *out);
-        for (i = 0; i < BVH__W; i++)
-            for (a = 0; a < 3; a++) {
-                out->min[a][i] = BVH_INF;
-                out->max[a][i] = -BVH_INF;
-            }
+        bvh__node8_clear(out);
         out->head = b;
         out->shape = bvh__group_shape(s->nodes, b, kids, k);
     }
     for (i = 0; i < k; i++) {
         const bvh_node *c = &s->nodes[kids[i]];
-        if (out) {
-            out->min[0][i] = c->min.x;
-            out->min[1][i] = c->min.y;
-            out->min[2][i] = c->min.z;
-            out->max[0][i] = c->max.x;
-            out->max[1][i] = c->max.y;
-            out->max[2][i] = c->max.z;
-        }
+        if (out) bvh__node8_box(out, i, c->min, c->max);
         if (!bvh__wide_leaf(s, kids[i])) continue; /* interior children: the caller sets the index */
         if (out) {
             out->child[i] = *packet;
@@ -7757,17 +7757,19 @@ static bvh_aabb bvh__top8_box(const bvh_scene *s, bvh__top_item it) {
 }
 static uint32_t bvh__top8_node(bvh_scene *s, bvh__top_item it) {
     const uint32_t w = s->top8_count++;
-    bvh_node8 *out = &s->top8[w];
+    bvh_node8 *out = &s->top8[w]; /* stays valid: top8 is allocated whole */
     bvh__top_item items[BVH__W];
-    uint32_t n = 1, i, a;
+    bvh_aabb box[BVH__W];
+    uint32_t n = 1, i;
     items[0] = it;
+    box[0] = bvh__top8_box(s, it);
     while (n < BVH__W) {
         uint32_t best = BVH_INVALID;
         float area = -1.0f;
         for (i = 0; i < n; i++) {
             float ai;
             if (items[i].node == BVH_INVALID && items[i].count < 2) continue; /* an instance */
-            ai = bvh__half_area(bvh__top8_box(s, items[i]));
+            ai = bvh__half_area(box[i]);
             if (ai > area) {
                 area = ai;
                 best = i;
@@ -7777,29 +7779,21 @@ static uint32_t bvh__top8_node(bvh_scene *s, bvh__top_item it) {
         if (items[best].node != BVH_INVALID) {
             const uint32_t c = s->top.nodes[items[best].node].index;
             items[best] = bvh__top8_item(&s->top, c);
-            items[n++] = bvh__top8_item(&s->top, c + 1);
+            items[n] = bvh__top8_item(&s->top, c + 1);
         } else {
             const uint32_t h = items[best].count / 2;
             items[n] = items[best];
             items[n].first += h;
-            items[n++].count -= h;
+            items[n].count -= h;
             items[best].count = h;
         }
+        box[best] = bvh__top8_box(s, items[best]);
+        box[n] = bvh__top8_box(s, items[n]);
+        n++;
     }
-    memset(out, 0, sizeof *out);
-    for (i = 0; i < BVH__W; i++)
-        for (a = 0; a < 3; a++) { /* an empty slot: no ray enters it */
-            out->min[a][i] = BVH_INF;
-            out->max[a][i] = -BVH_INF;
-        }
+    bvh__node8_clear(out);
     for (i = 0; i < n; i++) {
-        const bvh_aabb b = bvh__top8_box(s, items[i]);
-        out->min[0][i] = b.min.x;
-        out->min[1][i] = b.min.y;
-        out->min[2][i] = b.min.z;
-        out->max[0][i] = b.max.x;
-        out->max[1][i] = b.max.y;
-        out->max[2][i] = b.max.z;
+        bvh__node8_box(out, i, box[i].min, box[i].max);
         if (items[i].node == BVH_INVALID && items[i].count == 1) {
             const uint32_t inst = s->top.prims[items[i].first];
             out->child[i] = inst;
@@ -7807,8 +7801,7 @@ static uint32_t bvh__top8_node(bvh_scene *s, bvh__top_item it) {
                                           ? BVH__TOP_MOVED
                                           : BVH__TOP_IDENTITY);
         } else {
-            const uint32_t c = bvh__top8_node(s, items[i]); /* out stays valid: top8 is allocated whole */
-            s->top8[w].child[i] = c;
+            out->child[i] = bvh__top8_node(s, items[i]);
         }
     }
     return w;
@@ -8216,14 +8209,6 @@ static bvh_aabb bvh__tris_box(const float *t, uint32_t n) {
 #endif
     return b;
 }
-BVH__INLINE void bvh__set_box8(bvh_node8 *w, uint32_t i, const bvh_node *n) {
-    w->min[0][i] = n->min.x;
-    w->min[1][i] = n->min.y;
-    w->min[2][i] = n->min.z;
-    w->max[0][i] = n->max.x;
-    w->max[1][i] = n->max.y;
-    w->max[2][i] = n->max.z;
-}
 static int bvh__refit_wnode(const bvh__refit *j, uint32_t w, bvh__wnode_scratch *sc) {
     bvh_tree *t = j->tree;
     bvh_node8 *n = &t->nodes8[w];
@@ -8280,7 +8265,7 @@ static int bvh__refit_wnode(const bvh__refit *j, uint32_t w, bvh__wnode_scratch 
             bvh__packets_write(sc->refs + (i ? sc->ref_end[i - 1] : 0), sc->ref_end[i] - (i ? sc->ref_end[i - 1] : 0),
                                t->prims, t->tris, t->tri4 + n->child[i]);
     for (k = g.nopen; k-- > 0;) bvh__refit_node(j, g.open[k]); /* interior: cannot fail */
-    for (i = 0; i < g.nslot; i++) bvh__set_box8(n, i, &t->nodes[g.slot[i]]);
+    for (i = 0; i < g.nslot; i++) bvh__node8_box(n, i, t->nodes[g.slot[i]].min, t->nodes[g.slot[i]].max);
     return 1;
 }
 /* The wide subtree of head h in post-order; 0 if the tree is broken (child indices must point
@@ -8886,7 +8871,7 @@ static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_s
         } else if (t->nodes8[n->child[i]].head != g.slot[i]) {
             return 0;
         }
-        bvh__set_box8(n, i, &t->nodes[g.slot[i]]);
+        bvh__node8_box(n, i, t->nodes[g.slot[i]].min, t->nodes[g.slot[i]].max);
     }
     memset(n->pad, 0, sizeof n->pad);
     return 1;

@@ -1,7 +1,8 @@
 /* bvhbench.c - the study's Table I ("Comparison of BVH construction methods"), reproduced and
    extended: every builder of bvh.h on a set of scenes, side by side with Embree 3.
 
-   build/bvhbench [--builder all|LIST] [--embree all|none|LIST] [--threads N] [--repeat R]
+   build/bvhbench [--builder all|LIST] [--embree all|none|LIST] [--embree-flags default|robust]
+                  [--threads N] [--repeat R]
                   [--size WxH] [--camera outside|inside] [--trace cpu|opencl|both|none] [--brute-max N] [--strict]
                   [--paired N] [--ploc-top N|off] [--max-bytes N|off] [--trace-width 2|8]
                   [--instances N] [--refit N] [--save-load]
@@ -41,6 +42,12 @@
    Rows: "none" (brute force, the study's first row; only up to --brute-max triangles), the five
    builders, and Embree's scene API at build quality low, medium and high (rtcIntersect1 for the
    frame; the SAH, nodes and leaves of a binary tree from rtcBuildBVH at the same quality).
+   Every Embree scene (the rows' builds and frames, the ray sets, the paired rounds) is built with
+   the scene flags of --embree-flags: "default" (the default: no flags, Embree's own, what a
+   renderer that picks Embree gets unless it opts in) or "robust" (RTC_SCENE_FLAG_ROBUST, the
+   closest Embree comes to the watertight test bvh.h always makes; slower: about 1.4x on the
+   bunny's bounce and shadow rays). The header line "Embree:", the Markdown and the JSON's
+   "embree_flags" say which.
    Every frame must give the same hits. bvh.h's frames (brute force, every builder, 1 and N
    threads, OpenCL) must agree pixel for pixel, primitive and t. Embree's frames are compared
    pixel by pixel with bvh.h's and an exact (long double) ray-triangle test referees each pixel
@@ -115,6 +122,7 @@ typedef struct options {
     uint32_t paired;    /* rounds of interleaved builds against Embree medium (0: none) */
     uint32_t instances; /* instances of the scene's tree for the top-level rebuild (0: none) */
     uint32_t refit;     /* frames of the animated case (--refit; 0: none) */
+    int embree_robust;  /* --embree-flags robust: RTC_SCENE_FLAG_ROBUST on every Embree scene */
     int save_load;      /* --save-load: time bvh_save and bvh_load of every tree */
     int inside;         /* --camera inside: rays.h's interior view instead of the standard camera */
     int trace_cpu, trace_cl, trace_auto;
@@ -1196,10 +1204,10 @@ static void embree_set_compare(run_ctx *c, row *r, int set, const uint32_t *prim
                  r->set_note[0] ? "; " : "", line);
 }
 
-/* Embree on the diffuse and shadow sets: a scene of the row's quality (emb_builder, robust
-   flag, as the frame's), BENCH_TRACE_REPEAT passes on 1 and on N threads (median), the same
-   rays as bvh.h's (origin already offset, tnear 0). The N-thread answers must be the 1-thread
-   ones; the 1-thread ones are compared with bvh.h's (embree_set_compare). */
+/* Embree on the diffuse and shadow sets: a scene of the row's quality (emb_builder, the scene
+   flags of --embree-flags, as the frame's), BENCH_TRACE_REPEAT passes on 1 and on N threads
+   (median), the same rays as bvh.h's (origin already offset, tnear 0). The N-thread answers must
+   be the 1-thread ones; the 1-thread ones are compared with bvh.h's (embree_set_compare). */
 static void embree_sets(run_ctx *c, row *r) {
     const options *o = c->o;
     emb_builder *eb = NULL;
@@ -1209,7 +1217,7 @@ static void embree_sets(run_ctx *c, row *r) {
     uint32_t *p = (uint32_t *)malloc(2 * n * sizeof *p), passes = o->nthreads > 1 ? 2 : 1, pass;
     uint8_t *occ = (uint8_t *)malloc(2 * n);
     int set, st = t && p && occ ? EMB_OK : EMB_ERR_MEMORY;
-    if (st == EMB_OK) st = emb_builder_open(&eb, r->quality, o->threads, msg);
+    if (st == EMB_OK) st = emb_builder_open(&eb, r->quality, o->threads, o->embree_robust, msg);
     if (st == EMB_OK && (st = emb_builder_keep(eb, c->s->v, c->s->triangles)) != EMB_OK)
         snprintf(msg, sizeof msg, "scene build failed");
     for (set = 0; st == EMB_OK && set < SET_COUNT; set++) {
@@ -1274,7 +1282,7 @@ static void run_embree(run_ctx *c, row *r) {
     }
     d.trace_threads = o->nthreads;
     d.trace_repeat = BENCH_TRACE_REPEAT;
-    d.robust = 1; /* RTC_SCENE_FLAG_ROBUST: the closest Embree comes to a watertight test */
+    d.robust = o->embree_robust; /* --embree-flags: Embree's default flags (0) or RTC_SCENE_FLAG_ROBUST */
     d.bounds = &c->bounds;
     d.prim_out = c->emb_prims;
     progress("%s: %s, %u builds + frame", c->out->name, r->name, o->repeat + 1);
@@ -1483,7 +1491,7 @@ static void run_paired(run_ctx *c, bench_scene *out) {
         if (r->kind == ROW_BVH && r->state == ROW_OK) nb++;
     }
     if (!o->paired || !have_medium || !nb) return;
-    if (emb_builder_open(&eb, EMB_QUALITY_MEDIUM, o->threads, msg) != EMB_OK) {
+    if (emb_builder_open(&eb, EMB_QUALITY_MEDIUM, o->threads, o->embree_robust, msg) != EMB_OK) {
         say("%s: paired rounds: %s", out->name, msg);
         return;
     }
@@ -2176,6 +2184,12 @@ typedef struct header_info {
     char date[64], cpu[256], embree[200], opencl[400], trace[64];
 } header_info;
 
+/* --embree-flags: the JSON's value, and the header's and Markdown's words */
+static const char *embree_flags_name(const options *o) { return o->embree_robust ? "robust" : "default"; }
+static const char *embree_flags_text(const options *o) {
+    return o->embree_robust ? "robust (RTC_SCENE_FLAG_ROBUST)" : "default (none: Embree's own)";
+}
+
 static void header_lines(FILE *f, const options *o, const header_info *h, const char *prefix) {
     fprintf(f, "%sbvhbench: bvh.h %d.%d.%d, %s\n", prefix, BVH_VERSION_MAJOR, BVH_VERSION_MINOR, BVH_VERSION_PATCH,
             h->date);
@@ -2227,12 +2241,13 @@ static int write_md(const char *path, const options *o, const header_info *h, co
     }
     fputs("# bvh.h benchmark: the study's Table I, with Embree\n\n", f);
     header_lines(f, o, h, "- ");
-    fputs("- best value per column and scene in **bold**; \"-\": does not apply; X: too slow to be measured "
-          "(as in the study); hits: (!) disagreement, (e) Embree differs from bvh.h only on grazing rays or "
-          "where an exact test agrees with bvh.h\n"
-          "- Embree rows: build ms and Mrays/s of the scene API (rtcIntersect1, robust flag); SAH, nodes, "
-          "leaves, refs, depth of rtcBuildBVH's binary tree at the same quality (max leaf 8)\n",
-          f);
+    fprintf(f,
+            "- best value per column and scene in **bold**; \"-\": does not apply; X: too slow to be measured "
+            "(as in the study); hits: (!) disagreement, (e) Embree differs from bvh.h only on grazing rays or "
+            "where an exact test agrees with bvh.h\n"
+            "- Embree rows: build ms and Mrays/s of the scene API (rtcIntersect1 / rtcOccluded1), scene flags: %s; "
+            "SAH, nodes, leaves, refs, depth of rtcBuildBVH's binary tree at the same quality (max leaf 8)\n",
+            embree_flags_text(o));
     for (i = 0; i < n; i++) md_block(f, o, &sc[i]);
     if (fclose(f) != 0) {
         say("cannot write %s", path);
@@ -2308,6 +2323,13 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         fputs(",\"frame_tracer\":", f);
         if (r->frame_tracer)
             scene_json_string(f, r->frame_tracer);
+        else
+            fputs("null", f);
+        /* the scene flags of every Embree scene, which the ratios below are taken against (null:
+           no Embree) */
+        fputs(",\"embree_flags\":", f);
+        if (emb_available() && o->nqualities)
+            scene_json_string(f, embree_flags_name(o));
         else
             fputs("null", f);
         json_num(f, "ratio_build", r->x_build, 4);
@@ -2563,6 +2585,10 @@ static void usage(FILE *f) {
             "                   tree optimizer, desc.optimize: 8 rounds); none = brute force, the\n"
             "                   study's first row\n"
             "  --embree LIST    'all' (default: low,medium,high), 'none', or a comma list\n"
+            "  --embree-flags F scene flags of every Embree scene: 'default' (the default: none,\n"
+            "                   Embree's own, what a renderer gets unless it opts in) or 'robust'\n"
+            "                   (RTC_SCENE_FLAG_ROBUST: the closest Embree comes to bvh.h's\n"
+            "                   watertight test; slower)\n"
             "  --threads N      ploc-parallel, sah-midpoint, multi-thread tracing and Embree; 0 = all\n"
             "                   cores (default); their 'build 1t' column: the same builds on 1 thread\n"
             "  --repeat R       timed builds after one warm-up; the median is reported (default 5)\n"
@@ -2719,6 +2745,12 @@ static int parse_args(int argc, char **argv, options *o) {
                         v);
                 return 2;
             }
+        } else if (!strcmp(a, "--embree-flags")) {
+            if (strcmp(v, "default") && strcmp(v, "robust")) {
+                fprintf(stderr, "bvhbench: --embree-flags wants default or robust, not '%s'\n", v);
+                return 2;
+            }
+            o->embree_robust = !strcmp(v, "robust");
         } else if (!strcmp(a, "--threads")) {
             if (scene_parse_u32(v, 0, 256, &o->threads, NULL)) {
                 fprintf(stderr, "bvhbench: --threads wants 0 (all cores) to 256, not '%s'\n", v);
@@ -2842,7 +2874,8 @@ static int setup(options *o, header_info *h, bench_cl *store, bench_cl **cl) {
     else if (!o->nqualities)
         snprintf(h->embree, sizeof h->embree, "%s, not run (--embree none)", emb_version());
     else
-        snprintf(h->embree, sizeof h->embree, "%s (ratio columns: ours / embree-medium)", emb_version());
+        snprintf(h->embree, sizeof h->embree, "%s, scene flags: %s; ratio columns: ours / embree-medium", emb_version(),
+                 embree_flags_text(o));
     if (o->trace_auto) o->trace_cpu = o->trace_cl = 1;
     *cl = NULL;
     if (!o->trace_cl)

@@ -12,12 +12,14 @@
      --repeat R         timed builds after one warm-up (default 5); median, min and max are given
      --size WxH         frame (default 1024x1024, at most 16384 a side); 0x0: no frame
      --max-leaf L       maxLeafSize of rtcBuildBVH (default 8, at most 32)
-     --robust           RTC_SCENE_FLAG_ROBUST for the traced scene
+     --robust           RTC_SCENE_FLAG_ROBUST on every scene (timed and traced); without it the
+                        scenes have no flags, Embree's default (as bvhbench --embree-flags default)
 
    Keys: scene, triangles, builder ("embree-low"...), threads, build_ms, build_ms_min,
    build_ms_max, sah, nodes, leaves, hits, t_sum, mrays (1 thread), mrays_mt, then commit_ms
    (rtcCommitScene alone), bvh_build_ms (rtcBuildBVH), refs, spatial_splits, trace_threads,
-   mt_identical. Exit status: 0 ok, 1 error, 2 usage, 3 Embree not installed. */
+   mt_identical, width, height, robust (true: RTC_SCENE_FLAG_ROBUST), embree (its version).
+   Exit status: 0 ok, 1 error, 2 usage, 3 Embree not installed. */
 #define BVH_IMPLEMENTATION
 #include "bvh.h"
 #define SCENE_IMPLEMENTATION

@@ -40,6 +40,10 @@
      rtcGetDeviceError. Nothing here prints, aborts or exits.
 
    NOTES ON WHAT IS MEASURED
+     - Scene flags: none by default (Embree's own default, what a renderer gets unless it opts
+       in), or RTC_SCENE_FLAG_ROBUST (emb_scene_desc.robust, emb_builder_open's robust), the
+       closest Embree comes to a watertight test; ROBUST traces slower (bounce and shadow rays on
+       the bunny: ~1.4x).
      - Build time includes, like shared/tools/embree_ref.c, the geometry set-up: the copy of the
        vertices into Embree's buffer and the trivial index buffer 0,1,2,3...; commit time is the
        BVH build proper.
@@ -99,7 +103,8 @@ typedef struct emb_scene_desc {
     uint32_t width, height;   /* the frame; 0 (either) = build only */
     uint32_t trace_threads;   /* pthreads for the multi-threaded frame; 0 = online CPUs */
     uint32_t trace_repeat;    /* frames traced per thread count, the median time reported; 0 = 1 */
-    int robust;               /* 1: RTC_SCENE_FLAG_ROBUST (watertight-ish hits); 0: as embree_ref */
+    int robust;               /* 1: RTC_SCENE_FLAG_ROBUST (watertight-ish hits); 0: no scene flags,
+                                 Embree's default (as embree_ref without EMBREE_REF_ROBUST) */
     const bvh_aabb *bounds;   /* camera bounds; NULL = bounds of the finite vertices (= the root
                                  box of a bvh.h tree over the same triangles) */
     const bvh_camera *camera; /* the frame's camera; NULL = bvh_camera_standard over the bounds */
@@ -154,11 +159,13 @@ EMB_API int emb_quality_from_name(const char *name, emb_quality *out); /* 0 ok, 
 EMB_API int emb_scene_bench(const float *v, uint32_t n, const emb_scene_desc *desc, emb_scene_result *out);
 EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *desc, emb_sah_result *out);
 
-/* A device for single timed scene builds (as emb_scene_bench's, robust flag set): open once,
-   then emb_builder_time builds, times and releases one scene per call (*ms as emb_scene_bench's
-   build time). message: at least 160 bytes, or NULL. */
+/* A device for single timed scene builds (as emb_scene_bench's): open once, then
+   emb_builder_time builds, times and releases one scene per call (*ms as emb_scene_bench's build
+   time). Every scene it builds (emb_builder_time, emb_builder_keep) has RTC_SCENE_FLAG_ROBUST when
+   robust is 1, no scene flags (Embree's default) when it is 0, as emb_scene_desc.robust.
+   message: at least 160 bytes, or NULL. */
 typedef struct emb_builder emb_builder;
-EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, char *message);
+EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, int robust, char *message);
 EMB_API int emb_builder_time(emb_builder *b, const float *v, uint32_t n, double *ms);
 /* Builds a scene (untimed) and keeps it for emb_builder_trace, which traces one w x h frame of
    rays on it with rtcIntersect1 on `threads` threads, as emb_scene_bench's frames (*ms). */
@@ -251,9 +258,10 @@ EMB_API int emb_bvh_sah(const float *v, uint32_t n, const emb_sah_desc *d, emb_s
     (void)d;
     return emb__unavailable(o, sizeof *o, o ? o->message : NULL);
 }
-EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, char *message) {
+EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, int robust, char *message) {
     (void)quality;
     (void)threads;
+    (void)robust;
     if (out) *out = NULL;
     if (message) emb__msg(message, "Embree not installed");
     return EMB_ERR_UNAVAILABLE;
@@ -594,6 +602,7 @@ static int emb__trace(RTCScene scene, const bvh_ray *rays, size_t count, size_t 
 struct emb_builder {
     RTCDevice dev;
     enum RTCBuildQuality bq;
+    int robust; /* RTC_SCENE_FLAG_ROBUST on every scene */
     emb__err err;
     char message[160]; /* the last error */
     RTCScene kept;     /* emb_builder_keep's scene */
@@ -601,7 +610,7 @@ struct emb_builder {
     uint32_t *prim;
     size_t npix;
 };
-EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, char *message) {
+EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t threads, int robust, char *message) {
     emb_builder *b;
     if (!out) return EMB_ERR_ARGUMENT;
     *out = NULL;
@@ -615,6 +624,7 @@ EMB_API int emb_builder_open(emb_builder **out, emb_quality quality, uint32_t th
     b->err.failed = 0;
     pthread_mutex_init(&b->err.lock, NULL);
     b->bq = emb__rtc_quality(quality);
+    b->robust = robust != 0;
     b->dev = emb__device(threads, &b->err);
     if (!b->dev) {
         if (message) emb__msg(message, b->message);
@@ -632,7 +642,7 @@ EMB_API int emb_builder_time(emb_builder *b, const float *v, uint32_t n, double 
     if (ms) *ms = 0.0;
     if (!b || !ms || (!v && n) || n > EMB__MAX_TRIANGLES) return EMB_ERR_ARGUMENT;
     b->err.failed = 0;
-    scene = emb__build_scene(b->dev, v, n, b->bq, 1, &total, &commit);
+    scene = emb__build_scene(b->dev, v, n, b->bq, b->robust, &total, &commit);
     if (!scene || emb__check(b->dev, &b->err, "scene build")) {
         if (scene) rtcReleaseScene(scene);
         return EMB_ERR_EMBREE;
@@ -646,7 +656,7 @@ EMB_API int emb_builder_keep(emb_builder *b, const float *v, uint32_t n) {
     if (!b || (!v && n) || n > EMB__MAX_TRIANGLES) return EMB_ERR_ARGUMENT;
     if (b->kept) rtcReleaseScene(b->kept);
     b->err.failed = 0;
-    b->kept = emb__build_scene(b->dev, v, n, b->bq, 1, &total, &commit);
+    b->kept = emb__build_scene(b->dev, v, n, b->bq, b->robust, &total, &commit);
     if (!b->kept || emb__check(b->dev, &b->err, "scene build")) {
         if (b->kept) rtcReleaseScene(b->kept);
         b->kept = NULL;

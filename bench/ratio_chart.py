@@ -3,7 +3,9 @@
 
 usage: bench/ratio_chart.py OUT.png BUILDER bench.json [more.json ...]
 Reads bvhbench --json rows (run with --paired N) and draws, for BUILDER's tree on every scene,
-the median paired ratio of its Mrays/s over Embree medium's on camera, diffuse and shadow rays,
+the median paired ratio of its Mrays/s over Embree medium's on camera, diffuse and shadow rays
+(the title names Embree's scene flags from the rows' embree_flags; rows from before that key:
+the robust flag),
 as bars on a linear axis with Embree at 1 (the min-max of the rounds as error bars). Needs
 gnuplot (Debian gnuplot-nox). Standard library only.
 """
@@ -36,11 +38,13 @@ def main(out, builder, paths):
                     lo, hi = r.get(key + "_min", v), r.get(key + "_max", v)
                     cells += ["%.3f %.3f %.3f" % (v, lo, hi) if v is not None else "NaN NaN NaN"]
                 f.write('"%s" %s\n' % (r["scene"].replace(".glb", "").replace(".obj", ""), " ".join(cells)))
+        flags = sorted({r.get("embree_flags") or "robust" for r in rows})  # before the key: robust
+        flags = "default flags" if flags == ["default"] else "robust flag" if flags == ["robust"] else "mixed flags"
         top = max([1.2] + [r.get(k + "_max") or 0 for r in rows for _, k in KINDS]) * 1.1
         script = f"""
 set terminal pngcairo size 900,420 font "sans,11" noenhanced
 set output "{out}"
-set title "bvh.h ({builder} tree) against Embree 3 medium: Mrays/s on one thread, same rays"
+set title "bvh.h ({builder} tree) against Embree 3 medium ({flags}): Mrays/s on one thread, same rays"
 set ylabel "bvh.h / Embree  (1 = as fast)"
 set yrange [0:{top:.2f}]
 set style data histograms

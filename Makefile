@@ -171,12 +171,13 @@ deps-demo:
 deps-bench:
 	@scripts/deps.sh bench
 
-# tests/exit_codes.sh runs $(BUILD)/render and $(BUILD)/cl_info; tests/examples.sh runs
+# tests/exit_codes.sh runs $(BUILD)/render, $(BUILD)/cl_info and $(BUILD)/bvhbench; tests/examples.sh runs
 # $(BUILD)/minimal, $(BUILD)/boxes, $(BUILD)/animate and $(BUILD)/pathtrace; tests/install.sh
 # installs into $(BUILD)/install-test/ and builds a consumer with pkg-config and CMake.
 # scripts/run-tests.sh prints a line per program and keeps every output in $(BUILD)/test-logs/.
 test: deps-test
-	@$(MAKE) --no-print-directory $(TESTS) $(CHECKS) $(BUILD)/render $(BUILD)/cl_info $(COPYABLE) $(BUILD)/pathtrace
+	@$(MAKE) --no-print-directory $(TESTS) $(CHECKS) $(BUILD)/render $(BUILD)/cl_info $(BUILD)/bvhbench $(COPYABLE) \
+		$(BUILD)/pathtrace
 	@BUILD=$(BUILD) scripts/run-tests.sh $(TESTS) $(CHECKS) tests/exit_codes.sh tests/examples.sh tests/install.sh
 
 demo: deps-demo

@@ -3,7 +3,8 @@
 #   render: 0 done, 1 error, 2 bad command line. `--trace opencl` asks for OpenCL by name: an
 #   unusable $BVH_CL_DEVICE (or a build without OpenCL) is an error, while the default (auto) may
 #   fall back to the CPU with a one-line note. A corrupted scene file is a one-line error, not a
-#   crash. cl_info: a device named in $BVH_CL_DEVICE that cannot be used is an error.
+#   crash. cl_info: a device named in $BVH_CL_DEVICE that cannot be used is an error. bvhbench:
+#   a bad value of an option is a usage error (2), and so is --embree-flags without a value.
 # Usage: tests/exit_codes.sh  (`make test` runs it after building both; BUILD=dir picks another
 #   build directory). Prints one line per failed check and a closing result line; exits 1 on failure.
 set -u
@@ -11,7 +12,8 @@ cd "$(dirname "$0")/.." || exit 1
 build=${BUILD:-build}
 render=$build/render
 cl_info=$build/cl_info
-for b in "$render" "$cl_info"; do
+bvhbench=$build/bvhbench
+for b in "$render" "$cl_info" "$bvhbench"; do
   [ -x "$b" ] || { echo "exit_codes: $b is missing (make $b)"; exit 1; }
 done
 tmp=$(mktemp -d) || exit 1
@@ -73,6 +75,11 @@ if [ "$has_assimp" = 1 ]; then
   expect "render, a PLY face without indices" 1 1 "$render" --trace cpu "${small[@]}" "$tmp/empty-face.ply"
   expect "render, a PLY quad with index -2" 1 1 "$render" --trace cpu "${small[@]}" "$tmp/bad-quad.ply"
 fi
+
+# bvhbench: Embree's scene flags are default or robust, nothing else (a usage error before any work)
+expect "bvhbench, --embree-flags bogus" 2 -1 "$bvhbench" --embree-flags bogus gen:random:100
+expect "bvhbench, --embree-flags without a value" 2 -1 "$bvhbench" --embree-flags
+expect "bvhbench, --camera sideways" 2 -1 "$bvhbench" --camera sideways gen:random:100
 
 echo "exit_codes: $((checks - failed)) of $checks checks passed (opencl=$has_opencl assimp=$has_assimp)"
 [ "$failed" = 0 ]

@@ -45,9 +45,8 @@
    Every Embree scene (the rows' builds and frames, the ray sets, the paired rounds) is built with
    the scene flags of --embree-flags: "default" (the default: no flags, Embree's own, what a
    renderer that picks Embree gets unless it opts in) or "robust" (RTC_SCENE_FLAG_ROBUST, the
-   closest Embree comes to the watertight test bvh.h always makes; slower: about 1.4x on the
-   bunny's bounce and shadow rays). The header line "Embree:", the Markdown and the JSON's
-   "embree_flags" say which.
+   closest Embree comes to the watertight test bvh.h always makes; slower, see docs/bench/). The
+   header line "Embree:", the Markdown and the JSON's "embree_flags" say which.
    Every frame must give the same hits. bvh.h's frames (brute force, every builder, 1 and N
    threads, OpenCL) must agree pixel for pixel, primitive and t. Embree's frames are compared
    pixel by pixel with bvh.h's and an exact (long double) ray-triangle test referees each pixel

@@ -42,8 +42,7 @@
    NOTES ON WHAT IS MEASURED
      - Scene flags: none by default (Embree's own default, what a renderer gets unless it opts
        in), or RTC_SCENE_FLAG_ROBUST (emb_scene_desc.robust, emb_builder_open's robust), the
-       closest Embree comes to a watertight test; ROBUST traces slower (bounce and shadow rays on
-       the bunny: ~1.4x).
+       closest Embree comes to a watertight test, which traces slower (figures: docs/bench/).
      - Build time includes, like shared/tools/embree_ref.c, the geometry set-up: the copy of the
        vertices into Embree's buffer and the trivial index buffer 0,1,2,3...; commit time is the
        BVH build proper.

@@ -7983,10 +7983,7 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
     c.mask = mask;
     c.any = (uint32_t)any;
     c.instance = BVH_INVALID;
-    c.hit.t = BVH_INF; /* set by the step that takes a hit; written here for compilers that cannot see it */
-    c.hit.u = c.hit.v = 0.0f;
-    c.hit.prim = BVH_INVALID;
-    memset(&c.at, 0, sizeof c.at);
+    c.at.pk = NULL;
     if (scene && ray && mask && scene->top8_count) {
 #ifdef BVH__AVX2
         if (bvh__have_avx2())
@@ -7996,11 +7993,13 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
             found = any ? bvh__scene_any8_base(scene, ray, &c) : bvh__scene_closest8_base(scene, ray, &c);
     }
     if (!hit) return found;
-    hit->t = ray ? ray->tmax : BVH_INF;
-    hit->u = hit->v = 0.0f;
-    hit->instance = hit->id = hit->prim = BVH_INVALID;
-    hit->normal.x = hit->normal.y = hit->normal.z = 0.0f;
-    if (!found) return 0;
+    if (!found) {
+        hit->t = ray ? ray->tmax : BVH_INF;
+        hit->u = hit->v = 0.0f;
+        hit->instance = hit->id = hit->prim = BVH_INVALID;
+        hit->normal.x = hit->normal.y = hit->normal.z = 0.0f;
+        return 0;
+    }
     hit->t = c.hit.t;
     hit->u = c.hit.u;
     hit->v = c.hit.v;

@@ -13,8 +13,9 @@
    The scene keeps the file's structure: one bottom-level tree per mesh (assimp's aiMesh), built
    once, and one bvh_instance per node that uses the mesh, placed by the node's world transform
    (nothing is copied into world space). bvh_scene_build puts a top-level tree over them. Three
-   spheres are custom primitives: a tree over their boxes, traced by bvh_intersect_custom with a
-   sphere test; the nearer of the scene's hit and the spheres' wins.
+   spheres are custom primitives: a tree over their boxes with a sphere test (bvh_custom_desc),
+   one more instance of the CPU's scene, so that one traversal finds the nearest of all, and a
+   ray that passes far from the spheres never tests them.
    Each path: a camera ray, then up to D - 1 cosine-weighted diffuse bounces; at each hit a shadow
    ray toward the sun (next-event estimation), and the sky's colour when a ray escapes. Secondary
    rays start at bvh_offset_origin(point, normal) with tmin = 0: no epsilon to tune per scene.
@@ -76,10 +77,11 @@ typedef struct world {
     uint32_t mesh_count;
     bvh_instance *instances; /* instance.id = its mesh's index */
     uint32_t instance_count, instance_cap;
-    bvh_scene scene;
+    bvh_scene scene; /* the meshes' instances (what a device traces) */
     sphere spheres[SPHERES];
     bvh_tree sphere_tree;        /* built from the spheres' boxes */
     bvh_custom_desc sphere_test; /* hit_sphere on w->spheres */
+    bvh_scene cpu;               /* scene's instances and then the spheres' (instance_count) */
 } world;
 
 static bvh_vec3 v3(float x, float y, float z) { return (bvh_vec3){x, y, z}; }
@@ -112,7 +114,7 @@ static int add_instance(world *w, uint32_t i, const float m[12]) {
     float det =
         m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8]) + m[2] * (m[4] * m[9] - m[5] * m[8]);
     if (!w->meshes[i].built || !(fabsf(det) > 1e-30f) || !isfinite(det)) return 0;
-    if (w->instance_count == w->instance_cap) {
+    if (w->instance_count + 1 >= w->instance_cap) { /* a spare slot for build_cpu_scene */
         uint32_t cap = w->instance_cap ? 2 * w->instance_cap : 64;
         bvh_instance *p = realloc(w->instances, cap * sizeof *p);
         if (!p) return 1;
@@ -348,10 +350,23 @@ static bvh_result add_spheres(world *w, bvh_aabb b) {
     w->sphere_test.user = w->spheres;
     return bvh_build(&w->sphere_tree, &desc);
 }
+/* The CPU's scene: the meshes' instances and, after them, the spheres' tree placed by the
+   identity with the sphere test (instances has room for it: add_instance keeps a spare slot). */
+static bvh_result build_cpu_scene(world *w) {
+    bvh_instance *s = &w->instances[w->instance_count];
+    memset(s, 0, sizeof *s);
+    s->tree = &w->sphere_tree;
+    s->custom = &w->sphere_test;
+    s->transform[0] = s->transform[5] = s->transform[10] = 1.0f;
+    s->mask = ~0u;
+    return bvh_scene_build(&w->cpu,
+                           &(bvh_scene_desc){.instances = w->instances, .instance_count = w->instance_count + 1});
+}
 
 static void free_world(world *w) {
     uint32_t i;
     bvh_scene_free(&w->scene);
+    bvh_scene_free(&w->cpu);
     bvh_free(&w->sphere_tree);
     for (i = 0; i < w->mesh_count; i++) {
         bvh_free(&w->meshes[i].tree); /* no-op on a tree never built (zeroed by calloc) */
@@ -395,12 +410,13 @@ static int surface_at(const world *w, const bvh_ray *ray, const bvh_scene_hit *h
     return 1;
 }
 
-/* The closest hit among instances and spheres, given the scene's hit h of the ray (by
-   bvh_scene_intersect, or from the device): the spheres are tested here, nearer than h->t. */
+/* The closest hit among instances and spheres, given the device's hit h of the ray in the
+   scene without spheres: the spheres are tested here. A sphere must be nearer than h->t: at an
+   equal t the triangle wins, as in the CPU's scene, where the spheres are the last instance. */
 static int resolve(const world *w, bvh_ray ray, const bvh_scene_hit *h, surface *s) {
     bvh_hit sh;
-    ray.tmax = h->t; /* the scene's hit, or the ray's tmax on a miss: a sphere must be nearer */
-    if (bvh_intersect_custom(&w->sphere_tree, &ray, &sh, &w->sphere_test))
+    ray.tmax = h->t; /* the scene's hit, or the ray's tmax on a miss */
+    if (bvh_intersect_custom(&w->sphere_tree, &ray, &sh, &w->sphere_test) && sh.t < h->t)
         return surface_at(w, &ray, NULL, sh.prim, sh.t, s);
     return surface_at(w, &ray, h, BVH_INVALID, 0.0f, s);
 }
@@ -470,16 +486,16 @@ static int trace(const job *j, bvh_ray ray, surface *s) {
 #ifdef BVH_HAVE_EMBREE
     if (j->embree) return embree_trace(j->embree, j->w, ray, s);
 #endif
-    bvh_scene_intersect(&j->w->scene, &ray, ~0u, &h);
-    return resolve(j->w, ray, &h, s);
+    if (!bvh_scene_intersect(&j->w->cpu, &ray, ~0u, &h)) return 0;
+    if (h.instance == j->w->instance_count) return surface_at(j->w, &ray, NULL, h.prim, h.t, s);
+    return surface_at(j->w, &ray, &h, BVH_INVALID, 0.0f, s);
 }
 /* 1 when something lies on the ray (instances or spheres). */
 static int occluded(const job *j, const bvh_ray *ray) {
 #ifdef BVH_HAVE_EMBREE
     if (j->embree) return embree_occluded(j->embree, ray);
 #endif
-    return bvh_scene_occluded(&j->w->scene, ray, ~0u) ||
-           bvh_occluded_custom(&j->w->sphere_tree, ray, &j->w->sphere_test);
+    return bvh_scene_occluded(&j->w->cpu, ray, ~0u);
 }
 
 /* One path: up to `depth` diffuse hits, each lit by the sun through a shadow ray. */
@@ -983,6 +999,7 @@ int main(int argc, char **argv) {
     r = bvh_scene_build(&w.scene, &(bvh_scene_desc){.instances = w.instances, .instance_count = w.instance_count});
     if (r == BVH_SUCCESS && w.instance_count == 0) r = BVH_ERROR_INVALID_GEOMETRY; /* nothing to see */
     if (r == BVH_SUCCESS) r = add_spheres(&w, bvh_tree_bounds(&w.scene.top));
+    if (r == BVH_SUCCESS) r = build_cpu_scene(&w);
     if (r != BVH_SUCCESS) {
         fprintf(stderr, "pathtrace: %s: %s\n", w.instance_count ? "scene" : "no triangles", bvh_result_string(r));
         return free_world(&w), 1;

@@ -7292,38 +7292,58 @@ typedef struct bvh__batch {
     const bvh_ray *rays;
     bvh_hit *hits;
     uint8_t *occluded;
-    size_t count, next; /* next: first ray no thread has taken */
+    size_t count;
+    size_t big;  /* chunks 0 .. big - 1 are BVH__BATCH_BIG rays long, the rest BVH__BATCH_CHUNK */
+    size_t next; /* the next chunk no thread has taken */
 } bvh__batch;
-/* Chunks of 64 rays taken in turn from a shared counter, not fixed shares: the cost of a ray
-   varies by orders of magnitude across a frame (a mesh in one part of it), so fixed shares leave
-   threads idle (docs/DESIGN.md, Threads). */
+/* Chunks taken in turn from a shared counter, not fixed shares: the cost of a ray varies by
+   orders of magnitude across a frame (a mesh in one part of it), so fixed shares leave threads
+   idle (docs/DESIGN.md, Threads). Long chunks first: two threads on neighbouring short chunks
+   read and write neighbouring lines, which (most likely through each core's prefetcher, which
+   fetches its neighbour's lines too) made cheap rays a sixth dearer on two threads. Short ones
+   last (two long chunks' worth a thread), so that the threads still finish together. */
 #define BVH__BATCH_CHUNK 64u
-static size_t bvh__batch_take(bvh__batch *b, bvh__team *team) {
+#define BVH__BATCH_BIG 1024u
+static void bvh__batch_plan(bvh__batch *b, uint32_t nt) {
+    const size_t tail = (size_t)nt * 2u * BVH__BATCH_BIG;
+    b->big = nt > 1 && b->count > tail ? (b->count - tail) / BVH__BATCH_BIG : 0;
+    b->next = 0;
+}
+/* The rays [*first, *end) of the next chunk; 0 when none is left. */
+static int bvh__batch_take(bvh__batch *b, bvh__team *team, size_t *first, size_t *end) {
+    size_t k, f, e;
 #if defined(__GNUC__) || defined(__clang__)
     (void)team;
-    return __atomic_fetch_add(&b->next, (size_t)BVH__BATCH_CHUNK, __ATOMIC_RELAXED);
+    k = __atomic_fetch_add(&b->next, (size_t)1, __ATOMIC_RELAXED);
 #else
-    size_t c;
 #ifndef BVH_NO_THREADS
     if (team->n > 1) pthread_mutex_lock(&team->mutex);
 #endif
-    c = b->next;
-    b->next += BVH__BATCH_CHUNK;
+    k = b->next++;
 #ifndef BVH_NO_THREADS
     if (team->n > 1) pthread_mutex_unlock(&team->mutex);
 #endif
     (void)team;
-    return c;
 #endif
+    if (k < b->big) {
+        f = k * BVH__BATCH_BIG;
+        e = f + BVH__BATCH_BIG;
+    } else {
+        f = b->big * BVH__BATCH_BIG + (k - b->big) * BVH__BATCH_CHUNK;
+        if (f >= b->count) return 0;
+        e = f + BVH__BATCH_CHUNK < b->count ? f + BVH__BATCH_CHUNK : b->count;
+    }
+    *first = f;
+    *end = e;
+    return 1;
 }
 static void bvh__batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__batch *b = BVH__CAST(bvh__batch *, arg);
-    size_t chunk, i, e;
+    size_t i, e;
     (void)tid;
     (void)nt;
-    while ((chunk = bvh__batch_take(b, team)) < b->count) {
-        e = chunk + BVH__BATCH_CHUNK < b->count ? chunk + BVH__BATCH_CHUNK : b->count;
-        for (i = chunk; i < e; i++) {
+    while (bvh__batch_take(b, team, &i, &e)) {
+        for (; i < e; i++) {
             if (b->hits)
                 bvh__traverse(b->tree, &b->rays[i], &b->hits[i], 0, NULL);
             else
@@ -7363,8 +7383,8 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
     b.hits = hits;
     b.occluded = occ;
     b.count = count;
-    b.next = 0;
-    if (pool && pool->run) {
+    b.big = b.next = 0;
+    if (pool && pool->run) { /* the pool's own scheduling keeps neighbouring tasks together */
         size_t chunks = (count + BVH__BATCH_CHUNK - 1) / BVH__BATCH_CHUNK, done;
         (void)threads;                   /* the pool balances the chunks itself */
         for (done = 0; done < chunks;) { /* runs of at most 2^32 - 1 tasks */
@@ -7381,6 +7401,7 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
     nt = bvh__resolve_threads(threads);
     if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
     if (nt < 1) nt = 1;
+    bvh__batch_plan(&b, nt);
     return bvh__team_run(&tree->allocator, nt, bvh__batch_fn, &b);
 }
 /* The four batch calls: the output the call writes (hits or occluded) must be given when there
@@ -7462,12 +7483,11 @@ typedef struct bvh__custom_batch {
 static void bvh__custom_batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__custom_batch *cb = BVH__CAST(bvh__custom_batch *, arg);
     bvh__batch *b = &cb->b;
-    size_t chunk, i, e;
+    size_t i, e;
     (void)tid;
     (void)nt;
-    while ((chunk = bvh__batch_take(b, team)) < b->count) {
-        e = chunk + BVH__BATCH_CHUNK < b->count ? chunk + BVH__BATCH_CHUNK : b->count;
-        for (i = chunk; i < e; i++) {
+    while (bvh__batch_take(b, team, &i, &e)) {
+        for (; i < e; i++) {
             if (b->hits)
                 bvh__trace_custom(b->tree, &b->rays[i], &b->hits[i], 0, cb->custom);
             else
@@ -7487,11 +7507,11 @@ static bvh_result bvh__custom_batch_run(const bvh_tree *tree, const bvh_ray *ray
     cb.b.hits = hits;
     cb.b.occluded = occ;
     cb.b.count = count;
-    cb.b.next = 0;
     cb.custom = custom;
     nt = bvh__resolve_threads(threads);
     if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
     if (nt < 1) nt = 1;
+    bvh__batch_plan(&cb.b, nt);
     return bvh__team_run(&tree->allocator, nt, bvh__custom_batch_fn, &cb);
 }
 BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,

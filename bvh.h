@@ -1,4 +1,4 @@
-/* bvh.h - v0.8.1 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.8.2 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -106,6 +106,11 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.8.2  Batches hand out chunks of 1,024 rays, then 64 at the end (were 64): two threads
+            on the bunny's camera rays 1.46-1.59x -> 1.80-1.93x one thread. bvh_scene_intersect
+            writes its hit record once. examples/pathtrace.c puts its spheres in the CPU's
+            scene as a custom instance (was a second traversal per ray): 0.73x -> 0.81x
+            Embree on its own rays, one thread.
      0.8.1  The 8-wide slab tests (AVX2 and SSE) take the same operations regrouped into trees,
             so that the chain from a node's boxes to the next node's address is shorter (same
             decisions; only the order of children at exactly equal distances can change):
@@ -236,7 +241,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 8
-#define BVH_VERSION_PATCH 1
+#define BVH_VERSION_PATCH 2
 
 #include <math.h>
 #include <stddef.h>

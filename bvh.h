@@ -5641,7 +5641,7 @@ done:
 static bvh_result bvh__validate(const bvh_tree *tree, const bvh_aabb *prim_boxes, int structure_only,
                                 bvh_validation *rep) {
     bvh_allocator al;
-    uint8_t *seen = NULL, *used = NULL;
+    uint8_t *seen = NULL, *used = NULL, *covered = NULL; /* covered: per reference, by a leaf */
     uint32_t stack[2 * BVH_MAX_DEPTH + 8], sp = 0, i, refs_seen = 0;
     int splits;
     bvh_result r = BVH_SUCCESS;
@@ -5668,13 +5668,15 @@ static bvh_result bvh__validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
         return bvh__invalid(rep, BVH_INVALID,
                             "reference count differs from primitive count for a builder that does not split");
     seen = BVH__ALLOC(&al, uint8_t, tree->node_count);
-    used = BVH__ALLOC(&al, uint8_t, tree->prim_count);
-    if (!seen || !used) {
+    used = BVH__ALLOC(&al, uint8_t, tree->prim_count ? tree->prim_count : 1);
+    covered = BVH__ALLOC(&al, uint8_t, tree->ref_count ? tree->ref_count : 1);
+    if (!seen || !used || !covered) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
     memset(seen, 0, tree->node_count);
-    memset(used, 0, tree->prim_count);
+    memset(used, 0, tree->prim_count ? tree->prim_count : 1);
+    memset(covered, 0, tree->ref_count ? tree->ref_count : 1);
     stack[sp++] = 0;
     stack[sp++] = 1;
     while (sp) {
@@ -5703,6 +5705,10 @@ static bvh_result bvh__validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
                 uint32_t p = tree->prims[k];
                 bvh_aabb pb;
                 refs_seen++;
+                if (covered[k]++) { /* with the count below: every reference in exactly one leaf */
+                    r = bvh__invalid(rep, ni, "reference in two leaves");
+                    goto done;
+                }
                 if (p >= tree->prim_count) {
                     r = bvh__invalid(rep, ni, "reference to a primitive out of range");
                     goto done;
@@ -5763,6 +5769,7 @@ static bvh_result bvh__validate(const bvh_tree *tree, const bvh_aabb *prim_boxes
 done:
     bvh__free(&al, seen);
     bvh__free(&al, used);
+    bvh__free(&al, covered);
     return r;
 }
 BVH_API bvh_result bvh_validate(const bvh_tree *tree, const bvh_aabb *prim_boxes, bvh_validation *rep) {
@@ -8811,17 +8818,19 @@ static bvh_result bvh__check_header(const bvh__file_header *h, const bvh_load_de
 static bvh_result bvh__validate_linear(const bvh_tree *t) {
     bvh_allocator al = t->allocator;
     uint8_t *depth = BVH__ALLOC(&al, uint8_t, t->node_count), *used = BVH__ALLOC(&al, uint8_t, t->prim_count);
+    uint8_t *covered = BVH__ALLOC(&al, uint8_t, t->ref_count ? t->ref_count : 1); /* per reference, by a leaf */
     uint64_t refs = 0;
     uint32_t i, k, n_used = 0;
     int splits = t->ref_count != t->prim_count - t->excluded;
     bvh_result r = BVH_ERROR_INVALID_TREE;
-    if (!depth || !used) {
+    if (!depth || !used || !covered) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
     if (splits && !bvh__builders[t->builder].info.splits_references) goto done;
     memset(depth, 0, t->node_count);
     memset(used, 0, t->prim_count);
+    memset(covered, 0, t->ref_count ? t->ref_count : 1);
     depth[0] = 1;
     for (i = 0; i < t->node_count; i++) {
         const bvh_node *n = &t->nodes[i];
@@ -8832,6 +8841,7 @@ static bvh_result bvh__validate_linear(const bvh_tree *t) {
             refs += n->count;
             for (k = n->index; k < n->index + n->count; k++) {
                 uint32_t p = t->prims[k];
+                if (covered[k]++) goto done; /* with refs == ref_count: each reference in one leaf */
                 if (p >= t->prim_count || (used[p] && !splits)) goto done;
                 n_used += !used[p];
                 used[p] = 1;
@@ -8848,6 +8858,7 @@ static bvh_result bvh__validate_linear(const bvh_tree *t) {
 done:
     bvh__free(&al, depth);
     bvh__free(&al, used);
+    bvh__free(&al, covered);
     return r;
 }
 /* The triangles of leaf n inside its box (for split references, clipped: each overlapping it).

@@ -875,6 +875,32 @@ static void child_before_parent(void **state) {
     assert_int_equal(rep.node, 4);
     assert_string_equal(rep.message, "child stored before its parent");
 }
+/* Leaves whose reference ranges overlap, with the count of references and of primitives used
+   still right: a tree with split references (a primitive in two references), so no primitive
+   appears twice where it should not. Refused: every reference is in exactly one leaf. */
+static void leaves_share_references(void **state) {
+    static const bvh_aabb boxes[3] = {{{0, 0, 0}, {1, 1, 1}}, {{2, 0, 0}, {3, 1, 1}}, {{4, 0, 0}, {5, 1, 1}}};
+    /* root -> (leaf refs 0-1: prims 0, 1; leaf refs 2-3: prims 2, 1) */
+    static const bvh_node good[3] = {
+        {{0, 0, 0}, 1, {5, 1, 1}, 0}, {{0, 0, 0}, 0, {3, 1, 1}, 2}, {{2, 0, 0}, 2, {5, 1, 1}, 2}};
+    uint32_t prims[4] = {0, 1, 2, 1};
+    bvh_node nodes[3];
+    bvh_tree t;
+    bvh_validation rep;
+    (void)state;
+    memset(&t, 0, sizeof t);
+    t.nodes = nodes;
+    t.node_count = 3;
+    t.prims = prims;
+    t.ref_count = 4;
+    t.prim_count = 3;
+    t.builder = BVH_BUILDER_SAH_MIDPOINT; /* a builder that splits references */
+    memcpy(nodes, good, sizeof nodes);
+    assert_int_equal(bvh_validate(&t, boxes, &rep), BVH_SUCCESS);
+    nodes[2].index = 1; /* refs 1-2: ref 1 in both leaves, ref 3 in none; prims 0, 1, 2 all used */
+    assert_int_equal(bvh_validate(&t, boxes, &rep), BVH_ERROR_INVALID_TREE);
+    assert_string_equal(rep.message, "reference in two leaves");
+}
 
 static void corrupted_trees(void **state) {
     tu_scene s;
@@ -1093,6 +1119,7 @@ int main(void) {
         cmocka_unit_test(triangle_and_camera),
         cmocka_unit_test(corrupted_trees),
         cmocka_unit_test(child_before_parent),
+        cmocka_unit_test(leaves_share_references),
         cmocka_unit_test(depth_limit),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -5789,8 +5789,8 @@ typedef struct bvh__rayx {
     float o[3], d[3], inv[3], tmin; /* side by side: bvh__ray8_start copies them at once */
     int near[3];                    /* float offset in a node of the near plane on each axis: 0..2 min, 4..6 max */
     int near8[3], far8[3];          /* the same in a bvh_node8 (slot 0): 0, 8, 16 min, 24, 32, 40 max */
-    int kx, ky, kz;                 /* watertight: kz = dominant axis (bvh__ray_setup); kx, ky and the shear */
-    float sx, sy, sz;               /* sx, sy, sz are made by bvh__ray_shear before the first triangle test */
+    int kx, ky, kz;                 /* watertight: kz = dominant axis (bvh__ray_setup); kx, ky and ... */
+    float sx, sy, sz;               /* ... the shear are made by bvh__ray_shear before the first triangle test */
 } bvh__rayx;
 typedef char bvh__rayx_packed[offsetof(bvh__rayx, tmin) == 9 * sizeof(float) ? 1 : -1];
 
@@ -6780,28 +6780,51 @@ typedef struct bvh__ray8 {
    the three comparisons |dx| > |dy|, |dx| > |dz|, |dy| > |dz| as bits 0-2, looked up rather than
    branched on: a diffuse ray's direction is random, and so would the branches be. */
 static const unsigned char bvh__kz[8] = {2, 2, 2, 0, 1, 2, 1, 0};
-/* Slab-test axis a of q from ray axis k (odi: bvh__rayx's o, d, inv), the inverse negated:
-   (o - b) * -inv is (b - o) * inv, bit for bit but for the sign of a zero, and lets the slab test
-   read b by the subtraction itself. */
-BVH__INLINE void bvh__ray8_axis(bvh__ray8 *q, int a, int k, unsigned neg, const float *odi) {
-    const int n = (int)(neg >> k & 1u);
-    q->so[a] = odi[k];
-    q->sinv[a] = -odi[6 + k];
-    q->near8[a] = 8 * k + 24 * n;
-    q->far8[a] = 8 * k + 24 - 24 * n;
-}
+/* The slab tests' axes: the two after kz in cyclic order, then kz (last: its distances give the
+   slack). Which of the other two comes first changes no bit (see bvh__slab8_avx2), so the set-up
+   need not know kx and ky, which bvh__ray_shear makes at the first leaf. */
+static const int32_t bvh__slab_axes[3][4] = {{1, 2, 0, 0}, {2, 0, 1, 0}, {0, 1, 2, 0}};
+/* [kz][neg]: near8[0..2], 0, far8[0..2], 0 of the slab axes (the float offsets in a bvh_node8
+   of slot 0's near and far planes), where bit k of neg says inv[k] < 0: for axis
+   k = bvh__slab_axes[kz][s] and n = bit k, near8[s] = 8k + 24n and far8[s] = 8k + 24 - 24n. */
+static const unsigned char bvh__slab_planes[3][8][8] = {{{8, 16, 0, 0, 32, 40, 24, 0},
+                                                         {8, 16, 24, 0, 32, 40, 0, 0},
+                                                         {32, 16, 0, 0, 8, 40, 24, 0},
+                                                         {32, 16, 24, 0, 8, 40, 0, 0},
+                                                         {8, 40, 0, 0, 32, 16, 24, 0},
+                                                         {8, 40, 24, 0, 32, 16, 0, 0},
+                                                         {32, 40, 0, 0, 8, 16, 24, 0},
+                                                         {32, 40, 24, 0, 8, 16, 0, 0}},
+                                                        {{16, 0, 8, 0, 40, 24, 32, 0},
+                                                         {16, 24, 8, 0, 40, 0, 32, 0},
+                                                         {16, 0, 32, 0, 40, 24, 8, 0},
+                                                         {16, 24, 32, 0, 40, 0, 8, 0},
+                                                         {40, 0, 8, 0, 16, 24, 32, 0},
+                                                         {40, 24, 8, 0, 16, 0, 32, 0},
+                                                         {40, 0, 32, 0, 16, 24, 8, 0},
+                                                         {40, 24, 32, 0, 16, 0, 8, 0}},
+                                                        {{0, 8, 16, 0, 24, 32, 40, 0},
+                                                         {24, 8, 16, 0, 0, 32, 40, 0},
+                                                         {0, 32, 16, 0, 24, 8, 40, 0},
+                                                         {24, 32, 16, 0, 0, 8, 40, 0},
+                                                         {0, 8, 40, 0, 24, 32, 16, 0},
+                                                         {24, 8, 40, 0, 0, 32, 16, 0},
+                                                         {0, 32, 40, 0, 24, 8, 16, 0},
+                                                         {24, 32, 40, 0, 0, 8, 16, 0}}};
 #ifdef BVH__AVX2
-/* bvh__ray8_axis on the three axes at once: o and inv permuted to (kx, ky, kz) and the plane
-   offsets from the sign bits, in vector registers (AVX2's variable permute and shift). */
+/* The slab tests' operands: o and -inv permuted to bvh__slab_axes[kz] (AVX2's variable permute;
+   (o - b) * -inv is (b - o) * inv, bit for bit but for the sign of a zero, and lets the slab test
+   read b by the subtraction itself) and the plane offsets from bvh__slab_planes. */
 __attribute__((target("avx2"))) static inline void bvh__ray8_axes_avx2(bvh__ray8 *q, const bvh__rayx *rx, __m128 o,
                                                                        __m128 inv, unsigned neg) {
-    const __m128i k = _mm_setr_epi32(rx->kx, rx->ky, rx->kz, 0);
-    const __m128i n = _mm_and_si128(_mm_srlv_epi32(_mm_set1_epi32((int)neg), k), _mm_set1_epi32(1));
-    const __m128i k8 = _mm_slli_epi32(k, 3), n24 = _mm_add_epi32(_mm_slli_epi32(n, 4), _mm_slli_epi32(n, 3));
+    const __m128i k = _mm_loadu_si128((const __m128i *)(const void *)bvh__slab_axes[rx->kz]);
+    const unsigned char *pl = bvh__slab_planes[rx->kz][neg & 7u];
+    int32_t nf[2];
+    memcpy(nf, pl, sizeof nf);
     _mm_storeu_ps(q->so, _mm_permutevar_ps(o, k));
     _mm_storeu_ps(q->sinv, _mm_permutevar_ps(_mm_xor_ps(inv, _mm_set1_ps(-0.0f)), k)); /* -inv, bit for bit */
-    _mm_storeu_si128((__m128i *)(void *)q->near8, _mm_add_epi32(k8, n24));
-    _mm_storeu_si128((__m128i *)(void *)q->far8, _mm_sub_epi32(_mm_add_epi32(k8, _mm_set1_epi32(24)), n24));
+    _mm_storeu_si128((__m128i *)(void *)q->near8, _mm_cvtepu8_epi32(_mm_cvtsi32_si128(nf[0])));
+    _mm_storeu_si128((__m128i *)(void *)q->far8, _mm_cvtepu8_epi32(_mm_cvtsi32_si128(nf[1])));
 }
 #endif
 BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q, int sse) {
@@ -6817,30 +6840,32 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     /* |dx| > |dy|, |dx| > |dz|, |dy| > |dz| as bits 0-2 */
     const unsigned gt = (unsigned)_mm_movemask_ps(
         _mm_cmpgt_ps(_mm_shuffle_ps(ad, ad, _MM_SHUFFLE(3, 1, 0, 0)), _mm_shuffle_ps(ad, ad, _MM_SHUFFLE(3, 2, 2, 1))));
-    float odi[12];
+    char *x = (char *)(void *)rx;
     int a;
-    if ((finite & 7u) != 7u || ray->tmin != ray->tmin || ray->tmax != ray->tmax || ray->tmin > ray->tmax) return 0;
+    /* !(tmin <= tmax): also a NaN in either */
+    if ((finite & 7u) != 7u || !(ray->tmin <= ray->tmax)) return 0;
     if ((_mm_movemask_ps(_mm_cmpeq_ps(d, zero)) & 7) == 7) return 0;
-    /* o, d, inv and tmin are side by side in bvh__rayx: three stores of four lanes, each fourth
-       lane overwritten by the next store (through a local: the struct's arrays are three long) */
-    _mm_storeu_ps(odi, o);
-    _mm_storeu_ps(odi + 3, d);
-    _mm_storeu_ps(odi + 6, inv);
-    odi[9] = ray->tmin;
-    memcpy(rx, odi, sizeof odi[0] * 10);
+    /* o, d, inv and tmin are side by side in bvh__rayx: three stores of four lanes into its
+       bytes, each fourth lane overwritten by the next store, the last by tmin */
+    _mm_storeu_ps((float *)(void *)(x + offsetof(bvh__rayx, o)), o);
+    _mm_storeu_ps((float *)(void *)(x + offsetof(bvh__rayx, d)), d);
+    _mm_storeu_ps((float *)(void *)(x + offsetof(bvh__rayx, inv)), inv);
+    rx->tmin = ray->tmin;
     rx->kz = bvh__kz[gt & 7u];
-    rx->kx = bvh__kxy[neg >> rx->kz & 1u][rx->kz][0];
-    rx->ky = bvh__kxy[neg >> rx->kz & 1u][rx->kz][1];
-    /* the slab tests' axes in the order kx, ky, kz (kz last: its distances give the slack) */
 #ifdef BVH__AVX2
     if (!sse) /* the AVX2 loop's set-up */
         bvh__ray8_axes_avx2(q, rx, o, inv, neg);
     else
 #endif
     {
-        bvh__ray8_axis(q, 0, rx->kx, neg, odi);
-        bvh__ray8_axis(q, 1, rx->ky, neg, odi);
-        bvh__ray8_axis(q, 2, rx->kz, neg, odi);
+        const int32_t *k = bvh__slab_axes[rx->kz];
+        const unsigned char *pl = bvh__slab_planes[rx->kz][neg & 7u];
+        for (a = 0; a < 3; a++) { /* bvh__ray8_axes_avx2, one axis at a time */
+            q->so[a] = rx->o[k[a]];
+            q->sinv[a] = -rx->inv[k[a]];
+            q->near8[a] = pl[a];
+            q->far8[a] = pl[4 + a];
+        }
     }
     q->stmin = rx->tmin;
     if (sse) {

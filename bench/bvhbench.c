@@ -35,10 +35,13 @@
    thread with every tree and with Embree's scene, one right after the other, and N more each
    render a frame with OpenCL and trace it on the CPU's N threads: the medians of the rounds'
    ratios (and of the Mrays/s) are printed under the table and written to the JSON
-   (ratio_build_paired, ratio_mrays_1t_paired, ratio_diffuse_1t_paired, ratio_shadow_1t_paired,
-   ratio_opencl_mt_paired; mrays_1t_paired, diffuse_mrays_1t_paired, shadow_mrays_1t_paired),
-   robust to a shared machine's slow moments in a way the ratio of two medians taken seconds
-   apart is not.
+   (ratio_build_paired; ratio_build_high_paired where the table has Embree high, which then
+   builds once in each of the same rounds; ratio_mrays_1t_paired, ratio_diffuse_1t_paired,
+   ratio_shadow_1t_paired, ratio_opencl_mt_paired; mrays_1t_paired, diffuse_mrays_1t_paired,
+   shadow_mrays_1t_paired), robust to a shared machine's slow moments in a way the ratio of two
+   medians taken seconds apart is not. Each of bvh.h's one-thread passes is followed at once by
+   the same pass on --threads threads: their ratio is the thread scaling, paired as well
+   (scaling_mt_paired, diffuse_scaling_mt_paired, shadow_scaling_mt_paired).
    Rows: "none" (brute force, the study's first row; only up to --brute-max triangles), the five
    builders, and Embree's scene API at build quality low, medium and high (rtcIntersect1 for the
    frame; the SAH, nodes and leaves of a binary tree from rtcBuildBVH at the same quality).
@@ -137,6 +140,7 @@ typedef struct set_figs {
     double ms_1t, mrays_1t, ms_mt, mrays_mt;
     double x_p, x_p_min, x_p_max; /* 1-thread Mrays/s / Embree medium's, paired rounds */
     double p_mrays;               /* median 1-thread Mrays/s of the paired rounds */
+    double x_s, x_s_min, x_s_max; /* Mrays/s on N threads / on 1 thread, the same paired rounds */
     double other;                 /* Embree: rays answered otherwise than by bvh.h */
 } set_figs;
 
@@ -160,8 +164,10 @@ typedef struct row {
     double x_pair, x_pair_min, x_pair_max;       /* build time / Embree medium's in paired rounds:
                                                     median, min, max of the rounds' ratios */
     double pair_ms;                              /* median build ms in the paired rounds (bvh.h rows
-                                                    and the Embree medium row) */
+                                                    and the Embree medium and high rows) */
+    double x_pairh, x_pairh_min, x_pairh_max;    /* the same against Embree high, where the table has it */
     double x_ptrace, x_ptrace_min, x_ptrace_max; /* 1-thread Mrays/s / Embree medium's, paired */
+    double x_scale, x_scale_min, x_scale_max;    /* camera rays' Mrays/s on N threads / on 1, paired */
     double x_pcl, x_pcl_min, x_pcl_max;          /* OpenCL frame Mrays/s / the CPU's on N threads, paired */
     double p_mrays;                              /* median 1-thread Mrays/s of the paired rounds */
     set_figs set[SET_COUNT];                     /* the diffuse and shadow rays */
@@ -247,7 +253,9 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->frame_ms = r->fps = r->hits = r->t_sum = NAN;
     r->x_build = r->x_sah = r->x_mrays = r->emb_bvh_ms = r->emb_prim_diff = NAN;
     r->x_pair = r->x_pair_min = r->x_pair_max = r->pair_ms = NAN;
+    r->x_pairh = r->x_pairh_min = r->x_pairh_max = NAN;
     r->x_ptrace = r->x_ptrace_min = r->x_ptrace_max = NAN;
+    r->x_scale = r->x_scale_min = r->x_scale_max = NAN;
     r->x_pcl = r->x_pcl_min = r->x_pcl_max = r->p_mrays = NAN;
     r->refit_ms = r->rebuild_ms = r->refit_sah = r->rebuild_sah = r->refit_mrays = r->rebuild_mrays = NAN;
     r->save_ms = r->load_ms = NAN;
@@ -255,6 +263,7 @@ static void row_init(row *r, row_kind kind, const char *name) {
         set_figs *f = &r->set[k];
         f->rays = f->count = f->t_sum = f->ms_1t = f->mrays_1t = f->ms_mt = f->mrays_mt = NAN;
         f->x_p = f->x_p_min = f->x_p_max = f->p_mrays = f->other = NAN;
+        f->x_s = f->x_s_min = f->x_s_max = NAN;
     }
     r->frame_tracer = NULL;
 }
@@ -1372,12 +1381,15 @@ static void paired_opencl(run_ctx *c, bench_scene *out, bvh_tree *trees, int mad
 }
 
 /* The same for one-thread tracing: every builder's tree and Embree medium's scene are made
-   once, then each round traces one frame with each tree and one with Embree, on one thread. */
+   once, then each round traces one frame with each tree and one with Embree, on one thread.
+   Each of bvh.h's passes is followed at once by the same pass on N threads (--threads), whose
+   ratio to it is the thread scaling, paired as well. */
 static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *ratio) {
     const options *o = c->o;
     bvh_tree trees[BENCH_MAX_ROWS];
     double *pms = ratio + (size_t)(1 + SET_COUNT) * out->nrows * o->paired; /* ms per kind, tree, round */
     double *ems = NULL;                                                     /* Embree's ms per kind and round */
+    double *scale = NULL; /* 1-thread ms / N-thread ms per kind, tree and round */
     float *et = NULL;
     uint32_t *ep = NULL;
     uint8_t *eo = NULL;
@@ -1402,27 +1414,33 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
     }
     kinds = c->has_sets ? 1 + SET_COUNT : 1;
     ems = (double *)malloc((size_t)kinds * o->paired * sizeof *ems);
+    scale = (double *)malloc((size_t)kinds * (size_t)made * o->paired * sizeof *scale);
     et = (float *)malloc(n * sizeof *et);
     ep = (uint32_t *)malloc(n * sizeof *ep);
     eo = (uint8_t *)malloc(n);
-    if (!ems || !et || !ep || !eo) {
+    if (!ems || !scale || !et || !ep || !eo) {
         say("%s: paired tracing: out of memory", out->name);
         goto done;
     }
     for (k = 0; k <= o->paired; k++) { /* round 0: warm-up */
-        double ms[BENCH_MAX_ROWS][1 + SET_COUNT], em[1 + SET_COUNT];
+        double ms[BENCH_MAX_ROWS][1 + SET_COUNT], mt[BENCH_MAX_ROWS][1 + SET_COUNT], em[1 + SET_COUNT];
         for (i = 0; i < made; i++) {
             if (!trees[i].node_count) continue;
             progress("%s: paired tracing round %u/%u%s, %s", out->name, k, o->paired, k ? "" : " (warm-up)",
                      out->rows[i].name);
             for (kind = 0; kind < kinds; kind++) { /* the camera rays, then each set */
-                double t0 = scene_now_ms();
-                bvh_result res = kind == 0 ? bvh_intersect_batch(&trees[i], c->rays, c->hits, c->npix, 1)
-                                 : kind == 1 + SET_DIFFUSE
-                                     ? bvh_intersect_batch(&trees[i], c->sets.diffuse, c->dhits, c->sets.ndiffuse, 1)
-                                     : bvh_occluded_batch(&trees[i], c->sets.shadow, c->occ, c->sets.nshadow, 1);
-                ms[i][kind] = scene_now_ms() - t0;
-                if (res != BVH_SUCCESS) goto done;
+                int pass;
+                for (pass = 0; pass < 2; pass++) { /* one thread, then N */
+                    const uint32_t nt = pass ? o->nthreads : 1;
+                    double t0 = scene_now_ms();
+                    bvh_result res =
+                        kind == 0 ? bvh_intersect_batch(&trees[i], c->rays, c->hits, c->npix, nt)
+                        : kind == 1 + SET_DIFFUSE
+                            ? bvh_intersect_batch(&trees[i], c->sets.diffuse, c->dhits, c->sets.ndiffuse, nt)
+                            : bvh_occluded_batch(&trees[i], c->sets.shadow, c->occ, c->sets.nshadow, nt);
+                    *(pass ? &mt[i][kind] : &ms[i][kind]) = scene_now_ms() - t0;
+                    if (res != BVH_SUCCESS) goto done;
+                }
             }
         }
         for (kind = 0; kind < kinds; kind++) {
@@ -1440,6 +1458,7 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
                 if (trees[i].node_count) {
                     ratio[((size_t)kind * made + i) * o->paired + k - 1] = em[kind] / ms[i][kind];
                     pms[((size_t)kind * made + i) * o->paired + k - 1] = ms[i][kind];
+                    scale[((size_t)kind * made + i) * o->paired + k - 1] = ms[i][kind] / mt[i][kind];
                 }
         }
     }
@@ -1453,6 +1472,9 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
             lo = kind ? &r->set[kind - 1].x_p_min : &r->x_ptrace_min;
             hi = kind ? &r->set[kind - 1].x_p_max : &r->x_ptrace_max;
             median_range(x, o->paired, med, lo, hi);
+            median_range(scale + ((size_t)kind * made + i) * o->paired, o->paired,
+                         kind ? &r->set[kind - 1].x_s : &r->x_scale, kind ? &r->set[kind - 1].x_s_min : &r->x_scale_min,
+                         kind ? &r->set[kind - 1].x_s_max : &r->x_scale_max);
             *(kind ? &r->set[kind - 1].p_mrays : &r->p_mrays) =
                 mrays_of(rays, scene_median(pms + ((size_t)kind * made + i) * o->paired, o->paired));
         }
@@ -1467,6 +1489,7 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
 done:
     for (i = 0; i < made; i++) bvh_free(&trees[i]);
     free(ems);
+    free(scale);
     free(et);
     free(ep);
     free(eo);
@@ -1479,14 +1502,15 @@ done:
    warm-up round) is reported beside the table's ratio. */
 static void run_paired(run_ctx *c, bench_scene *out) {
     const options *o = c->o;
-    emb_builder *eb = NULL;
+    emb_builder *eb = NULL, *ebh = NULL;
     char msg[160];
-    double *ratio = NULL, *pms, ems = 0.0;
-    int i, nb = 0, have_medium = 0;
+    double *ratio = NULL, *pms, *rh = NULL, ems = 0.0, emsh = 0.0;
+    int i, nb = 0, have_medium = 0, have_high = 0;
     uint32_t k;
     for (i = 0; i < out->nrows; i++) {
         const row *r = &out->rows[i];
         if (r->kind == ROW_EMBREE && r->quality == EMB_QUALITY_MEDIUM && r->state == ROW_OK) have_medium = 1;
+        if (r->kind == ROW_EMBREE && r->quality == EMB_QUALITY_HIGH && r->state == ROW_OK) have_high = 1;
         if (r->kind == ROW_BVH && r->state == ROW_OK) nb++;
     }
     if (!o->paired || !have_medium || !nb) return;
@@ -1494,15 +1518,24 @@ static void run_paired(run_ctx *c, bench_scene *out) {
         say("%s: paired rounds: %s", out->name, msg);
         return;
     }
-    /* the builds' ratios and times; then paired_trace's: ratios and times per kind of ray */
-    ratio = (double *)malloc((size_t)(2 * (1 + SET_COUNT) * out->nrows + 1) * o->paired * sizeof *ratio);
+    /* Embree high in the same rounds, where the table has it (the quality builders' yardstick) */
+    if (have_high && emb_builder_open(&ebh, EMB_QUALITY_HIGH, o->threads, o->embree_robust, msg) != EMB_OK) {
+        say("%s: paired rounds against embree-high: %s", out->name, msg);
+        ebh = NULL;
+    }
+    /* the builds' ratios and times; then paired_trace's: ratios and times per kind of ray; then
+       the ratios and Embree high's times of the rounds against it */
+    ratio = (double *)malloc(((size_t)(2 * (1 + SET_COUNT) * out->nrows + 1) + (size_t)out->nrows + 1) * o->paired *
+                             sizeof *ratio);
     if (!ratio) {
         emb_builder_close(eb);
+        if (ebh) emb_builder_close(ebh);
         say("%s: paired rounds: out of memory", out->name);
         return;
     }
     pms = ratio + (size_t)out->nrows * o->paired; /* build ms per row and round; Embree's last */
-    for (k = 0; k <= o->paired; k++) {            /* round 0: warm-up */
+    rh = ratio + (size_t)(2 * (1 + SET_COUNT) * out->nrows + 1) * o->paired; /* against high; its ms last */
+    for (k = 0; k <= o->paired; k++) {                                       /* round 0: warm-up */
         double ms[BENCH_MAX_ROWS];
         for (i = 0; i < out->nrows; i++) {
             row *r = &out->rows[i];
@@ -1531,6 +1564,19 @@ static void run_paired(run_ctx *c, bench_scene *out) {
                 pms[(size_t)i * o->paired + k - 1] = ms[i];
             }
         if (k) pms[(size_t)out->nrows * o->paired + k - 1] = ems;
+        if (ebh) {
+            progress("%s: paired round %u/%u%s, embree-high", out->name, k, o->paired, k ? "" : " (warm-up)");
+            if (emb_builder_time(ebh, c->s->v, c->s->triangles, &emsh) != EMB_OK || !(emsh > 0.0)) {
+                say("%s: paired rounds: Embree high build failed", out->name);
+                emb_builder_close(ebh);
+                ebh = NULL;
+                continue;
+            }
+            for (i = 0; k && i < out->nrows; i++)
+                if (out->rows[i].kind == ROW_BVH && out->rows[i].state == ROW_OK)
+                    rh[(size_t)i * o->paired + k - 1] = ms[i] / emsh;
+            if (k) rh[(size_t)out->nrows * o->paired + k - 1] = emsh;
+        }
     }
     for (i = 0; i < out->nrows; i++) {
         row *r = &out->rows[i];
@@ -1540,11 +1586,19 @@ static void run_paired(run_ctx *c, bench_scene *out) {
         }
         if (r->kind == ROW_EMBREE && r->quality == EMB_QUALITY_MEDIUM && r->state == ROW_OK)
             r->pair_ms = scene_median(pms + (size_t)out->nrows * o->paired, o->paired);
+        if (!ebh) continue;
+        if (r->kind == ROW_BVH && r->state == ROW_OK)
+            median_range(rh + (size_t)i * o->paired, o->paired, &r->x_pairh, &r->x_pairh_min, &r->x_pairh_max);
+        if (r->kind == ROW_EMBREE && r->quality == EMB_QUALITY_HIGH && r->state == ROW_OK)
+            r->pair_ms = scene_median(rh + (size_t)out->nrows * o->paired, o->paired);
     }
+    if (ebh) emb_builder_close(ebh);
+    ebh = NULL;
     if (o->trace_cpu) paired_trace(c, out, eb, ratio);
 done:
     free(ratio);
     emb_builder_close(eb);
+    if (ebh) emb_builder_close(ebh);
 }
 
 /* ours / Embree medium */
@@ -1987,6 +2041,27 @@ static void paired_block(FILE *f, const bench_scene *s, const row *em, const cha
         fputc('\n', f);
     }
 }
+/* The thread scaling of the paired tracing rounds: a line per builder, camera / diffuse / shadow */
+static void scaling_block(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
+    int i, k, any = 0;
+    for (i = 0; i < s->nrows; i++) {
+        const row *r = &s->rows[i];
+        if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(r->x_scale)) continue;
+        if (!any++)
+            fprintf(f,
+                    "%sMrays/s on %u threads / on 1 thread in the same paired rounds (each pass right after the "
+                    "1-thread one): median (min-max), camera",
+                    prefix, o->nthreads);
+        if (any == 1) {
+            for (k = 0; k < SET_COUNT; k++) fprintf(f, " / %s", g_set_names[k]);
+            fputc('\n', f);
+        }
+        fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)", prefix, r->name, r->x_scale, r->x_scale_min, r->x_scale_max);
+        for (k = 0; k < SET_COUNT; k++)
+            fprintf(f, " / %.2f (%.2f-%.2f)", r->set[k].x_s, r->set[k].x_s_min, r->set[k].x_s_max);
+        fputc('\n', f);
+    }
+}
 static void paired_lines(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
     char t[200];
     const row *em = NULL;
@@ -2003,6 +2078,21 @@ static void paired_lines(FILE *f, const options *o, const bench_scene *s, const 
         snprintf(t, sizeof t, "build / embree-medium in %u paired rounds (one build each, interleaved)", o->paired);
     paired_block(f, s, em, prefix, 0, t);
     for (i = 0; i < s->nrows; i++)
+        if (s->rows[i].kind == ROW_EMBREE && s->rows[i].quality == EMB_QUALITY_HIGH && !isnan(s->rows[i].pair_ms)) {
+            const row *eh = &s->rows[i];
+            int j, any = 0;
+            for (j = 0; j < s->nrows; j++) {
+                const row *r = &s->rows[j];
+                if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(r->x_pairh)) continue;
+                if (!any++)
+                    fprintf(f,
+                            "%sbuild / embree-high in the same %u rounds (embree-high's median build %.4g ms, "
+                            "table: %.4g): median (min-max)\n",
+                            prefix, o->paired, eh->pair_ms, eh->build_ms);
+                fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, r->x_pairh, r->x_pairh_min, r->x_pairh_max);
+            }
+        }
+    for (i = 0; i < s->nrows; i++)
         if (s->rows[i].kind == ROW_EMBREE && s->rows[i].quality == EMB_QUALITY_MEDIUM && !isnan(s->rows[i].p_mrays))
             em = &s->rows[i];
     snprintf(t, sizeof t, "Mrays/s on 1 thread / embree-medium's in %u paired rounds (one frame each)", o->paired);
@@ -2015,6 +2105,7 @@ static void paired_lines(FILE *f, const options *o, const bench_scene *s, const 
     snprintf(t, sizeof t, "OpenCL Mrays/s / the CPU's on %u threads in %u paired rounds (one frame each)", o->nthreads,
              o->paired);
     paired_block(f, s, em, prefix, 2, t);
+    scaling_block(f, o, s, prefix);
 }
 
 /* What the secondary ray sets are, and their counts (from the first row that traced them) */
@@ -2336,6 +2427,9 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "build_ms_paired", r->pair_ms, 4);
         json_num(f, "ratio_build_paired_min", r->x_pair_min, 4);
         json_num(f, "ratio_build_paired_max", r->x_pair_max, 4);
+        json_num(f, "ratio_build_high_paired", r->x_pairh, 4);
+        json_num(f, "ratio_build_high_paired_min", r->x_pairh_min, 4);
+        json_num(f, "ratio_build_high_paired_max", r->x_pairh_max, 4);
         json_num(f, "ratio_mrays_1t_paired", r->x_ptrace, 4);
         json_num(f, "ratio_mrays_1t_paired_min", r->x_ptrace_min, 4);
         json_num(f, "ratio_mrays_1t_paired_max", r->x_ptrace_max, 4);
@@ -2343,6 +2437,9 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "ratio_opencl_mt_paired_min", r->x_pcl_min, 4);
         json_num(f, "ratio_opencl_mt_paired_max", r->x_pcl_max, 4);
         json_num(f, "mrays_1t_paired", r->p_mrays, 4);
+        json_num(f, "scaling_mt_paired", r->x_scale, 4);
+        json_num(f, "scaling_mt_paired_min", r->x_scale_min, 4);
+        json_num(f, "scaling_mt_paired_max", r->x_scale_max, 4);
         for (k = 0; k < SET_COUNT; k++) {
             const set_figs *sf = &r->set[k];
             json_set_num(f, k, "rays", sf->rays, 0);
@@ -2359,6 +2456,9 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
             json_num(f, key, sf->x_p_min, 4);
             snprintf(key, sizeof key, "ratio_%s_1t_paired_max", g_set_names[k]);
             json_num(f, key, sf->x_p_max, 4);
+            json_set_num(f, k, "scaling_mt_paired", sf->x_s, 4);
+            json_set_num(f, k, "scaling_mt_paired_min", sf->x_s_min, 4);
+            json_set_num(f, k, "scaling_mt_paired_max", sf->x_s_max, 4);
             if (r->kind == ROW_EMBREE) json_set_num(f, k, "rays_other_answer", sf->other, 0);
         }
         json_num(f, "instances", o->instances ? (double)o->instances : NAN, 0);
@@ -2599,11 +2699,13 @@ static void usage(FILE *f) {
             "  --ploc-top N     ploc builders: binned-SAH top over the last n/N clusters, kept where\n"
             "                   cheaper (0 = the library's default, 8); 'off': PLOC alone, as the study\n"
             "  --paired N       after the table, N rounds each building once with every builder and\n"
-            "                   once with Embree medium, interleaved, then N rounds tracing a frame\n"
-            "                   and the diffuse and shadow rays on 1 thread with each, and N\n"
-            "                   rendering a frame with OpenCL and with the CPU on all threads;\n"
-            "                   medians of the rounds' ratios and Mrays/s (robust to a\n"
-            "                   shared machine's slow moments; default 0: none)\n"
+            "                   once with Embree medium (and high, when --embree has it),\n"
+            "                   interleaved, then N rounds tracing a frame and the diffuse and\n"
+            "                   shadow rays on 1 thread with each (bvh.h's each followed by the\n"
+            "                   same on --threads: the thread scaling), and N rendering a frame\n"
+            "                   with OpenCL and with the CPU on all threads; medians of the\n"
+            "                   rounds' ratios and Mrays/s (robust to a shared machine's slow\n"
+            "                   moments; default 0: none)\n"
             "  --instances N    after the table, the top-level rebuild (bvh_scene_build) for N instances\n"
             "                   of the default tree, and one instance against the tree on 1 thread\n"
             "                   (default 10000; 0: none)\n"

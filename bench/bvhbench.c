@@ -41,7 +41,8 @@
    shadow_mrays_1t_paired), robust to a shared machine's slow moments in a way the ratio of two
    medians taken seconds apart is not. Each of bvh.h's one-thread passes is followed at once by
    the same pass on --threads threads: their ratio is the thread scaling, paired as well
-   (scaling_mt_paired, diffuse_scaling_mt_paired, shadow_scaling_mt_paired).
+   (scaling_mt_paired, diffuse_scaling_mt_paired, shadow_scaling_mt_paired; Embree medium's
+   row has its own, on bvhbench's threads in chunks of 64 rays).
    Rows: "none" (brute force, the study's first row; only up to --brute-max triangles), the five
    builders, and Embree's scene API at build quality low, medium and high (rtcIntersect1 for the
    frame; the SAH, nodes and leaves of a binary tree from rtcBuildBVH at the same quality).
@@ -1389,7 +1390,7 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
     bvh_tree trees[BENCH_MAX_ROWS];
     double *pms = ratio + (size_t)(1 + SET_COUNT) * out->nrows * o->paired; /* ms per kind, tree, round */
     double *ems = NULL;                                                     /* Embree's ms per kind and round */
-    double *scale = NULL; /* 1-thread ms / N-thread ms per kind, tree and round */
+    double *scale = NULL; /* 1-thread ms / N-thread ms per kind, tree and round; Embree's per kind last */
     float *et = NULL;
     uint32_t *ep = NULL;
     uint8_t *eo = NULL;
@@ -1414,7 +1415,7 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
     }
     kinds = c->has_sets ? 1 + SET_COUNT : 1;
     ems = (double *)malloc((size_t)kinds * o->paired * sizeof *ems);
-    scale = (double *)malloc((size_t)kinds * (size_t)made * o->paired * sizeof *scale);
+    scale = (double *)malloc((size_t)kinds * (size_t)(made + 1) * o->paired * sizeof *scale);
     et = (float *)malloc(n * sizeof *et);
     ep = (uint32_t *)malloc(n * sizeof *ep);
     eo = (uint8_t *)malloc(n);
@@ -1424,6 +1425,7 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
     }
     for (k = 0; k <= o->paired; k++) { /* round 0: warm-up */
         double ms[BENCH_MAX_ROWS][1 + SET_COUNT], mt[BENCH_MAX_ROWS][1 + SET_COUNT], em[1 + SET_COUNT];
+        double emt[1 + SET_COUNT];
         for (i = 0; i < made; i++) {
             if (!trees[i].node_count) continue;
             progress("%s: paired tracing round %u/%u%s, %s", out->name, k, o->paired, k ? "" : " (warm-up)",
@@ -1444,16 +1446,22 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
             }
         }
         for (kind = 0; kind < kinds; kind++) {
-            int st = kind == 0 ? emb_builder_trace(eb, c->rays, o->width, o->height, 1, &em[kind])
-                               : emb_builder_rays(eb, set_rays(c, kind - 1), set_size(c, kind - 1), 1, et, ep,
-                                                  kind == 1 + SET_SHADOW ? eo : NULL, &em[kind]);
-            if (st != EMB_OK || !(em[kind] > 0.0)) {
-                say("%s: paired tracing: Embree failed", out->name);
-                goto done;
+            int pass;
+            for (pass = 0; pass < 2; pass++) { /* one thread, then N, as bvh.h's */
+                const uint32_t nt = pass ? o->nthreads : 1;
+                double *at = pass ? &emt[kind] : &em[kind];
+                int st = kind == 0 ? emb_builder_trace(eb, c->rays, o->width, o->height, nt, at)
+                                   : emb_builder_rays(eb, set_rays(c, kind - 1), set_size(c, kind - 1), nt, et, ep,
+                                                      kind == 1 + SET_SHADOW ? eo : NULL, at);
+                if (st != EMB_OK || !(*at > 0.0)) {
+                    say("%s: paired tracing: Embree failed", out->name);
+                    goto done;
+                }
             }
         }
         for (kind = 0; k && kind < kinds; kind++) {
             ems[kind * (size_t)o->paired + k - 1] = em[kind];
+            scale[((size_t)kinds * made + kind) * o->paired + k - 1] = em[kind] / emt[kind];
             for (i = 0; i < made; i++)
                 if (trees[i].node_count) {
                     ratio[((size_t)kind * made + i) * o->paired + k - 1] = em[kind] / ms[i][kind];
@@ -1480,9 +1488,14 @@ static void paired_trace(run_ctx *c, bench_scene *out, emb_builder *eb, double *
         }
         for (i = 0; i < out->nrows; i++) {
             row *r = &out->rows[i];
-            if (r->kind == ROW_EMBREE && r->quality == EMB_QUALITY_MEDIUM && r->state == ROW_OK)
+            if (r->kind == ROW_EMBREE && r->quality == EMB_QUALITY_MEDIUM && r->state == ROW_OK) {
                 *(kind ? &r->set[kind - 1].p_mrays : &r->p_mrays) =
                     mrays_of(rays, scene_median(ems + (size_t)kind * o->paired, o->paired));
+                median_range(scale + ((size_t)kinds * made + kind) * o->paired, o->paired,
+                             kind ? &r->set[kind - 1].x_s : &r->x_scale,
+                             kind ? &r->set[kind - 1].x_s_min : &r->x_scale_min,
+                             kind ? &r->set[kind - 1].x_s_max : &r->x_scale_max);
+            }
         }
     }
     if (c->cl && o->trace_cl) paired_opencl(c, out, trees, made, ratio);
@@ -2046,7 +2059,7 @@ static void scaling_block(FILE *f, const options *o, const bench_scene *s, const
     int i, k, any = 0;
     for (i = 0; i < s->nrows; i++) {
         const row *r = &s->rows[i];
-        if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(r->x_scale)) continue;
+        if (r->kind == ROW_BRUTE || r->state != ROW_OK || isnan(r->x_scale)) continue;
         if (!any++)
             fprintf(f,
                     "%sMrays/s on %u threads / on 1 thread in the same paired rounds (each pass right after the "
@@ -2701,8 +2714,8 @@ static void usage(FILE *f) {
             "  --paired N       after the table, N rounds each building once with every builder and\n"
             "                   once with Embree medium (and high, when --embree has it),\n"
             "                   interleaved, then N rounds tracing a frame and the diffuse and\n"
-            "                   shadow rays on 1 thread with each (bvh.h's each followed by the\n"
-            "                   same on --threads: the thread scaling), and N rendering a frame\n"
+            "                   shadow rays on 1 thread with each (each followed by the same\n"
+            "                   on --threads: the thread scaling), and N rendering a frame\n"
             "                   with OpenCL and with the CPU on all threads; medians of the\n"
             "                   rounds' ratios and Mrays/s (robust to a shared machine's slow\n"
             "                   moments; default 0: none)\n"

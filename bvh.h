@@ -1,4 +1,4 @@
-/* bvh.h - v0.8.3 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.8.4 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -106,6 +106,11 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.8.4  The batch calls (bvh_intersect_batch, bvh_occluded_batch and their _ex forms) take
+            each ray straight to the 8-wide loop, as bvh_intersect does (were: through the
+            entry that also holds the binary-tree path, whose checks and stack frame cost a
+            camera ray that misses about as much as its set-up): bunny camera rays through
+            bvh_intersect_batch, 366 -> 313 instructions a ray.
      0.8.3  The AVX2 packet test reads the ray's broadcast operands and row offsets from a block
             made once per ray at its first leaf (was: set up in registers at every leaf and
             spilled): bunny, instructions per ray 1,167 -> 1,114 (bounce), 1,093 -> 1,013
@@ -250,7 +255,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 8
-#define BVH_VERSION_PATCH 3
+#define BVH_VERSION_PATCH 4
 
 #include <math.h>
 #include <stddef.h>
@@ -7420,30 +7425,35 @@ static int bvh__batch_take(bvh__batch *b, bvh__team *team, size_t *first, size_t
     *end = e;
     return 1;
 }
+/* Rays first .. end - 1 of a batch. A tree with the 8-wide copy (every tree but trace_width 2)
+   goes straight to the wide loop, as bvh_intersect does: bvh__traverse's checks and frame (it
+   holds the binary path too) cost a camera ray that misses about as much as its own set-up. */
+static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e) {
+    const bvh_tree *tree = b->tree;
+    if (tree->nodes8) {
+        if (b->hits)
+            for (; i < e; i++) bvh__traverse8(tree, &b->rays[i], &b->hits[i], 0);
+        else
+            for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__traverse8(tree, &b->rays[i], NULL, 1);
+    } else {
+        if (b->hits)
+            for (; i < e; i++) bvh__traverse(tree, &b->rays[i], &b->hits[i], 0, NULL);
+        else
+            for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__traverse(tree, &b->rays[i], NULL, 1, NULL);
+    }
+}
 static void bvh__batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__batch *b = BVH__CAST(bvh__batch *, arg);
     size_t i, e;
     (void)tid;
     (void)nt;
-    while (bvh__batch_take(b, team, &i, &e)) {
-        for (; i < e; i++) {
-            if (b->hits)
-                bvh__traverse(b->tree, &b->rays[i], &b->hits[i], 0, NULL);
-            else
-                b->occluded[i] = (uint8_t)bvh__traverse(b->tree, &b->rays[i], NULL, 1, NULL);
-        }
-    }
+    while (bvh__batch_take(b, team, &i, &e)) bvh__batch_range(b, i, e);
 }
 /* Under a caller's pool each chunk is a task: the pool balances them. */
 static void bvh__batch_task(void *arg, uint32_t index) {
     const bvh__batch *b = BVH__CAST(const bvh__batch *, arg);
     size_t i = (size_t)index * BVH__BATCH_CHUNK, e = i + BVH__BATCH_CHUNK < b->count ? i + BVH__BATCH_CHUNK : b->count;
-    for (; i < e; i++) {
-        if (b->hits)
-            bvh__traverse(b->tree, &b->rays[i], &b->hits[i], 0, NULL);
-        else
-            b->occluded[i] = (uint8_t)bvh__traverse(b->tree, &b->rays[i], NULL, 1, NULL);
-    }
+    bvh__batch_range(b, i, e);
 }
 static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ, size_t count,
                                  uint32_t threads, const bvh_thread_pool *pool) {

@@ -1,4 +1,4 @@
-/* bvh.h - v0.8.4 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.8.5 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -106,6 +106,13 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.8.5  The AVX2 slab test takes max and min of the distances as integers (one cycle each
+            on the chain from a node's boxes to its mask, four as floats) for rays with tmin
+            >= 0 and no direction component zero, in a second copy of the loop chosen once a
+            ray; the same entry distances, and never a box culled that the float test enters
+            (other rays: the float test as before). Three alternated bvhbench runs against
+            0.8.4, bounce and shadow rays, a run and tree: bunny -2% to +13% (median +4%),
+            dragon -4% to +15% (median +7%).
      0.8.4  The batch calls (bvh_intersect_batch, bvh_occluded_batch and their _ex forms) take
             each ray straight to the 8-wide loop, as bvh_intersect does (were: through the
             entry that also holds the binary-tree path, whose checks and stack frame cost a
@@ -255,7 +262,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 8
-#define BVH_VERSION_PATCH 4
+#define BVH_VERSION_PATCH 5
 
 #include <math.h>
 #include <stddef.h>
@@ -6816,6 +6823,7 @@ typedef struct bvh__ray8 {
     __m128 o[3], inv[3], tmin;
     int near8[4], far8[4];       /* [3]: unused (the AVX2 set-up stores four lanes) */
     float so[4], sinv[4], stmin; /* the same as scalars, for the AVX2 test to broadcast */
+    int fast;                    /* tmin >= 0 and no direction component zero: bvh__slab8_avx2's integer max and min */
 } bvh__ray8;
 /* bvh__ray_setup for the wide traversal, and the ray as the slab tests want it: the same bits (SSE
    rounds 1 / d as scalar code does), the three axes at once. Only what the SIMD wide traversal
@@ -6890,6 +6898,7 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     /* !(tmin <= tmax): also a NaN in either */
     if ((finite & 7u) != 7u || !(ray->tmin <= ray->tmax)) return 0;
     if ((_mm_movemask_ps(_mm_cmpeq_ps(d, zero)) & 7) == 7) return 0;
+    q->fast = ray->tmin >= 0.0f && !(_mm_movemask_ps(_mm_cmpeq_ps(d, zero)) & 7);
     /* o, d, inv and tmin are side by side in bvh__rayx: three stores of four lanes into its
        bytes, each fourth lane overwritten by the next store, the last by tmin */
     _mm_storeu_ps((float *)(void *)(x + offsetof(bvh__rayx, o)), o);
@@ -6912,7 +6921,7 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
             q->far8[a] = pl[4 + a];
         }
     }
-    q->stmin = rx->tmin;
+    q->stmin = rx->tmin + 0.0f; /* -0 as +0: the same decisions, and the integer max's order */
     if (sse) {
         for (a = 0; a < 3; a++) {
             q->o[a] = _mm_set1_ps(q->so[a]);
@@ -6960,8 +6969,15 @@ BVH__INLINE unsigned bvh__slab8q(const bvh__ray8 *q, const bvh_node8 *n, float t
    1.0000004 and 2^-18 applied before the min and max they commute with (x * c is monotone for
    c > 0, and x * 2^-18 is exact but below 2^-108, where the slack does not matter). Not forced
    inline: only bvh__traverse8_avx2, compiled for AVX2 as well, takes it in. */
+/* Max and min of floats by their bits as signed integers (see bvh__slab8_avx2). */
+__attribute__((target("avx2"))) BVH__INLINE __m256 bvh__imax8(__m256 a, __m256 b) {
+    return _mm256_castsi256_ps(_mm256_max_epi32(_mm256_castps_si256(a), _mm256_castps_si256(b)));
+}
+__attribute__((target("avx2"))) BVH__INLINE __m256 bvh__imin8(__m256 a, __m256 b) {
+    return _mm256_castsi256_ps(_mm256_min_epi32(_mm256_castps_si256(a), _mm256_castps_si256(b)));
+}
 __attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh__ray8 *q, const bvh_node8 *n,
-                                                                       float tfar, float tn_out[BVH__W]) {
+                                                                       float tfar, float tn_out[BVH__W], int fast) {
     const float *f = &n->min[0][0];
     const __m256 oa = _mm256_broadcast_ss(&q->so[0]), ob = _mm256_broadcast_ss(&q->so[1]);
     const __m256 oc = _mm256_broadcast_ss(&q->so[2]), ia = _mm256_broadcast_ss(&q->sinv[0]);
@@ -6973,19 +6989,36 @@ __attribute__((target("avx2"))) static inline unsigned bvh__slab8_avx2(const bvh
     const __m256 t0c = _mm256_mul_ps(_mm256_sub_ps(oc, _mm256_loadu_ps(f + q->near8[2])), ic);
     const __m256 t1c = _mm256_mul_ps(_mm256_sub_ps(oc, _mm256_loadu_ps(f + q->far8[2])), ic);
     const __m256 grow = _mm256_set1_ps(1.0000004f), k = _mm256_set1_ps(3.814697265625e-6f); /* 2^-18 */
-    /* tn = max(tmin, t0a, t0b, t0c), less the slack max(t1c, -t0c) * 2^-18 */
-    const __m256 tn = _mm256_max_ps(_mm256_max_ps(t0a, t0c), _mm256_max_ps(t0b, _mm256_broadcast_ss(&q->stmin)));
-    const __m256 slack = _mm256_max_ps(_mm256_mul_ps(t1c, k), _mm256_mul_ps(t0c, _mm256_set1_ps(-3.814697265625e-6f)));
-    const __m256 tns = _mm256_sub_ps(tn, slack);
-    /* tf = min(t1a, t1b, t1c) * 1.0000004, at most tfar and at most FLT_MAX: then tn <= tf says
-       tn is finite too (one compare) */
-    const __m256 tf =
-        _mm256_min_ps(_mm256_mul_ps(_mm256_min_ps(t1a, t1c), grow),
-                      _mm256_min_ps(_mm256_mul_ps(t1b, grow), _mm256_set1_ps(tfar < FLT_MAX ? tfar : FLT_MAX)));
+    const __m256 tfar8 = _mm256_set1_ps(tfar < FLT_MAX ? tfar : FLT_MAX);
+    __m256 tn, slack, tns, tf;
+    if (fast) { /* a constant: q->fast, chosen once a ray (bvh__trace8) */
+        /* The same values by integer max and min (one cycle each, four for the float ones, on the
+           chain to the mask), where they are the same or looser. Here no distance is NaN (every
+           inv is finite) and tmin >= +0. A float's bits as a signed integer order non-negative
+           floats as the floats and put every negative one below them. So the max over tmin and
+           the t0 is the float max, and so is the slack's (t1c >= t0c: one of the two is >= 0).
+           Among negative floats the order is reversed, so the min over the t1 is the float min
+           or a larger value (when two or more are negative): a box is never culled that the
+           float test enters, and the entry distances are the same. */
+        tn = bvh__imax8(bvh__imax8(t0a, t0c), bvh__imax8(t0b, _mm256_broadcast_ss(&q->stmin)));
+        slack = bvh__imax8(_mm256_mul_ps(t1c, k), _mm256_mul_ps(t0c, _mm256_set1_ps(-3.814697265625e-6f)));
+        tns = _mm256_sub_ps(tn, slack);
+        tf = bvh__imin8(bvh__imin8(_mm256_mul_ps(t1a, grow), _mm256_mul_ps(t1c, grow)),
+                        bvh__imin8(_mm256_mul_ps(t1b, grow), tfar8));
+    } else {
+        /* tn = max(tmin, t0a, t0b, t0c), less the slack max(t1c, -t0c) * 2^-18 */
+        tn = _mm256_max_ps(_mm256_max_ps(t0a, t0c), _mm256_max_ps(t0b, _mm256_broadcast_ss(&q->stmin)));
+        slack = _mm256_max_ps(_mm256_mul_ps(t1c, k), _mm256_mul_ps(t0c, _mm256_set1_ps(-3.814697265625e-6f)));
+        tns = _mm256_sub_ps(tn, slack);
+        /* tf = min(t1a, t1b, t1c) * 1.0000004, at most tfar and at most FLT_MAX: then tn <= tf
+           says tn is finite too (one compare) */
+        tf =
+            _mm256_min_ps(_mm256_mul_ps(_mm256_min_ps(t1a, t1c), grow), _mm256_min_ps(_mm256_mul_ps(t1b, grow), tfar8));
+    }
     _mm256_storeu_ps(tn_out, tns);
     return (unsigned)_mm256_movemask_ps(_mm256_cmp_ps(tns, tf, _CMP_LE_OQ));
 }
-#define BVH__SLAB8(n, tfar, tn) (isa ? bvh__slab8_avx2(q, n, tfar, tn) : bvh__slab8q(q, n, tfar, tn))
+#define BVH__SLAB8(n, tfar, tn) (isa ? bvh__slab8_avx2(q, n, tfar, tn, isa == 2) : bvh__slab8q(q, n, tfar, tn))
 /* The slots of mask m (three or more) nearest first into idx, by rank rather than by insertion:
    slot i's place is the number of slots of m whose key is below its own, counted from one compare
    of all eight keys at once. A key is the distance's bits with the slot number in the lowest
@@ -7197,6 +7230,12 @@ BVH__INLINE int bvh__trace8(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx 
         q = &oq;
         if (!bvh__ray8_setup(ray, &own, &oq, isa)) goto miss;
     }
+#ifdef BVH__AVX2
+    if (isa && q->fast) { /* the loop with the integer max and min (isa 2), chosen once a ray */
+        if (bvh__traverse8_body(tree->nodes8, tree->tri4, rx, q, tmax, hit, loc, any, 2, NULL, NULL, NULL)) return 1;
+        goto miss;
+    }
+#endif
     if (bvh__traverse8_body(tree->nodes8, tree->tri4, rx, q, tmax, hit, loc, any, isa, NULL, NULL, NULL)) return 1;
 miss:
     if (hit) {

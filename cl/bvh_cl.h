@@ -1,4 +1,4 @@
-/* bvh_cl.h - v0.4.0 - OpenCL companion of bvh.h: trace bvh.h trees on any OpenCL 1.2 device
+/* bvh_cl.h - v0.4.1 - OpenCL companion of bvh.h: trace bvh.h trees on any OpenCL 1.2 device
 
    WHAT
      Uploads a bvh_tree (nodes, reference-ordered triangles, primitive ids) to an OpenCL device as
@@ -832,6 +832,7 @@ static const char *const bvh_cl__source[] = {
 "        float k1 = fabs(r->kz == 0 ? a1.x : r->kz == 1 ? a1.y : a1.z);\n",
 "        tn -= (k0 > k1 ? k0 : k1) * 0x1p-18f;\n",
 "    }\n",
+"    tn = tn < r->tmin ? r->tmin : tn; /* as bvh__slab_t: never below tmin (a NaN stays) */\n",
 "    tf = tf < tfar ? tf : tfar;\n",
 "    return tn <= tf ? tn : INFINITY;\n",
 "}\n",
@@ -1333,6 +1334,7 @@ static const char *const bvh_cl__source[] = {
 "    k0 = fabs(select(select(a0z, a0y, p->kz == (bvh_pki)(1)), a0x, p->kz == (bvh_pki)(0)));\n",
 "    k1 = fabs(select(select(a1z, a1y, p->kz == (bvh_pki)(1)), a1x, p->kz == (bvh_pki)(0)));\n",
 "    tn -= select(k1, k0, k0 > k1) * 0x1p-18f;\n",
+"    tn = select(tn, p->tmin, tn < p->tmin); /* never below tmin (bvh_cl_slab) */\n",
 "    tf = select(tfar, tf, tf < tfar);\n",
 "    return select((bvh_pkf)(INFINITY), tn, tn <= tf);\n",
 "}\n",

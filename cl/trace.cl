@@ -193,6 +193,7 @@ BVH_CL_FN float bvh_cl_slab(const bvh_cl_rayx *r, float4 lo, float4 hi, float tf
         float k1 = fabs(r->kz == 0 ? a1.x : r->kz == 1 ? a1.y : a1.z);
         tn -= (k0 > k1 ? k0 : k1) * 0x1p-18f;
     }
+    tn = tn < r->tmin ? r->tmin : tn; /* as bvh__slab_t: never below tmin (a NaN stays) */
     tf = tf < tfar ? tf : tfar;
     return tn <= tf ? tn : INFINITY;
 }
@@ -694,6 +695,7 @@ BVH_CL_FN bvh_pkf bvh_cl_slab8(const bvh_cl_packet *p, float4 lo, float4 hi, bvh
     k0 = fabs(select(select(a0z, a0y, p->kz == (bvh_pki)(1)), a0x, p->kz == (bvh_pki)(0)));
     k1 = fabs(select(select(a1z, a1y, p->kz == (bvh_pki)(1)), a1x, p->kz == (bvh_pki)(0)));
     tn -= select(k1, k0, k0 > k1) * 0x1p-18f;
+    tn = select(tn, p->tmin, tn < p->tmin); /* never below tmin (bvh_cl_slab) */
     tf = select(tfar, tf, tf < tfar);
     return select((bvh_pkf)(INFINITY), tn, tn <= tf);
 }

@@ -395,6 +395,43 @@ static void max_depth_tree_traces(void **state) {
     assert_int_equal(h.prim, L / 2);
 }
 
+/* A box the ray's origin lies just outside, the ray leaving it (an eye above a long box, a bounce
+   ray off a surface): its exit, rounded up, is before tmin, so no hit in it can count, and the
+   slab test does not enter it, however large the box's slack for rounding (the entry lowered by
+   2^-18 of the box's extent along the dominant axis: 3.8e-5 here, against an exit at -1e-5). A
+   custom test on the triangle tree (the binary loop) sees which leaves are entered. */
+static const float behind_tris[18] = {-10, 0,  -1, 10, 0, -1, 0,  1,  0, /* below the origin: box z in [-1, 0] */
+                                      20,  -1, -1, 20, 3, -1, 20, -1, 5};
+static int behind_test(const bvh_ray *ray, uint32_t prim, void *user, bvh_hit *hit) {
+    const float *v = behind_tris + 9 * prim;
+    ((uint32_t *)user)[prim]++;
+    return bvh_intersect_triangle(ray, v, v + 3, v + 6, hit);
+}
+static void box_behind_origin_skipped(void **state) {
+    bvh_build_desc d;
+    bvh_tree t;
+    bvh_ray ray = {{0.0f, 0.5f, 1e-6f}, 0.0f, {1.0f, 0.0f, 0.1f}, BVH_INF};
+    bvh_hit h, hc;
+    uint32_t calls[2] = {0, 0};
+    bvh_custom_desc custom = {behind_test, calls};
+    (void)state;
+    memset(&d, 0, sizeof d);
+    d.builder = BVH_BUILDER_TOP_DOWN;
+    d.max_leaf_size = 1;
+    d.triangles.positions = behind_tris;
+    d.triangles.vertex_count = 6;
+    d.triangles.triangle_count = 2;
+    assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+    assert_int_equal(t.node_count, 3);
+    assert_int_equal(bvh_intersect(&t, &ray, &h), 1);
+    assert_int_equal(h.prim, 1);
+    assert_int_equal(bvh_intersect_custom(&t, &ray, &hc, &custom), 1);
+    assert_true(tu_hit_equal(&hc, &h));
+    assert_int_equal(calls[0], 0); /* the leaf behind: not entered */
+    assert_int_equal(calls[1], 1);
+    bvh_free(&t);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         TU_EVERY_SCENE(exact_hits),
@@ -404,6 +441,7 @@ int main(void) {
         TU_SCENE_TEST(batch_equals_single, TU_SCENE_BUNNY, "bunny"),
         cmocka_unit_test(invalid_rays_miss),
         cmocka_unit_test(max_depth_tree_traces),
+        cmocka_unit_test(box_behind_origin_skipped),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -106,6 +106,9 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.8.7  The batch calls ask for the CPU's ISA once a range of rays, not once a ray, and the
+            ray set-up compares the direction with zero once: bvhbench's traced sets on the
+            bunny (one thread, callgrind) 82.4M -> 81.9M instructions, the same hits.
      0.8.6  The slab test never takes a box's entry below tmin (it lowered the entry by a slack
             for rounding, 2^-18 of the box's extent along the ray's dominant axis, even where
             that went below tmin): a box whose exit, rounded up, is before tmin holds no hit
@@ -273,7 +276,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 8
-#define BVH_VERSION_PATCH 6
+#define BVH_VERSION_PATCH 7
 
 #include <math.h>
 #include <stddef.h>
@@ -6909,6 +6912,7 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     const unsigned finite =
         (unsigned)_mm_movemask_ps(_mm_and_ps(_mm_cmplt_ps(_mm_and_ps(o, absm), inf), _mm_cmplt_ps(ad0, inf)));
     const unsigned neg = (unsigned)_mm_movemask_ps(_mm_cmplt_ps(inv, zero));
+    const unsigned dzero = (unsigned)_mm_movemask_ps(_mm_cmpeq_ps(d, zero)) & 7u; /* x, y, z: zero components */
     /* |dx| > |dy|, |dx| > |dz|, |dy| > |dz| as bits 0-2 */
     const unsigned gt = (unsigned)_mm_movemask_ps(
         _mm_cmpgt_ps(_mm_shuffle_ps(ad, ad, _MM_SHUFFLE(3, 1, 0, 0)), _mm_shuffle_ps(ad, ad, _MM_SHUFFLE(3, 2, 2, 1))));
@@ -6916,8 +6920,8 @@ BVH__INLINE int bvh__ray8_start(const bvh_ray *ray, bvh__rayx *rx, bvh__ray8 *q,
     int a;
     /* !(tmin <= tmax): also a NaN in either */
     if ((finite & 7u) != 7u || !(ray->tmin <= ray->tmax)) return 0;
-    if ((_mm_movemask_ps(_mm_cmpeq_ps(d, zero)) & 7) == 7) return 0;
-    q->fast = ray->tmin >= 0.0f && !(_mm_movemask_ps(_mm_cmpeq_ps(d, zero)) & 7);
+    if (dzero == 7u) return 0;
+    q->fast = ray->tmin >= 0.0f && !dzero;
     /* o, d, inv and tmin are side by side in bvh__rayx: three stores of four lanes into its
        bytes, each fourth lane overwritten by the next store, the last by tmin */
     _mm_storeu_ps((float *)(void *)(x + offsetof(bvh__rayx, o)), o);
@@ -7498,11 +7502,16 @@ static int bvh__batch_take(bvh__batch *b, bvh__team *team, size_t *first, size_t
    holds the binary path too) cost a camera ray that misses about as much as its own set-up. */
 static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e) {
     const bvh_tree *tree = b->tree;
-    if (tree->nodes8) {
+    if (tree->nodes8) { /* the CPU's ISA asked once a range, not once a ray */
+        int isa = 0;
+#ifdef BVH__AVX2
+        isa = bvh__have_avx2();
+#endif
         if (b->hits)
-            for (; i < e; i++) bvh__traverse8(tree, &b->rays[i], &b->hits[i], 0);
+            for (; i < e; i++) bvh__trace8_isa(tree, &b->rays[i], NULL, NULL, 0.0f, &b->hits[i], NULL, 0, isa);
         else
-            for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__traverse8(tree, &b->rays[i], NULL, 1);
+            for (; i < e; i++)
+                b->occluded[i] = (uint8_t)bvh__trace8_isa(tree, &b->rays[i], NULL, NULL, 0.0f, NULL, NULL, 1, isa);
     } else {
         if (b->hits)
             for (; i < e; i++) bvh__traverse(tree, &b->rays[i], &b->hits[i], 0, NULL);

@@ -2,7 +2,8 @@
 """The README's picture: one-thread tracing speed against Embree medium, per scene and ray kind.
 
 usage: bench/ratio_chart.py OUT.png BUILDER bench.json [more.json ...]
-Reads bvhbench --json rows (run with --paired N) and draws, for BUILDER's tree on every scene,
+Reads bvhbench --json rows (run with --paired N) and draws, for BUILDER's tree on every scene
+(rows of a --camera inside run labelled "<scene> inside"),
 the median paired ratio of its Mrays/s over Embree medium's on camera, diffuse and shadow rays
 (the title names Embree's scene flags from the rows' embree_flags; rows from before that key:
 the robust flag),
@@ -37,7 +38,10 @@ def main(out, builder, paths):
                     v = r.get(key)
                     lo, hi = r.get(key + "_min", v), r.get(key + "_max", v)
                     cells += ["%.3f %.3f %.3f" % (v, lo, hi) if v is not None else "NaN NaN NaN"]
-                f.write('"%s" %s\n' % (r["scene"].replace(".glb", "").replace(".obj", ""), " ".join(cells)))
+                name = r["scene"].replace(".glb", "").replace(".obj", "")
+                if r.get("camera") == "inside":  # bvhbench --camera inside: an interior's rays
+                    name += " inside"
+                f.write('"%s" %s\n' % (name, " ".join(cells)))
         flags = sorted({r.get("embree_flags") or "robust" for r in rows})  # before the key: robust
         flags = "default flags" if flags == ["default"] else "robust flag" if flags == ["robust"] else "mixed flags"
         top = max([1.2] + [r.get(k + "_max") or 0 for r in rows for _, k in KINDS]) * 1.1

@@ -71,11 +71,11 @@
      CPUs.
      Tracing only reads the tree (every call that takes a const bvh_tree *): any number of
      threads may trace one tree at once, batch calls included, while none builds into or frees it.
-     Your own pool: desc.pool (and bvh_batch_desc.pool for bvh_intersect_batch_ex and
-     bvh_occluded_batch_ex) is a parallel-for over the application's workers (a job system, TBB,
-     OpenMP); with it the library creates no thread, splits each parallel phase into desc.threads
-     tasks and builds the very tree its own threads would. Its tasks never wait for one another,
-     so phases whose threads meet at barriers are cut into one run per step (PLOC's clustering
+     Your own pool: desc.pool (and bvh_batch_desc.pool for the _ex batch calls and the scene
+     batch calls) is a parallel-for over the application's workers (a job system, TBB, OpenMP);
+     with it the library creates no thread, splits each parallel phase into desc.threads tasks
+     and builds the very tree its own threads would. Its tasks never wait for one another, so
+     phases whose threads meet at barriers are cut into one run per step (PLOC's clustering
      loop), or run on the calling thread (the Morton sort, the emission passes, PLOC's SAH top).
      On a platform without pthreads (MSVC without winpthreads, consoles, WebAssembly), define
      BVH_NO_THREADS and pass a pool with desc.threads set to its worker count: parallel builds
@@ -106,6 +106,10 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.0  bvh_scene_intersect_batch and bvh_scene_occluded_batch: a scene's rays in arrays, one
+            mask per call (as bvh_cl_scene_intersect), on desc's threads or pool (bvh_batch_desc,
+            as bvh_intersect_batch_ex), with the single-ray calls' hit records byte for byte.
+            The tree and scene batches share one chunked runner (bvh__batch_go).
      0.8.7  The batch calls ask for the CPU's ISA once a range of rays, not once a ray, and the
             ray set-up compares the direction with zero once: bvhbench's traced sets on the
             bunny (one thread, callgrind) 82.4M -> 81.9M instructions, the same hits.
@@ -275,8 +279,8 @@
 #define BVH_H_INCLUDED
 
 #define BVH_VERSION_MAJOR 0
-#define BVH_VERSION_MINOR 8
-#define BVH_VERSION_PATCH 7
+#define BVH_VERSION_MINOR 9
+#define BVH_VERSION_PATCH 0
 
 #include <math.h>
 #include <stddef.h>
@@ -757,6 +761,16 @@ BVH_API void bvh_scene_free(bvh_scene *scene);
 BVH_API int bvh_scene_intersect(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit);
 /* Any hit in [tmin, tmax] over the instances `mask` selects: 1 if the ray is blocked. */
 BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask);
+/* bvh_scene_intersect and bvh_scene_occluded over count rays with one mask, on desc's threads or
+   pool (desc NULL: all online CPUs, the library's threads), as bvh_intersect_batch_ex: the same
+   hits (every field, to the bit) and flags as the single-ray calls, on any thread count or pool.
+   Rays with different masks go in separate calls, as on OpenCL (cl/bvh_cl.h).
+   SUCCESS; ARGUMENT: scene NULL, rays or the output NULL with count > 0, a half allocator pair in
+   the scene; OUT_OF_MEMORY: the worker threads' bookkeeping could not be allocated. */
+BVH_API bvh_result bvh_scene_intersect_batch(const bvh_scene *scene, const bvh_ray *rays, uint32_t mask,
+                                             bvh_scene_hit *hits, size_t count, const bvh_batch_desc *desc);
+BVH_API bvh_result bvh_scene_occluded_batch(const bvh_scene *scene, const bvh_ray *rays, uint32_t mask,
+                                            uint8_t *occluded, size_t count, const bvh_batch_desc *desc);
 /* The ray in the space of the 3x4 transform m (row-major, as bvh_instance.transform): origin
    M o + (m[3], m[7], m[11]), direction M d, not normalised, so that t means the same point in
    both spaces; tmin and tmax unchanged. Tracing uses it with scene->inverse + 12 * instance. */
@@ -7448,9 +7462,12 @@ BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray) {
 }
 
 typedef struct bvh__batch {
-    const bvh_tree *tree;
+    const bvh_tree *tree;   /* a tree's rays, or */
+    const bvh_scene *scene; /* a scene's, with one mask */
+    uint32_t mask;
     const bvh_ray *rays;
     bvh_hit *hits;
+    bvh_scene_hit *scene_hits;
     uint8_t *occluded;
     size_t count;
     size_t big;  /* chunks 0 .. big - 1 are BVH__BATCH_BIG rays long, the rest BVH__BATCH_CHUNK */
@@ -7500,9 +7517,15 @@ static int bvh__batch_take(bvh__batch *b, bvh__team *team, size_t *first, size_t
 /* Rays first .. end - 1 of a batch. A tree with the 8-wide copy (every tree but trace_width 2)
    goes straight to the wide loop, as bvh_intersect does: bvh__traverse's checks and frame (it
    holds the binary path too) cost a camera ray that misses about as much as its own set-up. */
+static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int any);
 static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e) {
     const bvh_tree *tree = b->tree;
-    if (tree->nodes8) { /* the CPU's ISA asked once a range, not once a ray */
+    if (b->scene) {
+        if (b->scene_hits)
+            for (; i < e; i++) bvh__scene_trace(b->scene, &b->rays[i], b->mask, &b->scene_hits[i], 0);
+        else
+            for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__scene_trace(b->scene, &b->rays[i], b->mask, NULL, 1);
+    } else if (tree->nodes8) { /* the CPU's ISA asked once a range, not once a ray */
         int isa = 0;
 #ifdef BVH__AVX2
         isa = bvh__have_avx2();
@@ -7532,10 +7555,39 @@ static void bvh__batch_task(void *arg, uint32_t index) {
     size_t i = (size_t)index * BVH__BATCH_CHUNK, e = i + BVH__BATCH_CHUNK < b->count ? i + BVH__BATCH_CHUNK : b->count;
     bvh__batch_range(b, i, e);
 }
+/* Batch b (its rays, outputs and count set) on the caller's pool, or on threads of the library's
+   own (allocator: their bookkeeping). */
+static bvh_result bvh__batch_go(bvh__batch *b, const bvh_allocator *allocator, uint32_t threads,
+                                const bvh_thread_pool *pool) {
+    const size_t count = b->count;
+    uint32_t nt;
+    b->big = b->next = 0;
+    if (pool && pool->run) { /* the pool's own scheduling keeps neighbouring tasks together */
+        const bvh__batch all = *b;
+        size_t chunks = (count + BVH__BATCH_CHUNK - 1) / BVH__BATCH_CHUNK, done;
+        (void)threads;                   /* the pool balances the chunks itself */
+        for (done = 0; done < chunks;) { /* runs of at most 2^32 - 1 tasks */
+            uint32_t k = chunks - done > 0xffffffffu ? 0xffffffffu : (uint32_t)(chunks - done);
+            const size_t first = done * BVH__BATCH_CHUNK;
+            b->rays = all.rays + first;
+            b->hits = all.hits ? all.hits + first : NULL;
+            b->scene_hits = all.scene_hits ? all.scene_hits + first : NULL;
+            b->occluded = all.occluded ? all.occluded + first : NULL;
+            b->count = count - first;
+            pool->run(pool->user, k, bvh__batch_task, b);
+            done += k;
+        }
+        return BVH_SUCCESS;
+    }
+    nt = bvh__resolve_threads(threads);
+    if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
+    if (nt < 1) nt = 1;
+    bvh__batch_plan(b, nt);
+    return bvh__team_run(allocator, nt, bvh__batch_fn, b);
+}
 static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ, size_t count,
                                  uint32_t threads, const bvh_thread_pool *pool) {
     bvh__batch b;
-    uint32_t nt;
     if (!tree || (count && (!rays || (!hits && !occ)))) return BVH_ERROR_INVALID_ARGUMENT;
     if (!bvh__allocator_paired(&tree->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
     if (tree->node_count && !tree->tris) { /* as the single-ray calls: every ray misses */
@@ -7548,31 +7600,13 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
         }
         return BVH_ERROR_NO_TRIANGLES;
     }
+    memset(&b, 0, sizeof b);
     b.tree = tree;
     b.rays = rays;
     b.hits = hits;
     b.occluded = occ;
     b.count = count;
-    b.big = b.next = 0;
-    if (pool && pool->run) { /* the pool's own scheduling keeps neighbouring tasks together */
-        size_t chunks = (count + BVH__BATCH_CHUNK - 1) / BVH__BATCH_CHUNK, done;
-        (void)threads;                   /* the pool balances the chunks itself */
-        for (done = 0; done < chunks;) { /* runs of at most 2^32 - 1 tasks */
-            uint32_t k = chunks - done > 0xffffffffu ? 0xffffffffu : (uint32_t)(chunks - done);
-            b.rays = rays + done * BVH__BATCH_CHUNK;
-            b.hits = hits ? hits + done * BVH__BATCH_CHUNK : NULL;
-            b.occluded = occ ? occ + done * BVH__BATCH_CHUNK : NULL;
-            b.count = count - done * BVH__BATCH_CHUNK;
-            pool->run(pool->user, k, bvh__batch_task, &b);
-            done += k;
-        }
-        return BVH_SUCCESS;
-    }
-    nt = bvh__resolve_threads(threads);
-    if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
-    if (nt < 1) nt = 1;
-    bvh__batch_plan(&b, nt);
-    return bvh__team_run(&tree->allocator, nt, bvh__batch_fn, &b);
+    return bvh__batch_go(&b, &tree->allocator, threads, pool);
 }
 /* The four batch calls: the output the call writes (hits or occluded) must be given when there
    are rays; desc NULL = threads 0 (all CPUs) and no pool. */
@@ -8204,6 +8238,29 @@ BVH_API int bvh_scene_intersect(const bvh_scene *scene, const bvh_ray *ray, uint
 }
 BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask) {
     return bvh__scene_trace(scene, ray, mask, NULL, 1);
+}
+/* The scene's batch calls: bvh__batch_go with the scene's rays (see bvh__batch_range). */
+static bvh_result bvh__scene_batch(const bvh_scene *scene, const bvh_ray *rays, uint32_t mask, bvh_scene_hit *hits,
+                                   uint8_t *occluded, size_t count, const bvh_batch_desc *desc) {
+    bvh__batch b;
+    if (!scene || (count && (!rays || (!hits && !occluded)))) return BVH_ERROR_INVALID_ARGUMENT;
+    if (!bvh__allocator_paired(&scene->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
+    memset(&b, 0, sizeof b);
+    b.scene = scene;
+    b.mask = mask;
+    b.rays = rays;
+    b.scene_hits = hits;
+    b.occluded = occluded;
+    b.count = count;
+    return bvh__batch_go(&b, &scene->allocator, desc ? desc->threads : 0, desc ? &desc->pool : NULL);
+}
+BVH_API bvh_result bvh_scene_intersect_batch(const bvh_scene *scene, const bvh_ray *rays, uint32_t mask,
+                                             bvh_scene_hit *hits, size_t count, const bvh_batch_desc *desc) {
+    return bvh__scene_batch(scene, rays, mask, hits, NULL, count, desc);
+}
+BVH_API bvh_result bvh_scene_occluded_batch(const bvh_scene *scene, const bvh_ray *rays, uint32_t mask,
+                                            uint8_t *occluded, size_t count, const bvh_batch_desc *desc) {
+    return bvh__scene_batch(scene, rays, mask, NULL, occluded, count, desc);
 }
 
 /* ============================================================================================ */

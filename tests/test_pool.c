@@ -4,11 +4,11 @@
    Pool: three hooks, one that runs the tasks one after another on the calling thread, one that
    runs them on its own pthreads in reversed order and one in a shuffled order; for every scene,
    builder and task count, the tree is byte for byte the internal pool's (tree_diff.h), and the
-   batch calls give the internal pool's hits and flags. Progress: fractions rise from 0 to a
-   single 1 on a completed build; cancelling at the k-th call, for every k a build makes, returns
-   BVH_ERROR_CANCELLED with the tree empty and every block given back (a counting allocator;
-   `make asan` checks the rest); on 200K random triangles the callback comes at least once per
-   BVH__PROGRESS_WORK-ish slice of work and never leaves a long gap. */
+   batch calls (a tree's and a scene's) give the internal pool's hits and flags. Progress:
+   fractions rise from 0 to a single 1 on a completed build; cancelling at the k-th call, for every k a build makes,
+   returns BVH_ERROR_CANCELLED with the tree empty and every block given back (a counting allocator; `make asan` checks
+   the rest); on 200K random triangles the callback comes at least once per BVH__PROGRESS_WORK-ish slice of work and
+   never leaves a long gap. */
 #define BVH_IMPLEMENTATION
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 /* sah-midpoint's rare paths, counted (on the calling thread): a subtree built again with its
@@ -210,6 +210,51 @@ static void pool_batch_same_hits(void **state) {
     assert_int_equal(bvh_intersect_batch_ex(&t, rays, hits, count, NULL), BVH_SUCCESS);
     assert_memory_equal(hits, ref, count * sizeof *hits);
     assert_int_equal(bvh_intersect_batch_ex(&t, rays, NULL, count, NULL), BVH_ERROR_INVALID_ARGUMENT);
+    { /* a scene's batches: two instances of the tree, one moved */
+        bvh_instance in[2];
+        bvh_scene sc;
+        bvh_scene_desc sd;
+        bvh_scene_hit *sref = (bvh_scene_hit *)malloc(count * sizeof *sref);
+        bvh_scene_hit *shits = (bvh_scene_hit *)malloc(count * sizeof *shits);
+        size_t i;
+        assert_true(sref && shits);
+        memset(in, 0, sizeof in);
+        memset(&sd, 0, sizeof sd);
+        in[0].tree = in[1].tree = &t;
+        in[0].mask = in[1].mask = ~0u;
+        in[0].transform[0] = in[0].transform[5] = in[0].transform[10] = 1.0f;
+        in[1].transform[0] = in[1].transform[5] = in[1].transform[10] = 1.0f;
+        in[1].transform[3] = 0.25f;
+        in[1].id = 7;
+        sd.instances = in;
+        sd.instance_count = 2;
+        assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+        for (i = 0; i < count; i++) {
+            bvh_scene_intersect(&sc, &rays[i], ~0u, &sref[i]);
+            oref[i] = (uint8_t)bvh_scene_occluded(&sc, &rays[i], ~0u);
+        }
+        for (h = 0; h < 3; h++) {
+            pool_state ps;
+            bvh_batch_desc bd;
+            memset(&ps, 0, sizeof ps);
+            ps.order = h;
+            ps.workers = 3;
+            ps.seed = 9;
+            memset(&bd, 0, sizeof bd);
+            bd.pool.run = pool_run;
+            bd.pool.user = &ps;
+            memset(shits, 0xab, count * sizeof *shits);
+            memset(occ, 0xab, count);
+            assert_int_equal(bvh_scene_intersect_batch(&sc, rays, ~0u, shits, count, &bd), BVH_SUCCESS);
+            assert_int_equal(bvh_scene_occluded_batch(&sc, rays, ~0u, occ, count, &bd), BVH_SUCCESS);
+            assert_true(ps.runs >= 2);
+            if (memcmp(shits, sref, count * sizeof *shits) != 0) fail_msg("pool %s: other scene hits", pool_names[h]);
+            if (memcmp(occ, oref, count) != 0) fail_msg("pool %s: other scene occlusion flags", pool_names[h]);
+        }
+        bvh_scene_free(&sc);
+        free(sref);
+        free(shits);
+    }
     bvh_free(&t);
     free(tris);
     tu_scene_free(&s);

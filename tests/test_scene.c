@@ -6,7 +6,8 @@
    in order, transforms the ray into each (bvh_ray_transform with the scene's inverse, as the
    traversal does) and tests every triangle (same instance, triangle, id and bits of t, u, v;
    the normal within rounding of the one computed here); bvh_scene_occluded equals "a hit
-   exists"; ray masks skip instances. Bad input gets its code. */
+   exists"; ray masks skip instances; the batch calls give the single-ray calls' records. Bad input
+   gets its code. */
 #define BVH_IMPLEMENTATION
 #include "bvh.h"
 #include "test_util.h"
@@ -229,6 +230,63 @@ static void scenes_exact(void **state) {
         bvh_scene_free(&sc);
         for (m = 0; m < MESHES; m++) bvh_free(&bottom[m]);
     }
+    world_free(&w);
+}
+
+/* The batch calls: for two masks and 1, 2 and 3 threads (and desc NULL), every ray's hit record
+   and flag are the single-ray calls', byte for byte; bad arguments get their code. */
+static void scene_batches(void **state) {
+    static world w;
+    static bvh_ray rays[SCENE_RAYS];
+    static uint32_t masks[SCENE_RAYS];
+    static bvh_scene_hit want[SCENE_RAYS], got[SCENE_RAYS];
+    static uint8_t wocc[SCENE_RAYS], gocc[SCENE_RAYS];
+    const uint32_t mask_of[2] = {~0u, 0x5u};
+    bvh_tree bottom[MESHES];
+    bvh_scene sc;
+    bvh_scene_desc sd;
+    bvh_batch_desc bd;
+    size_t i, found = 0;
+    uint32_t m, k, threads;
+    (void)state;
+    world_make(&w);
+    for (m = 0; m < MESHES; m++) {
+        bvh_build_desc d = tu_scene_desc(&w.mesh[m], BVH_BUILDER_DEFAULT);
+        assert_int_equal(bvh_build(&bottom[m], &d), BVH_SUCCESS);
+    }
+    for (i = 0; i < INSTANCES; i++) w.inst[i].tree = &bottom[w.mesh_of[i]];
+    memset(&sd, 0, sizeof sd);
+    sd.instances = w.inst;
+    sd.instance_count = INSTANCES;
+    assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+    make_world_rays(&w, &sc, rays, masks, SCENE_RAYS);
+    for (k = 0; k < 2; k++) {
+        for (i = 0; i < SCENE_RAYS; i++) {
+            found += (size_t)bvh_scene_intersect(&sc, &rays[i], mask_of[k], &want[i]);
+            wocc[i] = (uint8_t)bvh_scene_occluded(&sc, &rays[i], mask_of[k]);
+        }
+        for (threads = 0; threads <= 3; threads++) {
+            memset(&bd, 0, sizeof bd);
+            bd.threads = threads;
+            memset(got, 0xab, sizeof got);
+            memset(gocc, 0xab, sizeof gocc);
+            assert_int_equal(bvh_scene_intersect_batch(&sc, rays, mask_of[k], got, SCENE_RAYS, threads ? &bd : NULL),
+                             BVH_SUCCESS);
+            assert_int_equal(bvh_scene_occluded_batch(&sc, rays, mask_of[k], gocc, SCENE_RAYS, threads ? &bd : NULL),
+                             BVH_SUCCESS);
+            if (memcmp(got, want, sizeof got) != 0) fail_msg("mask %x, %u threads: other hits", mask_of[k], threads);
+            if (memcmp(gocc, wocc, sizeof gocc) != 0)
+                fail_msg("mask %x, %u threads: other occlusion flags", mask_of[k], threads);
+        }
+    }
+    assert_true(found > SCENE_RAYS / 8);
+    assert_int_equal(bvh_scene_intersect_batch(NULL, rays, ~0u, got, 1, NULL), BVH_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_scene_intersect_batch(&sc, NULL, ~0u, got, 1, NULL), BVH_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_scene_intersect_batch(&sc, rays, ~0u, NULL, 1, NULL), BVH_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_scene_occluded_batch(&sc, rays, ~0u, NULL, 1, NULL), BVH_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_scene_intersect_batch(&sc, NULL, ~0u, NULL, 0, NULL), BVH_SUCCESS);
+    bvh_scene_free(&sc);
+    for (m = 0; m < MESHES; m++) bvh_free(&bottom[m]);
     world_free(&w);
 }
 
@@ -599,7 +657,8 @@ static void scene_out_of_memory(void **state) {
 
 int main(void) {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(scenes_exact), cmocka_unit_test(masks_select),        cmocka_unit_test(custom_instances_exact),
+        cmocka_unit_test(scenes_exact), cmocka_unit_test(scene_batches),
+        cmocka_unit_test(masks_select), cmocka_unit_test(custom_instances_exact),
         cmocka_unit_test(scene_errors), cmocka_unit_test(scene_out_of_memory),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

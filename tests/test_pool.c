@@ -80,6 +80,18 @@ static void pool_run(void *user, uint32_t count, bvh_task_fn task, void *arg) {
     free(order);
 }
 static const char *const pool_names[] = {"serial", "reversed", "shuffled"};
+/* A batch description on test pool `order` (see pool_run), three workers, its state in *ps. */
+static bvh_batch_desc pool_batch_desc(pool_state *ps, int order, uint64_t seed) {
+    bvh_batch_desc bd;
+    memset(ps, 0, sizeof *ps);
+    ps->order = order;
+    ps->workers = 3;
+    ps->seed = seed;
+    memset(&bd, 0, sizeof bd);
+    bd.pool.run = pool_run;
+    bd.pool.user = ps;
+    return bd;
+}
 
 /* == a counting allocator ==================================================================== */
 typedef struct count_alloc {
@@ -190,14 +202,7 @@ static void pool_batch_same_hits(void **state) {
     assert_int_equal(bvh_occluded_batch(&t, rays, oref, count, 2), BVH_SUCCESS);
     for (h = 0; h < 3; h++) {
         pool_state ps;
-        bvh_batch_desc bd;
-        memset(&ps, 0, sizeof ps);
-        ps.order = h;
-        ps.workers = 3;
-        ps.seed = 5;
-        memset(&bd, 0, sizeof bd);
-        bd.pool.run = pool_run;
-        bd.pool.user = &ps;
+        const bvh_batch_desc bd = pool_batch_desc(&ps, h, 5);
         memset(hits, 0xab, count * sizeof *hits);
         memset(occ, 0xab, count);
         assert_int_equal(bvh_intersect_batch_ex(&t, rays, hits, count, &bd), BVH_SUCCESS);
@@ -235,14 +240,7 @@ static void pool_batch_same_hits(void **state) {
         }
         for (h = 0; h < 3; h++) {
             pool_state ps;
-            bvh_batch_desc bd;
-            memset(&ps, 0, sizeof ps);
-            ps.order = h;
-            ps.workers = 3;
-            ps.seed = 9;
-            memset(&bd, 0, sizeof bd);
-            bd.pool.run = pool_run;
-            bd.pool.user = &ps;
+            const bvh_batch_desc bd = pool_batch_desc(&ps, h, 9);
             memset(shits, 0xab, count * sizeof *shits);
             memset(occ, 0xab, count);
             assert_int_equal(bvh_scene_intersect_batch(&sc, rays, ~0u, shits, count, &bd), BVH_SUCCESS);

@@ -7517,19 +7517,17 @@ static int bvh__batch_take(bvh__batch *b, bvh__team *team, size_t *first, size_t
 /* Rays first .. end - 1 of a batch. A tree with the 8-wide copy (every tree but trace_width 2)
    goes straight to the wide loop, as bvh_intersect does: bvh__traverse's checks and frame (it
    holds the binary path too) cost a camera ray that misses about as much as its own set-up. */
-static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int any);
+static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int any,
+                            int isa);
 static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e) {
     const bvh_tree *tree = b->tree;
+    const int isa = bvh__have_avx2(); /* the CPU's ISA asked once a range, not once a ray */
     if (b->scene) {
         if (b->scene_hits)
-            for (; i < e; i++) bvh__scene_trace(b->scene, &b->rays[i], b->mask, &b->scene_hits[i], 0);
+            for (; i < e; i++) bvh__scene_trace(b->scene, &b->rays[i], b->mask, &b->scene_hits[i], 0, isa);
         else
-            for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__scene_trace(b->scene, &b->rays[i], b->mask, NULL, 1);
-    } else if (tree->nodes8) { /* the CPU's ISA asked once a range, not once a ray */
-        int isa = 0;
-#ifdef BVH__AVX2
-        isa = bvh__have_avx2();
-#endif
+            for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__scene_trace(b->scene, &b->rays[i], b->mask, NULL, 1, isa);
+    } else if (tree->nodes8) {
         if (b->hits)
             for (; i < e; i++) bvh__trace8_isa(tree, &b->rays[i], NULL, NULL, 0.0f, &b->hits[i], NULL, 0, isa);
         else
@@ -8200,7 +8198,9 @@ static bvh_vec3 bvh__scene_normal(const bvh_scene *scene, const bvh__scene_ctx *
     out.z = (float)(w[2] / l);
     return out;
 }
-static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int any) {
+/* isa: bvh__have_avx2()'s answer, asked by the caller (once a batch range). */
+static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int any,
+                            int isa) {
     bvh__scene_ctx c;
     int found = 0;
     c.scene = scene;
@@ -8208,9 +8208,10 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
     c.any = (uint32_t)any;
     c.instance = BVH_INVALID;
     c.at.pk = NULL;
+    (void)isa; /* without BVH__AVX2: always 0 */
     if (scene && ray && mask && scene->top8_count) {
 #ifdef BVH__AVX2
-        if (bvh__have_avx2())
+        if (isa)
             found = any ? bvh__scene_any8_avx2(scene, ray, &c) : bvh__scene_closest8_avx2(scene, ray, &c);
         else
 #endif
@@ -8234,10 +8235,10 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
     return 1;
 }
 BVH_API int bvh_scene_intersect(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit) {
-    return bvh__scene_trace(scene, ray, mask, hit, 0);
+    return bvh__scene_trace(scene, ray, mask, hit, 0, bvh__have_avx2());
 }
 BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask) {
-    return bvh__scene_trace(scene, ray, mask, NULL, 1);
+    return bvh__scene_trace(scene, ray, mask, NULL, 1, bvh__have_avx2());
 }
 /* The scene's batch calls: bvh__batch_go with the scene's rays (see bvh__batch_range). */
 static bvh_result bvh__scene_batch(const bvh_scene *scene, const bvh_ray *rays, uint32_t mask, bvh_scene_hit *hits,

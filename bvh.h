@@ -916,6 +916,8 @@ BVH_API int bvh_aabb_contains(bvh_aabb outer, bvh_aabb inner);
 #include <immintrin.h>
 #define BVH__AVX2 1 /* compiled for AVX2 on its own (target attribute), used when the CPU has it */
 #endif
+/* A function whose only effect is BVH__PREFETCH must be BVH__INLINE: gcc 12 takes such a function
+   for pure and drops every call of it that it does not inline, prefetches and all. */
 #if defined(__GNUC__) || defined(__clang__)
 #define BVH__PREFETCH(p) __builtin_prefetch(p)
 #elif defined(BVH__SSE)

@@ -106,6 +106,10 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.1  bvh_refit and bvh_load ask ahead for the binary nodes their 8-wide walk is about to
+            follow (bvh__refit_ask: the next wide nodes' heads and their descendants' block):
+            the same trees; refit 10-20% faster (the dragon and gen:field:15, one and two
+            threads), load 0-15%.
      0.9.0  bvh_scene_intersect_batch and bvh_scene_occluded_batch: a scene's rays in arrays, one
             mask per call (as bvh_cl_scene_intersect), on desc's threads or pool (bvh_batch_desc,
             as bvh_intersect_batch_ex), with the single-ray calls' hit records byte for byte.
@@ -280,7 +284,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 9
-#define BVH_VERSION_PATCH 0
+#define BVH_VERSION_PATCH 1
 
 #include <math.h>
 #include <stddef.h>
@@ -8526,6 +8530,34 @@ static int bvh__refit_wnode(const bvh__refit *j, uint32_t w, bvh__wnode_scratch 
 }
 /* The wide subtree of head h in post-order; 0 if the tree is broken (child indices must point
    forward: no cycle). */
+/* Asks for what wide node w will read, `ahead` nodes before it is taken (out of range: nothing),
+   in stages that each read only lines the stage before asked for: 3, its line with the head; 2,
+   the head's binary node; 1, the block of the head's descendants (depth-first: its grouping's
+   binary nodes and its leaf slots' subtrees lie there, before those of its wide children), as
+   many lines as its references can need, at most 48. The grouping walk that follows missed
+   at almost every binary node without it (docs/bench, 0.9.1). Only prefetches: it must stay
+   inlined (see BVH__PREFETCH). */
+BVH__INLINE void bvh__refit_ask(const bvh_tree *t, uint32_t w, int ahead) {
+    const bvh_node8 *n;
+    if (w >= t->node8_count) return;
+    n = &t->nodes8[w];
+    if (ahead == 3) {
+        BVH__PREFETCH(&n->head);
+    } else if (n->head < t->node_count) {
+        const bvh_node *b = &t->nodes[n->head];
+        if (ahead == 2) {
+            BVH__PREFETCH(b);
+        } else if (!b->count && b->index < t->node_count) {
+            uint32_t k, refs = 0, lines;
+            const char *p = (const char *)(const void *)&t->nodes[b->index];
+            for (k = 0; k < BVH__W; k++) refs += n->count[k];
+            lines = refs * 4u; /* packets x 4 references x 2 nodes x 32 bytes / 64 */
+            if (lines > 48u) lines = 48u;
+            if (lines > (t->node_count - b->index) / 2u) lines = (t->node_count - b->index) / 2u;
+            for (k = 0; k < lines; k++) BVH__PREFETCH(p + 64 * (size_t)k);
+        }
+    }
+}
 static int bvh__refit_wsubtree(const bvh__refit *j, uint32_t h, bvh__wnode_scratch *sc) {
     uint32_t stack[BVH__W * (BVH_MAX_DEPTH + 2)], sp = 0; /* w << 1 | children pushed */
     const bvh_tree *t = j->tree;
@@ -8535,6 +8567,11 @@ static int bvh__refit_wsubtree(const bvh__refit *j, uint32_t h, bvh__wnode_scrat
         const bvh_node8 *n = &t->nodes8[w];
         if (e & 1u) {
             sp--;
+            /* the next entries, most of them taken next (a wide leaf's parent pushes its children
+               at once), asked for a stage further each step down the stack */
+            if (sp >= 3) bvh__refit_ask(t, stack[sp - 3] >> 1, 3);
+            if (sp >= 2) bvh__refit_ask(t, stack[sp - 2] >> 1, 2);
+            if (sp >= 1) bvh__refit_ask(t, stack[sp - 1] >> 1, 1);
             if (!bvh__refit_wnode(j, w, sc)) return 0;
             continue;
         }
@@ -9176,6 +9213,9 @@ static int bvh__load_items(bvh__load_job *j, size_t b, size_t e, bvh__wnode_scra
     size_t i;
     for (i = b; i < e; i++) {
         if (t->nodes8) {
+            bvh__refit_ask(t, (uint32_t)i + 3, 3); /* the nodes after it, as the refit's walk */
+            bvh__refit_ask(t, (uint32_t)i + 2, 2);
+            bvh__refit_ask(t, (uint32_t)i + 1, 1);
             if (!bvh__wide_load_node(t, (uint32_t)i, j->splits, sc)) return 0;
         } else {
             const bvh_node *n = &t->nodes[i]; /* its range is checked here: the linear pass may not be there yet */

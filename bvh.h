@@ -8528,8 +8528,6 @@ static int bvh__refit_wnode(const bvh__refit *j, uint32_t w, bvh__wnode_scratch 
     for (i = 0; i < g.nslot; i++) bvh__node8_box(n, i, t->nodes[g.slot[i]].min, t->nodes[g.slot[i]].max);
     return 1;
 }
-/* The wide subtree of head h in post-order; 0 if the tree is broken (child indices must point
-   forward: no cycle). */
 /* Asks for what wide node w will read, `ahead` nodes before it is taken (out of range: nothing),
    in stages that each read only lines the stage before asked for: 3, its line with the head; 2,
    the head's binary node; 1, the block of the head's descendants (depth-first: its grouping's
@@ -8558,6 +8556,8 @@ BVH__INLINE void bvh__refit_ask(const bvh_tree *t, uint32_t w, int ahead) {
         }
     }
 }
+/* The wide subtree of head h in post-order; 0 if the tree is broken (child indices must point
+   forward: no cycle). */
 static int bvh__refit_wsubtree(const bvh__refit *j, uint32_t h, bvh__wnode_scratch *sc) {
     uint32_t stack[BVH__W * (BVH_MAX_DEPTH + 2)], sp = 0; /* w << 1 | children pushed */
     const bvh_tree *t = j->tree;

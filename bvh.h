@@ -8556,6 +8556,13 @@ BVH__INLINE void bvh__refit_ask(const bvh_tree *t, uint32_t w, int ahead) {
         }
     }
 }
+/* bvh__refit_ask for the wide nodes taken three, two and one steps from now (each stage a step
+   further for the node that comes sooner); BVH_INVALID: none. */
+BVH__INLINE void bvh__refit_ask_next(const bvh_tree *t, uint32_t in3, uint32_t in2, uint32_t in1) {
+    bvh__refit_ask(t, in3, 3);
+    bvh__refit_ask(t, in2, 2);
+    bvh__refit_ask(t, in1, 1);
+}
 /* The wide subtree of head h in post-order; 0 if the tree is broken (child indices must point
    forward: no cycle). */
 static int bvh__refit_wsubtree(const bvh__refit *j, uint32_t h, bvh__wnode_scratch *sc) {
@@ -8569,9 +8576,8 @@ static int bvh__refit_wsubtree(const bvh__refit *j, uint32_t h, bvh__wnode_scrat
             sp--;
             /* the next entries, most of them taken next (a wide leaf's parent pushes its children
                at once), asked for a stage further each step down the stack */
-            if (sp >= 3) bvh__refit_ask(t, stack[sp - 3] >> 1, 3);
-            if (sp >= 2) bvh__refit_ask(t, stack[sp - 2] >> 1, 2);
-            if (sp >= 1) bvh__refit_ask(t, stack[sp - 1] >> 1, 1);
+            bvh__refit_ask_next(t, sp >= 3 ? stack[sp - 3] >> 1 : BVH_INVALID,
+                                sp >= 2 ? stack[sp - 2] >> 1 : BVH_INVALID, sp >= 1 ? stack[sp - 1] >> 1 : BVH_INVALID);
             if (!bvh__refit_wnode(j, w, sc)) return 0;
             continue;
         }
@@ -9213,9 +9219,7 @@ static int bvh__load_items(bvh__load_job *j, size_t b, size_t e, bvh__wnode_scra
     size_t i;
     for (i = b; i < e; i++) {
         if (t->nodes8) {
-            bvh__refit_ask(t, (uint32_t)i + 3, 3); /* the nodes after it, as the refit's walk */
-            bvh__refit_ask(t, (uint32_t)i + 2, 2);
-            bvh__refit_ask(t, (uint32_t)i + 1, 1);
+            bvh__refit_ask_next(t, (uint32_t)i + 3, (uint32_t)i + 2, (uint32_t)i + 1); /* as the refit's walk */
             if (!bvh__wide_load_node(t, (uint32_t)i, j->splits, sc)) return 0;
         } else {
             const bvh_node *n = &t->nodes[i]; /* its range is checked here: the linear pass may not be there yet */

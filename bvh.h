@@ -469,7 +469,8 @@ typedef struct bvh_sah_midpoint_options {
    (Meister & Bittner 2018) on the binary tree before its collapse to leaves, on desc.threads (or
    desc.pool) whatever the builder, the same tree for any thread count. Each round a `batch`
    fraction of the nodes (another subset each round) look for the place where they lower the SAH
-   most and move there. A lower SAH and faster tracing for more build time (docs/DESIGN.md;
+   most and move there; a node that nearly fills its parent's box is passed over (it would gain
+   little). A lower SAH and faster tracing for more build time (docs/DESIGN.md;
    bvhbench's `<builder>+opt` rows: rounds = BENCH_OPT_ROUNDS, batch 0). */
 typedef struct bvh_optimize_options {
     uint32_t rounds; /* 0 = off; above 1024 refused */

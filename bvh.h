@@ -2552,6 +2552,17 @@ static int bvh__opt_apply(bvh__opt *o, uint32_t f, uint32_t t, uint8_t *touched)
     bvh__opt_refit(o, p);
     return 1;
 }
+/* Asks for the slots the move of f next to t reads first, a few moves before it is applied: the
+   moves come in the order of their gains, at slots all over the tree. Only prefetches: it must
+   stay inlined (see BVH__PREFETCH). */
+BVH__INLINE void bvh__opt_ask(const bvh__opt *o, uint32_t f, uint32_t t, const uint8_t *touched) {
+    BVH__PREFETCH(&o->node[f]);
+    BVH__PREFETCH(&o->node[t]);
+    BVH__PREFETCH(&o->parent[f]);
+    BVH__PREFETCH(&o->parent[t]);
+    BVH__PREFETCH(touched + f);
+    BVH__PREFETCH(touched + t);
+}
 /* One round: search in parallel, then apply best first (ties: the lowest slot). The moves are
    sorted by a key of the gain's bits (positive floats order as their bits) above the slot. */
 static bvh_result bvh__opt_round(bvh__opt *o, uint32_t threads, uint64_t *keys, uint32_t *vals, uint8_t *touched) {
@@ -2565,7 +2576,10 @@ static bvh_result bvh__opt_round(bvh__opt *o, uint32_t threads, uint64_t *keys, 
         }
     bvh__msd_local(keys, vals, keys + o->cand_count, vals + o->cand_count, 0, m, 64, 0);
     memset(touched, 0, o->count);
-    for (i = 0; i < m; i++) (void)bvh__opt_apply(o, o->cand[vals[i]], o->move[vals[i]].to, touched);
+    for (i = 0; i < m; i++) {
+        if (i + 8 < m) bvh__opt_ask(o, o->cand[vals[i + 8]], o->move[vals[i + 8]].to, touched);
+        (void)bvh__opt_apply(o, o->cand[vals[i]], o->move[vals[i]].to, touched);
+    }
     return BVH_SUCCESS;
 }
 /* Copies the tree below src[root] into o's slots, depth first (a node's children pair is

@@ -109,8 +109,9 @@
      0.9.2  The tree optimizer (desc.optimize) does the same work in less time: candidates that
             nearly fill their parent's box are not searched (BVH__OPT_FILL: other trees, about
             the same SAH), each round's candidates come from subsets sorted once, a refit stops
-            at the first box that does not change, and the search asks for a node's children
-            as soon as it reads the node (docs/bench, 0.9.2).
+            at the first box that does not change, the search asks for a node's children as
+            soon as it reads the node and the apply for a move's slots eight moves ahead
+            (docs/bench, 0.9.2).
      0.9.1  bvh_refit and bvh_load ask ahead for the binary nodes their 8-wide walk is about to
             follow (bvh__refit_ask: the next wide nodes' heads and their descendants' block):
             the same trees; refit 10-20% faster (the dragon and gen:field:15, one and two

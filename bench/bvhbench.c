@@ -36,8 +36,9 @@
    render a frame with OpenCL and trace it on the CPU's N threads: the medians of the rounds'
    ratios (and of the Mrays/s) are printed under the table and written to the JSON
    (ratio_build_paired; ratio_build_high_paired where the table has Embree high, which then
-   builds once in each of the same rounds; ratio_mrays_1t_paired, ratio_diffuse_1t_paired,
-   ratio_shadow_1t_paired, ratio_opencl_mt_paired; mrays_1t_paired, diffuse_mrays_1t_paired,
+   builds once in each of the same rounds; ratio_build_ploc_paired for a <builder>+opt row where
+   the table has ploc-parallel: the build time issue 19 measures the optimizer against; ratio_mrays_1t_paired,
+   ratio_diffuse_1t_paired, ratio_shadow_1t_paired, ratio_opencl_mt_paired; mrays_1t_paired, diffuse_mrays_1t_paired,
    shadow_mrays_1t_paired), robust to a shared machine's slow moments in a way the ratio of two
    medians taken seconds apart is not. Each of bvh.h's one-thread passes is followed at once by
    the same pass on --threads threads: their ratio is the thread scaling, paired as well
@@ -105,7 +106,8 @@
 #define BENCH_TRACE_REPEAT 3  /* frames per CPU, OpenCL and Embree tracer; median time */
 #define BENCH_BRUTE_TESTS 1e9 /* brute force: at most this many ray-triangle tests per frame */
 #define BENCH_BUNNY "/usr/share/glmark2/models/bunny.obj"
-#define BENCH_OPT_ROUNDS 8 /* desc.optimize.rounds of the <builder>+opt rows */
+#define BENCH_OPT_ROUNDS 8     /* desc.optimize.rounds of the <builder>+opt rows */
+#define BENCH_MAX_PAIRED 1000u /* --paired's limit */
 #define BENCH_SET_TOLERANCE                                                                                            \
     1e-3 /* Embree may answer another way on this fraction of a secondary                                              \
             set's rays (grazing rays, float noise) before it disagrees */
@@ -167,6 +169,9 @@ typedef struct row {
     double pair_ms;                              /* median build ms in the paired rounds (bvh.h rows
                                                     and the Embree medium and high rows) */
     double x_pairh, x_pairh_min, x_pairh_max;    /* the same against Embree high, where the table has it */
+    double x_pairo, x_pairo_min, x_pairo_max;    /* <builder>+opt rows: build time / ploc-parallel's (the
+                                                    default builder, issue 19's yardstick) in the same
+                                                    paired rounds, where the table has it */
     double x_ptrace, x_ptrace_min, x_ptrace_max; /* 1-thread Mrays/s / Embree medium's, paired */
     double x_scale, x_scale_min, x_scale_max;    /* camera rays' Mrays/s on N threads / on 1, paired */
     double x_pcl, x_pcl_min, x_pcl_max;          /* OpenCL frame Mrays/s / the CPU's on N threads, paired */
@@ -255,6 +260,7 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->x_build = r->x_sah = r->x_mrays = r->emb_bvh_ms = r->emb_prim_diff = NAN;
     r->x_pair = r->x_pair_min = r->x_pair_max = r->pair_ms = NAN;
     r->x_pairh = r->x_pairh_min = r->x_pairh_max = NAN;
+    r->x_pairo = r->x_pairo_min = r->x_pairo_max = NAN;
     r->x_ptrace = r->x_ptrace_min = r->x_ptrace_max = NAN;
     r->x_scale = r->x_scale_min = r->x_scale_max = NAN;
     r->x_pcl = r->x_pcl_min = r->x_pcl_max = r->p_mrays = NAN;
@@ -1597,6 +1603,17 @@ static void run_paired(run_ctx *c, bench_scene *out) {
             median_range(ratio + (size_t)i * o->paired, o->paired, &r->x_pair, &r->x_pair_min, &r->x_pair_max);
             r->pair_ms = scene_median(pms + (size_t)i * o->paired, o->paired);
         }
+        if (r->kind == ROW_BVH && r->state == ROW_OK && r->opt) { /* against ploc-parallel, round by round */
+            int j;
+            for (j = 0; j < out->nrows; j++) {
+                const row *b = &out->rows[j];
+                double x[BENCH_MAX_PAIRED];
+                if (b->kind != ROW_BVH || b->state != ROW_OK || b->opt || b->builder != BVH_BUILDER_PLOC_PARALLEL)
+                    continue;
+                for (k = 0; k < o->paired; k++) x[k] = pms[(size_t)i * o->paired + k] / pms[(size_t)j * o->paired + k];
+                median_range(x, o->paired, &r->x_pairo, &r->x_pairo_min, &r->x_pairo_max);
+            }
+        }
         if (r->kind == ROW_EMBREE && r->quality == EMB_QUALITY_MEDIUM && r->state == ROW_OK)
             r->pair_ms = scene_median(pms + (size_t)out->nrows * o->paired, o->paired);
         if (!ebh) continue;
@@ -2105,6 +2122,16 @@ static void paired_lines(FILE *f, const options *o, const bench_scene *s, const 
                 fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, r->x_pairh, r->x_pairh_min, r->x_pairh_max);
             }
         }
+    {
+        int any = 0;
+        for (i = 0; i < s->nrows; i++) {
+            const row *r = &s->rows[i];
+            if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(r->x_pairo)) continue;
+            if (!any++)
+                fprintf(f, "%sbuild / ploc-parallel's in the same %u rounds: median (min-max)\n", prefix, o->paired);
+            fprintf(f, "%s  %-14s %.2f (%.2f-%.2f)\n", prefix, r->name, r->x_pairo, r->x_pairo_min, r->x_pairo_max);
+        }
+    }
     for (i = 0; i < s->nrows; i++)
         if (s->rows[i].kind == ROW_EMBREE && s->rows[i].quality == EMB_QUALITY_MEDIUM && !isnan(s->rows[i].p_mrays))
             em = &s->rows[i];
@@ -2443,6 +2470,9 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "ratio_build_high_paired", r->x_pairh, 4);
         json_num(f, "ratio_build_high_paired_min", r->x_pairh_min, 4);
         json_num(f, "ratio_build_high_paired_max", r->x_pairh_max, 4);
+        json_num(f, "ratio_build_ploc_paired", r->x_pairo, 4);
+        json_num(f, "ratio_build_ploc_paired_min", r->x_pairo_min, 4);
+        json_num(f, "ratio_build_ploc_paired_max", r->x_pairo_max, 4);
         json_num(f, "ratio_mrays_1t_paired", r->x_ptrace, 4);
         json_num(f, "ratio_mrays_1t_paired_min", r->x_ptrace_min, 4);
         json_num(f, "ratio_mrays_1t_paired_max", r->x_ptrace_max, 4);
@@ -2718,7 +2748,8 @@ static void usage(FILE *f) {
             "                   on --threads: the thread scaling), and N rendering a frame\n"
             "                   with OpenCL and with the CPU on all threads; medians of the\n"
             "                   rounds' ratios and Mrays/s (robust to a shared machine's slow\n"
-            "                   moments; default 0: none)\n"
+            "                   moments; <builder>+opt rows also against ploc-parallel's build,\n"
+            "                   when --builder has it; default 0: none)\n"
             "  --instances N    after the table, the top-level rebuild (bvh_scene_build) for N instances\n"
             "                   of the default tree, and one instance against the tree on 1 thread\n"
             "                   (default 10000; 0: none)\n"
@@ -2881,8 +2912,8 @@ static int parse_args(int argc, char **argv, options *o) {
                 return 2;
             }
         } else if (!strcmp(a, "--paired")) {
-            if (scene_parse_u32(v, 0, 1000, &o->paired, NULL)) {
-                fprintf(stderr, "bvhbench: --paired wants 0 to 1000 rounds, not '%s'\n", v ? v : "");
+            if (scene_parse_u32(v, 0, BENCH_MAX_PAIRED, &o->paired, NULL)) {
+                fprintf(stderr, "bvhbench: --paired wants 0 to %u rounds, not '%s'\n", BENCH_MAX_PAIRED, v ? v : "");
                 return 2;
             }
         } else if (!strcmp(a, "--refit")) {

@@ -2412,7 +2412,7 @@ typedef struct bvh__opt {
                          as in bvh_node */
     uint32_t *parent; /* per slot (the root's: BVH_INVALID) */
     uint32_t count;
-    const uint32_t *cand; /* this round's candidates (slots, ascending): a range of the subsets' order */
+    const uint32_t *cand; /* this round's candidates (slots, ascending): a range of `order` */
     uint32_t cand_count;
     bvh__opt_move *move; /* per candidate */
 } bvh__opt;

@@ -37,8 +37,9 @@
    ratios (and of the Mrays/s) are printed under the table and written to the JSON
    (ratio_build_paired; ratio_build_high_paired where the table has Embree high, which then
    builds once in each of the same rounds; ratio_build_ploc_paired for a <builder>+opt row where
-   the table has ploc-parallel: the build time issue 19 measures the optimizer against; ratio_mrays_1t_paired,
-   ratio_diffuse_1t_paired, ratio_shadow_1t_paired, ratio_opencl_mt_paired; mrays_1t_paired, diffuse_mrays_1t_paired,
+   the table has ploc-parallel, the build time issue 19 measures the optimizer against;
+   ratio_mrays_1t_paired, ratio_diffuse_1t_paired, ratio_shadow_1t_paired,
+   ratio_opencl_mt_paired; mrays_1t_paired, diffuse_mrays_1t_paired,
    shadow_mrays_1t_paired), robust to a shared machine's slow moments in a way the ratio of two
    medians taken seconds apart is not. Each of bvh.h's one-thread passes is followed at once by
    the same pass on --threads threads: their ratio is the thread scaling, paired as well
@@ -169,9 +170,9 @@ typedef struct row {
     double pair_ms;                              /* median build ms in the paired rounds (bvh.h rows
                                                     and the Embree medium and high rows) */
     double x_pairh, x_pairh_min, x_pairh_max;    /* the same against Embree high, where the table has it */
-    double x_pairo, x_pairo_min, x_pairo_max;    /* <builder>+opt rows: build time / ploc-parallel's (the
-                                                    default builder, issue 19's yardstick) in the same
-                                                    paired rounds, where the table has it */
+    double x_pairo, x_pairo_min, x_pairo_max;    /* <builder>+opt rows: build time /
+                                                    ploc-parallel's (issue 19's yardstick) in
+                                                    the same paired rounds, where it is run */
     double x_ptrace, x_ptrace_min, x_ptrace_max; /* 1-thread Mrays/s / Embree medium's, paired */
     double x_scale, x_scale_min, x_scale_max;    /* camera rays' Mrays/s on N threads / on 1, paired */
     double x_pcl, x_pcl_min, x_pcl_max;          /* OpenCL frame Mrays/s / the CPU's on N threads, paired */

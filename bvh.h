@@ -7572,16 +7572,15 @@ static int bvh__batch_take(bvh__batch *b, bvh__team *team, size_t *first, size_t
 /* Rays first .. end - 1 of a batch. A tree with the 8-wide copy (every tree but trace_width 2)
    goes straight to the wide loop, as bvh_intersect does: bvh__traverse's checks and frame (it
    holds the binary path too) cost a camera ray that misses about as much as its own set-up. */
-static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int any,
-                            int isa);
+static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int isa);
 static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e) {
     const bvh_tree *tree = b->tree;
     const int isa = bvh__have_avx2(); /* the CPU's ISA asked once a range, not once a ray */
     if (b->scene) {
         if (b->scene_hits)
-            for (; i < e; i++) bvh__scene_trace(b->scene, &b->rays[i], b->mask, &b->scene_hits[i], 0, isa);
+            for (; i < e; i++) bvh__scene_trace(b->scene, &b->rays[i], b->mask, &b->scene_hits[i], isa);
         else
-            for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__scene_trace(b->scene, &b->rays[i], b->mask, NULL, 1, isa);
+            for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__scene_trace(b->scene, &b->rays[i], b->mask, NULL, isa);
     } else if (tree->nodes8) {
         if (b->hits)
             for (; i < e; i++) bvh__trace8_isa(tree, &b->rays[i], NULL, NULL, 0.0f, &b->hits[i], NULL, 0, isa);
@@ -8195,83 +8194,77 @@ BVH__INLINE int bvh__scene_top8(const bvh_scene *scene, const bvh_ray *ray, bvh_
     if (!bvh__ray8_setup(ray, &rx, &q, isa)) return 0;
     return bvh__traverse8_body(scene->top8, NULL, &rx, &q, ray->tmax, NULL, NULL, any, isa, bvh__instance_step, c, &w);
 }
-#ifdef BVH__AVX2
-__attribute__((target("avx2,popcnt"))) static int bvh__scene_closest8_avx2(const bvh_scene *s, const bvh_ray *r,
-                                                                           bvh__scene_ctx *c) {
-    return bvh__scene_top8(s, r, c, 0, 1);
-}
-__attribute__((target("avx2,popcnt"))) static int bvh__scene_any8_avx2(const bvh_scene *s, const bvh_ray *r,
-                                                                       bvh__scene_ctx *c) {
-    return bvh__scene_top8(s, r, c, 1, 1);
-}
-#endif
-static int bvh__scene_closest8_base(const bvh_scene *s, const bvh_ray *r, bvh__scene_ctx *c) {
-    return bvh__scene_top8(s, r, c, 0, 0);
-}
-static int bvh__scene_any8_base(const bvh_scene *s, const bvh_ray *r, bvh__scene_ctx *c) {
-    return bvh__scene_top8(s, r, c, 1, 0);
-}
-/* The world normal of the best hit: M^-T times the object-space normal, normalised. The vertices
-   come from the hit's packet, which the traversal has just read (the same floats as tree.tris),
-   rather than from tree.tris through the primitive's reference: two cache misses a hit. */
+/* The world normal of the best hit: M^-T times the object-space normal (v1 - v0) x (v2 - v0), in
+   double, normalised. The vertices come from the hit's packet, which the traversal has just read
+   (the same floats as tree.tris), rather than from tree.tris through the primitive's reference:
+   two cache misses a hit. Scalars, not arrays and loops: the compiler keeps them in registers
+   (arrays it stored and reloaded, value by value, on a scene ray's path). */
 static bvh_vec3 bvh__scene_normal(const bvh_scene *scene, const bvh__scene_ctx *c) {
-    const float *inv = scene->inverse + 12 * (size_t)c->instance, *t;
-    double e1[3], e2[3], n[3], w[3], l;
+    const float *m = scene->inverse + 12 * (size_t)c->instance;
+    double ax, ay, az, bx, by, bz, cx, cy, cz, nx, ny, nz, wx, wy, wz, l;
     bvh_vec3 out = {0.0f, 0.0f, 0.0f};
-    float v[9];
-    int k;
-    if (c->at.pk) { /* written out: as a loop over k / 3 and k % 3 it cost 140 instructions a hit */
+    if (c->at.pk) {
         const bvh_tri4 *p = c->at.pk;
-        uint32_t l = c->at.lane;
-        v[0] = p->v[0][0][l];
-        v[1] = p->v[0][1][l];
-        v[2] = p->v[0][2][l];
-        v[3] = p->v[1][0][l];
-        v[4] = p->v[1][1][l];
-        v[5] = p->v[1][2][l];
-        v[6] = p->v[2][0][l];
-        v[7] = p->v[2][1][l];
-        v[8] = p->v[2][2][l];
-        t = v;
+        const uint32_t i = c->at.lane;
+        ax = p->v[0][0][i];
+        ay = p->v[0][1][i];
+        az = p->v[0][2][i];
+        bx = p->v[1][0][i];
+        by = p->v[1][1][i];
+        bz = p->v[1][2][i];
+        cx = p->v[2][0][i];
+        cy = p->v[2][1][i];
+        cz = p->v[2][2][i];
     } else {
         const bvh_tree *tree = scene->instances[c->instance].tree;
+        const float *t;
         if (!tree->tris) return out; /* a custom primitive: the caller's normal */
         t = tree->tris + 9 * (size_t)scene->ref_of_prim[scene->ref_base[scene->mesh[c->instance]] + c->hit.prim];
+        ax = t[0];
+        ay = t[1];
+        az = t[2];
+        bx = t[3];
+        by = t[4];
+        bz = t[5];
+        cx = t[6];
+        cy = t[7];
+        cz = t[8];
     }
-    for (k = 0; k < 3; k++) {
-        e1[k] = (double)t[3 + k] - t[k];
-        e2[k] = (double)t[6 + k] - t[k];
-    }
-    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
-    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
-    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
-    for (k = 0; k < 3; k++) w[k] = inv[k] * n[0] + inv[4 + k] * n[1] + inv[8 + k] * n[2];
-    l = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    bx -= ax; /* the edges, exact: a difference of two floats fits in a double */
+    by -= ay;
+    bz -= az;
+    cx -= ax;
+    cy -= ay;
+    cz -= az;
+    nx = by * cz - bz * cy;
+    ny = bz * cx - bx * cz;
+    nz = bx * cy - by * cx;
+    /* M^-T even for the identity, which can turn a -0 into +0: the same bits as before and as
+       the path tracer's Embree side, which a normal's sign of zero steers */
+    wx = m[0] * nx + m[4] * ny + m[8] * nz;
+    wy = m[1] * nx + m[5] * ny + m[9] * nz;
+    wz = m[2] * nx + m[6] * ny + m[10] * nz;
+    l = sqrt(wx * wx + wy * wy + wz * wz);
     if (!(l > 0.0)) return out;
-    out.x = (float)(w[0] / l);
-    out.y = (float)(w[1] / l);
-    out.z = (float)(w[2] / l);
+    out.x = (float)(wx / l); /* divisions, not products with 1 / l: the same bits as before */
+    out.y = (float)(wy / l);
+    out.z = (float)(wz / l);
     return out;
 }
-/* isa: bvh__have_avx2()'s answer, asked by the caller (once a batch range). */
-static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int any,
-                            int isa) {
+/* A scene ray from the checks to the hit record, compiled once for each ISA and kind (isa and any
+   constants), so that a ray pays one call before the top level's loop. */
+BVH__INLINE int bvh__scene_trace_at(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit,
+                                    int any, int isa) {
     bvh__scene_ctx c;
     int found = 0;
     c.scene = scene;
     c.mask = mask;
     c.any = (uint32_t)any;
     c.instance = BVH_INVALID;
+    c.hit.t = c.hit.u = c.hit.v = 0.0f; /* read only after a hit set them; some compilers cannot tell */
+    c.hit.prim = BVH_INVALID;
     c.at.pk = NULL;
-    (void)isa; /* without BVH__AVX2: always 0 */
-    if (scene && ray && mask && scene->top8_count) {
-#ifdef BVH__AVX2
-        if (isa)
-            found = any ? bvh__scene_any8_avx2(scene, ray, &c) : bvh__scene_closest8_avx2(scene, ray, &c);
-        else
-#endif
-            found = any ? bvh__scene_any8_base(scene, ray, &c) : bvh__scene_closest8_base(scene, ray, &c);
-    }
+    if (scene && ray && mask && scene->top8_count) found = bvh__scene_top8(scene, ray, &c, any, isa);
     if (!hit) return found;
     if (!found) {
         hit->t = ray ? ray->tmax : BVH_INF;
@@ -8289,11 +8282,35 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
     hit->normal = bvh__scene_normal(scene, &c);
     return 1;
 }
+#ifdef BVH__AVX2
+__attribute__((target("avx2,popcnt"))) static int bvh__scene_closest_avx2(const bvh_scene *s, const bvh_ray *r,
+                                                                          uint32_t mask, bvh_scene_hit *hit) {
+    return bvh__scene_trace_at(s, r, mask, hit, 0, 1);
+}
+__attribute__((target("avx2,popcnt"))) static int bvh__scene_any_avx2(const bvh_scene *s, const bvh_ray *r,
+                                                                      uint32_t mask) {
+    return bvh__scene_trace_at(s, r, mask, NULL, 1, 1);
+}
+#endif
+static int bvh__scene_closest_base(const bvh_scene *s, const bvh_ray *r, uint32_t mask, bvh_scene_hit *hit) {
+    return bvh__scene_trace_at(s, r, mask, hit, 0, 0);
+}
+static int bvh__scene_any_base(const bvh_scene *s, const bvh_ray *r, uint32_t mask) {
+    return bvh__scene_trace_at(s, r, mask, NULL, 1, 0);
+}
+/* isa: bvh__have_avx2()'s answer, asked by the caller (once a batch range). hit NULL: any hit. */
+static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int isa) {
+#ifdef BVH__AVX2
+    if (isa) return hit ? bvh__scene_closest_avx2(scene, ray, mask, hit) : bvh__scene_any_avx2(scene, ray, mask);
+#endif
+    (void)isa; /* without BVH__AVX2: always 0 */
+    return hit ? bvh__scene_closest_base(scene, ray, mask, hit) : bvh__scene_any_base(scene, ray, mask);
+}
 BVH_API int bvh_scene_intersect(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit) {
-    return bvh__scene_trace(scene, ray, mask, hit, 0, bvh__have_avx2());
+    return bvh__scene_trace(scene, ray, mask, hit, bvh__have_avx2());
 }
 BVH_API int bvh_scene_occluded(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask) {
-    return bvh__scene_trace(scene, ray, mask, NULL, 1, bvh__have_avx2());
+    return bvh__scene_trace(scene, ray, mask, NULL, bvh__have_avx2());
 }
 /* The scene's batch calls: bvh__batch_go with the scene's rays (see bvh__batch_range). */
 static bvh_result bvh__scene_batch(const bvh_scene *scene, const bvh_ray *rays, uint32_t mask, bvh_scene_hit *hits,

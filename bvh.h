@@ -106,6 +106,13 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.4  A wide node's slots are stored largest box first, and any-hit rays take a node's
+            entered slots in that order (they took them lowest slot first, then the rest from
+            the last): a larger box is likelier to hold what blocks a shadow ray. bvh_node8
+            gains order[8] in its padding (where each slot of the grouping went), which
+            bvh_refit and bvh_load follow; saved files of 0.9.2-0.9.3 (order all zero) still
+            load. Sponza from inside, sah-midpoint tree: shadow rays 0.68x -> 0.80x Embree;
+            the path tracer 0.82-0.86x -> 0.88-0.95x (docs/bench, 0.9.4).
      0.9.3  A scene ray is one function per ISA and kind from the checks to the hit record, and
             the world normal is computed in scalars (the same bits): one identity instance
             against the tree 0.79-0.86x -> 0.82-0.89x its speed (docs/bench, 0.9.3).
@@ -293,7 +300,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 9
-#define BVH_VERSION_PATCH 3
+#define BVH_VERSION_PATCH 4
 
 #include <math.h>
 #include <stddef.h>
@@ -394,7 +401,9 @@ typedef struct bvh_node8 {
     uint32_t head;              /* the binary node it was made from (bvh_refit and bvh_load ... */
     uint32_t shape;             /* ... follow the grouping from it to the slots: see bvh.h's
                                    8-wide layout section) */
-    uint32_t pad[4];
+    uint8_t order[8];           /* the grouping's slots by binary index: the j-th is slot order[j]
+                                   (all zero: slot j, as files of 0.9.2 and before have it) */
+    uint32_t pad[2];
 } bvh_node8;
 
 /* Up to four triangles of a wide leaf (160 bytes), by coordinate, so that one SIMD test covers
@@ -6101,9 +6110,11 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
    the binary nodes from there down to its slots in pre-order (left child first), a bit each from
    bit 0 on: 1 a node opened inside the wide node, 0 a slot; at most 7 opened nodes and 8 slots, 15
    bits (a root that is a leaf slot: shape 0, its head its one slot). An opened leaf slot is one
-   more opened node like any other. bvh_refit follows the grouping to update the boxes and packets
-   in place, bvh_load to remake them from the saved binary tree; both check it against the binary
-   tree as they go. */
+   more opened node like any other. The slots are stored largest box first (bvh__wide_area_order;
+   bvh_node8.order says where each of them, taken by ascending binary index, went), the order in
+   which any-hit rays take them. bvh_refit follows the grouping to update the boxes and packets in
+   place (the order stays the build's), bvh_load to remake them from the saved binary tree; both
+   check it against the binary tree as they go. */
 #define BVH__PACKET 4u     /* triangles per packet */
 #define BVH__SLOT_REFS 16u /* a binary subtree of at most this many references is one leaf slot */
 typedef struct bvh__wide_src {
@@ -6251,12 +6262,24 @@ static int bvh__group_read(const bvh_node *nodes, uint32_t node_count, const bvh
         }
     }
     if (w->shape >> bit) return 0;
-    for (i = 1; i < g->nslot; i++) /* insertion sort: the build's slot order */
+    for (i = 1; i < g->nslot; i++) /* insertion sort: ascending binary index */
         for (a = i; a > 0 && g->slot[a - 1] > g->slot[a]; a--) {
             uint32_t x = g->slot[a];
             g->slot[a] = g->slot[a - 1];
             g->slot[a - 1] = x;
         }
+    for (i = 0, a = 0; i < BVH__W; i++) a |= w->order[i];
+    if (a) { /* the build's slot order: a permutation of the first nslot, zero after them */
+        uint32_t by[BVH__W], seen = 0;
+        for (i = 0; i < BVH__W; i++) {
+            if (i >= g->nslot ? w->order[i] != 0 : (w->order[i] >= g->nslot || (seen >> w->order[i]) & 1u)) return 0;
+            if (i < g->nslot) {
+                seen |= 1u << w->order[i];
+                by[w->order[i]] = g->slot[i];
+            }
+        }
+        for (i = 0; i < g->nslot; i++) g->slot[i] = by[i];
+    }
     return 1;
 }
 /* The slots of interior binary node b (see above; area ties: the first in the list). */
@@ -6346,6 +6369,25 @@ BVH__INLINE void bvh__node8_box(bvh_node8 *w, uint32_t i, bvh_vec3 lo, bvh_vec3 
 /* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
    gets the binary children in ascending order, so that nodes are read in memory order. Leaf slots
    take their packets from *packet on (written when s->packets is set). */
+/* Slots kids[0 .. k - 1] (ascending binary index) put in the order of their boxes' areas, the
+   largest first (ties: the lower index): an any-hit ray takes a node's entered slots in this
+   order, and a larger box is likelier to hold what blocks it. order, when given, gets where each
+   went (bvh_node8.order), so that bvh__group_read finds the slots from the grouping alone. */
+static void bvh__wide_area_order(const bvh__wide_src *s, uint32_t kids[BVH__W], uint32_t k, uint8_t *order) {
+    uint32_t i, j, by[BVH__W];
+    float area[BVH__W];
+    for (i = 0; i < k; i++) { /* NaN (0 x inf on huge boxes) as +inf: the ranks must be a permutation */
+        area[i] = bvh_aabb_area(bvh__node_box(&s->nodes[kids[i]]));
+        if (!(area[i] >= 0.0f)) area[i] = BVH_INF;
+    }
+    for (i = 0; i < k; i++) { /* slot of kids[i]: the count of those before it in the order */
+        uint32_t at = 0;
+        for (j = 0; j < k; j++) at += area[j] > area[i] || (area[j] == area[i] && j < i);
+        by[at] = kids[i];
+        if (order) order[i] = (uint8_t)at;
+    }
+    for (i = 0; i < k; i++) kids[i] = by[i];
+}
 static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *out, uint32_t kids[BVH__W],
                                uint32_t *packet) {
     uint32_t k, i, a;
@@ -6366,6 +6408,7 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *ou
         out->head = b;
         out->shape = bvh__group_shape(s->nodes, b, kids, k);
     }
+    bvh__wide_area_order(s, kids, k, out ? out->order : NULL);
     for (i = 0; i < k; i++) {
         const bvh_node *c = &s->nodes[kids[i]];
         if (out) bvh__node8_box(out, i, c->min, c->max);
@@ -6595,6 +6638,7 @@ typedef struct bvh__entry8 {
 } bvh__entry8;
 #if defined(__GNUC__) || defined(__clang__)
 #define BVH__CTZ(m) ((unsigned)__builtin_ctz(m))
+#define BVH__CLZ_TOP(m) (31u - (unsigned)__builtin_clz(m)) /* the highest set bit's index */
 #else
 static unsigned bvh__ctz(unsigned m) {
     unsigned i = 0;
@@ -6605,6 +6649,12 @@ static unsigned bvh__ctz(unsigned m) {
     return i;
 }
 #define BVH__CTZ(m) bvh__ctz(m)
+static unsigned bvh__top_bit(unsigned m) {
+    unsigned i = 0;
+    while (m >>= 1) i++;
+    return i;
+}
+#define BVH__CLZ_TOP(m) bvh__top_bit(m)
 #endif
 /* The packet test: bvh__tri_test on the four lanes at once, the same operations in the same order
    on each lane, so the same bits. Most packets end at the sign test; the distance, the division
@@ -7235,11 +7285,11 @@ BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4
                         i1 = x;
                     }
                     bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step);
-                } else if (any) { /* any hit: in slot order */
+                } else if (any) { /* any hit: in slot order (largest box first), the last pushed first */
                     m |= 1u << i1;
                     while (m) {
-                        i1 = BVH__CTZ(m);
-                        m &= m - 1;
+                        i1 = BVH__CLZ_TOP(m);
+                        m &= ~(1u << i1);
                         bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step);
                     }
                 } else { /* three or more: nearest first (AVX2: by rank; else by insertion) */
@@ -9245,7 +9295,7 @@ static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_s
         }
         bvh__node8_box(n, i, t->nodes[g.slot[i]].min, t->nodes[g.slot[i]].max);
     }
-    memset(n->pad, 0, sizeof n->pad);
+    memset(n->pad, 0, sizeof n->pad); /* order is kept: bvh__group_read checked it */
     return 1;
 }
 /* The 8-wide nodes' links and packet ranges (see above), on one thread: 0 where they do not fit. */

@@ -702,7 +702,7 @@ static void load_damaged(void **state) {
         ld.max_bytes = 0;
     }
     /* damaged structures behind valid checksums */
-    for (i = 0; i < 14; i++) {
+    for (i = 0; i < 16; i++) {
         bvh_node *nodes;
         uint32_t *prims;
         float *tris;
@@ -752,6 +752,12 @@ static void load_damaged(void **state) {
                     break;
                 }
             break; /* a leaf slot with one packet too many */
+        case 14:
+            wide[0].order[1] = wide[0].order[0];
+            break; /* two slots of the grouping in one place */
+        case 15:
+            wide[0].order[0] = 8;
+            break; /* a slot past the node */
         case 0:
             nodes[0].index = 0;
             break; /* a cycle */
@@ -802,6 +808,70 @@ static void load_damaged(void **state) {
     tu_scene_free(&s);
 }
 
+/* A tree as 0.9.3 and before made it: every wide node's slots in ascending binary index order and
+   bvh_node8.order all zero (the order the build now writes is undone here, slot by slot). Such a
+   tree, in memory or saved, must stay valid, trace the brute force's hits, refit and load. */
+static void legacy_slot_order(void **state) {
+    int id = tu_state_id(state), b;
+    tu_scene s;
+    float *tris;
+    bvh_ray *rays = (bvh_ray *)malloc((RF_RAYS + 2 * RF_CAMERA * RF_CAMERA) * sizeof *rays);
+    bvh_hit *want = (bvh_hit *)malloc((RF_RAYS + 2 * RF_CAMERA * RF_CAMERA) * sizeof *want);
+    size_t count, bad = 0;
+    assert_true(rays && want);
+    if (!tu_scene_make(id, &s)) {
+        free(rays);
+        free(want);
+        skip();
+        return;
+    }
+    tris = tu_scene_tris(&s);
+    tu_make_rays(tris, s.tri_count, 0x6f72646572ULL + (uint64_t)id, rays, RF_RAYS);
+    count = RF_RAYS + rf_camera_diffuse(tris, s.tri_count, 0x6f7264ULL + (uint64_t)id, rays + RF_RAYS);
+    tu_oracle_run(tris, s.tri_count, rays, count, want);
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
+        bvh_refit_desc rd = rf_desc(&s, 2);
+        bvh_load_desc ld;
+        bvh_tree t, u;
+        rf_buf buf;
+        uint32_t w, j, a, moved = 0;
+        tu_build_valid(&s, &d, &t);
+        for (w = 0; w < t.node8_count; w++) {
+            bvh_node8 *n = &t.nodes8[w], old = *n;
+            for (j = 0; j < 8 && (old.count[j] || old.min[0][j] != BVH_INF); j++) {
+                const uint32_t k = old.order[j]; /* the j-th slot by binary index */
+                for (a = 0; a < 3; a++) {
+                    n->min[a][j] = old.min[a][k];
+                    n->max[a][j] = old.max[a][k];
+                }
+                n->child[j] = old.child[k];
+                n->count[j] = old.count[k];
+                moved += k != j;
+            }
+            memset(n->order, 0, sizeof n->order);
+        }
+        if (s.tri_count > 100) assert_true(moved > 0); /* the build's order is not the index order */
+        rf_valid(&t, NULL, "legacy order");
+        bad += rf_compare(&s, &t, rays, want, count, "legacy order");
+        assert_int_equal(bvh_refit(&t, &rd), BVH_SUCCESS);
+        rf_valid(&t, NULL, "legacy order, refitted");
+        bad += rf_compare(&s, &t, rays, want, count, "legacy order, refitted");
+        buf = rf_save(&t);
+        memset(&ld, 0, sizeof ld);
+        assert_int_equal(rf_load(&u, buf.data, buf.size, ld), BVH_SUCCESS);
+        bad += rf_compare(&s, &u, rays, want, count, "legacy order, loaded");
+        bvh_free(&u);
+        free(buf.data);
+        bvh_free(&t);
+    }
+    if (bad) fail_msg("%zu rays differ", bad);
+    free(tris);
+    free(rays);
+    free(want);
+    tu_scene_free(&s);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         TU_SCENE_TEST(refit_exact, TU_SCENE_RANDOM, "random"),
@@ -822,6 +892,8 @@ int main(void) {
         TU_SCENE_TEST(save_load_round_trip, TU_SCENE_BUNNY, "bunny"),
         cmocka_unit_test(save_load_kinds),
         cmocka_unit_test(load_damaged),
+        TU_SCENE_TEST(legacy_slot_order, TU_SCENE_RANDOM, "random"),
+        TU_SCENE_TEST(legacy_slot_order, TU_SCENE_BUNNY, "bunny"),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

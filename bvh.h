@@ -402,7 +402,7 @@ typedef struct bvh_node8 {
     uint32_t shape;             /* ... follow the grouping from it to the slots: see bvh.h's
                                    8-wide layout section) */
     uint8_t order[8];           /* the grouping's slots by binary index: the j-th is slot order[j]
-                                   (all zero: slot j, as files of 0.9.2 and before have it) */
+                                   (all zero: slot j, as files of 0.9.3 and before have it) */
     uint32_t pad[2];
 } bvh_node8;
 
@@ -6638,7 +6638,7 @@ typedef struct bvh__entry8 {
 } bvh__entry8;
 #if defined(__GNUC__) || defined(__clang__)
 #define BVH__CTZ(m) ((unsigned)__builtin_ctz(m))
-#define BVH__CLZ_TOP(m) (31u - (unsigned)__builtin_clz(m)) /* the highest set bit's index */
+#define BVH__TOP_BIT(m) (31u - (unsigned)__builtin_clz(m)) /* the highest set bit's index */
 #else
 static unsigned bvh__ctz(unsigned m) {
     unsigned i = 0;
@@ -6654,7 +6654,7 @@ static unsigned bvh__top_bit(unsigned m) {
     while (m >>= 1) i++;
     return i;
 }
-#define BVH__CLZ_TOP(m) bvh__top_bit(m)
+#define BVH__TOP_BIT(m) bvh__top_bit(m)
 #endif
 /* The packet test: bvh__tri_test on the four lanes at once, the same operations in the same order
    on each lane, so the same bits. Most packets end at the sign test; the distance, the division
@@ -7288,7 +7288,7 @@ BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4
                 } else if (any) { /* any hit: in slot order (largest box first), the last pushed first */
                     m |= 1u << i1;
                     while (m) {
-                        i1 = BVH__CLZ_TOP(m);
+                        i1 = BVH__TOP_BIT(m);
                         m &= ~(1u << i1);
                         bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step);
                     }

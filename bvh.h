@@ -6366,9 +6366,6 @@ BVH__INLINE void bvh__node8_box(bvh_node8 *w, uint32_t i, bvh_vec3 lo, bvh_vec3 
     w->max[1][i] = hi.y;
     w->max[2][i] = hi.z;
 }
-/* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
-   gets the binary children in ascending order, so that nodes are read in memory order. Leaf slots
-   take their packets from *packet on (written when s->packets is set). */
 /* Slots kids[0 .. k - 1] (ascending binary index) put in the order of their boxes' areas, the
    largest first (ties: the lower index): an any-hit ray takes a node's entered slots in this
    order, and a larger box is likelier to hold what blocks it. order, when given, gets where each
@@ -6388,6 +6385,9 @@ static void bvh__wide_area_order(const bvh__wide_src *s, uint32_t kids[BVH__W], 
     }
     for (i = 0; i < k; i++) kids[i] = by[i];
 }
+/* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
+   gets the binary children in slot order (largest box first, bvh__wide_area_order). Leaf slots
+   take their packets from *packet on (written when s->packets is set). */
 static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *out, uint32_t kids[BVH__W],
                                uint32_t *packet) {
     uint32_t k, i, a;

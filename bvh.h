@@ -2885,10 +2885,9 @@ __attribute__((target("avx2"))) static void bvh__ploc_pairs8(bvh__nn *w, size_t 
         }
     }
 }
-/* 1 when the CPU runs AVX2 (the compiler's runtime check; the block search then takes 8 pairs).
-   POPCNT too, which the 8-wide traversal's AVX2 loop uses: every CPU with AVX2 has it. */
-/* AVX2 with FMA and popcnt (every AVX2 processor has both): the traversal's fast slab test takes
-   its entries by fused multiply-subtract (bvh__slab8_avx2). */
+/* 1 when the CPU runs AVX2 (the compiler's runtime check; the block search then takes 8 pairs),
+   with FMA and POPCNT, which the 8-wide traversal's AVX2 loop uses (the fast slab test's fused
+   multiply-subtract, the ordering's popcount): every CPU with AVX2 has both. */
 static int bvh__have_avx2(void) {
     return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma") && __builtin_cpu_supports("popcnt") ? 1 : 0;
 }

@@ -12,6 +12,7 @@ gnuplot (Debian gnuplot-nox). Standard library only.
 """
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -66,4 +67,7 @@ plot "{dat}" using 2:3:4:xtic(1) title "camera rays", '' using 5:6:7 title "diff
 if __name__ == "__main__":
     if len(sys.argv) < 4:
         sys.exit(__doc__)
+    if shutil.which("gnuplot") is None:  # as bench/plot.sh: say what to install, write nothing
+        print("ratio_chart: gnuplot is not installed (Debian: sudo apt-get install gnuplot-nox)", file=sys.stderr)
+        sys.exit(3)
     main(sys.argv[1], sys.argv[2], sys.argv[3:])

@@ -6791,10 +6791,10 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
    same operations in the same order on each lane, so the same bits. An odd last packet is loaded
    twice and its copy's lanes are masked off. Not forced inline: only bvh__trace8_avx2, compiled
    for AVX2 as well, takes it in. */
-__attribute__((target("avx2,fma"))) static inline __m256 bvh__load8(const float *lo, const float *hi) {
+__attribute__((target("avx2"))) static inline __m256 bvh__load8(const float *lo, const float *hi) {
     return _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(lo)), _mm_loadu_ps(hi), 1);
 }
-__attribute__((target("avx2,fma"))) static inline float bvh__lane8(__m256 x, unsigned i) {
+__attribute__((target("avx2"))) static inline float bvh__lane8(__m256 x, unsigned i) {
     float f[8];
     _mm256_storeu_ps(f, x);
     return f[i];
@@ -6808,7 +6808,7 @@ typedef struct bvh__tri8ray {
     float o[3][8], s[3][8], tmin[8];
     uint32_t row[3];
 } bvh__tri8ray;
-__attribute__((target("avx2,fma"))) static inline void bvh__tri8_setup(const bvh__rayx *r, bvh__tri8ray *tr) {
+__attribute__((target("avx2"))) static inline void bvh__tri8_setup(const bvh__rayx *r, bvh__tri8ray *tr) {
     _mm256_storeu_ps(tr->o[0], _mm256_set1_ps(r->o[r->kx]));
     _mm256_storeu_ps(tr->o[1], _mm256_set1_ps(r->o[r->ky]));
     _mm256_storeu_ps(tr->o[2], _mm256_set1_ps(r->o[r->kz]));
@@ -6821,13 +6821,13 @@ __attribute__((target("avx2,fma"))) static inline void bvh__tri8_setup(const bvh
     tr->row[2] = (uint32_t)r->kz * (uint32_t)sizeof(float[4]);
 }
 /* Row a (axis kx, ky, kz for a = 0, 1, 2) of vertex k of packets p (lanes 0-3) and p1 (4-7). */
-__attribute__((target("avx2,fma"))) BVH__INLINE __m256 bvh__row8(const bvh__tri8ray *tr, const bvh_tri4 *p,
-                                                                 const bvh_tri4 *p1, int k, int a) {
+__attribute__((target("avx2"))) BVH__INLINE __m256 bvh__row8(const bvh__tri8ray *tr, const bvh_tri4 *p,
+                                                             const bvh_tri4 *p1, int k, int a) {
     return bvh__load8((const float *)(const void *)((const char *)p->v[k] + tr->row[a]),
                       (const float *)(const void *)((const char *)p1->v[k] + tr->row[a]));
 }
 /* Vertex k of the lanes of packets p (lanes 0-3) and p1 (4-7), translated and sheared. */
-__attribute__((target("avx2,fma"))) BVH__INLINE void
+__attribute__((target("avx2"))) BVH__INLINE void
 bvh__shear8(const bvh__tri8ray *tr, const bvh_tri4 *p, const bvh_tri4 *p1, int k, __m256 *x, __m256 *y, __m256 *z) {
     const __m256 zk = _mm256_sub_ps(bvh__row8(tr, p, p1, k, 2), _mm256_loadu_ps(tr->o[2]));
     *z = zk;
@@ -6836,7 +6836,7 @@ bvh__shear8(const bvh__tri8ray *tr, const bvh_tri4 *p, const bvh_tri4 *p1, int k
     *y = _mm256_sub_ps(_mm256_sub_ps(bvh__row8(tr, p, p1, k, 1), _mm256_loadu_ps(tr->o[1])),
                        _mm256_mul_ps(_mm256_loadu_ps(tr->s[1]), zk));
 }
-__attribute__((target("avx2,fma"))) static inline int
+__attribute__((target("avx2"))) static inline int
 bvh__packets_avx2(const bvh__rayx *r, const bvh__tri8ray *tr, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
     const int kz = r->kz;
     const __m256 zero = _mm256_setzero_ps(), inf = _mm256_set1_ps(BVH_INF);
@@ -7030,8 +7030,8 @@ static const unsigned char bvh__slab_planes[3][8][8] = {{{8, 16, 0, 0, 32, 40, 2
 /* The slab tests' operands: o and -inv permuted to bvh__slab_axes[kz] (AVX2's variable permute;
    (o - b) * -inv is (b - o) * inv, bit for bit but for the sign of a zero, and lets the slab test
    read b by the subtraction itself) and the plane offsets from bvh__slab_planes. */
-__attribute__((target("avx2,fma"))) static inline void bvh__ray8_axes_avx2(bvh__ray8 *q, const bvh__rayx *rx, __m128 o,
-                                                                           __m128 inv, unsigned neg) {
+__attribute__((target("avx2"))) static inline void bvh__ray8_axes_avx2(bvh__ray8 *q, const bvh__rayx *rx, __m128 o,
+                                                                       __m128 inv, unsigned neg) {
     const __m128i k = _mm_loadu_si128((const __m128i *)(const void *)bvh__slab_axes[rx->kz]);
     const unsigned char *pl = bvh__slab_planes[rx->kz][neg & 7u];
     int32_t nf[2];
@@ -7138,10 +7138,10 @@ BVH__INLINE unsigned bvh__slab8q(const bvh__ray8 *q, const bvh_node8 *n, float t
    slack and exit factor are off that chain: see bvh__trace8_reach. Not forced inline: only
    bvh__traverse8_avx2, compiled for AVX2 as well, takes it in. */
 /* Max and min of floats by their bits as signed integers (see bvh__slab8_avx2). */
-__attribute__((target("avx2,fma"))) BVH__INLINE __m256 bvh__imax8(__m256 a, __m256 b) {
+__attribute__((target("avx2"))) BVH__INLINE __m256 bvh__imax8(__m256 a, __m256 b) {
     return _mm256_castsi256_ps(_mm256_max_epi32(_mm256_castps_si256(a), _mm256_castps_si256(b)));
 }
-__attribute__((target("avx2,fma"))) BVH__INLINE __m256 bvh__imin8(__m256 a, __m256 b) {
+__attribute__((target("avx2"))) BVH__INLINE __m256 bvh__imin8(__m256 a, __m256 b) {
     return _mm256_castsi256_ps(_mm256_min_epi32(_mm256_castps_si256(a), _mm256_castps_si256(b)));
 }
 __attribute__((target("avx2,fma"))) static inline unsigned
@@ -7210,8 +7210,8 @@ bvh__slab8_avx2(const bvh__ray8 *q, const bvh_node8 *n, float tfar, float tn_out
    starts in has a distance just below tmin; their order among themselves, reversed, only changes
    which is visited first). No loop that depends on the distances, so no branch to mispredict but
    the one over m. Returns the count. */
-__attribute__((target("avx2,fma,popcnt"))) static inline uint32_t bvh__order8_avx2(const float tn[BVH__W], unsigned m,
-                                                                                   uint32_t idx[BVH__W]) {
+__attribute__((target("avx2,popcnt"))) static inline uint32_t bvh__order8_avx2(const float tn[BVH__W], unsigned m,
+                                                                               uint32_t idx[BVH__W]) {
     const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
     const __m256i key =
         _mm256_or_si256(_mm256_andnot_si256(_mm256_set1_epi32(7), _mm256_castps_si256(_mm256_loadu_ps(tn))), lane);

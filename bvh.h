@@ -5970,10 +5970,12 @@ BVH__INLINE void bvh__ray_shear(bvh__rayx *rx) {
    Float throughout, as Woop et al.: each vertex is translated and sheared once, so that the two
    triangles sharing an edge compute its edge function from the same floats, in mirrored order,
    and get exactly opposite values; rounding is monotone, so a float edge function never has the
-   wrong sign, only a zero where the exact one is not. Where any of the three is zero, all three
-   are redone in double from the sheared floats (products of two floats are exact in double), as
-   Woop et al. do, so that the test stays watertight. The packet test makes the same operations
-   in the same order on each lane, so both give the same bits. */
+   wrong sign, only a zero where the exact one is not. So a triangle with one edge function below
+   zero and one above is missed whatever the exact values are, and is decided at once: that is
+   most of the triangles a ray is tested against. Otherwise, where any of the three is zero, all
+   three are redone in double from the sheared floats (products of two floats are exact in
+   double), as Woop et al. do, so that the test stays watertight. The packet tests make the same
+   operations in the same order on each lane, so all give the same bits. */
 BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar);
 /* A zero-area triangle (exactly collinear or coincident vertices) is never hit. */
 static int bvh__tri_zero_area(const float *tri) {
@@ -6028,8 +6030,11 @@ BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, 
     U = x[2] * y[1] - y[2] * x[1];
     V = x[0] * y[2] - y[0] * x[2];
     W = x[1] * y[0] - y[1] * x[0];
-    if (U == 0.0f || V == 0.0f || W == 0.0f) bvh__edges_exact(x, y, &U, &V, &W);
     if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
+    if (U == 0.0f || V == 0.0f || W == 0.0f) {
+        bvh__edges_exact(x, y, &U, &V, &W);
+        if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
+    }
     det = U + V + W;
     if (det == 0.0f) return 0;
     T = U * (sz * z[0]) + V * (sz * z[1]) + W * (sz * z[2]);
@@ -6741,9 +6746,13 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
         U = _mm_sub_ps(_mm_mul_ps(x[2], y[1]), _mm_mul_ps(y[2], x[1]));
         V = _mm_sub_ps(_mm_mul_ps(x[0], y[2]), _mm_mul_ps(y[0], x[2]));
         W = _mm_sub_ps(_mm_mul_ps(x[1], y[0]), _mm_mul_ps(y[1], x[0]));
-        zm = (unsigned)_mm_movemask_ps(
-            _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(U, zero), _mm_cmpeq_ps(V, zero)), _mm_cmpeq_ps(W, zero)));
-        if (zm) { /* the lanes with a zero edge function, redone in double */
+        neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(U, zero), _mm_cmplt_ps(V, zero)), _mm_cmplt_ps(W, zero));
+        pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_cmpgt_ps(V, zero)), _mm_cmpgt_ps(W, zero));
+        m = 15u & ~(unsigned)_mm_movemask_ps(_mm_and_ps(neg, pos));
+        if (!m) continue;
+        zm = m & (unsigned)_mm_movemask_ps(
+                     _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(U, zero), _mm_cmpeq_ps(V, zero)), _mm_cmpeq_ps(W, zero)));
+        if (zm) { /* the lanes left with a zero edge function, redone in double */
             float fx[3][4], fy[3][4], fu[4], fv[4], fw[4];
             for (k = 0; k < 3; k++) {
                 _mm_storeu_ps(fx[k], x[k]);
@@ -6756,11 +6765,11 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
             U = _mm_loadu_ps(fu);
             V = _mm_loadu_ps(fv);
             W = _mm_loadu_ps(fw);
+            neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(U, zero), _mm_cmplt_ps(V, zero)), _mm_cmplt_ps(W, zero));
+            pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_cmpgt_ps(V, zero)), _mm_cmpgt_ps(W, zero));
+            m &= ~(unsigned)_mm_movemask_ps(_mm_and_ps(neg, pos));
+            if (!m) continue;
         }
-        neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(U, zero), _mm_cmplt_ps(V, zero)), _mm_cmplt_ps(W, zero));
-        pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_cmpgt_ps(V, zero)), _mm_cmpgt_ps(W, zero));
-        m = 15u & ~(unsigned)_mm_movemask_ps(_mm_and_ps(neg, pos));
-        if (!m) continue;
         m = bvh__packet_hits(r, p, U, V, W, z, b->t, m, &ft, &det);
         if (!m) continue;
         if (any) {
@@ -6861,10 +6870,16 @@ bvh__packets_avx2(const bvh__rayx *r, const bvh__tri8ray *tr, const bvh_tri4 *p,
         U = _mm256_sub_ps(_mm256_mul_ps(x2, y1), _mm256_mul_ps(y2, x1));
         V = _mm256_sub_ps(_mm256_mul_ps(x0, y2), _mm256_mul_ps(y0, x2));
         W = _mm256_sub_ps(_mm256_mul_ps(x1, y0), _mm256_mul_ps(y1, x0));
-        zm = lanes & (unsigned)_mm256_movemask_ps(_mm256_or_ps(
-                         _mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_EQ_OQ), _mm256_cmp_ps(V, zero, _CMP_EQ_OQ)),
-                         _mm256_cmp_ps(W, zero, _CMP_EQ_OQ)));
-        if (zm) { /* the lanes with a zero edge function, redone in double */
+        neg = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_LT_OQ), _mm256_cmp_ps(V, zero, _CMP_LT_OQ)),
+                           _mm256_cmp_ps(W, zero, _CMP_LT_OQ));
+        pos = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_GT_OQ), _mm256_cmp_ps(V, zero, _CMP_GT_OQ)),
+                           _mm256_cmp_ps(W, zero, _CMP_GT_OQ));
+        m = lanes & ~(unsigned)_mm256_movemask_ps(_mm256_and_ps(neg, pos));
+        if (!m) continue;
+        zm = m & (unsigned)_mm256_movemask_ps(
+                     _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_EQ_OQ), _mm256_cmp_ps(V, zero, _CMP_EQ_OQ)),
+                                  _mm256_cmp_ps(W, zero, _CMP_EQ_OQ)));
+        if (zm) { /* the lanes left with a zero edge function, redone in double */
             float fx[3][8], fy[3][8], fu[8], fv[8], fw[8];
             _mm256_storeu_ps(fx[0], x0);
             _mm256_storeu_ps(fx[1], x1);
@@ -6879,13 +6894,13 @@ bvh__packets_avx2(const bvh__rayx *r, const bvh__tri8ray *tr, const bvh_tri4 *p,
             U = _mm256_loadu_ps(fu);
             V = _mm256_loadu_ps(fv);
             W = _mm256_loadu_ps(fw);
+            neg = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_LT_OQ), _mm256_cmp_ps(V, zero, _CMP_LT_OQ)),
+                               _mm256_cmp_ps(W, zero, _CMP_LT_OQ));
+            pos = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_GT_OQ), _mm256_cmp_ps(V, zero, _CMP_GT_OQ)),
+                               _mm256_cmp_ps(W, zero, _CMP_GT_OQ));
+            m &= ~(unsigned)_mm256_movemask_ps(_mm256_and_ps(neg, pos));
+            if (!m) continue;
         }
-        neg = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_LT_OQ), _mm256_cmp_ps(V, zero, _CMP_LT_OQ)),
-                           _mm256_cmp_ps(W, zero, _CMP_LT_OQ));
-        pos = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_GT_OQ), _mm256_cmp_ps(V, zero, _CMP_GT_OQ)),
-                           _mm256_cmp_ps(W, zero, _CMP_GT_OQ));
-        m = lanes & ~(unsigned)_mm256_movemask_ps(_mm256_and_ps(neg, pos));
-        if (!m) continue;
         /* bvh__packet_hits on eight lanes */
         det = _mm256_add_ps(_mm256_add_ps(U, V), W);
         T = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(U, _mm256_mul_ps(_mm256_loadu_ps(tr->s[2]), z0)),
@@ -7238,14 +7253,14 @@ typedef struct bvh__ray8 {
 #endif
 /* Slot i of node n onto the stack. Its lines are asked for now, so that they arrive while the
    nearer children are being tested (the nearest child is read at once: asking for it gains
-   nothing). */
+   nothing). Any hit (a constant where inlined) leaves the entry distance out: its loop ends at
+   the first hit, so tmax never falls below a distance pushed before it. */
 BVH__INLINE void bvh__push8(const bvh_node8 *nodes, const bvh_tri4 *tri4, const bvh_node8 *n, unsigned i,
-                            const float *tn, bvh__entry8 *stack, uint32_t *sp, int packets) {
+                            const float *tn, bvh__entry8 *stack, uint32_t *sp, int packets, int any) {
     const uint32_t c = n->child[i], k = n->count[i];
     if (packets) { /* a constant where inlined; 0: leaves of instances, whose lines are elsewhere */
-        /* a select, not a branch: leaves and nodes alternate at random */
-        const uintptr_t leaf = (uintptr_t)0 - (uintptr_t)(k != 0);
-        const char *a = (const char *)(((uintptr_t)(tri4 + c) & leaf) | ((uintptr_t)(nodes + c) & ~leaf));
+        /* a select (a conditional move), not a branch: leaves and nodes alternate at random */
+        const char *a = k ? (const char *)(tri4 + c) : (const char *)(nodes + c);
         BVH__PREFETCH(a);
         BVH__PREFETCH(a + 64);
         BVH__PREFETCH(a + 128);
@@ -7256,7 +7271,7 @@ BVH__INLINE void bvh__push8(const bvh_node8 *nodes, const bvh_tri4 *tri4, const 
     }
     stack[*sp].child = c;
     stack[*sp].count = k;
-    stack[*sp].t = tn[i];
+    if (!any) stack[*sp].t = tn[i];
     ++*sp;
 }
 /* A leaf step of the 8-wide loop for leaves that are not triangle packets (a scene's top level:
@@ -7314,13 +7329,13 @@ BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4
                         i0 = i1;
                         i1 = x;
                     }
-                    bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step);
+                    bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step, any);
                 } else if (any) { /* any hit: in slot order (largest box first), the last pushed first */
                     m |= 1u << i1;
                     while (m) {
                         i1 = BVH__TOP_BIT(m);
                         m &= ~(1u << i1);
-                        bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step);
+                        bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step, any);
                     }
                 } else { /* three or more: nearest first (AVX2: by rank; else by insertion) */
                     uint32_t idx[BVH__W], k = 2, j;
@@ -7341,7 +7356,7 @@ BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4
                         }
                     }
                     for (j = k - 1; j > 0; j--) /* farthest at the bottom */
-                        bvh__push8(nodes, tri4, n, idx[j], tn, stack, &sp, !step);
+                        bvh__push8(nodes, tri4, n, idx[j], tn, stack, &sp, !step, any);
                     i0 = idx[0];
                 }
                 cur = n->child[i0];
@@ -7370,7 +7385,7 @@ BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4
         for (;;) { /* pop the next node still in reach of the current best */
             if (!sp) goto out;
             --sp;
-            if (stack[sp].t <= tbest) {
+            if (any || stack[sp].t <= tbest) { /* any hit: always (bvh__push8) */
                 cur = stack[sp].child;
                 lc = stack[sp].count;
                 break;

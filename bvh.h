@@ -1,4 +1,4 @@
-/* bvh.h - v0.8.6 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.9.6 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -106,6 +106,14 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.6  The triangle tests (bvh__tri_test, both packet tests, trace.cl) miss a triangle with
+            edge functions of both signs before they look for a zero one (a float edge
+            function's sign is exact where it is not zero): the zero check and the double
+            fallback only for the triangles left, the same hits. Any-hit traversal keeps no
+            entry distances (its loop ends at the first hit) and the push chooses its prefetch
+            address by a conditional move. Bunny, ploc-parallel tree: 1,131 -> 1,100
+            instructions a bounce ray, 1,015 -> 942 a shadow ray; one thread against Embree
+            medium: dragon bounce +1%, shadow +2%, bunny shadow +1%, bounce level (docs/bench).
      0.9.5  The AVX2 loop's slab test, for rays with tmin >= 0 and no zero direction component,
             takes its slack once a ray and tree (1.25 * 2^-18 of the farthest distance along
             the dominant axis from the origin to the root box's planes, taken off each entry in
@@ -312,7 +320,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 9
-#define BVH_VERSION_PATCH 5
+#define BVH_VERSION_PATCH 6
 
 #include <math.h>
 #include <stddef.h>

@@ -1,4 +1,4 @@
-/* bvh_cl.h - v0.4.1 - OpenCL companion of bvh.h: trace bvh.h trees on any OpenCL 1.2 device
+/* bvh_cl.h - v0.4.2 - OpenCL companion of bvh.h: trace bvh.h trees on any OpenCL 1.2 device
 
    WHAT
      Uploads a bvh_tree (nodes, reference-ordered triangles, primitive ids) to an OpenCL device as
@@ -74,7 +74,7 @@
 
 #define BVH_CL_VERSION_MAJOR 0
 #define BVH_CL_VERSION_MINOR 4
-#define BVH_CL_VERSION_PATCH 0
+#define BVH_CL_VERSION_PATCH 2
 
 #ifndef BVH_CL_API
 #if (defined(BVH_STATIC) || defined(BVH_CL_STATIC)) && (defined(__GNUC__) || defined(__clang__))

@@ -613,6 +613,51 @@ static void rf_reseal(unsigned char *data, int payload) {
     memcpy(data, &h, sizeof h);
 }
 
+/* A build that left nearly all of its primitives out (skip_invalid): a small file with a large
+   primitive count. It loads, the same tree, and load allocates in proportion to the file, not to
+   the primitive count (found by fuzz_load: a byte per primitive; tests/fuzz/load/
+   regress-excluded-sparse). With the 8-wide layout and without. */
+static void load_sparse_primitives(void **state) {
+    const uint32_t n = 200000, kept[3] = {0, 99999, 199999};
+    float *v = (float *)malloc((size_t)n * 9 * sizeof(float));
+    bvh_build_desc d;
+    bvh_load_desc ld;
+    bvh_tree t, u;
+    rf_buf buf;
+    rf_alloc a;
+    uint32_t i, w;
+    (void)state;
+    assert_non_null(v);
+    for (i = 0; i < n * 9; i++) v[i] = NAN;
+    for (i = 0; i < 3; i++) {
+        const float z = (float)i, tri[9] = {0, 0, z, 1, 0, z, 0, 1, z};
+        memcpy(v + 9 * (size_t)kept[i], tri, sizeof tri);
+    }
+    for (w = 0; w < 2; w++) {
+        memset(&d, 0, sizeof d);
+        d.builder = w ? BVH_BUILDER_PLOC : BVH_BUILDER_SAH_MIDPOINT;
+        d.triangles.positions = v;
+        d.triangles.vertex_count = 3 * n;
+        d.triangles.triangle_count = n;
+        d.skip_invalid = 1;
+        d.trace_width = w ? 8 : 2;
+        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+        assert_int_equal(t.excluded, n - 3);
+        buf = rf_save(&t);
+        memset(&ld, 0, sizeof ld);
+        ld.allocator = rf_allocator(&a, -1);
+        assert_int_equal(rf_load(&u, buf.data, buf.size, ld), BVH_SUCCESS);
+        assert_null(tree_diff(&t, &u));
+        if (a.largest > 4 * buf.size + 65536)
+            fail_msg("a file of %zu bytes: an allocation of %zu bytes", buf.size, a.largest);
+        bvh_free(&u);
+        assert_int_equal(a.live, 0);
+        bvh_free(&t);
+        free(buf.data);
+    }
+    free(v);
+}
+
 /* Damaged and hostile inputs: a code, nothing leaked, no allocation larger than the input. */
 static void load_damaged(void **state) {
     tu_scene s;
@@ -892,6 +937,7 @@ int main(void) {
         TU_SCENE_TEST(save_load_round_trip, TU_SCENE_BUNNY, "bunny"),
         cmocka_unit_test(save_load_kinds),
         cmocka_unit_test(load_damaged),
+        cmocka_unit_test(load_sparse_primitives),
         TU_SCENE_TEST(legacy_slot_order, TU_SCENE_RANDOM, "random"),
         TU_SCENE_TEST(legacy_slot_order, TU_SCENE_BUNNY, "bunny"),
     };

@@ -6029,6 +6029,10 @@ static void bvh__edges_exact_lanes(const float *fx, const float *fy, float *fu, 
     }
 }
 #endif
+/* Edge functions of both signs: the ray misses the triangle (see above). */
+BVH__INLINE int bvh__edges_mixed(float U, float V, float W) {
+    return (U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f);
+}
 BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, float *t, float *u, float *v) {
     const int kx = r->kx, ky = r->ky, kz = r->kz;
     const float sx = r->sx, sy = r->sy, sz = r->sz;
@@ -6042,10 +6046,10 @@ BVH__INLINE int bvh__tri_test(const bvh__rayx *r, const float *tri, float tmax, 
     U = x[2] * y[1] - y[2] * x[1];
     V = x[0] * y[2] - y[0] * x[2];
     W = x[1] * y[0] - y[1] * x[0];
-    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
+    if (bvh__edges_mixed(U, V, W)) return 0;
     if (U == 0.0f || V == 0.0f || W == 0.0f) {
         bvh__edges_exact(x, y, &U, &V, &W);
-        if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
+        if (bvh__edges_mixed(U, V, W)) return 0;
     }
     det = U + V + W;
     if (det == 0.0f) return 0;
@@ -6740,6 +6744,13 @@ BVH__INLINE float bvh__lane_f(__m128 x, unsigned i) {
     _mm_storeu_ps(f, x);
     return f[i];
 }
+/* bvh__edges_mixed on four lanes: bit i set where lane i's edge functions have both signs. */
+BVH__INLINE unsigned bvh__edges_mixed4(__m128 U, __m128 V, __m128 W) {
+    const __m128 zero = _mm_setzero_ps();
+    const __m128 neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(U, zero), _mm_cmplt_ps(V, zero)), _mm_cmplt_ps(W, zero));
+    const __m128 pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_cmpgt_ps(V, zero)), _mm_cmpgt_ps(W, zero));
+    return (unsigned)_mm_movemask_ps(_mm_and_ps(neg, pos));
+}
 static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
     const int kx = r->kx, ky = r->ky, kz = r->kz;
     const __m128 ox = _mm_set1_ps(r->o[kx]), oy = _mm_set1_ps(r->o[ky]), oz = _mm_set1_ps(r->o[kz]);
@@ -6747,7 +6758,7 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
     uint32_t q;
     int found = 0;
     for (q = 0; q < np; q++, p++) {
-        __m128 x[3], y[3], z[3], U, V, W, ft, det, neg, pos;
+        __m128 x[3], y[3], z[3], U, V, W, ft, det;
         unsigned m, zm;
         int k;
         for (k = 0; k < 3; k++) {
@@ -6758,9 +6769,7 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
         U = _mm_sub_ps(_mm_mul_ps(x[2], y[1]), _mm_mul_ps(y[2], x[1]));
         V = _mm_sub_ps(_mm_mul_ps(x[0], y[2]), _mm_mul_ps(y[0], x[2]));
         W = _mm_sub_ps(_mm_mul_ps(x[1], y[0]), _mm_mul_ps(y[1], x[0]));
-        neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(U, zero), _mm_cmplt_ps(V, zero)), _mm_cmplt_ps(W, zero));
-        pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_cmpgt_ps(V, zero)), _mm_cmpgt_ps(W, zero));
-        m = 15u & ~(unsigned)_mm_movemask_ps(_mm_and_ps(neg, pos));
+        m = 15u & ~bvh__edges_mixed4(U, V, W);
         if (!m) continue;
         zm = m & (unsigned)_mm_movemask_ps(
                      _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(U, zero), _mm_cmpeq_ps(V, zero)), _mm_cmpeq_ps(W, zero)));
@@ -6777,9 +6786,7 @@ static int bvh__packets(const bvh__rayx *r, const bvh_tri4 *p, uint32_t np, bvh_
             U = _mm_loadu_ps(fu);
             V = _mm_loadu_ps(fv);
             W = _mm_loadu_ps(fw);
-            neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(U, zero), _mm_cmplt_ps(V, zero)), _mm_cmplt_ps(W, zero));
-            pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_cmpgt_ps(V, zero)), _mm_cmpgt_ps(W, zero));
-            m &= ~(unsigned)_mm_movemask_ps(_mm_and_ps(neg, pos));
+            m &= ~bvh__edges_mixed4(U, V, W);
             if (!m) continue;
         }
         m = bvh__packet_hits(r, p, U, V, W, z, b->t, m, &ft, &det);
@@ -6857,6 +6864,17 @@ bvh__shear8(const bvh__tri8ray *tr, const bvh_tri4 *p, const bvh_tri4 *p1, int k
     *y = _mm256_sub_ps(_mm256_sub_ps(bvh__row8(tr, p, p1, k, 1), _mm256_loadu_ps(tr->o[1])),
                        _mm256_mul_ps(_mm256_loadu_ps(tr->s[1]), zk));
 }
+/* bvh__edges_mixed on eight lanes. */
+__attribute__((target("avx2"))) BVH__INLINE unsigned bvh__edges_mixed8(__m256 U, __m256 V, __m256 W) {
+    const __m256 zero = _mm256_setzero_ps();
+    const __m256 neg =
+        _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_LT_OQ), _mm256_cmp_ps(V, zero, _CMP_LT_OQ)),
+                     _mm256_cmp_ps(W, zero, _CMP_LT_OQ));
+    const __m256 pos =
+        _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_GT_OQ), _mm256_cmp_ps(V, zero, _CMP_GT_OQ)),
+                     _mm256_cmp_ps(W, zero, _CMP_GT_OQ));
+    return (unsigned)_mm256_movemask_ps(_mm256_and_ps(neg, pos));
+}
 __attribute__((target("avx2"))) static inline int
 bvh__packets_avx2(const bvh__rayx *r, const bvh__tri8ray *tr, const bvh_tri4 *p, uint32_t np, bvh__best *b, int any) {
     const int kz = r->kz;
@@ -6873,7 +6891,7 @@ bvh__packets_avx2(const bvh__rayx *r, const bvh__tri8ray *tr, const bvh_tri4 *p,
         const unsigned lanes = 0x0fu | (0xf0u & (0u - two));
         /* named registers, not arrays: an array indexed in a loop the compiler does not unroll
            lives in memory */
-        __m256 x0, y0, z0, x1, y1, z1, x2, y2, z2, U, V, W, ft, det, neg, pos, T, ok, tn, tf, slack;
+        __m256 x0, y0, z0, x1, y1, z1, x2, y2, z2, U, V, W, ft, det, T, ok, tn, tf, slack;
         unsigned m, zm;
         int a;
         bvh__shear8(tr, p, p1, 0, &x0, &y0, &z0);
@@ -6882,11 +6900,7 @@ bvh__packets_avx2(const bvh__rayx *r, const bvh__tri8ray *tr, const bvh_tri4 *p,
         U = _mm256_sub_ps(_mm256_mul_ps(x2, y1), _mm256_mul_ps(y2, x1));
         V = _mm256_sub_ps(_mm256_mul_ps(x0, y2), _mm256_mul_ps(y0, x2));
         W = _mm256_sub_ps(_mm256_mul_ps(x1, y0), _mm256_mul_ps(y1, x0));
-        neg = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_LT_OQ), _mm256_cmp_ps(V, zero, _CMP_LT_OQ)),
-                           _mm256_cmp_ps(W, zero, _CMP_LT_OQ));
-        pos = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_GT_OQ), _mm256_cmp_ps(V, zero, _CMP_GT_OQ)),
-                           _mm256_cmp_ps(W, zero, _CMP_GT_OQ));
-        m = lanes & ~(unsigned)_mm256_movemask_ps(_mm256_and_ps(neg, pos));
+        m = lanes & ~bvh__edges_mixed8(U, V, W);
         if (!m) continue;
         zm = m & (unsigned)_mm256_movemask_ps(
                      _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_EQ_OQ), _mm256_cmp_ps(V, zero, _CMP_EQ_OQ)),
@@ -6906,11 +6920,7 @@ bvh__packets_avx2(const bvh__rayx *r, const bvh__tri8ray *tr, const bvh_tri4 *p,
             U = _mm256_loadu_ps(fu);
             V = _mm256_loadu_ps(fv);
             W = _mm256_loadu_ps(fw);
-            neg = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_LT_OQ), _mm256_cmp_ps(V, zero, _CMP_LT_OQ)),
-                               _mm256_cmp_ps(W, zero, _CMP_LT_OQ));
-            pos = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_GT_OQ), _mm256_cmp_ps(V, zero, _CMP_GT_OQ)),
-                               _mm256_cmp_ps(W, zero, _CMP_GT_OQ));
-            m &= ~(unsigned)_mm256_movemask_ps(_mm256_and_ps(neg, pos));
+            m &= ~bvh__edges_mixed8(U, V, W);
             if (!m) continue;
         }
         /* bvh__packet_hits on eight lanes */

@@ -136,6 +136,10 @@ BVH_CL_FN int bvh_cl_tri_box_reached(const bvh_cl_rayx *r, __global const float 
     return bvh_cl_slab(r, (float4)(lo, 0.0f), (float4)(hi, 0.0f), tt) != INFINITY;
 }
 
+/* edge functions of both signs: a miss (bvh__edges_mixed) */
+BVH_CL_FN int bvh_cl_edges_mixed(float U, float V, float W) {
+    return (U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f);
+}
 /* bvh__tri_test: translated, sheared and tested in float; edge functions of both signs: a miss at
    once; else, where one is zero, all three redone as exact products (Woop et al.'s fallback) */
 BVH_CL_FN int bvh_cl_tri_test(const bvh_cl_rayx *r, __global const float *tri, float tmax, float *t, float *u,
@@ -146,12 +150,12 @@ BVH_CL_FN int bvh_cl_tri_test(const bvh_cl_rayx *r, __global const float *tri, f
     float Bx = (tri[3 + kx] - r->okx) - r->sx * Bz, By = (tri[3 + ky] - r->oky) - r->sy * Bz;
     float Cx = (tri[6 + kx] - r->okx) - r->sx * Cz, Cy = (tri[6 + ky] - r->oky) - r->sy * Cz;
     float U = Cx * By - Cy * Bx, V = Ax * Cy - Ay * Cx, W = Bx * Ay - By * Ax, det, T, tt;
-    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
+    if (bvh_cl_edges_mixed(U, V, W)) return 0;
     if (U == 0.0f || V == 0.0f || W == 0.0f) {
         U = bvh_cl_diff_of_products(Cx, By, Cy, Bx);
         V = bvh_cl_diff_of_products(Ax, Cy, Ay, Cx);
         W = bvh_cl_diff_of_products(Bx, Ay, By, Ax);
-        if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return 0;
+        if (bvh_cl_edges_mixed(U, V, W)) return 0;
     }
     det = U + V + W;
     if (det == 0.0f) return 0;

@@ -1,4 +1,4 @@
-/* bvh.h - v0.9.6 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.9.7 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -106,6 +106,13 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.7  The fast slab test takes tmin as a fourth operand of its integer max (no deeper),
+            so one compare decides a slot instead of two and an and: the same decisions and
+            entry distances. A scene's top level takes slot 0 without waiting for the mask's
+            index when it is the only slot entered (a predicted branch instead of a data
+            dependency before the instance's set-up). Bunny: 1,100 -> 1,089 instructions a
+            bounce ray, 942 -> 937 a shadow ray; one thread against Embree medium, four runs
+            each: bunny bounce / shadow +1-2%, the rest level (docs/bench).
      0.9.6  The triangle tests (bvh__tri_test, both packet tests, trace.cl) miss a triangle with
             edge functions of both signs before they look for a zero one (a float edge
             function's sign is exact where it is not zero): the zero check and the double
@@ -324,7 +331,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 9
-#define BVH_VERSION_PATCH 6
+#define BVH_VERSION_PATCH 7
 
 #include <math.h>
 #include <stddef.h>
@@ -7208,15 +7215,14 @@ bvh__slab8_avx2(const bvh__ray8 *q, const bvh_node8 *n, float tfar, float tn_out
            signed integer order non-negative floats as the floats and put every negative one
            below them. Among negative floats the order is reversed. So the max over the t0 is
            the float max where one of them is >= 0, and some negative value where none is, which
-           the max with tmin turns into tmin as it does the float max (that max is taken as a
-           second compare, tmin <= tf, off the chain from the boxes). The min over the t1 is the
-           float min or a larger value (when two or more are negative): a box is never culled
+           the max with tmin turns into tmin as it does the float max (tmin is a fourth operand
+           of the tree: no deeper, and one compare, tn <= tf, decides). The min over the t1 is
+           the float min or a larger value (when two or more are negative): a box is never culled
            that the float min would let in, and the entry distances are the float max's. */
-        tns = bvh__imax8(bvh__imax8(t0a, t0c), t0b);
+        tns = bvh__imax8(bvh__imax8(t0a, t0c), bvh__imax8(t0b, stmin));
         tf = bvh__imin8(bvh__imin8(t1a, t1c), bvh__imin8(t1b, tfar8));
-        _mm256_storeu_ps(tn_out, bvh__imax8(tns, stmin));
-        return (unsigned)_mm256_movemask_ps(
-            _mm256_and_ps(_mm256_cmp_ps(tns, tf, _CMP_LE_OQ), _mm256_cmp_ps(stmin, tf, _CMP_LE_OQ)));
+        _mm256_storeu_ps(tn_out, tns);
+        return (unsigned)_mm256_movemask_ps(_mm256_cmp_ps(tns, tf, _CMP_LE_OQ));
     }
     t0a = _mm256_mul_ps(_mm256_sub_ps(oa, _mm256_loadu_ps(f + q->near8[0])), ia);
     t1a = _mm256_mul_ps(_mm256_sub_ps(oa, _mm256_loadu_ps(f + q->far8[0])), ia);
@@ -7334,6 +7340,15 @@ BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4
             /* the children's line, asked for now: it is read only once the boxes are tested */
             BVH__PREFETCH(n->child);
             m = BVH__SLAB8(n, tbest, tn);
+            if (step && m == 1u) {
+                /* a scene's top level, only slot 0 entered (a one-instance scene's every ray that
+                   reaches its instance; slot 0 is the largest box): the slot's item read without
+                   waiting for the mask's index, so the instance's own set-up and root do not
+                   queue behind this node's test (the branch is predicted, the index would not be) */
+                cur = n->child[0];
+                lc = n->count[0];
+                continue;
+            }
             if (m) {
                 i0 = BVH__CTZ(m);
                 m &= m - 1;

@@ -1,4 +1,4 @@
-/* bvh.h - v0.9.7 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.9.8 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -106,6 +106,11 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.8  bvh_refit's 8-wide walk takes a wide node's children in the order of their binary
+            nodes (bvh_node8.order read back; the slots are stored largest box first), so it
+            reads the references, the caller's triangles and the binary nodes nearly in order:
+            a refit of gen:field:15 or the dragon on two threads 19-22 -> 18-22 ms and 20-22 ->
+            18-19 ms (three alternated bvhbench runs each, docs/bench). The same boxes.
      0.9.7  The fast slab test takes tmin as a fourth operand of its integer max (no deeper),
             so one compare decides a slot instead of two and an and: the same decisions and
             entry distances. A scene's top level takes slot 0 without waiting for the mask's
@@ -331,7 +336,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 9
-#define BVH_VERSION_PATCH 7
+#define BVH_VERSION_PATCH 8
 
 #include <math.h>
 #include <stddef.h>
@@ -8789,10 +8794,27 @@ BVH__INLINE void bvh__refit_ask_next(const bvh_tree *t, uint32_t in3, uint32_t i
     bvh__refit_ask(t, in2, 2);
     bvh__refit_ask(t, in1, 1);
 }
-/* The wide subtree of head h in post-order; 0 if the tree is broken (child indices must point
-   forward: no cycle). */
+/* Wide node n's slots in the order of their binary nodes (bvh_node8.order read back: the slots are
+   stored largest box first), each slot once whatever order holds (a damaged one is refused
+   later, by bvh__group_read). The references and the binary nodes lie in that order, so a walk
+   that takes the children so reads them nearly in order (slot order jumps about in them). */
+static void bvh__slots_by_head(const bvh_node8 *n, uint32_t by[BVH__W]) {
+    uint32_t i, s, nb = 0, seen = 0, any = 0;
+    for (i = 0; i < BVH__W; i++) any |= n->order[i];
+    for (i = 0; i < BVH__W; i++) { /* all zero: slot i (files of 0.9.3 and before) */
+        s = any ? n->order[i] : i;
+        if (s < BVH__W && !((seen >> s) & 1u)) {
+            seen |= 1u << s;
+            by[nb++] = s;
+        }
+    }
+    for (s = 0; nb < BVH__W; s++)
+        if (!((seen >> s) & 1u)) by[nb++] = s;
+}
+/* The wide subtree of head h in post-order, each node's children in the binary tree's order; 0 if
+   the tree is broken (child indices must point forward: no cycle). */
 static int bvh__refit_wsubtree(const bvh__refit *j, uint32_t h, bvh__wnode_scratch *sc) {
-    uint32_t stack[BVH__W * (BVH_MAX_DEPTH + 2)], sp = 0; /* w << 1 | children pushed */
+    uint32_t stack[BVH__W * (BVH_MAX_DEPTH + 2)], sp = 0, by[BVH__W]; /* w << 1 | children pushed */
     const bvh_tree *t = j->tree;
     stack[sp++] = h << 1;
     while (sp) {
@@ -8808,10 +8830,12 @@ static int bvh__refit_wsubtree(const bvh__refit *j, uint32_t h, bvh__wnode_scrat
             continue;
         }
         stack[sp - 1] |= 1u;
-        for (i = 0; i < BVH__W; i++)
-            if (!n->count[i] && n->child[i]) {
-                if (n->child[i] <= w || n->child[i] >= t->node8_count || sp == BVH__W * (BVH_MAX_DEPTH + 2)) return 0;
-                stack[sp++] = n->child[i] << 1;
+        bvh__slots_by_head(n, by);
+        for (i = BVH__W; i-- > 0;) /* pushed last to first: taken in the binary tree's order */
+            if (!n->count[by[i]] && n->child[by[i]]) {
+                const uint32_t c = n->child[by[i]];
+                if (c <= w || c >= t->node8_count || sp == BVH__W * (BVH_MAX_DEPTH + 2)) return 0;
+                stack[sp++] = c << 1;
             }
     }
     return 1;

@@ -360,6 +360,15 @@ static void refit_errors(void **state) {
     bvh_free(&t);
     assert_int_equal(a.live, 0);
     (void)keep;
+    /* a damaged grouping: a slot twice in a wide node's order (the walk still takes each child
+       once; the grouping's check refuses the tree) */
+    d = tu_scene_desc(&s, BVH_BUILDER_PLOC_PARALLEL);
+    assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+    assert_non_null(t.nodes8);
+    t.nodes8[0].order[1] = t.nodes8[0].order[0];
+    rd = rf_desc(&moved, 2);
+    assert_int_equal(bvh_refit(&t, &rd), BVH_ERROR_INVALID_TREE);
+    bvh_free(&t);
     /* skip_invalid: an excluded triangle may stay NaN; a kept one may not become NaN */
     tu_vertex(&s, s.indices[0])[0] = NAN;
     d = tu_scene_desc(&s, BVH_BUILDER_TOP_DOWN);

@@ -73,7 +73,7 @@ CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
          $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 \
          $(BUILD)/check/scene-no-simd $(BUILD)/check/scene-no-avx2 \
          $(BUILD)/check/builders-no-avx2 \
-         $(BUILD)/check/traversal-fast-math $(BUILD)/check/robust-fast-math \
+         $(addprefix $(BUILD)/check/,$(addsuffix -fast-math,traversal robust builders refit scene custom pool)) \
          $(BUILD)/check/half-allocator-refused $(BUILD)/check/kernel-embedded \
          $(BUILD)/check/pool-no-threads
 
@@ -117,8 +117,9 @@ format:
 	scripts/embed-kernel.sh
 format-check:
 	@clang-format --dry-run --Werror $(FORMAT_FILES) && echo "format: $(words $(FORMAT_FILES)) files as .clang-format has them"
-# The traversal and robust suites again as many renderers compile: -O3 -march=native -ffast-math
-# (the implementation keeps IEEE semantics under any flags; see its first lines).
+# The suites that build, trace, refit, load and run scenes again as many renderers compile:
+# -O3 -march=native -ffast-math (the implementation keeps IEEE semantics under any flags; see its
+# first lines): the same trees and hits as under the test build's flags.
 FAST_MATH = -O3 -march=native -ffast-math
 $(BUILD)/check/%-fast-math: tests/test_%.c $(HEADERS)
 	@mkdir -p $(dir $@)

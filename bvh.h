@@ -1,4 +1,4 @@
-/* bvh.h - v0.9.9 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.9.10 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -106,6 +106,11 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.10 A wide node's slots are stored leaf slots first, then by area (was: by area alone),
+            the order any-hit rays take them: fewer nodes before a blocker is found. Shadow rays
+            against Embree medium, two bvhbench runs each: Sponza from inside 0.91-0.92 ->
+            0.93-0.94x (ploc-parallel), 0.77-0.78 -> 0.81-0.82x (sah-midpoint), from outside +2%;
+            the bunny, the dragon and gen:field:15 level (docs/bench).
      0.9.9  The 8-wide layout takes each wide node's slots as the cut of least expected cost (a
             dynamic program over the binary tree, Ylitie, Karras & Laine 2017) instead of
             opening the largest box first; a leaf slot is cut only into as many packets. The
@@ -345,7 +350,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 9
-#define BVH_VERSION_PATCH 9
+#define BVH_VERSION_PATCH 10
 
 #include <math.h>
 #include <stddef.h>
@@ -6167,9 +6172,9 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
    the binary nodes from there down to its slots in pre-order (left child first), a bit each from
    bit 0 on: 1 a node opened inside the wide node, 0 a slot; at most 7 opened nodes and 8 slots, 15
    bits (a root that is a leaf slot: shape 0, its head its one slot). An opened leaf slot is one
-   more opened node like any other. The slots are stored largest box first (bvh__wide_area_order;
-   bvh_node8.order says where each of them, taken by ascending binary index, went), the order in
-   which any-hit rays take them. bvh_refit follows the grouping to update the boxes and packets in
+   more opened node like any other. The slots are stored leaf slots first, each kind largest box
+   first (bvh__wide_area_order; bvh_node8.order says where each of them, taken by ascending binary
+   index, went), the order in which any-hit rays take them. bvh_refit follows the grouping to update the boxes and packets in
    place (the order stays the build's), bvh_load to remake them from the saved binary tree; both
    check it against the binary tree as they go. */
 #define BVH__PACKET 4u     /* triangles per packet */
@@ -6448,27 +6453,31 @@ BVH__INLINE void bvh__node8_box(bvh_node8 *w, uint32_t i, bvh_vec3 lo, bvh_vec3 
     w->max[1][i] = hi.y;
     w->max[2][i] = hi.z;
 }
-/* Slots kids[0 .. k - 1] (ascending binary index) put in the order of their boxes' areas, the
-   largest first (ties: the lower index): an any-hit ray takes a node's entered slots in this
-   order, and a larger box is likelier to hold what blocks it. order, when given, gets where each
-   went (bvh_node8.order), so that bvh__group_read finds the slots from the grouping alone. */
+/* Slots kids[0 .. k - 1] (ascending binary index) put in the order an any-hit ray takes a node's
+   entered slots: leaf slots first (entering one tests its triangles at once, an interior slot
+   costs another node before any), each kind largest box first (a larger box is likelier to hold
+   what blocks the ray; ties: the lower index). order, when given, gets where each went
+   (bvh_node8.order), so that bvh__group_read finds the slots from the grouping alone. */
 static void bvh__wide_area_order(const bvh__wide_src *s, uint32_t kids[BVH__W], uint32_t k, uint8_t *order) {
     uint32_t i, j, by[BVH__W];
     float area[BVH__W];
+    int leaf[BVH__W];
     for (i = 0; i < k; i++) { /* NaN (0 x inf on huge boxes) as +inf: the ranks must be a permutation */
         area[i] = bvh_aabb_area(bvh__node_box(&s->nodes[kids[i]]));
         if (!(area[i] >= 0.0f)) area[i] = BVH_INF;
+        leaf[i] = bvh__wide_leaf(s, kids[i]);
     }
     for (i = 0; i < k; i++) { /* slot of kids[i]: the count of those before it in the order */
         uint32_t at = 0;
-        for (j = 0; j < k; j++) at += area[j] > area[i] || (area[j] == area[i] && j < i);
+        for (j = 0; j < k; j++)
+            at += leaf[j] > leaf[i] || (leaf[j] == leaf[i] && (area[j] > area[i] || (area[j] == area[i] && j < i)));
         by[at] = kids[i];
         if (order) order[i] = (uint8_t)at;
     }
     for (i = 0; i < k; i++) kids[i] = by[i];
 }
 /* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
-   gets the binary children in slot order (largest box first, bvh__wide_area_order). Leaf slots
+   gets the binary children in slot order (bvh__wide_area_order). Leaf slots
    take their packets from *packet on (written when s->packets is set). */
 static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *out, uint32_t kids[BVH__W],
                                uint32_t *packet) {
@@ -7416,7 +7425,7 @@ BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4
                         i1 = x;
                     }
                     bvh__push8(nodes, tri4, n, i1, tn, stack, &sp, !step, any);
-                } else if (any) { /* any hit: in slot order (largest box first), the last pushed first */
+                } else if (any) { /* any hit: in slot order (leaf slots first), the last pushed first */
                     m |= 1u << i1;
                     while (m) {
                         i1 = BVH__TOP_BIT(m);
@@ -8839,7 +8848,7 @@ BVH__INLINE void bvh__refit_ask_next(const bvh_tree *t, uint32_t in3, uint32_t i
     bvh__refit_ask(t, in1, 1);
 }
 /* Wide node n's slots in the order of their binary nodes (bvh_node8.order read back: the slots are
-   stored largest box first), each slot once whatever order holds (a damaged one is refused
+   stored in any-hit order), each slot once whatever order holds (a damaged one is refused
    later, by bvh__group_read). The references and the binary nodes lie in that order, so a walk
    that takes the children so reads them nearly in order (slot order jumps about in them). */
 static void bvh__slots_by_head(const bvh_node8 *n, uint32_t by[BVH__W]) {

@@ -6174,9 +6174,9 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
    bits (a root that is a leaf slot: shape 0, its head its one slot). An opened leaf slot is one
    more opened node like any other. The slots are stored leaf slots first, each kind largest box
    first (bvh__wide_area_order; bvh_node8.order says where each of them, taken by ascending binary
-   index, went), the order in which any-hit rays take them. bvh_refit follows the grouping to update the boxes and packets in
-   place (the order stays the build's), bvh_load to remake them from the saved binary tree; both
-   check it against the binary tree as they go. */
+   index, went), the order in which any-hit rays take them. bvh_refit follows the grouping to
+   update the boxes and packets in place (the order stays the build's), bvh_load to remake them
+   from the saved binary tree; both check it against the binary tree as they go. */
 #define BVH__PACKET 4u     /* triangles per packet */
 #define BVH__SLOT_REFS 16u /* a binary subtree of at most this many references is one leaf slot */
 typedef struct bvh__wide_src {

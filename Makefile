@@ -71,6 +71,7 @@ CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
            $(addprefix $(BUILD)/check/$(c)/,static static-no-threads two-tu cxx11 cxx11-links-c)) \
          $(if $(HAVE_CLANG),$(BUILD)/check/clang/fast-math-refused) \
          $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 \
+         $(BUILD)/check/traversal-slab-int $(BUILD)/check/traversal-slab-float \
          $(BUILD)/check/scene-no-simd $(BUILD)/check/scene-no-avx2 \
          $(BUILD)/check/builders-no-avx2 \
          $(addprefix $(BUILD)/check/,$(addsuffix -fast-math,traversal robust builders refit scene custom pool)) \
@@ -92,6 +93,11 @@ $(BUILD)/check/traversal-no-simd: tests/test_traversal.c $(HEADERS)
 $(BUILD)/check/traversal-no-avx2: tests/test_traversal.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX2 -I. $< -o $@ -lcmocka $(LDLIBS)
+# Again with each of the fast AVX2 slab test's two forms, whichever the CPU's vendor picks
+# (integer max and min, float ones on AMD).
+$(BUILD)/check/traversal-slab-%: tests/test_traversal.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH__SLAB_FLOAT=$(if $(filter float,$*),1,0) -I. $< -o $@ -lcmocka $(LDLIBS)
 # The scene test likewise: its top level runs the same 8-wide loop with the instance step.
 $(BUILD)/check/scene-no-simd: tests/test_scene.c $(HEADERS)
 	@mkdir -p $(dir $@)

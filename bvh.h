@@ -7389,7 +7389,8 @@ typedef int (*bvh__slot_step)(void *ctx, bvh_ray *ray, bvh__rayx *rx, const bvh_
    order, unsorted), the farther ones on the stack; a leaf's packets tested at once, or, with a
    step (and tri4 NULL), each leaf slot handed to it with the world ray wray. isa (a constant:
    the loop is compiled once for each): 0 SSE or plain C, 1 AVX2 (the slab test in one pass, the
-   leaf test on eight lanes). */
+   leaf test on eight lanes), 2 and 3 AVX2 with the fast slab test (its integer, its float max
+   and min). */
 BVH__INLINE int bvh__traverse8_body(const bvh_node8 *nodes, const bvh_tri4 *tri4, bvh__rayx *rx, const bvh__ray8 *q,
                                     float reach, float tmax, bvh_hit *hit, bvh__best *loc, int any, int isa,
                                     bvh__slot_step step, void *ctx, bvh_ray *wray) {

@@ -1,4 +1,4 @@
-/* bvh.h - v0.9.11 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.9.12 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -106,6 +106,9 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.12 The closest-hit batch calls trace a range of rays in one call on the AVX2 path (was:
+            a call a ray). In-process A/B on a Zen 3: camera rays +2-4%, Sponza's bounce rays
+            +6-16%, the bunny's and the dragon's level (docs/bench).
      0.9.11 On AMD's cores the fast AVX2 slab test takes its max and min as float operations
             (one cycle there, and no crossing to the integer unit); Intel's keep the integer
             ones of 0.8.5. On a Zen 3 against Embree medium (its AVX2 kernels), in-process
@@ -354,7 +357,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 9
-#define BVH_VERSION_PATCH 11
+#define BVH_VERSION_PATCH 12
 
 #include <math.h>
 #include <stddef.h>
@@ -7596,6 +7599,13 @@ __attribute__((target("avx2,fma,popcnt"), flatten)) static int
 bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, float tmax) {
     return bvh__trace8(tree, ray, rx, q, tmax, NULL, NULL, 1, 1);
 }
+/* A batch's range of closest-hit rays in one call, each ray's set-up and loop inlined: short rays
+   (a scene seen from outside, camera rays) no longer pay a call and its saved registers each.
+   Any-hit rays keep the call a ray: in this form their loop lost 1-3% on long rays (docs/bench). */
+__attribute__((target("avx2,fma,popcnt"), flatten)) static void
+bvh__closest8_range_avx2(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t i, size_t e) {
+    for (; i < e; i++) bvh__trace8(tree, &rays[i], NULL, NULL, 0.0f, &hits[i], NULL, 0, 1);
+}
 #endif
 static int bvh__closest8_base(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, float tmax,
                               bvh_hit *hit, bvh__best *loc) {
@@ -7820,6 +7830,12 @@ static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e) {
         else
             for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__scene_trace(b->scene, &b->rays[i], b->mask, NULL, isa);
     } else if (tree->nodes8) {
+#ifdef BVH__AVX2
+        if (isa && b->hits) {
+            bvh__closest8_range_avx2(tree, b->rays, b->hits, i, e);
+            return;
+        }
+#endif
         if (b->hits)
             for (; i < e; i++) bvh__trace8_isa(tree, &b->rays[i], NULL, NULL, 0.0f, &b->hits[i], NULL, 0, isa);
         else

@@ -4,6 +4,7 @@
 #   make test       every test (installs missing Debian packages first when run as root)
 #   make bench      the study's Table I, side by side with Embree
 #   make install    bvh.h, cl/bvh_cl.h, cl/trace.cl, pkg-config and CMake files (PREFIX, DESTDIR)
+#   make abtrace    build/abtrace: bvh.h at AB_REF (git) against the working tree's, same rays
 #   make kernel     copies cl/trace.cl into cl/bvh_cl.h (after an edit of the kernel)
 #   make format     applies .clang-format to the sources (make format-check: CI's check)
 # CFLAGS, CC, CXX may be overridden.
@@ -33,7 +34,7 @@ BENCH    = $(patsubst bench/%.c,$(BUILD)/%,$(wildcard bench/*.c))
 TESTS    = $(patsubst tests/%.c,$(BUILD)/tests/%,$(wildcard tests/test_*.c))
 HEADERS  = bvh.h $(wildcard examples/*.h) $(wildcard bench/*.h) $(wildcard cl/*.h) $(wildcard cl/*.cl) $(wildcard tests/*.h)
 
-.PHONY: all demo test bench clean deps-test deps-demo deps-bench kernel format format-check install uninstall
+.PHONY: all demo test bench clean deps-test deps-demo deps-bench kernel format format-check install uninstall abtrace
 all: $(EXAMPLES) $(BENCH)
 
 $(BUILD)/%: examples/%.c $(HEADERS)
@@ -116,7 +117,7 @@ kernel:
 	scripts/embed-kernel.sh
 # The repository's .clang-format on every C source (the kernel is formatted in cl/trace.cl and
 # copied into cl/bvh_cl.h as it is). `make format` applies it; .ci/run checks it.
-FORMAT_FILES = bvh.h cl/bvh_cl.h cl/trace.cl $(wildcard examples/*.c examples/*.h bench/*.c bench/*.h \
+FORMAT_FILES = bvh.h cl/bvh_cl.h cl/trace.cl $(wildcard examples/*.c examples/*.h bench/*.c bench/*.h bench/ab/*.c \
                tests/*.c tests/*.h tests/*.cpp tests/install/*.c)
 format:
 	clang-format -i $(FORMAT_FILES)
@@ -170,6 +171,19 @@ $(BUILD)/check/%/cxx11-links-c: tests/compile_cpp.cpp tests/two_tu_a.c bvh.h
 	@mkdir -p $(dir $@)
 	$(CHECK_CC_$*) $(STD) $(WARN) $(CFLAGS) -I. -c tests/two_tu_a.c -o $@-impl.o
 	$(CHECK_CXX_$*) $(CXXSTD) $(CXXWARN) $(CFLAGS) -I. -DBVH_TEST_DECLARATIONS_ONLY $< $@-impl.o -o $@ $(LDLIBS)
+
+# build/abtrace: bvh.h at AB_REF (a git revision; default HEAD) against the working tree's, in one
+# process on the same rays (bench/ab/abtrace.c says why). Not part of `make`: it needs git.
+AB_REF ?= HEAD
+abtrace:
+	@mkdir -p $(BUILD)/ab/a
+	@git show $(AB_REF):bvh.h >$(BUILD)/ab/a/bvh.h.new || { rm -f $(BUILD)/ab/a/bvh.h.new; exit 1; }
+	@mv $(BUILD)/ab/a/bvh.h.new $(BUILD)/ab/a/bvh.h
+	$(CC) $(STD) $(WARN) $(CFLAGS) -c -DAB_PREFIX=ab_a_ -I$(BUILD)/ab/a bench/ab/version.c -o $(BUILD)/ab/a.o
+	$(CC) $(STD) $(WARN) $(CFLAGS) -c -DAB_PREFIX=ab_b_ -I. bench/ab/version.c -o $(BUILD)/ab/b.o
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) bench/ab/abtrace.c $(BUILD)/ab/a.o $(BUILD)/ab/b.o \
+	    -o $(BUILD)/abtrace $(EX_LIBS) $(LDLIBS)
+	@echo "build/abtrace: A = bvh.h at $(AB_REF), B = the working tree's"
 
 deps-test:
 	@scripts/deps.sh test

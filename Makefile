@@ -16,6 +16,9 @@ STD      = -std=c11
 WARN     = -Wall -Wextra -Wpedantic -Werror
 LDLIBS   = -lm -lpthread
 
+# Parallel compiles inside make test and make robust (the tests themselves run one at a time).
+JOBS    ?= $(shell nproc 2>/dev/null || echo 1)
+
 # Optional dependencies, detected (scripts/deps.sh installs them when run as root).
 HAVE_OPENCL := $(shell [ -f /usr/include/CL/cl.h ] && ls /usr/lib/*/libOpenCL.so >/dev/null 2>&1 && echo 1)
 HAVE_EMBREE := $(shell [ -f /usr/include/embree3/rtcore.h ] && echo 1)
@@ -197,7 +200,7 @@ deps-bench:
 # installs into $(BUILD)/install-test/ and builds a consumer with pkg-config and CMake.
 # scripts/run-tests.sh prints a line per program and keeps every output in $(BUILD)/test-logs/.
 test: deps-test
-	@$(MAKE) --no-print-directory $(TESTS) $(CHECKS) $(BUILD)/render $(BUILD)/cl_info $(BUILD)/bvhbench $(COPYABLE) \
+	@$(MAKE) --no-print-directory -j$(JOBS) $(TESTS) $(CHECKS) $(BUILD)/render $(BUILD)/cl_info $(BUILD)/bvhbench $(COPYABLE) \
 		$(BUILD)/pathtrace
 	@BUILD=$(BUILD) scripts/run-tests.sh $(TESTS) $(CHECKS) tests/exit_codes.sh tests/examples.sh tests/install.sh
 

@@ -45,15 +45,15 @@ $(FUZZ_LOAD_BIN): tests/fuzz_load.c bvh.h tests/tree_diff.h
 	$(FUZZ_CC) $(STD) $(SAN_WARN) $(FUZZ_FLAGS) -D_GNU_SOURCE -I. $< -o $@ -lm -lpthread
 
 asan: deps-test
-	@$(MAKE) --no-print-directory $(ASAN_TESTS)
+	@$(MAKE) --no-print-directory -j$(JOBS) $(ASAN_TESTS)
 	@scripts/sanitize.sh asan $(ASAN_TESTS)
 
 tsan: deps-test
-	@$(MAKE) --no-print-directory $(TSAN_TESTS)
+	@$(MAKE) --no-print-directory -j$(JOBS) $(TSAN_TESTS)
 	@scripts/sanitize.sh tsan $(TSAN_TESTS)
 
 fuzz: deps-test
-	@$(MAKE) --no-print-directory $(FUZZ_BIN) $(FUZZ_LOAD_BIN)
+	@$(MAKE) --no-print-directory -j$(JOBS) $(FUZZ_BIN) $(FUZZ_LOAD_BIN)
 	@rc=0; scripts/sanitize.sh fuzz $(FUZZ_BIN) tests/fuzz $(BUILD)/fuzz $(FUZZ_SECONDS) || rc=1; \
 	scripts/sanitize.sh fuzz $(FUZZ_LOAD_BIN) tests/fuzz/load $(BUILD)/fuzz-load $(FUZZ_LOAD_SECONDS) || rc=1; exit $$rc
 

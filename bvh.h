@@ -112,7 +112,8 @@
      0.9.11 On AMD's cores the fast AVX2 slab test takes its max and min as float operations
             (one cycle there, and no crossing to the integer unit); Intel's keep the integer
             ones of 0.8.5. On a Zen 3 against Embree medium (its AVX2 kernels), in-process
-            paired passes: bunny and dragon shadow rays +2-3%, bounce rays +1-3% (docs/bench).
+            paired passes: the bunny's and Sponza's bounce and shadow rays +2-5%, the dragon's
+            +1-4% on the sah-midpoint tree, level on the ploc-parallel one (docs/bench).
      0.9.10 A wide node's slots are stored leaf slots first, then by area (was: by area alone),
             the order any-hit rays take them: fewer nodes before a blocker is found. Shadow rays
             against Embree medium, two bvhbench runs each: Sponza from inside 0.91-0.92 ->
@@ -7282,8 +7283,8 @@ bvh__slab8_avx2(const bvh__ray8 *q, const bvh_node8 *n, float tfar, float tn_out
         t1c = _mm256_mul_ps(_mm256_sub_ps(oc, _mm256_loadu_ps(f + q->far8[2])), _mm256_broadcast_ss(&q->sinvg[2]));
         /* fast 1: the max and min by integer max and min (on Intel's cores one cycle each, four
            for the float ones, on the chain to the mask), where they give the same values or
-           looser ones. Here no distance
-           is NaN (every inv is finite, and so is reach) and tmin >= +0. A float's bits as a
+           looser ones. Here no distance is NaN (every inv is finite, and so is reach) and
+           tmin >= +0. A float's bits as a
            signed integer order non-negative floats as the floats and put every negative one
            below them. Among negative floats the order is reversed. So the max over the t0 is
            the float max where one of them is >= 0, and some negative value where none is, which

@@ -21,9 +21,8 @@
 #include "examples/scene.h"
 #define RAYS_IMPLEMENTATION
 #include "examples/rays.h"
-#ifdef BVH_HAVE_EMBREE
-#include <embree3/rtcore.h>
-#endif
+#define EMB_IMPLEMENTATION
+#include "bench/embree_side.h"
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -66,56 +65,20 @@ static double ab_pass(int b, const bvh_tree *tree, const ab_set *s, int loop, ab
     return scene_now_ms() - t0;
 }
 
-#ifdef BVH_HAVE_EMBREE
-/* The same pass with rtcIntersect1 / rtcOccluded1 (their hits are not kept). */
-static double ab_embree_pass(RTCScene scene, const ab_set *s, int loop) {
-    struct RTCIntersectContext ctx;
-    double t0 = scene_now_ms();
-    size_t i;
+/* The same pass with Embree 3 medium (emb_builder_rays on one thread, into scratch arrays t,
+   prim and occluded): milliseconds. */
+static double ab_embree_pass(emb_builder *eb, const ab_set *s, int loop, float *t, uint32_t *prim, uint8_t *occluded) {
+    double total = 0.0, ms = 0.0;
     int k;
-    rtcInitIntersectContext(&ctx);
-    for (k = 0; k < loop; k++)
-        for (i = 0; i < s->count; i++) {
-            const bvh_ray *r = &s->rays[i];
-            struct RTCRayHit q;
-            q.ray.org_x = r->origin.x;
-            q.ray.org_y = r->origin.y;
-            q.ray.org_z = r->origin.z;
-            q.ray.dir_x = r->dir.x;
-            q.ray.dir_y = r->dir.y;
-            q.ray.dir_z = r->dir.z;
-            q.ray.tnear = r->tmin;
-            q.ray.tfar = r->tmax;
-            q.ray.mask = 0xffffffffu;
-            q.ray.flags = 0;
-            q.ray.time = 0.0f;
-            q.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-            if (s->any)
-                rtcOccluded1(scene, &ctx, &q.ray);
-            else
-                rtcIntersect1(scene, &ctx, &q);
-        }
-    return scene_now_ms() - t0;
+    for (k = 0; k < loop; k++) {
+        if (s->any)
+            emb_builder_rays(eb, s->rays, s->count, 1, NULL, NULL, occluded, &ms);
+        else
+            emb_builder_rays(eb, s->rays, s->count, 1, t, prim, NULL, &ms);
+        total += ms;
+    }
+    return total;
 }
-static RTCScene ab_embree_scene(RTCDevice dev, const scene *sc) {
-    RTCScene s = rtcNewScene(dev);
-    RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
-    float *v = (float *)rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 12,
-                                                3 * (size_t)sc->triangles);
-    unsigned *ix =
-        (unsigned *)rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 12, sc->triangles);
-    size_t i;
-    if (!v || !ix) return NULL;
-    memcpy(v, sc->v, 36 * (size_t)sc->triangles);
-    for (i = 0; i < 3 * (size_t)sc->triangles; i++) ix[i] = (unsigned)i;
-    rtcSetSceneBuildQuality(s, RTC_BUILD_QUALITY_MEDIUM);
-    rtcCommitGeometry(g);
-    rtcAttachGeometry(s, g);
-    rtcReleaseGeometry(g);
-    rtcCommitScene(s);
-    return s;
-}
-#endif
 
 static int ab_scene(const char *spec, bvh_builder builder, int rounds, int loop) {
     scene sc;
@@ -131,10 +94,10 @@ static int ab_scene(const char *spec, bvh_builder builder, int rounds, int loop)
     const uint32_t w = 1024, h = 1024;
     size_t n = (size_t)w * h, i;
     int k, r, rc = 1, va, vb;
-#ifdef BVH_HAVE_EMBREE
-    RTCDevice dev = NULL;
-    RTCScene es = NULL;
-#endif
+    emb_builder *eb = NULL; /* NULL: no Embree figures */
+    float *et = NULL;
+    uint32_t *ep = NULL;
+    uint8_t *eo = NULL;
     memset(&rs, 0, sizeof rs);
     memset(&ta, 0, sizeof ta);
     memset(&tb, 0, sizeof tb);
@@ -180,10 +143,17 @@ static int ab_scene(const char *spec, bvh_builder builder, int rounds, int loop)
     sets[2].rays = rs.shadow;
     sets[2].count = rs.nshadow;
     sets[2].any = 1;
-#ifdef BVH_HAVE_EMBREE
-    dev = rtcNewDevice("threads=1");
-    es = dev ? ab_embree_scene(dev, &sc) : NULL;
-#endif
+    et = (float *)malloc(n * sizeof(float));
+    ep = (uint32_t *)malloc(n * sizeof(uint32_t));
+    eo = (uint8_t *)malloc(n);
+    if (et && ep && eo && emb_available()) { /* Embree medium's scene, default flags, as bvhbench's */
+        if (emb_builder_open(&eb, EMB_QUALITY_MEDIUM, 1, 0, NULL) != EMB_OK)
+            eb = NULL;
+        else if (emb_builder_keep(eb, sc.v, sc.triangles) != EMB_OK) {
+            emb_builder_close(eb);
+            eb = NULL;
+        }
+    }
     va = ab_a_version();
     vb = ab_b_version();
     printf("%s (%u triangles), %s trees, A = bvh.h %d.%d.%d, B = bvh.h %d.%d.%d: %d rounds, each set traced %d time(s) "
@@ -196,12 +166,10 @@ static int ab_scene(const char *spec, bvh_builder builder, int rounds, int loop)
         int same, have_e = 0;
         for (r = 0; r < rounds; r++) {
             double a, b, e = 0.0;
-#ifdef BVH_HAVE_EMBREE
-            if (es) {
-                e = ab_embree_pass(es, &sets[k], loop);
+            if (eb) {
+                e = ab_embree_pass(eb, &sets[k], loop, et, ep, eo);
                 have_e = 1;
             }
-#endif
             if (r & 1) { /* the order alternates: neither version always runs first */
                 b = ab_pass(1, &tb, &sets[k], loop, &ob);
                 a = ab_pass(0, &ta, &sets[k], loop, &oa);
@@ -209,10 +177,8 @@ static int ab_scene(const char *spec, bvh_builder builder, int rounds, int loop)
                 a = ab_pass(0, &ta, &sets[k], loop, &oa);
                 b = ab_pass(1, &tb, &sets[k], loop, &ob);
             }
-#ifdef BVH_HAVE_EMBREE
-            if (es) e = 0.5 * (e + ab_embree_pass(es, &sets[k], loop)); /* Embree before and after */
-#endif
-            ba[r] = a / b; /* B's speed over A's */
+            if (eb) e = 0.5 * (e + ab_embree_pass(eb, &sets[k], loop, et, ep, eo)); /* before and after */
+            ba[r] = a / b;                                                          /* B's speed over A's */
             ae[r] = e / a;
             be[r] = e / b;
         }
@@ -227,10 +193,10 @@ static int ab_scene(const char *spec, bvh_builder builder, int rounds, int loop)
     }
     rc = 0;
 done:
-#ifdef BVH_HAVE_EMBREE
-    if (es) rtcReleaseScene(es);
-    if (dev) rtcReleaseDevice(dev);
-#endif
+    if (eb) emb_builder_close(eb);
+    free(et);
+    free(ep);
+    free(eo);
     ab_a_free(&ta);
     ab_b_free(&tb);
     rays_free(&rs);

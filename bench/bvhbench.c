@@ -67,7 +67,9 @@
 
    With --refit N, each bvh.h row also runs an animated case: the scene twisted about its vertical
    axis and waved, a little more each of N frames; per frame bvh_refit of the row's tree and a
-   rebuild by bottom-up (the fastest builder) are timed (medians: refit_ms, rebuild_ms); after the
+   rebuild by bottom-up (the fastest builder) are timed (medians: refit_ms, rebuild_ms), and, with
+   Embree (unless --embree none), Embree 3's refit of the same frame in the one scene layout where
+   it refits (two-level, a RTC_BUILD_QUALITY_REFIT mesh; embree_refit_ms); after the
    last frame the SAH of the refitted tree and of the row's builder rebuilt on it (refit_sah,
    rebuild_sah) and the camera rays' Mrays/s on N threads with each (refit_mrays, rebuild_mrays;
    their hits must agree). With --save-load, bvh_save and bvh_load to and from memory (save_ms,
@@ -183,6 +185,7 @@ typedef struct row {
                                                     differs from bvh.h's */
     double refit_ms, rebuild_ms;                 /* --refit: median per-frame bvh_refit of this tree,
                                                     and rebuild by the fastest builder (bottom-up) */
+    double emb_refit_ms;                         /* the same frames refitted by Embree (NAN: none) */
     double refit_sah, rebuild_sah;               /* the last frame: SAH of the refitted tree, and of
                                                     this builder's tree rebuilt on it */
     double refit_mrays, rebuild_mrays;           /* camera rays of the last frame on N threads */
@@ -265,7 +268,8 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->x_ptrace = r->x_ptrace_min = r->x_ptrace_max = NAN;
     r->x_scale = r->x_scale_min = r->x_scale_max = NAN;
     r->x_pcl = r->x_pcl_min = r->x_pcl_max = r->p_mrays = NAN;
-    r->refit_ms = r->rebuild_ms = r->refit_sah = r->rebuild_sah = r->refit_mrays = r->rebuild_mrays = NAN;
+    r->refit_ms = r->rebuild_ms = r->emb_refit_ms = r->refit_sah = r->rebuild_sah = r->refit_mrays = r->rebuild_mrays =
+        NAN;
     r->save_ms = r->load_ms = NAN;
     for (k = 0; k < SET_COUNT; k++) {
         set_figs *f = &r->set[k];
@@ -978,7 +982,9 @@ static void deform(const scene *s, float *out, double amount) {
 static void animate(run_ctx *c, row *r, bvh_tree *tree) {
     const options *o = c->o;
     float *moved = (float *)malloc(9 * sizeof(float) * (size_t)(c->s->triangles ? c->s->triangles : 1));
-    double refit[BENCH_MAX_REPEAT], rebuild[BENCH_MAX_REPEAT], ms;
+    double refit[BENCH_MAX_REPEAT], rebuild[BENCH_MAX_REPEAT], emb_refit[BENCH_MAX_REPEAT], ms;
+    emb_builder *eb = NULL; /* Embree's refit beside bvh_refit, on the same frames */
+    char msg[160];
     bvh_build_desc desc;
     bvh_refit_desc rd;
     bvh_tree fresh;
@@ -993,6 +999,15 @@ static void animate(run_ctx *c, row *r, bvh_tree *tree) {
     rd.triangles.vertex_count = 3 * c->s->triangles;
     rd.triangles.triangle_count = c->s->triangles;
     rd.threads = o->threads;
+    if (o->nqualities && emb_available()) {
+        if (emb_builder_open(&eb, EMB_QUALITY_MEDIUM, o->threads, o->embree_robust, msg) != EMB_OK) {
+            say("%s: %s: Embree's refit: %s", c->out->name, r->name, msg);
+        } else if (emb_builder_refit_keep(eb, c->s->v, c->s->triangles) != EMB_OK) {
+            say("%s: %s: Embree's refit: its scene build failed", c->out->name, r->name);
+            emb_builder_close(eb);
+            eb = NULL;
+        }
+    }
     for (f = 1; f <= o->refit && res == BVH_SUCCESS; f++) {
         double t0;
         progress("%s: %s, refit frame %u/%u", c->out->name, r->name, f, o->refit);
@@ -1001,6 +1016,11 @@ static void animate(run_ctx *c, row *r, bvh_tree *tree) {
         res = bvh_refit(tree, &rd);
         refit[f - 1] = scene_now_ms() - t0;
         if (res != BVH_SUCCESS) break;
+        if (eb && emb_builder_refit(eb, moved, c->s->triangles, &emb_refit[f - 1]) != EMB_OK) {
+            say("%s: %s: Embree's refit failed", c->out->name, r->name);
+            emb_builder_close(eb);
+            eb = NULL;
+        }
         bench_desc(c, r, &desc);
         desc.builder = BVH_BUILDER_BOTTOM_UP; /* the rebuild: the fastest builder, as it is */
         desc.optimize.rounds = 0;
@@ -1038,12 +1058,15 @@ static void animate(run_ctx *c, row *r, bvh_tree *tree) {
     free(moved);
     free(hits);
     if (res != BVH_SUCCESS) {
+        emb_builder_close(eb);
         r->state = ROW_FAILED;
         snprintf(r->note, sizeof r->note, "failed: refit: %s", bvh_result_string(res));
         return;
     }
     r->refit_ms = scene_median(refit, o->refit);
     r->rebuild_ms = scene_median(rebuild, o->refit);
+    if (eb) r->emb_refit_ms = scene_median(emb_refit, o->refit);
+    emb_builder_close(eb);
 }
 
 static void run_builder(run_ctx *c, row *r) {
@@ -2184,16 +2207,20 @@ static void anim_lines(FILE *f, const options *o, const bench_scene *s, const ch
     if (o->refit)
         fprintf(f,
                 "%sanimated (--refit %u: a twist and a wave, %u threads): per-frame refit ms, rebuild ms (bottom-up), "
-                "SAH refitted / rebuilt by the builder at the last frame, Mrays/s after refit / after rebuild\n",
+                "Embree 3's refit ms of the same frames (two-level scene, REFIT mesh), SAH refitted / rebuilt by the "
+                "builder at the last frame, Mrays/s after refit / after rebuild\n",
                 prefix, o->refit, o->nthreads);
     for (i = 0; o->refit && i < s->nrows; i++) {
         const row *r = &s->rows[i];
+        char emb[48] = "       - ms (    -)"; /* Embree's refit ms and its time / ours */
         if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
-        fprintf(
-            f,
-            "%s  %-14s refit %8.2f ms  rebuild %8.2f ms (%5.1fx)  SAH %8.2f / %8.2f (%+.1f%%)  Mrays/s %7.2f / %7.2f\n",
-            prefix, r->name, r->refit_ms, r->rebuild_ms, r->rebuild_ms / r->refit_ms, r->refit_sah, r->rebuild_sah,
-            100.0 * (r->refit_sah / r->rebuild_sah - 1.0), r->refit_mrays, r->rebuild_mrays);
+        if (!isnan(r->emb_refit_ms))
+            snprintf(emb, sizeof emb, "%8.2f ms (%5.2fx)", r->emb_refit_ms, r->emb_refit_ms / r->refit_ms);
+        fprintf(f,
+                "%s  %-14s refit %8.2f ms  rebuild %8.2f ms (%5.1fx)  Embree refit %s  SAH %8.2f / %8.2f "
+                "(%+.1f%%)  Mrays/s %7.2f / %7.2f\n",
+                prefix, r->name, r->refit_ms, r->rebuild_ms, r->rebuild_ms / r->refit_ms, emb, r->refit_sah,
+                r->rebuild_sah, 100.0 * (r->refit_sah / r->rebuild_sah - 1.0), r->refit_mrays, r->rebuild_mrays);
     }
     if (o->save_load) fprintf(f, "%ssave and load (--save-load, memory, 8-wide packets remade on load): ms\n", prefix);
     for (i = 0; o->save_load && i < s->nrows; i++) {
@@ -2512,6 +2539,7 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "ratio_instance_mrays_1t", s->inst_mrays_1t / s->one_level_mrays_1t, 4);
         json_num(f, "refit_ms", r->refit_ms, 4);
         json_num(f, "rebuild_ms", r->rebuild_ms, 4);
+        json_num(f, "embree_refit_ms", r->emb_refit_ms, 4);
         json_num(f, "refit_sah", r->refit_sah, 6);
         json_num(f, "rebuild_sah", r->rebuild_sah, 6);
         json_num(f, "refit_mrays", r->refit_mrays, 4);

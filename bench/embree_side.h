@@ -178,6 +178,14 @@ EMB_API int emb_builder_trace(emb_builder *b, const bvh_ray *rays, uint32_t w, u
    tmax. *ms: the wall time. */
 EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint32_t threads, float *t, uint32_t *prim,
                              uint8_t *occluded, double *ms);
+/* Embree's own refit, for bvh_refit's figures (bvhbench --refit): emb_builder_refit_keep builds
+   (untimed) the one scene layout in which Embree 3 refits a mesh, a two-level scene
+   (RTC_BUILD_QUALITY_LOW, RTC_SCENE_FLAG_DYNAMIC: without the flag each commit rebuilds the
+   mesh) over a geometry of RTC_BUILD_QUALITY_REFIT (the builder's own quality does not apply); emb_builder_refit copies
+   n moved triangles (the same n, untimed: an application sharing its buffer with Embree has no copy) into the vertex
+   buffer and times rtcUpdateGeometryBuffer, rtcCommitGeometry and rtcCommitScene (*ms). */
+EMB_API int emb_builder_refit_keep(emb_builder *b, const float *v, uint32_t n);
+EMB_API int emb_builder_refit(emb_builder *b, const float *v, uint32_t n, double *ms);
 EMB_API void emb_builder_close(emb_builder *b);
 
 #ifdef __cplusplus
@@ -300,6 +308,19 @@ EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint
     if (ms) *ms = 0.0;
     return EMB_ERR_UNAVAILABLE;
 }
+EMB_API int emb_builder_refit_keep(emb_builder *b, const float *v, uint32_t n) {
+    (void)b;
+    (void)v;
+    (void)n;
+    return EMB_ERR_UNAVAILABLE;
+}
+EMB_API int emb_builder_refit(emb_builder *b, const float *v, uint32_t n, double *ms) {
+    (void)b;
+    (void)v;
+    (void)n;
+    if (ms) *ms = 0.0;
+    return EMB_ERR_UNAVAILABLE;
+}
 EMB_API void emb_builder_close(emb_builder *b) { (void)b; }
 #else
 /* The start of an entry: the result zeroed, its message "ok", the description copied (NULL: all
@@ -402,14 +423,17 @@ static bvh_aabb emb__bounds(const float *v, uint32_t n) {
 }
 
 /* ---- scene API: build ---------------------------------------------------------------------- */
-/* One build as embree_ref.c times it: scene, geometry, buffers, copy, commit. */
-static RTCScene emb__build_scene(RTCDevice dev, const float *v, uint32_t n, enum RTCBuildQuality bq, int robust,
-                                 double *total_ms, double *commit_ms) {
+/* One build as embree_ref.c times it: scene, geometry, buffers, copy, commit; the scene at
+   quality bq with flags, its geometry at gq (they differ only for a refit: see
+   emb_builder_refit_keep); *vb_out (not NULL): the vertex buffer. */
+static RTCScene emb__build_scene2(RTCDevice dev, const float *v, uint32_t n, enum RTCBuildQuality bq,
+                                  enum RTCBuildQuality gq, enum RTCSceneFlags flags, double *total_ms,
+                                  double *commit_ms, float **vb_out) {
     double t0 = scene_now_ms(), t1;
     RTCScene scene = rtcNewScene(dev);
     if (!scene) return NULL;
     rtcSetSceneBuildQuality(scene, bq);
-    if (robust) rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
+    if (flags != RTC_SCENE_FLAG_NONE) rtcSetSceneFlags(scene, flags);
     if (n) {
         RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
         float *vb;
@@ -419,7 +443,7 @@ static RTCScene emb__build_scene(RTCDevice dev, const float *v, uint32_t n, enum
             rtcReleaseScene(scene);
             return NULL;
         }
-        rtcSetGeometryBuildQuality(g, bq);
+        rtcSetGeometryBuildQuality(g, gq);
         vb = (float *)rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
                                               (size_t)n * 3);
         ib =
@@ -434,12 +458,18 @@ static RTCScene emb__build_scene(RTCDevice dev, const float *v, uint32_t n, enum
         rtcCommitGeometry(g);
         rtcAttachGeometry(scene, g);
         rtcReleaseGeometry(g);
+        if (vb_out) *vb_out = vb;
     }
     t1 = scene_now_ms();
     rtcCommitScene(scene);
     *commit_ms = scene_now_ms() - t1;
     *total_ms = scene_now_ms() - t0;
     return scene;
+}
+static RTCScene emb__build_scene(RTCDevice dev, const float *v, uint32_t n, enum RTCBuildQuality bq, int robust,
+                                 double *total_ms, double *commit_ms) {
+    return emb__build_scene2(dev, v, n, bq, bq, robust ? RTC_SCENE_FLAG_ROBUST : RTC_SCENE_FLAG_NONE, total_ms,
+                             commit_ms, NULL);
 }
 
 /* ---- scene API: trace ---------------------------------------------------------------------- */
@@ -605,7 +635,10 @@ struct emb_builder {
     emb__err err;
     char message[160]; /* the last error */
     RTCScene kept;     /* emb_builder_keep's scene */
-    float *t;          /* a frame's t and triangle per pixel */
+    RTCScene refit;    /* emb_builder_refit_keep's scene, its vertex buffer and triangle count */
+    float *refit_vb;
+    uint32_t refit_n;
+    float *t; /* a frame's t and triangle per pixel */
     uint32_t *prim;
     size_t npix;
 };
@@ -688,8 +721,41 @@ EMB_API int emb_builder_rays(emb_builder *b, const bvh_ray *rays, size_t n, uint
     if (st == EMB_OK && emb__check(b->dev, &b->err, occluded ? "rtcOccluded1" : "rtcIntersect1")) st = EMB_ERR_EMBREE;
     return st;
 }
+EMB_API int emb_builder_refit_keep(emb_builder *b, const float *v, uint32_t n) {
+    double total, commit;
+    if (!b || !v || !n || n > EMB__MAX_TRIANGLES) return EMB_ERR_ARGUMENT;
+    if (b->refit) rtcReleaseScene(b->refit);
+    b->err.failed = 0;
+    b->refit_vb = NULL;
+    b->refit = emb__build_scene2(b->dev, v, n, RTC_BUILD_QUALITY_LOW, RTC_BUILD_QUALITY_REFIT,
+                                 b->robust ? RTC_SCENE_FLAG_DYNAMIC | RTC_SCENE_FLAG_ROBUST : RTC_SCENE_FLAG_DYNAMIC,
+                                 &total, &commit, &b->refit_vb);
+    if (!b->refit || !b->refit_vb || emb__check(b->dev, &b->err, "refit scene build")) {
+        if (b->refit) rtcReleaseScene(b->refit);
+        b->refit = NULL;
+        return EMB_ERR_EMBREE;
+    }
+    b->refit_n = n;
+    return EMB_OK;
+}
+EMB_API int emb_builder_refit(emb_builder *b, const float *v, uint32_t n, double *ms) {
+    RTCGeometry g;
+    double t0;
+    if (ms) *ms = 0.0;
+    if (!b || !b->refit || !v || !ms || n != b->refit_n) return EMB_ERR_ARGUMENT;
+    b->err.failed = 0;
+    memcpy(b->refit_vb, v, (size_t)n * 9 * sizeof(float));
+    g = rtcGetGeometry(b->refit, 0);
+    t0 = scene_now_ms();
+    rtcUpdateGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0);
+    rtcCommitGeometry(g);
+    rtcCommitScene(b->refit);
+    *ms = scene_now_ms() - t0;
+    return emb__check(b->dev, &b->err, "refit") ? EMB_ERR_EMBREE : EMB_OK;
+}
 EMB_API void emb_builder_close(emb_builder *b) {
     if (!b) return;
+    if (b->refit) rtcReleaseScene(b->refit);
     if (b->kept) rtcReleaseScene(b->kept);
     free(b->t);
     free(b->prim);

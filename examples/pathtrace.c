@@ -32,7 +32,10 @@
    used, else the CPU (said on stderr); --trace opencl without one is an error.
    --embree renders the image again with Embree 3 tracing (see "the same renderer on Embree 3"):
    the same paths, so the images agree but where float rounding in a hit sends a path elsewhere;
-   both Mrays/s (whole render, the same shading, rays counted alike) and their ratio.
+   both Mrays/s (whole render, the same shading, rays counted alike) and their ratio. On the CPU
+   the two render the image in turns, a band of rows each (PAIR_BANDS, the order alternating),
+   so that both see the same moments of a machine whose speed drifts; the median and the range of
+   the bands' ratios are printed too.
    Without assimp (BVH_HAVE_ASSIMP) a file is read by scene.h's OBJ reader as one mesh; without
    stb (BVH_HAVE_STB) the image is a .ppm. Exit status: 0 done; 1 an error (said on stderr); 2 a
    bad command line. */
@@ -459,6 +462,7 @@ static int scatter(const surface *s, bvh_vec3 sun_dir, bvh_ray *ray, bvh_vec3 *T
 }
 
 typedef struct embree_world embree_world; /* the scene on Embree (BVH_HAVE_EMBREE), below */
+#define PAIR_BANDS 16                     /* --embree on the CPU: bands of rows rendered by each tracer in turn */
 
 typedef struct job {
     const world *w;
@@ -467,7 +471,8 @@ typedef struct job {
     bvh_vec3 sun_dir;
     uint32_t spp, depth;
     uint8_t *rgb;
-    atomic_uint next_row; /* rows are handed out one at a time: busy threads take fewer */
+    uint32_t row_begin, row_end; /* the rows to render (render_cpu) */
+    atomic_uint next_row;        /* rows are handed out one at a time: busy threads take fewer */
 } job;
 typedef struct worker {
     job *job;
@@ -541,7 +546,7 @@ static void *render_rows(void *arg) {
     worker *wk = arg;
     job *j = wk->job;
     uint32_t y, x, k;
-    while ((y = atomic_fetch_add(&j->next_row, 1)) < j->cam.height) {
+    while ((y = atomic_fetch_add(&j->next_row, 1)) < j->row_end) {
         for (x = 0; x < j->cam.width; x++) {
             size_t i = (size_t)y * j->cam.width + x;
             bvh_vec3 sum = {0, 0, 0};
@@ -903,10 +908,11 @@ static int usage(void) {
     return 0;
 }
 
-/* Renders j on `threads` threads (the caller's is one of them); the rays traced, added to *rays. */
+/* Renders j's rows on `threads` threads (the caller's is one of them); the rays traced, added to
+ *rays. */
 static void render_cpu(job *j, worker *wk, uint32_t threads, uint64_t *rays) {
     uint32_t i;
-    atomic_init(&j->next_row, 0);
+    atomic_init(&j->next_row, j->row_begin);
     for (i = 0; i < threads; i++) {
         wk[i].job = j;
         wk[i].rays = 0;
@@ -937,6 +943,8 @@ int main(int argc, char **argv) {
     worker *wk;
     uint64_t rays = 0, embree_rays = 0, triangles = 0, instanced = 0;
     double t0, t1, t2, t3, kernel_ms = 0.0, embree_build_ms = 0.0, embree_ms = 0.0, diff = 0.0;
+    double band_ratio[PAIR_BANDS], ratio_median = 0.0, ratio_min = 0.0, ratio_max = 0.0; /* --embree on the CPU */
+    uint32_t bands = 0;
     bvh_result r;
     int ok = 1, inside = 0, trace = 0, embree = 0, json = 0; /* trace: 0 cpu, 1 opencl, 2 auto */
     bvh_cl_context *ctx = NULL;
@@ -1024,9 +1032,11 @@ int main(int argc, char **argv) {
     j->sun_dir = normalize(SUN_DIR);
     j->spp = spp;
     j->depth = depth;
+    j->row_begin = 0;
+    j->row_end = height;
     if (dev)
         ok = !render_opencl(j, ctx, dev, &rays, &kernel_ms);
-    else
+    else if (!embree) /* with --embree: in turns with Embree, below */
         render_cpu(j, wk, threads, &rays);
     t3 = scene_now_ms();
 #ifdef BVH_HAVE_EMBREE
@@ -1045,8 +1055,36 @@ int main(int argc, char **argv) {
             j[1] = j[0];
             j[1].rgb = rgb;
             j[1].embree = &e;
-            render_cpu(&j[1], wk, threads, &embree_rays);
-            embree_ms = scene_now_ms() - e1;
+            if (dev) { /* OpenCL rendered first; Embree on the CPU after it */
+                render_cpu(&j[1], wk, threads, &embree_rays);
+                embree_ms = scene_now_ms() - e1;
+            } else { /* band b: bvh.h then Embree when b is even, else Embree first */
+                double ms[2] = {0.0, 0.0};
+                uint32_t b, o;
+                bands = height < PAIR_BANDS ? height : PAIR_BANDS;
+                for (b = 0; b < bands; b++) {
+                    double bms[2];
+                    uint64_t brays[2];
+                    for (o = 0; o < 2; o++) {
+                        const uint32_t t = (o + b) & 1u; /* 0: bvh.h, 1: Embree */
+                        uint64_t *count = t ? &embree_rays : &rays, before = *count;
+                        double s0;
+                        j[t].row_begin = (uint32_t)((uint64_t)height * b / bands);
+                        j[t].row_end = (uint32_t)((uint64_t)height * (b + 1) / bands);
+                        s0 = scene_now_ms();
+                        render_cpu(&j[t], wk, threads, count);
+                        bms[t] = scene_now_ms() - s0;
+                        brays[t] = *count - before;
+                        ms[t] += bms[t];
+                    }
+                    band_ratio[b] = ((double)brays[0] / bms[0]) / ((double)brays[1] / bms[1]);
+                }
+                t3 = t2 + ms[0];
+                embree_ms = ms[1];
+                ratio_median = scene_median(band_ratio, bands); /* sorts band_ratio */
+                ratio_min = band_ratio[0];
+                ratio_max = band_ratio[bands - 1];
+            }
             for (k = 0; k < bytes; k++) sum += (uint64_t)abs((int)j[0].rgb[k] - (int)j[1].rgb[k]);
             diff = (double)sum / (255.0 * (double)bytes);
         }
@@ -1070,6 +1108,9 @@ int main(int argc, char **argv) {
                    "\"ratio\":%.3f,\"image_diff\":%.5f",
                    embree_build_ms, (unsigned long long)embree_rays, embree_ms, (double)embree_rays / (embree_ms * 1e3),
                    ((double)rays / (t3 - t2)) / ((double)embree_rays / embree_ms), diff);
+        if (embree && bands)
+            printf(",\"bands\":%u,\"ratio_bands_median\":%.3f,\"ratio_bands_min\":%.3f,\"ratio_bands_max\":%.3f", bands,
+                   ratio_median, ratio_min, ratio_max);
         printf("}\n");
     } else {
         printf("pathtrace: %s: %u meshes (%llu triangles), %u instances (%llu triangles), %u spheres; load and build "
@@ -1090,6 +1131,9 @@ int main(int argc, char **argv) {
                    RTC_VERSION_STRING_OR_NONE, embree_build_ms, threads, embree_ms, (unsigned long long)embree_rays,
                    (double)embree_rays / (embree_ms * 1e3),
                    ((double)rays / (t3 - t2)) / ((double)embree_rays / embree_ms), diff);
+        if (embree && bands)
+            printf("pathtrace: rendered in turns, %u bands of rows: bvh.h / Embree per band %.2fx median (%.2f-%.2f)\n",
+                   bands, ratio_median, ratio_min, ratio_max);
     }
     if (!ok) /* the device or Embree failed (said) */
         ;

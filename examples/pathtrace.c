@@ -2,7 +2,7 @@
    primitives, diffuse bounces, a sun with shadow rays and a sky, on all CPUs.
 
    build/pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N] [--inside]
-                   [--trace cpu|opencl|auto] [--add MODEL] [--embree] [--json]
+                   [--trace cpu|opencl|auto] [--add MODEL] [--builder B] [--embree [--embree-high]] [--json]
    e.g. build/pathtrace sponza.glb --inside --size 512x512 --spp 4 --out sponza.png
         build/pathtrace                       (the built-in scene: boxes on a ground quad)
         build/pathtrace --trace opencl        (the same image, the rays traced by cl/bvh_cl.h)
@@ -36,6 +36,10 @@
    the two render the image in turns, a band of rows each (PAIR_BANDS, the order alternating),
    so that both see the same moments of a machine whose speed drifts; the median and the range of
    the bands' ratios are printed too.
+   --builder picks the meshes' trees (any builder, +opt for the optimizer); the default,
+   sah-midpoint+opt, is the README's choice for a static scene traced for a long time. Every
+   builder gives the same hits, so the same image. --embree-high builds Embree's meshes at its
+   high quality (spatial splits) instead of its default, medium.
    Without assimp (BVH_HAVE_ASSIMP) a file is read by scene.h's OBJ reader as one mesh; without
    stb (BVH_HAVE_STB) the image is a .ppm. Exit status: 0 done; 1 an error (said on stderr); 2 a
    bad command line. */
@@ -85,6 +89,8 @@ typedef struct world {
     bvh_tree sphere_tree;        /* built from the spheres' boxes */
     bvh_custom_desc sphere_test; /* hit_sphere on w->spheres */
     bvh_scene cpu;               /* scene's instances and then the spheres' (instance_count) */
+    bvh_builder builder;         /* the meshes' trees (--builder) ... */
+    uint32_t optimize;           /* ... and their optimizer rounds (0: none) */
 } world;
 
 static bvh_vec3 v3(float x, float y, float z) { return (bvh_vec3){x, y, z}; }
@@ -100,12 +106,14 @@ static bvh_vec3 normalize(bvh_vec3 a) { return scale(a, 1.0f / sqrtf(dot(a, a)))
    bvh_hit_surface reads them to find a hit's point (the tree keeps its own copy for tracing). */
 static bvh_result add_mesh(world *w, uint32_t i, float *pos, uint32_t nv, uint32_t *idx, uint32_t nt, bvh_vec3 albedo) {
     mesh *m = &w->meshes[i];
-    bvh_build_desc desc = {0}; /* the default builder: a good tree for tracing, built in parallel */
+    bvh_build_desc desc = {0};
     bvh_result r;
     m->tris = (bvh_triangles){pos, 0, nv, idx, nt};
     m->albedo = albedo;
     if (nt == 0) return BVH_SUCCESS;
     desc.triangles = m->tris;
+    desc.builder = w->builder;
+    desc.optimize.rounds = w->optimize;
     r = bvh_build(&m->tree, &desc);
     m->built = r == BVH_SUCCESS;
     return r;
@@ -619,7 +627,8 @@ static void embree_free(embree_world *e) {
 }
 
 /* w's meshes, instances and spheres on Embree, built with `threads` threads. 0, or 1 (err). */
-static int embree_build(embree_world *e, const world *w, uint32_t threads, char *err, size_t errlen) {
+static int embree_build(embree_world *e, const world *w, uint32_t threads, enum RTCBuildQuality quality, char *err,
+                        size_t errlen) {
     char config[32];
     uint32_t i, k;
     enum RTCError code;
@@ -646,7 +655,7 @@ static int embree_build(embree_world *e, const world *w, uint32_t threads, char 
         for (k = 0; k < 3 * t->triangle_count; k++) x[k] = t->indices ? t->indices[k] : k;
         rtcCommitGeometry(g);
         e->meshes[i] = rtcNewScene(e->device);
-        rtcSetSceneBuildQuality(e->meshes[i], RTC_BUILD_QUALITY_MEDIUM);
+        rtcSetSceneBuildQuality(e->meshes[i], quality);
         rtcAttachGeometry(e->meshes[i], g);
         rtcReleaseGeometry(g);
         rtcCommitScene(e->meshes[i]);
@@ -877,9 +886,25 @@ static bvh_camera view(bvh_aabb b, int inside, uint32_t width, uint32_t height) 
 }
 
 /* ---- main ----------------------------------------------------------------------------------- */
+/* The meshes' builder by default: a path tracer traces one scene for many samples, so the best
+   trees (README's builder guide) repay their longer build. */
+#define PATHTRACE_BUILDER "sah-midpoint+opt"
+#define PATHTRACE_OPT_ROUNDS 8 /* +opt: the optimizer's rounds, as bvhbench's <builder>+opt rows */
+/* "NAME" or "NAME+opt" into w's builder and optimizer rounds; 0, or 1 for an unknown name. */
+static int parse_builder(const char *v, world *w) {
+    char name[64];
+    size_t n = strlen(v);
+    const int opt = n > 4 && !strcmp(v + n - 4, "+opt");
+    if (n >= sizeof name) return 1;
+    memcpy(name, v, n + 1);
+    if (opt) name[n - 4] = '\0';
+    w->optimize = opt ? PATHTRACE_OPT_ROUNDS : 0;
+    return bvh_builder_from_name(name, &w->builder) != BVH_SUCCESS;
+}
 static int usage(void) {
     printf("usage: pathtrace [SCENE] [--spp N] [--depth D] [--size WxH] [--out FILE] [--threads N] [--inside]\n"
-           "                 [--trace cpu|opencl|auto] [--add MODEL] [--embree] [--json]\n"
+           "                 [--trace cpu|opencl|auto] [--add MODEL] [--builder B] [--embree [--embree-high]]\n"
+           "                 [--json]\n"
            "  SCENE        a glTF/GLB, OBJ... file (assimp); none: the built-in scene\n"
            "  --spp N      samples per pixel (default 16)\n"
            "  --depth D    diffuse hits per path (default 4)\n"
@@ -890,13 +915,16 @@ static int usage(void) {
            "  --trace B    cpu (default), opencl (the same image; the spheres and the shading on\n"
            "               the host), or auto (opencl when a device can be used, else cpu)\n"
            "  --add MODEL  %u instances of MODEL (e.g. a bunny) standing in the scene\n"
+           "  --builder B  the meshes' trees: a builder's name, +opt for the tree optimizer (default\n"
+           "               sah-midpoint+opt: the best trees, for a scene traced many times over)\n"
            "  --embree     then the same image again on the CPU, the rays traced by Embree 3 (its\n"
            "               own instances, the spheres a user geometry, build quality medium = its\n"
-           "               default) on as many threads: both Mrays/s, their ratio (bvh.h / Embree)\n"
+           "               default; --embree-high: high, spatial splits) on as many threads, the two\n"
+           "               in turns by bands of rows: both Mrays/s, their ratio (bvh.h / Embree)\n"
            "               and the images' mean absolute difference (0..1); --out is bvh.h's image%s\n"
            "  --json       print one JSON line instead of the report: instances, meshes, triangles\n"
-           "               (in the meshes), instanced_triangles, spp, rays, ms, mrays and with --embree\n"
-           "               embree_rays, embree_ms, embree_mrays, ratio, image_diff\n"
+           "               (in the meshes), instanced_triangles, builder, spp, rays, ms, mrays and with\n"
+           "               --embree embree_quality, embree_rays, embree_ms, embree_mrays, ratio, image_diff\n"
            "exit status: 0 done, 1 error, 2 bad command line\n",
            ADD_COPIES,
 #ifdef BVH_HAVE_EMBREE
@@ -946,10 +974,12 @@ int main(int argc, char **argv) {
     double band_ratio[PAIR_BANDS], ratio_median = 0.0, ratio_min = 0.0, ratio_max = 0.0; /* --embree on the CPU */
     uint32_t bands = 0;
     bvh_result r;
-    int ok = 1, inside = 0, trace = 0, embree = 0, json = 0; /* trace: 0 cpu, 1 opencl, 2 auto */
+    int ok = 1, inside = 0, trace = 0, embree = 0, embree_high = 0, json = 0; /* trace: 0 cpu, 1 opencl, 2 auto */
+    const char *builder = PATHTRACE_BUILDER;
     bvh_cl_context *ctx = NULL;
     bvh_cl_scene *dev = NULL;
     char device[160] = "";
+    parse_builder(builder, &w);
     for (i = 1; i < (uint32_t)argc; i++) { /* options with a value: "--spp 4", not "--spp=4" */
         const char *a = argv[i], *v = i + 1 < (uint32_t)argc ? argv[i + 1] : NULL;
         uint32_t *n = !strcmp(a, "--spp")       ? &spp
@@ -962,13 +992,16 @@ int main(int argc, char **argv) {
             inside = 1;
         else if (!strcmp(a, "--embree"))
             embree = 1;
+        else if (!strcmp(a, "--embree-high"))
+            embree_high = 1;
         else if (!strcmp(a, "--json"))
             json = 1;
         else if (a[0] != '-' && !path)
             path = a;
         else if (a[0] != '-')
             return fprintf(stderr, "pathtrace: one SCENE only (see --help)\n"), 2;
-        else if (!n && strcmp(a, "--size") && strcmp(a, "--out") && strcmp(a, "--trace") && strcmp(a, "--add"))
+        else if (!n && strcmp(a, "--size") && strcmp(a, "--out") && strcmp(a, "--trace") && strcmp(a, "--add") &&
+                 strcmp(a, "--builder"))
             return fprintf(stderr, "pathtrace: unknown option '%s' (see --help)\n", a), 2;
         else if (!v)
             return fprintf(stderr, "pathtrace: %s needs a value (see --help)\n", a), 2;
@@ -984,9 +1017,14 @@ int main(int argc, char **argv) {
             trace = !strcmp(v, "opencl") ? 1 : !strcmp(v, "auto") ? 2 : 0, i++;
         else if (!strcmp(a, "--add"))
             extra = v, i++;
+        else if (!strcmp(a, "--builder") && parse_builder(v, &w))
+            return fprintf(stderr, "pathtrace: --builder wants a builder's name (+opt), not '%s'\n", v), 2;
+        else if (!strcmp(a, "--builder"))
+            builder = v, i++;
         else
             out = !strcmp(a, "--out") ? v : out, i++;
     }
+    if (embree_high && !embree) return fprintf(stderr, "pathtrace: --embree-high goes with --embree\n"), 2;
 #ifndef BVH_HAVE_EMBREE
     if (embree) return fprintf(stderr, "pathtrace: --embree: built without Embree (BVH_HAVE_EMBREE)\n"), 1;
 #endif
@@ -1046,7 +1084,8 @@ int main(int argc, char **argv) {
         uint8_t *rgb = j[1].rgb;
         size_t k, bytes = 3 * (size_t)width * height;
         uint64_t sum = 0;
-        if (embree_build(&e, &w, threads, err, sizeof err)) {
+        if (embree_build(&e, &w, threads, embree_high ? RTC_BUILD_QUALITY_HIGH : RTC_BUILD_QUALITY_MEDIUM, err,
+                         sizeof err)) {
             fprintf(stderr, "pathtrace: --embree: %s\n", err);
             ok = 0;
         } else {
@@ -1097,6 +1136,8 @@ int main(int argc, char **argv) {
         json_string(path ? path : "built-in");
         printf("\",\"add\":\"");
         json_string(extra ? extra : "");
+        printf("\",\"builder\":\"");
+        json_string(builder);
         printf("\",\"width\":%u,\"height\":%u,\"spp\":%u,\"depth\":%u,\"threads\":%u,\"trace\":\"%s\",\"instances\":%u,"
                "\"meshes\":%u,\"triangles\":%llu,\"instanced_triangles\":%llu,\"spheres\":%u,\"build_ms\":%.1f,"
                "\"rays\":%llu,\"ms\":%.1f,\"mrays\":%.3f",
@@ -1104,9 +1145,11 @@ int main(int argc, char **argv) {
                (unsigned long long)triangles, (unsigned long long)instanced, SPHERES, t1 - t0, (unsigned long long)rays,
                t3 - t2, (double)rays / ((t3 - t2) * 1e3));
         if (embree && embree_ms > 0.0)
-            printf(",\"embree_build_ms\":%.1f,\"embree_rays\":%llu,\"embree_ms\":%.1f,\"embree_mrays\":%.3f,"
+            printf(",\"embree_quality\":\"%s\",\"embree_build_ms\":%.1f,\"embree_rays\":%llu,\"embree_ms\":%.1f,"
+                   "\"embree_mrays\":%.3f,"
                    "\"ratio\":%.3f,\"image_diff\":%.5f",
-                   embree_build_ms, (unsigned long long)embree_rays, embree_ms, (double)embree_rays / (embree_ms * 1e3),
+                   embree_high ? "high" : "medium", embree_build_ms, (unsigned long long)embree_rays, embree_ms,
+                   (double)embree_rays / (embree_ms * 1e3),
                    ((double)rays / (t3 - t2)) / ((double)embree_rays / embree_ms), diff);
         if (embree && bands)
             printf(",\"bands\":%u,\"ratio_bands_median\":%.3f,\"ratio_bands_min\":%.3f,\"ratio_bands_max\":%.3f", bands,
@@ -1114,9 +1157,9 @@ int main(int argc, char **argv) {
         printf("}\n");
     } else {
         printf("pathtrace: %s: %u meshes (%llu triangles), %u instances (%llu triangles), %u spheres; load and build "
-               "%.0f ms\n",
+               "(%s) %.0f ms\n",
                path ? path : "built-in", w.mesh_count, (unsigned long long)triangles, w.instance_count,
-               (unsigned long long)instanced, SPHERES, t1 - t0);
+               (unsigned long long)instanced, SPHERES, builder, t1 - t0);
         if (dev)
             printf("pathtrace: %ux%u, %u spp, depth %u, OpenCL on %s (set up in %.0f ms): %.0f ms (kernels %.0f ms), "
                    "%llu rays, %.2f Mrays/s\n",
@@ -1126,10 +1169,10 @@ int main(int argc, char **argv) {
             printf("pathtrace: %ux%u, %u spp, depth %u, %u threads: %.0f ms, %llu rays, %.2f Mrays/s\n", width, height,
                    spp, depth, threads, t3 - t2, (unsigned long long)rays, (double)rays / ((t3 - t2) * 1e3));
         if (embree && embree_ms > 0.0)
-            printf("pathtrace: Embree %s (built in %.0f ms), %u threads: %.0f ms, %llu rays, %.2f Mrays/s; "
+            printf("pathtrace: Embree %s (%s, built in %.0f ms), %u threads: %.0f ms, %llu rays, %.2f Mrays/s; "
                    "bvh.h / Embree %.2fx; images differ by %.4f (mean |difference| / 255)\n",
-                   RTC_VERSION_STRING_OR_NONE, embree_build_ms, threads, embree_ms, (unsigned long long)embree_rays,
-                   (double)embree_rays / (embree_ms * 1e3),
+                   RTC_VERSION_STRING_OR_NONE, embree_high ? "high" : "medium", embree_build_ms, threads, embree_ms,
+                   (unsigned long long)embree_rays, (double)embree_rays / (embree_ms * 1e3),
                    ((double)rays / (t3 - t2)) / ((double)embree_rays / embree_ms), diff);
         if (embree && bands)
             printf("pathtrace: rendered in turns, %u bands of rows: bvh.h / Embree per band %.2fx median (%.2f-%.2f)\n",

@@ -63,6 +63,15 @@ fi
 checks=$((checks + 1))
 "$build/pathtrace" --size 64x64 --spp 2 --threads 2 --out "$tmp/b.ppm" >/dev/null 2>&1
 cmp -s "$tmp/a.ppm" "$tmp/b.ppm" || fail "$build/pathtrace: the image on 2 threads differs from 1 thread's"
+# --builder: every builder's trees give the same hits, so the same image (the default is
+# sah-midpoint+opt); an unknown name is a bad command line (exit 2)
+checks=$((checks + 1))
+"$build/pathtrace" --size 64x64 --spp 2 --threads 2 --builder ploc-parallel --out "$tmp/c.ppm" >/dev/null 2>&1
+cmp -s "$tmp/a.ppm" "$tmp/c.ppm" || fail "$build/pathtrace --builder ploc-parallel: the image differs from the default builder's"
+checks=$((checks + 1))
+"$build/pathtrace" --builder no-such-builder >/dev/null 2>&1
+rc=$?
+[ "$rc" = 2 ] || fail "$build/pathtrace --builder no-such-builder: exit status $rc, not 2"
 # pathtrace --trace opencl: on an exact device (PoCL) the same bytes as the CPU's image (the
 # device's hits are the CPU's, the spheres and the shading the same code); without a usable device
 # it says so and exits 1 (the check is skipped)
@@ -81,7 +90,8 @@ fi
 # pathtrace --json: one line of JSON with the counts; --embree (where built with Embree): the same
 # job traced by Embree 3 gives bvh.h's image but for paths that float rounding in a hit sends
 # elsewhere (none here: 0 measured; mean |difference| below 0.002 of full scale: Embree's
-# occluded rays always unblocked gave 0.003), bvh.h's image (--out) unchanged by the comparison
+# occluded rays always unblocked gave 0.003), rendered in turns by 16 bands of rows, bvh.h's
+# image (--out) unchanged by the comparison
 checks=$((checks + 1))
 out=$("$build/pathtrace" --size 64x64 --spp 2 --threads 2 --json --embree --out "$tmp/e.ppm" 2>&1)
 rc=$?
@@ -94,8 +104,9 @@ if [ "$rc" = 1 ] && grep -q "built without Embree" <<<"$out"; then
     fail "$build/pathtrace --json: exit status $rc, printed: $out"
   fi
 elif [ "$rc" != 0 ] || [ "$(wc -l <<<"$out")" != 1 ] || ! grep -q "$keys" <<<"$out" ||
-  ! grep -q '"rays":[1-9][0-9]*,"ms":[0-9.]*,"mrays":[0-9.]*,"embree_build_ms":' <<<"$out" ||
-  ! grep -q '"embree_mrays":[0-9.]*,"ratio":[0-9.]*,"image_diff":0\.00[01][0-9]*}$' <<<"$out"; then
+  ! grep -q '"rays":[1-9][0-9]*,"ms":[0-9.]*,"mrays":[0-9.]*,"embree_quality":"medium","embree_build_ms":' <<<"$out" ||
+  ! grep -q '"embree_mrays":[0-9.]*,"ratio":[0-9.]*,"image_diff":0\.00[01][0-9]*,"bands":16,' <<<"$out" ||
+  ! grep -q '"ratio_bands_median":[0-9.]*,"ratio_bands_min":[0-9.]*,"ratio_bands_max":[0-9.]*}$' <<<"$out"; then
   fail "$build/pathtrace --embree --json: exit status $rc (or image_diff not below 0.002), printed: $out"
 else
   cmp -s "$tmp/a.ppm" "$tmp/e.ppm" || fail "$build/pathtrace --embree: bvh.h's image differs from the one without --embree"

@@ -107,6 +107,7 @@
 #define BENCH_MAX_ROWS (1 + 2 * BVH_BUILDER_COUNT + 3)
 #define BENCH_MAX_REPEAT 1000
 #define BENCH_TRACE_REPEAT 3  /* frames per CPU, OpenCL and Embree tracer; median time */
+#define BENCH_INST_ROUNDS 9   /* --instances: paired rounds of the tree and its one-instance scene */
 #define BENCH_BRUTE_TESTS 1e9 /* brute force: at most this many ray-triangle tests per frame */
 #define BENCH_BUNNY "/usr/share/glmark2/models/bunny.obj"
 #define BENCH_OPT_ROUNDS 8     /* desc.optimize.rounds of the <builder>+opt rows */
@@ -208,6 +209,7 @@ typedef struct bench_scene {
        top-level rebuild), median/min/max ms; the camera rays on 1 thread through a scene of one
        identity instance and through the tree itself (Mrays/s). NAN: not measured. */
     double inst_ms, inst_min, inst_max, inst_mrays_1t, one_level_mrays_1t;
+    double inst_ratio, inst_ratio_min, inst_ratio_max; /* per round: scene Mrays/s over the tree's */
 } bench_scene;
 
 /* ============================================================================================ */
@@ -1699,7 +1701,7 @@ static int run_instances(run_ctx *c, bench_scene *out) {
     bvh_scene sc;
     bvh_scene_desc sd;
     bvh_instance *inst;
-    double ms[BENCH_MAX_REPEAT], one[BENCH_TRACE_REPEAT], scn[BENCH_TRACE_REPEAT], lo, hi, med;
+    double ms[BENCH_MAX_REPEAT], one[BENCH_INST_ROUNDS], scn[BENCH_INST_ROUNDS], ratio[BENCH_INST_ROUNDS], lo, hi, med;
     float diag = sqrtf((c->bounds.max.x - c->bounds.min.x) * (c->bounds.max.x - c->bounds.min.x) +
                        (c->bounds.max.y - c->bounds.min.y) * (c->bounds.max.y - c->bounds.min.y) +
                        (c->bounds.max.z - c->bounds.min.z) * (c->bounds.max.z - c->bounds.min.z));
@@ -1764,15 +1766,24 @@ static int run_instances(run_ctx *c, bench_scene *out) {
     if (r == BVH_SUCCESS) r = bvh_scene_build(&sc, &sd);
     if (r == BVH_SUCCESS) {
         make_rays(c, bvh_tree_bounds(&tree), &cam);
-        for (rep = 0; rep < BENCH_TRACE_REPEAT; rep++) { /* interleaved: a slow moment hits both */
-            progress("%s: one instance against the tree, %u/%u", out->name, rep + 1, BENCH_TRACE_REPEAT);
-            one[rep] = trace_1t(c, &tree, NULL);
-            scn[rep] = trace_1t(c, &tree, &sc);
+        /* paired rounds, the order alternating: a slow moment hits both of a round, and the
+           median of the rounds' ratios is robust to a spell that spans a few rounds */
+        for (rep = 0; rep < BENCH_INST_ROUNDS; rep++) {
+            progress("%s: one instance against the tree, %u/%u", out->name, rep + 1, BENCH_INST_ROUNDS);
+            if (rep & 1) {
+                scn[rep] = trace_1t(c, &tree, &sc);
+                one[rep] = trace_1t(c, &tree, NULL);
+            } else {
+                one[rep] = trace_1t(c, &tree, NULL);
+                scn[rep] = trace_1t(c, &tree, &sc);
+            }
+            ratio[rep] = one[rep] / scn[rep];
         }
-        median_range(one, BENCH_TRACE_REPEAT, &med, &lo, &hi);
+        median_range(one, BENCH_INST_ROUNDS, &med, &lo, &hi);
         out->one_level_mrays_1t = mrays_of(c->npix, med);
-        median_range(scn, BENCH_TRACE_REPEAT, &med, &lo, &hi);
+        median_range(scn, BENCH_INST_ROUNDS, &med, &lo, &hi);
         out->inst_mrays_1t = mrays_of(c->npix, med);
+        median_range(ratio, BENCH_INST_ROUNDS, &out->inst_ratio, &out->inst_ratio_min, &out->inst_ratio_max);
         bvh_scene_free(&sc);
     }
     free(inst);
@@ -1792,6 +1803,7 @@ static int run_scene(const options *o, const scene *s, bench_cl *cl, bench_scene
     c.out = out;
     c.cl = cl;
     out->inst_ms = out->inst_min = out->inst_max = out->inst_mrays_1t = out->one_level_mrays_1t = NAN;
+    out->inst_ratio = out->inst_ratio_min = out->inst_ratio_max = NAN;
     c.ref_hits = NAN;
     atomic_init(&c.mem.live, 0);
     atomic_init(&c.mem.peak, 0);
@@ -2196,10 +2208,11 @@ static void instances_line(FILE *f, const options *o, const bench_scene *s, cons
     if (isnan(s->inst_ms)) return;
     fprintf(f,
             "%sinstances: top-level rebuild for %u instances of the default tree: %.2f ms (%.2f..%.2f, %s top, "
-            "%u threads); one instance vs the tree itself, camera rays on 1 thread: %.2f vs %.2f Mrays/s "
-            "(%.3fx)\n",
+            "%u threads); one instance vs the tree itself, camera rays on 1 thread: %.2f vs %.2f Mrays/s, "
+            "%.3fx (median of %d paired rounds' ratios; %.3f..%.3f)\n",
             prefix, o->instances, s->inst_ms, s->inst_min, s->inst_max, bvh_builder_name(BVH_BUILDER_PLOC_PARALLEL),
-            o->nthreads, s->inst_mrays_1t, s->one_level_mrays_1t, s->inst_mrays_1t / s->one_level_mrays_1t);
+            o->nthreads, s->inst_mrays_1t, s->one_level_mrays_1t, s->inst_ratio, BENCH_INST_ROUNDS, s->inst_ratio_min,
+            s->inst_ratio_max);
 }
 /* --refit and --save-load: a line per bvh.h row. */
 static void anim_lines(FILE *f, const options *o, const bench_scene *s, const char *prefix) {
@@ -2536,7 +2549,9 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "top_rebuild_ms", s->inst_ms, 4);
         json_num(f, "instance_mrays_1t", s->inst_mrays_1t, 4);
         json_num(f, "one_level_mrays_1t", s->one_level_mrays_1t, 4);
-        json_num(f, "ratio_instance_mrays_1t", s->inst_mrays_1t / s->one_level_mrays_1t, 4);
+        json_num(f, "ratio_instance_mrays_1t", s->inst_ratio, 4);
+        json_num(f, "ratio_instance_mrays_1t_min", s->inst_ratio_min, 4);
+        json_num(f, "ratio_instance_mrays_1t_max", s->inst_ratio_max, 4);
         json_num(f, "refit_ms", r->refit_ms, 4);
         json_num(f, "rebuild_ms", r->rebuild_ms, 4);
         json_num(f, "embree_refit_ms", r->emb_refit_ms, 4);
@@ -2780,7 +2795,8 @@ static void usage(FILE *f) {
             "                   moments; <builder>+opt rows also against ploc-parallel's build,\n"
             "                   when --builder has it; default 0: none)\n"
             "  --instances N    after the table, the top-level rebuild (bvh_scene_build) for N instances\n"
-            "                   of the default tree, and one instance against the tree on 1 thread\n"
+            "                   of the default tree, and one instance against the tree on 1 thread, in 9\n"
+            "                   paired rounds (the median of their ratios)\n"
             "                   (default 10000; 0: none)\n"
             "  --max-bytes N    ploc builders: tree (nodes + indices) at most N bytes per triangle, by\n"
             "                   bigger leaves where needed (0 = the library's default, 40); 'off': the SAH alone\n"

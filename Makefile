@@ -4,7 +4,7 @@
 #   make test       every test (installs missing Debian packages first when run as root)
 #   make bench      the study's Table I, side by side with Embree
 #   make install    bvh.h, cl/bvh_cl.h, cl/trace.cl, pkg-config and CMake files (PREFIX, DESTDIR)
-#   make abtrace    build/abtrace: bvh.h at AB_REF (git) against the working tree's, same rays
+#   make abtrace    build/abtrace, build/abrefit: bvh.h at AB_REF (git) against the working tree's
 #   make kernel     copies cl/trace.cl into cl/bvh_cl.h (after an edit of the kernel)
 #   make format     applies .clang-format to the sources (make format-check: CI's check)
 # CFLAGS, CC, CXX may be overridden.
@@ -176,7 +176,8 @@ $(BUILD)/check/%/cxx11-links-c: tests/compile_cpp.cpp tests/two_tu_a.c bvh.h
 	$(CHECK_CXX_$*) $(CXXSTD) $(CXXWARN) $(CFLAGS) -I. -DBVH_TEST_DECLARATIONS_ONLY $< $@-impl.o -o $@ $(LDLIBS)
 
 # build/abtrace: bvh.h at AB_REF (a git revision; default HEAD) against the working tree's, in one
-# process on the same rays (bench/ab/abtrace.c says why). Not part of `make`: it needs git.
+# process on the same rays (bench/ab/abtrace.c says why); build/abrefit: the same two versions on
+# bvh_refit and bvh_load (bench/ab/abrefit.c). Not part of `make`: it needs git.
 AB_REF ?= HEAD
 abtrace:
 	@mkdir -p $(BUILD)/ab/a
@@ -186,7 +187,9 @@ abtrace:
 	$(CC) $(STD) $(WARN) $(CFLAGS) -c -DAB_PREFIX=ab_b_ -I. bench/ab/version.c -o $(BUILD)/ab/b.o
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) bench/ab/abtrace.c $(BUILD)/ab/a.o $(BUILD)/ab/b.o \
 	    -o $(BUILD)/abtrace $(EX_LIBS) $(LDLIBS)
-	@echo "build/abtrace: A = bvh.h at $(AB_REF), B = the working tree's"
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) bench/ab/abrefit.c $(BUILD)/ab/a.o $(BUILD)/ab/b.o \
+	    -o $(BUILD)/abrefit $(EX_LIBS) $(LDLIBS)
+	@echo "build/abtrace, build/abrefit: A = bvh.h at $(AB_REF), B = the working tree's"
 
 deps-test:
 	@scripts/deps.sh test

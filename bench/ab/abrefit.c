@@ -21,18 +21,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-int ab_a_build(bvh_tree *tree, const bvh_build_desc *desc);
-void ab_a_free(bvh_tree *tree);
-int ab_a_version(void);
-int ab_a_refit(bvh_tree *tree, const float *positions, uint32_t triangles, uint32_t threads);
-size_t ab_a_save(const bvh_tree *tree, void **bytes);
-int ab_a_load(bvh_tree *tree, const void *bytes, size_t size, uint32_t threads);
-int ab_b_build(bvh_tree *tree, const bvh_build_desc *desc);
-void ab_b_free(bvh_tree *tree);
-int ab_b_version(void);
-int ab_b_refit(bvh_tree *tree, const float *positions, uint32_t triangles, uint32_t threads);
-size_t ab_b_save(const bvh_tree *tree, void **bytes);
-int ab_b_load(bvh_tree *tree, const void *bytes, size_t size, uint32_t threads);
+#include "bench/ab/ab.h"
 
 #define AB_MAX_ROUNDS 99
 

@@ -27,16 +27,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-int ab_a_build(bvh_tree *tree, const bvh_build_desc *desc);
-int ab_a_intersect(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count);
-int ab_a_occluded(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count);
-void ab_a_free(bvh_tree *tree);
-int ab_a_version(void);
-int ab_b_build(bvh_tree *tree, const bvh_build_desc *desc);
-int ab_b_intersect(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count);
-int ab_b_occluded(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count);
-void ab_b_free(bvh_tree *tree);
-int ab_b_version(void);
+#include "bench/ab/ab.h"
 
 #define AB_MAX_ROUNDS 99
 

@@ -2,9 +2,9 @@
 
    Compiled twice, each time against another bvh.h (-I to its directory) and with another
    AB_PREFIX: the implementation is BVH_STATIC, so both copies live in one program without a
-   clash, and the driver reaches each through the four functions below. The two versions must
-   agree on the public structs (bvh_tree, bvh_ray, bvh_hit, bvh_build_desc). build/abrefit
-   (bench/ab/abrefit.c) uses the same two objects for refit, save and load. */
+   clash, and the drivers (abtrace.c; abrefit.c for refit, save and load) reach each through the
+   functions below, declared once in ab.h. The two versions must agree on the public structs
+   (bvh_tree, bvh_ray, bvh_hit, bvh_build_desc). */
 #define BVH_STATIC
 #define BVH_IMPLEMENTATION
 #include "bvh.h"
@@ -12,18 +12,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define AB_CAT_(a, b) a##b
-#define AB_CAT(a, b) AB_CAT_(a, b)
-#define AB_FN(name) AB_CAT(AB_PREFIX, name)
+#include "ab.h" /* the prototypes, for both prefixes */
 
-int AB_FN(build)(bvh_tree *tree, const bvh_build_desc *desc);
-int AB_FN(intersect)(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count);
-int AB_FN(occluded)(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count);
-void AB_FN(free)(bvh_tree *tree);
-int AB_FN(version)(void); /* major * 10000 + minor * 100 + patch */
-int AB_FN(refit)(bvh_tree *tree, const float *positions, uint32_t triangles, uint32_t threads);
-size_t AB_FN(save)(const bvh_tree *tree, void **bytes); /* a malloc'd copy of the file; 0 on failure */
-int AB_FN(load)(bvh_tree *tree, const void *bytes, size_t size, uint32_t threads);
+#define AB_FN(name) AB_CAT(AB_PREFIX, name)
 
 int AB_FN(build)(bvh_tree *tree, const bvh_build_desc *desc) { return (int)bvh_build(tree, desc); }
 int AB_FN(intersect)(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count) {

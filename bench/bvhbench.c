@@ -72,8 +72,10 @@
    it refits (two-level, a RTC_BUILD_QUALITY_REFIT mesh; embree_refit_ms); after the
    last frame the SAH of the refitted tree and of the row's builder rebuilt on it (refit_sah,
    rebuild_sah) and the camera rays' Mrays/s on N threads with each (refit_mrays, rebuild_mrays;
-   their hits must agree). With --save-load, bvh_save and bvh_load to and from memory (save_ms,
-   load_ms; the 8-wide nodes are read and their packets remade on load). Both are off by default.
+   their hits must agree). With --save-load, bvh_save and bvh_load to and from memory, a warm-up
+   pair then R timed ones as the builds have them (medians: save_ms, load_ms; the warm-up's:
+   save_first_ms, load_first_ms, where the kernel still assembles huge pages for the fresh
+   arrays); the 8-wide nodes are read and their packets remade on load. Both are off by default.
 
    Exit status: 0 ok; 1 an error (a scene, build or output failed); 2 bad command line;
    3 the hits disagree. */
@@ -190,7 +192,8 @@ typedef struct row {
     double refit_sah, rebuild_sah;               /* the last frame: SAH of the refitted tree, and of
                                                     this builder's tree rebuilt on it */
     double refit_mrays, rebuild_mrays;           /* camera rays of the last frame on N threads */
-    double save_ms, load_ms;                     /* --save-load: to and from memory (median of 3) */
+    double save_ms, load_ms;                     /* --save-load: to and from memory (median of R) */
+    double save_first_ms, load_first_ms;         /* the warm-up pair's */
     const char *frame_tracer;
     int disagree; /* (!): the hits disagree */
     char disagree_msg[320];
@@ -272,7 +275,7 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->x_pcl = r->x_pcl_min = r->x_pcl_max = r->p_mrays = NAN;
     r->refit_ms = r->rebuild_ms = r->emb_refit_ms = r->refit_sah = r->rebuild_sah = r->refit_mrays = r->rebuild_mrays =
         NAN;
-    r->save_ms = r->load_ms = NAN;
+    r->save_ms = r->load_ms = r->save_first_ms = r->load_first_ms = NAN;
     for (k = 0; k < SET_COUNT; k++) {
         set_figs *f = &r->set[k];
         f->rays = f->count = f->t_sum = f->ms_1t = f->mrays_1t = f->ms_mt = f->mrays_mt = NAN;
@@ -924,15 +927,15 @@ static size_t mem_write(void *user, const void *data, size_t size) {
 static void save_load(run_ctx *c, row *r, const bvh_tree *tree) {
     size_t size = bvh_save_size(tree);
     unsigned char *buf = (unsigned char *)malloc(size);
-    double save[3], load[3];
-    int k;
+    double save[BENCH_MAX_REPEAT + 1], load[BENCH_MAX_REPEAT + 1];
+    uint32_t k, n = c->o->repeat;
     bvh_result res = buf ? BVH_SUCCESS : BVH_ERROR_OUT_OF_MEMORY;
-    for (k = 0; k < 3 && res == BVH_SUCCESS; k++) {
+    for (k = 0; k <= n && res == BVH_SUCCESS; k++) { /* k = 0: the warm-up, as build_repeated's */
         mem_writer w = {buf};
         bvh_load_desc ld;
         bvh_tree t;
         double t0;
-        progress("%s: %s, save and load %d/3", c->out->name, r->name, k + 1);
+        progress("%s: %s, save and load %u/%u%s", c->out->name, r->name, k, n, k ? "" : " (warm-up)");
         t0 = scene_now_ms();
         res = bvh_save(tree, mem_write, &w);
         save[k] = scene_now_ms() - t0;
@@ -955,8 +958,10 @@ static void save_load(run_ctx *c, row *r, const bvh_tree *tree) {
         snprintf(r->note, sizeof r->note, "failed: save and load: %s", bvh_result_string(res));
         return;
     }
-    r->save_ms = scene_median(save, 3);
-    r->load_ms = scene_median(load, 3);
+    r->save_first_ms = save[0];
+    r->load_first_ms = load[0];
+    r->save_ms = scene_median(save + 1, n);
+    r->load_ms = scene_median(load + 1, n);
 }
 
 /* --refit N: the scene twisted about its vertical axis through the centre, a little more each
@@ -2235,12 +2240,17 @@ static void anim_lines(FILE *f, const options *o, const bench_scene *s, const ch
                 prefix, r->name, r->refit_ms, r->rebuild_ms, r->rebuild_ms / r->refit_ms, emb, r->refit_sah,
                 r->rebuild_sah, 100.0 * (r->refit_sah / r->rebuild_sah - 1.0), r->refit_mrays, r->rebuild_mrays);
     }
-    if (o->save_load) fprintf(f, "%ssave and load (--save-load, memory, 8-wide packets remade on load): ms\n", prefix);
+    if (o->save_load)
+        fprintf(f,
+                "%ssave and load (--save-load, memory, 8-wide packets remade on load): ms, medians after a "
+                "warm-up pair (its times last)\n",
+                prefix);
     for (i = 0; o->save_load && i < s->nrows; i++) {
         const row *r = &s->rows[i];
         if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
-        fprintf(f, "%s  %-14s save %8.2f  load %8.2f  (build %8.2f)\n", prefix, r->name, r->save_ms, r->load_ms,
-                r->build_ms);
+        fprintf(f, "%s  %-14s save %8.2f  load %8.2f  (build %8.2f: %4.1fx)  warm-up save %8.2f  load %8.2f\n", prefix,
+                r->name, r->save_ms, r->load_ms, r->build_ms, r->build_ms / r->load_ms, r->save_first_ms,
+                r->load_first_ms);
     }
 }
 
@@ -2561,6 +2571,8 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "rebuild_mrays", r->rebuild_mrays, 4);
         json_num(f, "save_ms", r->save_ms, 4);
         json_num(f, "load_ms", r->load_ms, 4);
+        json_num(f, "save_first_ms", r->save_first_ms, 4);
+        json_num(f, "load_first_ms", r->load_first_ms, 4);
         json_num(f, "ratio_sah", r->x_sah, 4);
         json_num(f, "ratio_mrays", r->x_mrays, 4);
         if (r->kind == ROW_EMBREE) {

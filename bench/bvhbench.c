@@ -74,8 +74,9 @@
    rebuild_sah) and the camera rays' Mrays/s on N threads with each (refit_mrays, rebuild_mrays;
    their hits must agree). With --save-load, bvh_save and bvh_load to and from memory, a warm-up
    pair then R timed ones as the builds have them (medians: save_ms, load_ms; the warm-up's:
-   save_first_ms, load_first_ms, where the kernel still assembles huge pages for the fresh
-   arrays); the 8-wide nodes are read and their packets remade on load. Both are off by default.
+   save_first_ms, load_first_ms: a process's first touch of fresh huge pages can cost several
+   times more, docs/bench 0.9.14); the 8-wide nodes are read and their packets remade on load.
+   Both are off by default.
 
    Exit status: 0 ok; 1 an error (a scene, build or output failed); 2 bad command line;
    3 the hits disagree. */

@@ -2,7 +2,8 @@
    much, on a machine whose speed drifts.
 
    make abtrace AB_REF=<git revision>        (A: bvh.h at that revision; B: the working tree's)
-   build/abtrace [--builder ploc-parallel|sah-midpoint] [--rounds N] [--loop L] SCENE...
+   build/abtrace [--builder ploc-parallel|sah-midpoint] [--rounds N] [--loop L] [--camera outside|inside]
+                 SCENE...
 
    Why: bvhbench pairs bvh.h with Embree inside a run, but two versions of bvh.h are two runs,
    and this VM's speed drifts in spells of seconds to minutes that move bvh.h by 25% and Embree by
@@ -10,7 +11,8 @@
    both versions (bench/ab/version.c, compiled once against each bvh.h, each BVH_STATIC) build
    their own tree of the scene, and each round traces every ray set with A and with B one right
    after the other (the order alternating), and with Embree 3 medium around them when it is
-   built in (BVH_HAVE_EMBREE). Ray sets: the standard camera's 1024x1024 primary rays and the
+   built in (BVH_HAVE_EMBREE). Ray sets: the standard camera's 1024x1024 primary rays (--camera
+   inside: rays.h's interior view, as bvhbench's: a room's rays, which stop in a leaf) and the
    bounce and shadow rays made from their hits (examples/rays.h), as bvhbench has them; each
    pass traces its set L times on one thread (the batch calls). Prints, per set, the median of
    the rounds' B/A speed ratios with their min-max, the medians against Embree, and whether A's
@@ -71,7 +73,7 @@ static double ab_embree_pass(emb_builder *eb, const ab_set *s, int loop, float *
     return total;
 }
 
-static int ab_scene(const char *spec, bvh_builder builder, int rounds, int loop) {
+static int ab_scene(const char *spec, bvh_builder builder, int rounds, int loop, int inside) {
     scene sc;
     char err[256];
     bvh_build_desc d;
@@ -115,7 +117,7 @@ static int ab_scene(const char *spec, bvh_builder builder, int rounds, int loop)
         fprintf(stderr, "abtrace: %s: a build failed\n", spec);
         goto done;
     }
-    cam = bvh_camera_standard(bvh_tree_bounds(&tb), w, h);
+    cam = inside ? rays_camera_inside(bvh_tree_bounds(&tb), w, h) : bvh_camera_standard(bvh_tree_bounds(&tb), w, h);
     for (i = 0; i < n; i++) primary[i] = bvh_camera_ray(&cam, (uint32_t)(i % w), (uint32_t)(i / w));
     ab_b_intersect(&tb, primary, hits, n);
     if (rays_make(&cam, hits, sc.v, bvh_tree_bounds(&tb), &rs) != 0) {
@@ -147,10 +149,11 @@ static int ab_scene(const char *spec, bvh_builder builder, int rounds, int loop)
     }
     va = ab_a_version();
     vb = ab_b_version();
-    printf("%s (%u triangles), %s trees, A = bvh.h %d.%d.%d, B = bvh.h %d.%d.%d: %d rounds, each set traced %d time(s) "
-           "a pass\n",
-           sc.name, sc.triangles, d.builder == BVH_BUILDER_SAH_MIDPOINT ? "sah-midpoint" : "ploc-parallel", va / 10000,
-           va / 100 % 100, va % 100, vb / 10000, vb / 100 % 100, vb % 100, rounds, loop);
+    printf("%s (%u triangles), %s trees, %s camera, A = bvh.h %d.%d.%d, B = bvh.h %d.%d.%d: %d rounds, each set traced "
+           "%d time(s) a pass\n",
+           sc.name, sc.triangles, d.builder == BVH_BUILDER_SAH_MIDPOINT ? "sah-midpoint" : "ploc-parallel",
+           inside ? "interior" : "standard", va / 10000, va / 100 % 100, va % 100, vb / 10000, vb / 100 % 100, vb % 100,
+           rounds, loop);
     for (k = 0; k < 3; k++) {
         double ba[AB_MAX_ROUNDS], ae[AB_MAX_ROUNDS], be[AB_MAX_ROUNDS];
         double med;
@@ -203,7 +206,7 @@ done:
 
 int main(int argc, char **argv) {
     bvh_builder builder = BVH_BUILDER_PLOC_PARALLEL;
-    int rounds = 11, loop = 2, i, scenes = 0, rc = 0;
+    int rounds = 11, loop = 2, i, scenes = 0, rc = 0, inside = 0;
     for (i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--builder") && i + 1 < argc) {
             const char *b = argv[++i];
@@ -225,18 +228,25 @@ int main(int argc, char **argv) {
                 fprintf(stderr, "abtrace: --loop takes 1 to 1000\n");
                 return 2;
             }
+        } else if (!strcmp(argv[i], "--camera") && i + 1 < argc) {
+            const char *v = argv[++i];
+            if (strcmp(v, "outside") && strcmp(v, "inside")) {
+                fprintf(stderr, "abtrace: --camera takes outside or inside\n");
+                return 2;
+            }
+            inside = !strcmp(v, "inside");
         } else if (argv[i][0] == '-') {
             fprintf(stderr, "usage: build/abtrace [--builder ploc-parallel|sah-midpoint] [--rounds N] [--loop L] "
-                            "SCENE...\n");
+                            "[--camera outside|inside] SCENE...\n");
             return 2;
         } else {
-            rc |= ab_scene(argv[i], builder, rounds, loop);
+            rc |= ab_scene(argv[i], builder, rounds, loop, inside);
             scenes++;
         }
     }
     if (!scenes) {
-        fprintf(stderr,
-                "usage: build/abtrace [--builder ploc-parallel|sah-midpoint] [--rounds N] [--loop L] SCENE...\n");
+        fprintf(stderr, "usage: build/abtrace [--builder ploc-parallel|sah-midpoint] [--rounds N] [--loop L] "
+                        "[--camera outside|inside] SCENE...\n");
         return 2;
     }
     return rc;

@@ -1,4 +1,4 @@
-/* bvh.h - v0.9.14 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.9.15 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -107,6 +107,17 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.15 A wide node's interior slots are stored, and taken by any-hit rays, by the chance that
+            their subtree stops a ray for what it costs that ray (the triangles' area over half
+            the box's, capped at 1, over the layout's expected cost; Ize & Hansen's shadow-ray
+            order), after the leaf slots (was: largest box first). In-process A/B on an Intel
+            Xeon, shadow rays: Sponza from inside +34% on the sah-midpoint tree (0.81 -> 1.09x
+            Embree medium), -4% on the ploc-parallel one; the dragon +2% and +5%; the bunny,
+            gen:field:15 and Sponza from outside within 2%. Closest-hit rays sort by distance
+            and break ties by slot: Sponza's camera rays from outside -5% on the ploc-parallel
+            tree, the rest within 2%. The path tracer (Sponza inside, three bunnies, one thread)
+            0.99-1.00x -> 1.01-1.02x Embree. The build sums the triangles' areas in the layout's
+            cost pass: +5 ms a million triangles (docs/bench).
      0.9.14 Transparent huge pages for the default allocator's big blocks in an ISO-only dialect
             too (-std=c11 with no feature macro hides madvise: bvh.h declares it on x86, ARM64
             and RISC-V). Such a build was losing the advice: gen:field:15's ploc-parallel
@@ -369,7 +380,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 9
-#define BVH_VERSION_PATCH 14
+#define BVH_VERSION_PATCH 15
 
 #include <math.h>
 #include <stddef.h>
@@ -6206,9 +6217,10 @@ BVH__INLINE float bvh__slab(const bvh__rayx *r, const bvh_node *n, float tfar) {
    the binary nodes from there down to its slots in pre-order (left child first), a bit each from
    bit 0 on: 1 a node opened inside the wide node, 0 a slot; at most 7 opened nodes and 8 slots, 15
    bits (a root that is a leaf slot: shape 0, its head its one slot). An opened leaf slot is one
-   more opened node like any other. The slots are stored leaf slots first, each kind largest box
-   first (bvh__wide_area_order; bvh_node8.order says where each of them, taken by ascending binary
-   index, went), the order in which any-hit rays take them. bvh_refit follows the grouping to
+   more opened node like any other. The slots are stored in the order any-hit rays take them: leaf
+   slots first, largest box first, then the interior slots likeliest to stop a ray for what they
+   cost (bvh__wide_slot_order; bvh_node8.order says where each of them, taken by ascending binary
+   index, went). bvh_refit follows the grouping to
    update the boxes and packets in place (the order stays the build's), bvh_load to remake them
    from the saved binary tree; both check it against the binary tree as they go. */
 #define BVH__PACKET 4u     /* triangles per packet */
@@ -6218,8 +6230,9 @@ typedef struct bvh__wide_src {
     const uint32_t *sub;   /* references below each binary node */
     const uint32_t *prims; /* the tree's references (caller ids) and their triangles */
     const float *tris;
-    bvh_tri4 *packets; /* NULL: count only */
-    const float *cost; /* bvh__wide_costs' table: 8 floats a binary node */
+    bvh_tri4 *packets;  /* NULL: count only */
+    const float *cost;  /* bvh__wide_costs' table: 8 floats a binary node */
+    const float *tarea; /* the area of the triangles below each binary node (bvh__wide_costs) */
 } bvh__wide_src;
 BVH__INLINE int bvh__wide_leaf(const bvh__wide_src *s, uint32_t b) {
     return s->nodes[b].count || s->sub[b] <= BVH__SLOT_REFS;
@@ -6401,17 +6414,29 @@ static int bvh__wide_cuttable(const bvh_node *nodes, const uint32_t *sub, uint32
    of its parent's wide node (area x cost, bvh__wide_leaf_cost's units): one slot (a leaf slot if
    i may be one, else a wide node of its own: BVH__WIDE_NODE_COST plus its subtree in 8 slots),
    or i opened and its two children sharing the k slots (Ylitie et al. 2017's dynamic program
-   for wide BVHs). Children follow their parents, so one pass from the last node up. */
-static void bvh__wide_costs(const bvh_node *nodes, const uint32_t *sub, uint32_t count, float *cost) {
+   for wide BVHs). tarea[i]: the area of the triangles below i (tris: the tree's, by reference),
+   for bvh__wide_slot_order. Children follow their parents, so one pass from the last node up. */
+static void bvh__wide_costs(const bvh_node *nodes, const uint32_t *sub, uint32_t count, const float *tris, float *cost,
+                            float *tarea) {
     uint32_t i = count, j, k;
     while (i-- > 0) {
         const bvh_node *n = &nodes[i];
         const float a = bvh_aabb_area(bvh__node_box(n));
         float *c = cost + 8 * (size_t)i, d[BVH__W];
         if (n->count) {
+            float sum = 0.0f; /* the triangles' area: a reference's whole triangle, also where clipped */
+            for (k = n->index; k < n->index + n->count; k++) {
+                const float *v = tris + 9 * (size_t)k;
+                const float ax = v[3] - v[0], ay = v[4] - v[1], az = v[5] - v[2];
+                const float bx = v[6] - v[0], by = v[7] - v[1], bz = v[8] - v[2];
+                const float cx = ay * bz - az * by, cy = az * bx - ax * bz, cz = ax * by - ay * bx;
+                sum += 0.5f * sqrtf(cx * cx + cy * cy + cz * cz);
+            }
+            tarea[i] = sum;
             for (k = 0; k < BVH__W; k++) c[k] = a * bvh__wide_leaf_cost(sub[i]);
             continue;
         }
+        tarea[i] = tarea[n->index] + tarea[n->index + 1];
         {
             const float *l = cost + 8 * (size_t)n->index, *r = l + 8;
             for (j = 2; j <= BVH__W; j++) {
@@ -6489,29 +6514,40 @@ BVH__INLINE void bvh__node8_box(bvh_node8 *w, uint32_t i, bvh_vec3 lo, bvh_vec3 
 }
 /* Slots kids[0 .. k - 1] (ascending binary index) put in the order an any-hit ray takes a node's
    entered slots: leaf slots first (entering one tests its triangles at once, an interior slot
-   costs another node before any), each kind largest box first (a larger box is likelier to hold
-   what blocks the ray; ties: the lower index). order, when given, gets where each went
-   (bvh_node8.order), so that bvh__group_read finds the slots from the grouping alone. */
-static void bvh__wide_area_order(const bvh__wide_src *s, uint32_t kids[BVH__W], uint32_t k, uint8_t *order) {
+   costs another node before any), largest box first (a larger box is likelier to hold what
+   blocks the ray); then the interior slots by the chance that their subtree stops a ray that
+   enters it over what the subtree costs that ray, highest first (Ize & Hansen 2011's ordering
+   for shadow rays): the chance is the triangles' area over half the box's (a flat triangle
+   inside a convex box is crossed by that fraction of the lines through the box, by Crofton's
+   formula; the sum, capped at 1, counts overlaps twice), the cost is the subtree's expected
+   cost per ray that enters it (bvh__wide_costs' table over the box's area). Ties: the lower
+   index. order, when given, gets where each went (bvh_node8.order), so that bvh__group_read finds
+   the slots from the grouping alone. */
+static void bvh__wide_slot_order(const bvh__wide_src *s, uint32_t kids[BVH__W], uint32_t k, uint8_t *order) {
     uint32_t i, j, by[BVH__W];
-    float area[BVH__W];
+    float key[BVH__W];
     int leaf[BVH__W];
     for (i = 0; i < k; i++) { /* NaN (0 x inf on huge boxes) as +inf: the ranks must be a permutation */
-        area[i] = bvh_aabb_area(bvh__node_box(&s->nodes[kids[i]]));
-        if (!(area[i] >= 0.0f)) area[i] = BVH_INF;
+        const float a = bvh_aabb_area(bvh__node_box(&s->nodes[kids[i]]));
         leaf[i] = bvh__wide_leaf(s, kids[i]);
+        key[i] = a >= 0.0f ? a : BVH_INF;
+        if (!leaf[i] && s->tarea) {
+            const float chance = 2.0f * s->tarea[kids[i]] / a, cost = s->cost[8 * (size_t)kids[i]] / a;
+            key[i] = (chance < 1.0f ? chance : 1.0f) / cost;
+            if (!(key[i] >= 0.0f)) key[i] = 0.0f; /* a flat box (0 / 0): last */
+        }
     }
     for (i = 0; i < k; i++) { /* slot of kids[i]: the count of those before it in the order */
         uint32_t at = 0;
         for (j = 0; j < k; j++)
-            at += leaf[j] > leaf[i] || (leaf[j] == leaf[i] && (area[j] > area[i] || (area[j] == area[i] && j < i)));
+            at += leaf[j] > leaf[i] || (leaf[j] == leaf[i] && (key[j] > key[i] || (key[j] == key[i] && j < i)));
         by[at] = kids[i];
         if (order) order[i] = (uint8_t)at;
     }
     for (i = 0; i < k; i++) kids[i] = by[i];
 }
 /* Fills wide node `out` (when not NULL) from binary head b and returns its child count; kids[]
-   gets the binary children in slot order (bvh__wide_area_order). Leaf slots
+   gets the binary children in slot order (bvh__wide_slot_order). Leaf slots
    take their packets from *packet on (written when s->packets is set). */
 static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *out, uint32_t kids[BVH__W],
                                uint32_t *packet) {
@@ -6533,7 +6569,7 @@ static uint32_t bvh__wide_node(const bvh__wide_src *s, uint32_t b, bvh_node8 *ou
         out->head = b;
         out->shape = bvh__group_shape(s->nodes, b, kids, k);
     }
-    bvh__wide_area_order(s, kids, k, out ? out->order : NULL);
+    bvh__wide_slot_order(s, kids, k, out ? out->order : NULL);
     for (i = 0; i < k; i++) {
         const bvh_node *c = &s->nodes[kids[i]];
         if (out) bvh__node8_box(out, i, c->min, c->max);
@@ -6653,10 +6689,11 @@ static void bvh__wide_plan_init(bvh__wide_plan *p, const bvh_tree *tree, const u
    (bvh__wide_sub): the build's. */
 static bvh_result bvh__wide_plan_make(bvh__wide_plan *p, const bvh_tree *tree, const uint32_t *sub,
                                       const bvh_allocator *al, const bvh_thread_pool *pool, uint32_t threads,
-                                      const float *cost) {
+                                      const float *cost, const float *tarea) {
     uint32_t i, k, total, ptotal = 0, kids[BVH__W];
     bvh__wide_plan_init(p, tree, sub);
     p->job.src.cost = cost;
+    p->job.src.tarea = tarea;
     p->pool = pool;
     p->queue[0] = 0;
     p->qlen = 1;
@@ -6717,7 +6754,7 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, const 
                                  uint32_t threads) {
     bvh__wide_plan *p;
     uint32_t *sub;
-    float *cost = NULL;
+    float *cost = NULL, *tarea = NULL;
     bvh_result r;
     if (!tree->node_count) return BVH_SUCCESS;
     sub = BVH__ALLOC(al, uint32_t, tree->node_count);
@@ -6728,17 +6765,19 @@ static bvh_result bvh__make_wide(bvh_tree *tree, const bvh_allocator *al, const 
     }
     if ((r = bvh__wide_sub(tree->nodes, tree->node_count, sub)) != BVH_SUCCESS) goto done;
     cost = BVH__ALLOC(al, float, 8 * (size_t)tree->node_count);
-    if (!cost) {
+    tarea = BVH__ALLOC(al, float, tree->node_count);
+    if (!cost || !tarea) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto done;
     }
-    bvh__wide_costs(tree->nodes, sub, tree->node_count, cost);
-    if ((r = bvh__wide_plan_make(p, tree, sub, al, pool, threads, cost)) != BVH_SUCCESS) goto done;
+    bvh__wide_costs(tree->nodes, sub, tree->node_count, tree->tris, cost, tarea);
+    if ((r = bvh__wide_plan_make(p, tree, sub, al, pool, threads, cost, tarea)) != BVH_SUCCESS) goto done;
     if ((r = bvh__wide_alloc(tree, al, p->nodes, p->packets)) != BVH_SUCCESS) goto done;
     bvh__wide_write(p, tree->nodes8, tree->tri4, al);
 done:
     bvh__free(al, sub);
     bvh__free(al, cost);
+    bvh__free(al, tarea);
     bvh__free(al, p);
     return r;
 }

@@ -7,7 +7,7 @@
    the single-ray calls. bvh_intersect and bvh_occluded are checked on the default 8-wide copy and
    on a binary-only tree (trace_width 2); bvh_intersect_counted always walks the binary nodes. The same on the rays a
    renderer traces from surfaces (bounce rays on and just off a triangle, shadow rays, grazing rays). Also: invalid rays
-   miss, and a tree exactly BVH_MAX_DEPTH deep traces. */
+   miss, a tree exactly BVH_MAX_DEPTH deep traces, and the wide nodes' slots are in any-hit order. */
 #define BVH_IMPLEMENTATION
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
@@ -432,6 +432,65 @@ static void box_behind_origin_skipped(void **state) {
     bvh_free(&t);
 }
 
+/* The slots of every wide node are stored in the order any-hit rays take them
+   (bvh__wide_slot_order): leaf slots first, largest box first, then interior slots by the
+   chance that their subtree stops a ray for what it costs, highest first, recomputed here from
+   the binary tree. */
+static void slot_order_any_hit(void **state) {
+    int id = tu_state_id(state), b;
+    tu_scene s;
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_tree t;
+        uint32_t *sub, w, i, interior = 0;
+        float *cost, *tarea;
+        tu_build(&s, tu_builder(b), &t);
+        assert_non_null(t.nodes8);
+        sub = (uint32_t *)malloc(t.node_count * sizeof *sub);
+        cost = (float *)malloc(8 * (size_t)t.node_count * sizeof *cost);
+        tarea = (float *)malloc(t.node_count * sizeof *tarea);
+        assert_true(sub && cost && tarea);
+        assert_int_equal(bvh__wide_sub(t.nodes, t.node_count, sub), BVH_SUCCESS);
+        bvh__wide_costs(t.nodes, sub, t.node_count, t.tris, cost, tarea);
+        for (w = 0; w < t.node8_count; w++) {
+            const bvh_node8 *n = &t.nodes8[w];
+            bvh__group g;
+            float prev = BVH_INF;
+            int seen_interior = 0;
+            assert_true(bvh__group_read(t.nodes, t.node_count, n, &g));
+            for (i = 0; i < g.nslot; i++) {
+                const uint32_t x = g.slot[i];
+                const float a = bvh_aabb_area(bvh__node_box(&t.nodes[x]));
+                float key;
+                if (n->count[i]) {
+                    assert_false(seen_interior); /* leaf slots first */
+                    key = a;
+                } else {
+                    const float chance = 2.0f * tarea[x] / a;
+                    if (!seen_interior) prev = BVH_INF;
+                    seen_interior = 1;
+                    key = (chance < 1.0f ? chance : 1.0f) / (cost[8 * (size_t)x] / a);
+                    if (!(key >= 0.0f)) key = 0.0f;
+                    interior++;
+                }
+                if (!(key <= prev))
+                    fail_msg("%s/%s: wide node %u slot %u: key %g after %g", s.name, bvh_builder_name(tu_builder(b)), w,
+                             i, key, prev);
+                prev = key;
+            }
+        }
+        if (s.tri_count > 1000) assert_true(interior > 0); /* the order was exercised */
+        free(sub);
+        free(cost);
+        free(tarea);
+        bvh_free(&t);
+    }
+    tu_scene_free(&s);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         TU_EVERY_SCENE(exact_hits),
@@ -442,6 +501,8 @@ int main(void) {
         cmocka_unit_test(invalid_rays_miss),
         cmocka_unit_test(max_depth_tree_traces),
         cmocka_unit_test(box_behind_origin_skipped),
+        TU_SCENE_TEST(slot_order_any_hit, TU_SCENE_BUNNY, "bunny"),
+        TU_SCENE_TEST(slot_order_any_hit, TU_SCENE_GRID, "grid"),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -476,7 +476,9 @@ static void slot_order_any_hit(void **state) {
                     if (!(key >= 0.0f)) key = 0.0f;
                     interior++;
                 }
-                if (!(key <= prev))
+                /* a relative slack: this file may be compiled -ffast-math (the implementation keeps
+                   IEEE semantics; this recomputation may round differently) */
+                if (!(key <= prev * 1.0001f))
                     fail_msg("%s/%s: wide node %u slot %u: key %g after %g", s.name, bvh_builder_name(tu_builder(b)), w,
                              i, key, prev);
                 prev = key;

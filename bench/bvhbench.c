@@ -5,7 +5,7 @@
                   [--threads N] [--repeat R]
                   [--size WxH] [--camera outside|inside] [--trace cpu|opencl|both|none] [--brute-max N] [--strict]
                   [--paired N] [--ploc-top N|off] [--max-bytes N|off] [--trace-width 2|8]
-                  [--instances N] [--refit N] [--save-load]
+                  [--instances N] [--refit N] [--save-load] [--layout-cost]
                   [--md FILE] [--json FILE|-] [--plots DIR] [--quiet] [SCENE...]
    e.g. build/bvhbench --repeat 2 --size 256x256 gen:random:500 /usr/share/glmark2/models/bunny.obj
         make bench          (the default scenes below, writing out/bench/)
@@ -76,7 +76,11 @@
    pair then R timed ones as the builds have them (medians: save_ms, load_ms; the warm-up's:
    save_first_ms, load_first_ms: a process's first touch of fresh huge pages can cost several
    times more, docs/bench 0.9.14); the 8-wide nodes are read and their packets remade on load.
-   Both are off by default.
+   With --layout-cost, each timed build of a row is paired with one of the same desc but
+   trace_width = 2, the two in turns (which goes first alternates), so that what the 8-wide
+   layout adds to the build is measured in the same rounds: layout_ms, the median of the pairs'
+   differences, and layout_share, that over the median build without it (build_ms_binary).
+   All three are off by default.
 
    Exit status: 0 ok; 1 an error (a scene, build or output failed); 2 bad command line;
    3 the hits disagree. */
@@ -136,6 +140,7 @@ typedef struct options {
     uint32_t refit;     /* frames of the animated case (--refit; 0: none) */
     int embree_robust;  /* --embree-flags robust: RTC_SCENE_FLAG_ROBUST on every Embree scene */
     int save_load;      /* --save-load: time bvh_save and bvh_load of every tree */
+    int layout_cost;    /* --layout-cost: pair each timed build with one without the 8-wide layout */
     int inside;         /* --camera inside: rays.h's interior view instead of the standard camera */
     int trace_cpu, trace_cl, trace_auto;
     const char *md, *json, *plots, *argv0;
@@ -194,6 +199,8 @@ typedef struct row {
                                                     this builder's tree rebuilt on it */
     double refit_mrays, rebuild_mrays;           /* camera rays of the last frame on N threads */
     double save_ms, load_ms;                     /* --save-load: to and from memory (median of R) */
+    double build2_ms, layout_ms;                 /* --layout-cost: median build with trace_width 2, and
+                                                    median of the paired differences */
     double save_first_ms, load_first_ms;         /* the warm-up pair's */
     const char *frame_tracer;
     int disagree; /* (!): the hits disagree */
@@ -277,6 +284,7 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->refit_ms = r->rebuild_ms = r->emb_refit_ms = r->refit_sah = r->rebuild_sah = r->refit_mrays = r->rebuild_mrays =
         NAN;
     r->save_ms = r->load_ms = r->save_first_ms = r->load_first_ms = NAN;
+    r->build2_ms = r->layout_ms = NAN;
     for (k = 0; k < SET_COUNT; k++) {
         set_figs *f = &r->set[k];
         f->rays = f->count = f->t_sum = f->ms_1t = f->mrays_1t = f->ms_mt = f->mrays_mt = NAN;
@@ -771,18 +779,38 @@ static void bench_desc(const run_ctx *c, const row *r, bvh_build_desc *desc) {
     desc->triangles.vertex_count = 3 * c->s->triangles;
     desc->triangles.triangle_count = c->s->triangles;
 }
+/* --layout-cost: one build of desc without the 8-wide layout, its time into *ms; 0 if it failed. */
+static int build_binary(bvh_build_desc desc, double *ms) {
+    bvh_tree t;
+    double t0;
+    bvh_result res;
+    memset(&desc.allocator, 0, sizeof desc.allocator);
+    desc.trace_width = 2;
+    t0 = scene_now_ms();
+    res = bvh_build(&t, &desc);
+    *ms = scene_now_ms() - t0;
+    if (res == BVH_SUCCESS) bvh_free(&t);
+    return res == BVH_SUCCESS;
+}
 static int build_repeated(run_ctx *c, row *r, bvh_tree *tree) {
     const options *o = c->o;
     bvh_build_desc desc;
-    double ms[BENCH_MAX_REPEAT], peak = 0.0;
+    double ms[BENCH_MAX_REPEAT], ms2[BENCH_MAX_REPEAT], diff[BENCH_MAX_REPEAT], peak = 0.0;
     uint32_t rep;
+    int pair;
     bench_desc(c, r, &desc);
+    pair = o->layout_cost && desc.trace_width != 2;
     for (rep = 0; rep <= o->repeat; rep++) {
         double t0;
         size_t live;
         bvh_result res;
         progress("%s: %s, build %u/%u%s", c->out->name, r->name, rep, o->repeat, rep ? "" : " (warm-up)");
         bvh_free(tree);
+        if (pair && (rep & 1) && !build_binary(desc, &ms2[rep - 1])) {
+            r->state = ROW_FAILED;
+            snprintf(r->note, sizeof r->note, "failed with trace_width 2");
+            return 1;
+        }
         if (rep == 0) {
             desc.allocator.alloc = count_alloc;
             desc.allocator.free = count_free;
@@ -801,6 +829,17 @@ static int build_repeated(run_ctx *c, row *r, bvh_tree *tree) {
             return 1;
         }
         if (rep == 0) peak = (double)(atomic_load(&c->mem.peak) - live);
+        /* without the layout after it in even rounds and the warm-up, before it in odd ones */
+        if (pair && !(rep & 1) && !build_binary(desc, &ms2[rep ? rep - 1 : 0])) {
+            r->state = ROW_FAILED;
+            snprintf(r->note, sizeof r->note, "failed with trace_width 2");
+            return 1;
+        }
+    }
+    if (pair) {
+        for (rep = 0; rep < o->repeat; rep++) diff[rep] = ms[rep] - ms2[rep];
+        r->build2_ms = scene_median(ms2, o->repeat);
+        r->layout_ms = scene_median(diff, o->repeat);
     }
     median_range(ms, o->repeat, &r->build_ms, &r->build_min, &r->build_max);
     r->peak_bytes = peak;
@@ -2253,6 +2292,17 @@ static void anim_lines(FILE *f, const options *o, const bench_scene *s, const ch
                 r->name, r->save_ms, r->load_ms, r->build_ms, r->build_ms / r->load_ms, r->save_first_ms,
                 r->load_first_ms);
     }
+    if (o->layout_cost)
+        fprintf(f,
+                "%swhat the 8-wide layout adds to the build (--layout-cost, %u threads): the build without it "
+                "(trace_width 2, median), the median of the paired differences, and their ratio\n",
+                prefix, o->nthreads);
+    for (i = 0; o->layout_cost && i < s->nrows; i++) {
+        const row *r = &s->rows[i];
+        if (r->kind != ROW_BVH || r->state != ROW_OK || isnan(r->layout_ms)) continue;
+        fprintf(f, "%s  %-14s without %9.2f ms  layout %+8.2f ms  (%+5.1f%%)\n", prefix, r->name, r->build2_ms,
+                r->layout_ms, 100.0 * r->layout_ms / r->build2_ms);
+    }
 }
 
 static void print_block(FILE *f, const options *o, const bench_scene *s) {
@@ -2574,6 +2624,9 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "load_ms", r->load_ms, 4);
         json_num(f, "save_first_ms", r->save_first_ms, 4);
         json_num(f, "load_first_ms", r->load_first_ms, 4);
+        json_num(f, "build_ms_binary", r->build2_ms, 4);
+        json_num(f, "layout_ms", r->layout_ms, 4);
+        json_num(f, "layout_share", r->layout_ms / r->build2_ms, 4);
         json_num(f, "ratio_sah", r->x_sah, 4);
         json_num(f, "ratio_mrays", r->x_mrays, 4);
         if (r->kind == ROW_EMBREE) {
@@ -2818,7 +2871,11 @@ static void usage(FILE *f) {
             "  --refit N        animated case: N frames of a twisting, waving scene; per frame bvh_refit\n"
             "                   of each tree and a bottom-up rebuild (ms), then SAH and Mrays/s of the\n"
             "                   refitted tree against this builder's rebuild (default 0: none)\n"
-            "  --save-load      time bvh_save and bvh_load (from memory, the 8-wide packets remade)\n"
+            "  --save-load      time bvh_save and bvh_load (from memory, the 8-wide packets remade)\n",
+            BENCH_BRUTE_TESTS);
+    fprintf(f, /* in two: ISO C's longest string literal is 4095 characters */
+            "  --layout-cost    pair each timed build with one without the 8-wide layout (trace_width\n"
+            "                   2): what the layout adds to the build, ms and share\n"
             "  --md FILE        Markdown tables, best value per column and scene in bold\n"
             "  --json FILE      one JSON object per line and row ('-': stdout; the table goes to stderr)\n"
             "  --plots DIR      plot data (*.dat) and, with gnuplot, PNG plots (bench/plot.sh)\n"
@@ -2828,7 +2885,7 @@ static void usage(FILE *f) {
             "Without SCENE: gen:random:500, %s (or gen:random:100000), gen:field:15, gen:field:44.\n"
             "%s"
             "Exit status: 0 ok, 1 error, 2 bad command line, 3 hits disagree.\n",
-            BENCH_BRUTE_TESTS, BENCH_BUNNY, scene_spec_help());
+            BENCH_BUNNY, scene_spec_help());
 }
 
 /* "off" (gives `off`) or a count up to 2^30: the --ploc-top and --max-bytes values */
@@ -2919,7 +2976,7 @@ static int parse_args(int argc, char **argv, options *o) {
     for (i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         int takes = a[0] == '-' && a[1] == '-' && strcmp(a, "--quiet") && strcmp(a, "--strict") &&
-                    strcmp(a, "--help") && strcmp(a, "--save-load");
+                    strcmp(a, "--help") && strcmp(a, "--save-load") && strcmp(a, "--layout-cost");
         if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
             usage(stdout);
             return 1;
@@ -2932,6 +2989,8 @@ static int parse_args(int argc, char **argv, options *o) {
             o->quiet = 1;
         else if (!strcmp(a, "--save-load"))
             o->save_load = 1;
+        else if (!strcmp(a, "--layout-cost"))
+            o->layout_cost = 1;
         else if (!strcmp(a, "--strict"))
             o->strict = 1;
         else if (!strcmp(a, "--builder")) {

@@ -432,6 +432,24 @@ static void box_behind_origin_skipped(void **state) {
     bvh_free(&t);
 }
 
+/* bvh__wide_prep's table of a tree, on `threads` threads. */
+static bvh__wide_prep_job *prep_make(const bvh_node *nodes, uint32_t count, const float *tris, uint32_t threads) {
+    bvh__wide_prep_job *j = (bvh__wide_prep_job *)calloc(1, sizeof *j);
+    bvh_allocator al;
+    memset(&al, 0, sizeof al);
+    assert_non_null(j);
+    j->nodes = nodes;
+    j->tris = tris;
+    j->count = count;
+    j->info = (bvh__wide_info *)malloc(count * sizeof *j->info);
+    assert_non_null(j->info);
+    assert_int_equal(bvh__wide_prep(j, &al, NULL, threads), BVH_SUCCESS);
+    return j;
+}
+static void prep_free(bvh__wide_prep_job *j) {
+    free(j->info);
+    free(j);
+}
 /* The slots of every wide node are stored in the order any-hit rays take them
    (bvh__wide_slot_order): leaf slots first, largest box first, then interior slots by the
    chance that their subtree stops a ray for what it costs, highest first, recomputed here from
@@ -445,16 +463,11 @@ static void slot_order_any_hit(void **state) {
     }
     for (b = 0; b < TU_BUILDER_COUNT; b++) {
         bvh_tree t;
-        uint32_t *sub, w, i, interior = 0;
-        float *cost, *tarea;
+        bvh__wide_prep_job *job;
+        uint32_t w, i, interior = 0;
         tu_build(&s, tu_builder(b), &t);
         assert_non_null(t.nodes8);
-        sub = (uint32_t *)malloc(t.node_count * sizeof *sub);
-        cost = (float *)malloc(8 * (size_t)t.node_count * sizeof *cost);
-        tarea = (float *)malloc(t.node_count * sizeof *tarea);
-        assert_true(sub && cost && tarea);
-        assert_int_equal(bvh__wide_sub(t.nodes, t.node_count, sub), BVH_SUCCESS);
-        bvh__wide_costs(t.nodes, sub, t.node_count, t.tris, cost, tarea);
+        job = prep_make(t.nodes, t.node_count, t.tris, 1);
         for (w = 0; w < t.node8_count; w++) {
             const bvh_node8 *n = &t.nodes8[w];
             bvh__group g;
@@ -469,10 +482,10 @@ static void slot_order_any_hit(void **state) {
                     assert_false(seen_interior); /* leaf slots first */
                     key = a;
                 } else {
-                    const float chance = 2.0f * tarea[x] / a;
+                    const float chance = 2.0f * job->info[x].tarea / a;
                     if (!seen_interior) prev = BVH_INF;
                     seen_interior = 1;
-                    key = (chance < 1.0f ? chance : 1.0f) / (cost[8 * (size_t)x] / a);
+                    key = (chance < 1.0f ? chance : 1.0f) / (job->info[x].cost / a);
                     if (!(key >= 0.0f)) key = 0.0f;
                     interior++;
                 }
@@ -485,9 +498,55 @@ static void slot_order_any_hit(void **state) {
             }
         }
         if (s.tri_count > 1000) assert_true(interior > 0); /* the order was exercised */
-        free(sub);
-        free(cost);
-        free(tarea);
+        prep_free(job);
+        bvh_free(&t);
+    }
+    tu_scene_free(&s);
+}
+
+/* bvh__wide_prep's info over the depth-first tree on two threads equals its info over the same
+   tree laid out breadth-first (children still after their parents, but the work shared out by
+   wrong guesses) on one, node for node and bit for bit. */
+static void prep_any_layout(void **state) {
+    int id = tu_state_id(state), b;
+    tu_scene s;
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_tree t;
+        bvh_node *bfs;
+        uint32_t *from, *to, head = 1, tail = 1, i;
+        bvh__wide_prep_job *a, *c;
+        tu_build(&s, tu_builder(b), &t);
+        bfs = (bvh_node *)malloc(t.node_count * sizeof *bfs);
+        from = (uint32_t *)malloc(t.node_count * sizeof *from); /* breadth-first index -> tree's */
+        to = (uint32_t *)malloc(t.node_count * sizeof *to);
+        assert_true(bfs && from && to);
+        from[0] = 0;
+        for (head = 0; head < tail; head++) { /* pairs of children stay side by side */
+            const bvh_node *n = &t.nodes[from[head]];
+            bfs[head] = *n;
+            if (n->count) continue;
+            bfs[head].index = tail;
+            from[tail++] = n->index;
+            from[tail++] = n->index + 1;
+        }
+        assert_int_equal(tail, t.node_count);
+        for (i = 0; i < t.node_count; i++) to[from[i]] = i;
+        a = prep_make(t.nodes, t.node_count, t.tris, 2);
+        c = prep_make(bfs, t.node_count, t.tris, 1);
+        for (i = 0; i < t.node_count; i++) {
+            const uint32_t k = to[i];
+            if (memcmp(&a->info[i], &c->info[k], sizeof a->info[i]))
+                fail_msg("%s/%s: node %u: the tables differ", s.name, bvh_builder_name(tu_builder(b)), i);
+        }
+        prep_free(a);
+        prep_free(c);
+        free(bfs);
+        free(from);
+        free(to);
         bvh_free(&t);
     }
     tu_scene_free(&s);
@@ -505,6 +564,7 @@ int main(void) {
         cmocka_unit_test(box_behind_origin_skipped),
         TU_SCENE_TEST(slot_order_any_hit, TU_SCENE_BUNNY, "bunny"),
         TU_SCENE_TEST(slot_order_any_hit, TU_SCENE_GRID, "grid"),
+        TU_SCENE_TEST(prep_any_layout, TU_SCENE_BUNNY, "bunny"),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -6464,23 +6464,16 @@ typedef struct bvh__wide_prep_job {
     uint8_t bad[BVH__MAX_THREADS]; /* per thread: a node before its parent or too deep */
 } bvh__wide_prep_job;
 #ifdef BVH__SSE
-/* bvh__wide_join's least cost of k slots shared out (d, lanes k - 1 = 0..7) and the left child's
-   share that gives it (s), for one share more: the left child's cost lk plus the right child's
-   entries shifted to the lanes they add up to (+inf where the right child gets none). */
-typedef struct bvh__share4 {
-    __m128 d0, d1;
-    __m128i s0, s1;
-} bvh__share4;
+/* bvh__wide_join's least cost of k slots shared out (d, four lanes of k - 1) and the left child's
+   share that gives it (s, as a float), for one share more: the left child's cost l4 plus the
+   right child's entries r shifted to the lanes they add up to (+inf where the right child gets
+   none). Shares come in increasing order, so taking the later one is a maximum. */
 #define BVH__SHL(v, n) _mm_castsi128_ps(_mm_slli_si128(_mm_castps_si128(v), n))
 #define BVH__SHR(v, n) _mm_castsi128_ps(_mm_srli_si128(_mm_castps_si128(v), n))
-BVH__INLINE void bvh__share_step(bvh__share4 *q, float lk, __m128 lo, __m128 hi, int share) {
-    const __m128 l4 = _mm_set1_ps(lk), v0 = _mm_add_ps(l4, lo), v1 = _mm_add_ps(l4, hi);
-    const __m128 m0 = _mm_cmplt_ps(v0, q->d0), m1 = _mm_cmplt_ps(v1, q->d1);
-    const __m128i n0 = _mm_castps_si128(m0), n1 = _mm_castps_si128(m1), k = _mm_set1_epi32(share);
-    q->d0 = _mm_or_ps(_mm_and_ps(m0, v0), _mm_andnot_ps(m0, q->d0));
-    q->d1 = _mm_or_ps(_mm_and_ps(m1, v1), _mm_andnot_ps(m1, q->d1));
-    q->s0 = _mm_or_si128(_mm_and_si128(n0, k), _mm_andnot_si128(n0, q->s0));
-    q->s1 = _mm_or_si128(_mm_and_si128(n1, k), _mm_andnot_si128(n1, q->s1));
+BVH__INLINE void bvh__share_step(__m128 *d, __m128 *s, __m128 l4, __m128 r, __m128 share) {
+    const __m128 v = _mm_add_ps(l4, r);
+    *s = _mm_max_ps(*s, _mm_and_ps(_mm_cmplt_ps(v, *d), share));
+    *d = _mm_min_ps(v, *d); /* v < d ? v : d */
 }
 #endif
 /* Leaf i's info and row. */
@@ -6531,20 +6524,24 @@ static int bvh__wide_join(const bvh__wide_prep_job *j, uint32_t i, const float *
         const __m128 r0 = _mm_loadu_ps(r), r1 = _mm_loadu_ps(r + 4), inf = _mm_set1_ps(BVH_INF);
         const __m128 i1 = _mm_setr_ps(BVH_INF, 0.0f, 0.0f, 0.0f), i2 = _mm_setr_ps(BVH_INF, BVH_INF, 0.0f, 0.0f);
         const __m128 i3 = _mm_setr_ps(BVH_INF, BVH_INF, BVH_INF, 0.0f);
-        bvh__share4 q;
-        q.d0 = q.d1 = inf;
-        q.s0 = q.s1 = _mm_set1_epi32(1);
-        bvh__share_step(&q, l[0], _mm_or_ps(BVH__SHL(r0, 4), i1), _mm_or_ps(BVH__SHL(r1, 4), BVH__SHR(r0, 12)), 1);
-        bvh__share_step(&q, l[1], _mm_or_ps(BVH__SHL(r0, 8), i2), _mm_or_ps(BVH__SHL(r1, 8), BVH__SHR(r0, 8)), 2);
-        bvh__share_step(&q, l[2], _mm_or_ps(BVH__SHL(r0, 12), i3), _mm_or_ps(BVH__SHL(r1, 12), BVH__SHR(r0, 4)), 3);
-        bvh__share_step(&q, l[3], inf, r0, 4);
-        bvh__share_step(&q, l[4], inf, _mm_or_ps(BVH__SHL(r0, 4), i1), 5);
-        bvh__share_step(&q, l[5], inf, _mm_or_ps(BVH__SHL(r0, 8), i2), 6);
-        bvh__share_step(&q, l[6], inf, _mm_or_ps(BVH__SHL(r0, 12), i3), 7);
-        d0 = q.d0;
-        d1 = q.d1;
-        s0 = q.s0;
-        s1 = q.s1;
+        __m128 l4, f0 = _mm_set1_ps(1.0f), f1 = f0;
+        d0 = d1 = inf;
+        l4 = _mm_set1_ps(l[0]);
+        bvh__share_step(&d0, &f0, l4, _mm_or_ps(BVH__SHL(r0, 4), i1), _mm_set1_ps(1.0f));
+        bvh__share_step(&d1, &f1, l4, _mm_or_ps(BVH__SHL(r1, 4), BVH__SHR(r0, 12)), _mm_set1_ps(1.0f));
+        l4 = _mm_set1_ps(l[1]);
+        bvh__share_step(&d0, &f0, l4, _mm_or_ps(BVH__SHL(r0, 8), i2), _mm_set1_ps(2.0f));
+        bvh__share_step(&d1, &f1, l4, _mm_or_ps(BVH__SHL(r1, 8), BVH__SHR(r0, 8)), _mm_set1_ps(2.0f));
+        l4 = _mm_set1_ps(l[2]);
+        bvh__share_step(&d0, &f0, l4, _mm_or_ps(BVH__SHL(r0, 12), i3), _mm_set1_ps(3.0f));
+        bvh__share_step(&d1, &f1, l4, _mm_or_ps(BVH__SHL(r1, 12), BVH__SHR(r0, 4)), _mm_set1_ps(3.0f));
+        /* shares 4 to 7 leave the right child no slot in lanes 0..3 */
+        bvh__share_step(&d1, &f1, _mm_set1_ps(l[3]), r0, _mm_set1_ps(4.0f));
+        bvh__share_step(&d1, &f1, _mm_set1_ps(l[4]), _mm_or_ps(BVH__SHL(r0, 4), i1), _mm_set1_ps(5.0f));
+        bvh__share_step(&d1, &f1, _mm_set1_ps(l[5]), _mm_or_ps(BVH__SHL(r0, 8), i2), _mm_set1_ps(6.0f));
+        bvh__share_step(&d1, &f1, _mm_set1_ps(l[6]), _mm_or_ps(BVH__SHL(r0, 12), i3), _mm_set1_ps(7.0f));
+        s0 = _mm_cvttps_epi32(f0);
+        s1 = _mm_cvttps_epi32(f1);
     }
 #else
     { /* the same, lane by lane */

@@ -6442,10 +6442,11 @@ static void bvh__team_run_always(const bvh_allocator *al, uint32_t want, bvh__te
    binary node is bvh__wide_info:
    - sub: the references below it; tarea: their triangles' area (bvh__wide_slot_order);
    - cost: its row's first entry (one slot);
-   - cut: for each budget k of 2 to 8 slots, four bits from bit 4 (k - 2): the left child's share
-     of the k slots that gives the least cost (3 bits, the first of equals), and whether the node
-     is opened with them (bit 3: it may be opened, and that costs strictly less than one slot).
-     bvh__wide_gather replays these choices. (bvh__wide_info is declared with bvh__wide_src.) */
+   - cut: 0 for a node that may not be opened (bvh__wide_cuttable); else, for each budget k of 2
+     to 8 slots, four bits from bit 4 (k - 2): the left child's share of the k slots that gives
+     the least cost (3 bits, the first of equals), and whether the node is opened with them (bit
+     3: that costs strictly less than one slot). bvh__wide_gather replays these choices. (bvh__wide_info is declared
+   with bvh__wide_src.) */
 #define BVH__CUT_LEFT(w, k) (((w) >> (4u * ((k)-2u))) & 7u)
 #define BVH__CUT_OPEN(w, k) (((w) >> (4u * ((k)-2u) + 3u)) & 1u)
 #define BVH__WIDE_ITEMS (2u * BVH__WIDE_SUBTREES + 1u)
@@ -6476,6 +6477,17 @@ BVH__INLINE void bvh__share_step(__m128 *d, __m128 *s, __m128 l4, __m128 r, __m1
     *d = _mm_min_ps(v, *d); /* v < d ? v : d */
 }
 #endif
+/* A row of one slot whatever the budget: c in every entry, stored whole (read back in halves
+   soon, bvh__wide_join). */
+BVH__INLINE void bvh__wide_row_fill(float row[BVH__W], float c) {
+#ifdef BVH__SSE
+    _mm_storeu_ps(row, _mm_set1_ps(c));
+    _mm_storeu_ps(row + 4, _mm_set1_ps(c));
+#else
+    uint32_t k;
+    for (k = 0; k < BVH__W; k++) row[k] = c;
+#endif
+}
 /* Leaf i's info and row. */
 static void bvh__wide_leaf_row(const bvh__wide_prep_job *j, uint32_t i, float row[BVH__W]) {
     const bvh_node *n = &j->nodes[i];
@@ -6493,12 +6505,7 @@ static void bvh__wide_leaf_row(const bvh__wide_prep_job *j, uint32_t i, float ro
     j->info[i].cut = 0;
     j->info[i].cost = c;
     j->info[i].tarea = sum;
-#ifdef BVH__SSE
-    _mm_storeu_ps(row, _mm_set1_ps(c)); /* whole: read back in halves soon (bvh__wide_join) */
-    _mm_storeu_ps(row + 4, _mm_set1_ps(c));
-#else
-    for (k = 0; k < BVH__W; k++) row[k] = c;
-#endif
+    bvh__wide_row_fill(row, c);
 }
 /* Interior node i's info and row (out) from its children's rows l and r (made before it, their
    infos too); out may be l or r. 0 where the references overflow. */
@@ -6518,6 +6525,14 @@ static int bvh__wide_join(const bvh__wide_prep_job *j, uint32_t i, const float *
     uint32_t k, left[BVH__W];
 #endif
     if (sub < cl->sub) return 0;
+    j->info[i].sub = sub;
+    j->info[i].tarea = cl->tarea + cr->tarea;
+    if (!cuttable) { /* one leaf slot whatever the budget (sub <= BVH__SLOT_REFS): no choice to make */
+        j->info[i].cut = 0;
+        j->info[i].cost = a * bvh__wide_leaf_cost(sub);
+        bvh__wide_row_fill(out, j->info[i].cost);
+        return 1;
+    }
 #ifdef BVH__SSE
     { /* lane k - 1 of d: the least cost of k slots shared out, the left child's share from 1 to
          k - 1, the first of equals (lane k - 1 of s); budget 1: none (+inf) */
@@ -6564,11 +6579,11 @@ static int bvh__wide_join(const bvh__wide_prep_job *j, uint32_t i, const float *
 #else
     d7 = d[BVH__W - 1];
 #endif
-    c0 = sub <= BVH__SLOT_REFS ? a * bvh__wide_leaf_cost(sub) : a * BVH__WIDE_NODE_COST + (cuttable ? d7 : BVH_INF);
+    c0 = sub <= BVH__SLOT_REFS ? a * bvh__wide_leaf_cost(sub) : a * BVH__WIDE_NODE_COST + d7;
 #ifdef BVH__SSE
     { /* the cut's nibbles: lane k's share and whether opened, lanes 1..7 to nibbles 0..6 */
         const __m128 c4 = _mm_set1_ps(c0);
-        const __m128i eight = _mm_set1_epi32(cuttable ? 8 : 0);
+        const __m128i eight = _mm_set1_epi32(8);
         const __m128i o0 = _mm_and_si128(_mm_castps_si128(_mm_cmplt_ps(d0, c4)), eight);
         const __m128i o1 = _mm_and_si128(_mm_castps_si128(_mm_cmplt_ps(d1, c4)), eight);
         const __m128i w = _mm_packs_epi32(_mm_or_si128(s0, o0), _mm_or_si128(s1, o1));
@@ -6580,18 +6595,15 @@ static int bvh__wide_join(const bvh__wide_prep_job *j, uint32_t i, const float *
         cut = (uint32_t)(x | x >> 16);
     }
 #else
-    for (k = 1; k < BVH__W; k++) cut |= (left[k] | (uint32_t)(cuttable && d[k] < c0) << 3) << (4 * (k - 1));
+    for (k = 1; k < BVH__W; k++) cut |= (left[k] | (uint32_t)(d[k] < c0) << 3) << (4 * (k - 1));
 #endif
-    j->info[i].sub = sub;
     j->info[i].cut = cut;
     j->info[i].cost = c0;
-    j->info[i].tarea = cl->tarea + cr->tarea;
-    /* the row: out[k] = min(out[k - 1], d[k]) from out[0] = c0 (where i is not cuttable, c0) */
+    /* the row: out[k] = min(out[k - 1], d[k]) from out[0] = c0 */
 #ifdef BVH__SSE
     { /* the running minimum in registers, stored whole (a row is read back in halves soon) */
-        const __m128 inf = _mm_set1_ps(BVH_INF), i1 = _mm_setr_ps(BVH_INF, 0.0f, 0.0f, 0.0f);
-        const __m128 i2 = _mm_setr_ps(BVH_INF, BVH_INF, 0.0f, 0.0f);
-        __m128 lo = cuttable ? _mm_move_ss(d0, _mm_set_ss(c0)) : _mm_set1_ps(c0), hi = cuttable ? d1 : inf;
+        const __m128 i1 = _mm_setr_ps(BVH_INF, 0.0f, 0.0f, 0.0f), i2 = _mm_setr_ps(BVH_INF, BVH_INF, 0.0f, 0.0f);
+        __m128 lo = _mm_move_ss(d0, _mm_set_ss(c0)), hi = d1;
         lo = _mm_min_ps(lo, _mm_or_ps(BVH__SHL(lo, 4), i1));
         lo = _mm_min_ps(lo, _mm_or_ps(BVH__SHL(lo, 8), i2));
         hi = _mm_min_ps(hi, _mm_or_ps(BVH__SHL(hi, 4), i1));
@@ -6602,10 +6614,7 @@ static int bvh__wide_join(const bvh__wide_prep_job *j, uint32_t i, const float *
     }
 #else
     out[0] = c0;
-    for (k = 1; k < BVH__W; k++) {
-        const float dk = cuttable ? d[k] : BVH_INF;
-        out[k] = dk < out[k - 1] ? dk : out[k - 1];
-    }
+    for (k = 1; k < BVH__W; k++) out[k] = d[k] < out[k - 1] ? d[k] : out[k - 1];
 #endif
     return 1;
 }

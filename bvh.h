@@ -113,10 +113,11 @@
             a node), and keeps 16 bytes a node with the cut's choices, which the passes that count
             and write the wide nodes replay (was: searched again in both); the triangles of a
             wide node's leaf slots are asked for ahead; the write pass takes its subtrees most
-            packets first. bvhbench --layout-cost (new: each timed build paired with one without
-            the layout), ploc-parallel on two threads, two runs: the layout adds 14-16% to the
-            bunny's build (was 28-31%), Sponza's 11-12% (22-26%), the dragon's 11-14% (32-39%),
-            gen:field:15's 18-20% (37-40%); its scratch memory 40 -> 16 bytes a binary node.
+            packets first; a node that may not be opened skips the dynamic program. bvhbench
+            --layout-cost (new: each timed build paired with one without the layout),
+            ploc-parallel on two threads, four runs: the layout adds 14-17% to the bunny's build
+            (was 27-31%), Sponza's 11-16% (22-25%), the dragon's 11-17% (32-38%), gen:field:15's
+            16-20% (37-40%); its scratch memory 40 -> 16 bytes a binary node.
      0.9.15 A wide node's interior slots are stored, and taken by any-hit rays, by the chance that
             their subtree stops a ray for what it costs that ray (the triangles' area over half
             the box's, capped at 1, over the layout's expected cost; Ize & Hansen's shadow-ray

@@ -552,8 +552,71 @@ static void prep_any_layout(void **state) {
     tu_scene_free(&s);
 }
 
+/* The packets' zero-area test (bvh__any_zero_area4) answers as the double test of each lane
+   (bvh__tri_zero_area) on triangles made to sit at its edges: collinear and nearly so, repeated
+   and one-ulp-apart vertices, coordinates from subnormal to near FLT_MAX; and its float pre-test
+   (bvh__area4_nonzero) never passes a lane the double test finds flat, yet passes ordinary ones. */
+#ifdef BVH__SSE
+static float zr_coord(tu_rng *r) {
+    static const float scale[] = {1.0f, 1e-3f, 1e3f, 1e-20f, 1e20f, 1e-38f, 1e-44f, 1e36f, 3e38f};
+    return tu_range(r, -1.0f, 1.0f) * scale[tu_below(r, (uint32_t)(sizeof scale / sizeof scale[0]))];
+}
+static void zr_triangle(tu_rng *r, float t[9]) {
+    uint32_t kind = tu_below(r, 6), a;
+    for (a = 0; a < 9; a++) t[a] = zr_coord(r);
+    if (kind == 1 || kind == 2) { /* the third vertex on the line through the first two, in float */
+        const float k = kind == 1 ? 0.5f : tu_range(r, -2.0f, 2.0f);
+        for (a = 0; a < 3; a++) t[6 + a] = t[a] + k * (t[3 + a] - t[a]);
+    } else if (kind == 3) { /* a repeated vertex */
+        for (a = 0; a < 3; a++) t[3 + a] = t[a];
+    } else if (kind == 4) { /* all three one ulp or so apart */
+        for (a = 0; a < 3; a++) {
+            t[3 + a] = nextafterf(t[a], BVH_INF);
+            t[6 + a] = tu_below(r, 2) ? nextafterf(t[a], -BVH_INF) : t[a];
+        }
+    }
+    if (!tu_below(r, 4)) /* an axis-aligned triangle: one coordinate shared */
+        t[5] = t[8] = t[2];
+}
+#endif
+static void zero_area_packets(void **state) {
+#ifdef BVH__SSE
+    tu_rng r = tu_rng_make(0x5a45524fULL);
+    uint32_t i, j, passed = 0, flat = 0;
+    (void)state;
+    for (i = 0; i < 200000u; i++) {
+        float t[4][9], c[9][4];
+        int want = 0, a;
+        __m128 v[9];
+        for (j = 0; j < 4; j++) {
+            zr_triangle(&r, t[j]);
+            want |= bvh__tri_zero_area(t[j]);
+            for (a = 0; a < 9; a++) c[a][j] = t[j][a];
+        }
+        for (a = 0; a < 9; a++) v[a] = _mm_loadu_ps(c[a]);
+        if (bvh__any_zero_area4(v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]) != want)
+            fail_msg("packet %u: the packet test says %d, the lanes' double test %d", i, !want, want);
+        for (j = 0; j < 4; j++) { /* each triangle alone in all four lanes */
+            for (a = 0; a < 9; a++) v[a] = _mm_set1_ps(t[j][a]);
+            if (bvh__area4_nonzero(v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8])) {
+                passed++;
+                if (bvh__tri_zero_area(t[j]))
+                    fail_msg("packet %u lane %u: the float pre-test passes a flat triangle", i, j);
+            }
+            flat += bvh__tri_zero_area(t[j]);
+        }
+    }
+    assert_true(passed > 200000u); /* the pre-test decides most triangles ... */
+    assert_true(flat > 100000u);   /* ... and flat ones were there to refuse */
+#else
+    (void)state;
+    skip();
+#endif
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(zero_area_packets),
         TU_EVERY_SCENE(exact_hits),
         TU_EVERY_SCENE(exact_renderer_hits),
         TU_SCENE_TEST(batch_equals_single, TU_SCENE_RANDOM, "random"),

@@ -6357,32 +6357,17 @@ static void bvh__packets_write(const uint32_t *refs, uint32_t n, const uint32_t 
             _MM_TRANSPOSE4_PS(a0, a1, a2, a3);
             _MM_TRANSPOSE4_PS(b0, b1, b2, b3);
             flat = bvh__any_zero_area4(a0, a1, a2, a3, b0, b1, b2, b3, c);
-            if (!flat && !((uintptr_t)(void *)p & 15u)) { /* streamed (see above) */
-                _mm_stream_ps(o, a0);
-                _mm_stream_ps(o + 4, a1);
-                _mm_stream_ps(o + 8, a2);
-                _mm_stream_ps(o + 12, a3);
-                _mm_stream_ps(o + 16, b0);
-                _mm_stream_ps(o + 20, b1);
-                _mm_stream_ps(o + 24, b2);
-                _mm_stream_ps(o + 28, b3);
-                _mm_stream_ps(o + 32, c);
-                _mm_stream_si128(
-                    BVH__CAST(__m128i *, BVH__CAST(void *, p->prim)),
-                    _mm_setr_epi32((int)prims[lane[0]], (int)prims[lane[1]], (int)prims[lane[2]], (int)prims[lane[3]]));
-                continue;
-            }
-            if (!flat) { /* a block from an allocator that aligns less than malloc */
-                _mm_storeu_ps(o, a0);
-                _mm_storeu_ps(o + 4, a1);
-                _mm_storeu_ps(o + 8, a2);
-                _mm_storeu_ps(o + 12, a3);
-                _mm_storeu_ps(o + 16, b0);
-                _mm_storeu_ps(o + 20, b1);
-                _mm_storeu_ps(o + 24, b2);
-                _mm_storeu_ps(o + 28, b3);
-                _mm_storeu_ps(o + 32, c);
-                for (j = 0; j < 4; j++) p->prim[j] = prims[lane[j]];
+            if (!flat) {
+                const __m128 rows[9] = {a0, a1, a2, a3, b0, b1, b2, b3, c};
+                if (!((uintptr_t)(void *)p & 15u)) { /* streamed (see above) */
+                    for (j = 0; j < 9; j++) _mm_stream_ps(o + 4 * j, rows[j]);
+                    _mm_stream_si128(BVH__CAST(__m128i *, BVH__CAST(void *, p->prim)),
+                                     _mm_setr_epi32((int)prims[lane[0]], (int)prims[lane[1]], (int)prims[lane[2]],
+                                                    (int)prims[lane[3]]));
+                } else { /* a block from an allocator that aligns less than malloc */
+                    for (j = 0; j < 9; j++) _mm_storeu_ps(o + 4 * j, rows[j]);
+                    for (j = 0; j < 4; j++) p->prim[j] = prims[lane[j]];
+                }
                 continue;
             }
         }

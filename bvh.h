@@ -9212,34 +9212,36 @@ static void bvh__refit_gather(const bvh_triangles *tr, const uint32_t *prims, co
         for (k = 0; k < m; k++) bvh__fetch_triangle(tr, sc->prim[k], sc->tri + 9 * (size_t)k);
     }
 }
-/* The slot's triangles into tree.tris: streamed past the caches where their positions run on (as
-   a builder lays them out; bvh__packets_write says why), else stored one by one. */
+/* nf floats from src to d, streamed past the caches (bvh__packets_write says why; the caller's
+   team pass fences them): 16-byte stores where d is aligned so, 4-byte ones at the ends. */
+static void bvh__stream_floats(float *d, const float *src, size_t nf) {
+#ifdef BVH__SSE
+    size_t f = 0;
+    int bits;
+    for (; f < nf && ((uintptr_t)(void *)(d + f) & 15u); f++) { /* floats are 4-aligned */
+        memcpy(&bits, src + f, 4);
+        _mm_stream_si32(BVH__CAST(int *, BVH__CAST(void *, d + f)), bits);
+    }
+    for (; f + 4 <= nf; f += 4) _mm_stream_ps(d + f, _mm_loadu_ps(src + f));
+    for (; f < nf; f++) {
+        memcpy(&bits, src + f, 4);
+        _mm_stream_si32(BVH__CAST(int *, BVH__CAST(void *, d + f)), bits);
+    }
+#else
+    memcpy(d, src, nf * sizeof(float));
+#endif
+}
+/* The slot's triangles into tree.tris: streamed where their positions run on (as a builder lays
+   them out), else stored one by one. */
 static void bvh__refit_tris_out(float *tris, const uint32_t *refs, uint32_t m, const float *src) {
     uint32_t k;
     for (k = 1; k < m && refs[k] == refs[0] + k; k++) {
     }
-    if (k < m) {
-        for (k = 0; k < m; k++) memcpy(tris + 9 * (size_t)refs[k], src + 9 * (size_t)k, 36);
+    if (k == m) {
+        bvh__stream_floats(tris + 9 * (size_t)refs[0], src, 9 * (size_t)m);
         return;
     }
-#ifdef BVH__SSE
-    {
-        float *d = tris + 9 * (size_t)refs[0];
-        size_t f = 0, nf = 9 * (size_t)m;
-        int bits;
-        for (; f < nf && ((uintptr_t)(void *)(d + f) & 15u); f++) { /* floats are 4-aligned */
-            memcpy(&bits, src + f, 4);
-            _mm_stream_si32(BVH__CAST(int *, BVH__CAST(void *, d + f)), bits);
-        }
-        for (; f + 4 <= nf; f += 4) _mm_stream_ps(d + f, _mm_loadu_ps(src + f));
-        for (; f < nf; f++) {
-            memcpy(&bits, src + f, 4);
-            _mm_stream_si32(BVH__CAST(int *, BVH__CAST(void *, d + f)), bits);
-        }
-    }
-#else
-    memcpy(tris + 9 * (size_t)refs[0], src, 36 * (size_t)m);
-#endif
+    for (k = 0; k < m; k++) memcpy(tris + 9 * (size_t)refs[k], src + 9 * (size_t)k, 36);
 }
 static int bvh__refit_wnode(const bvh__refit *j, uint32_t w, bvh__wnode_scratch *sc) {
     bvh_tree *t = j->tree;
@@ -9299,7 +9301,21 @@ static int bvh__refit_wnode(const bvh__refit *j, uint32_t w, bvh__wnode_scratch 
         bvh__refit_tris_out(t->tris, refs, m, sc->tri);
     }
     for (k = g.nopen; k-- > 0;) bvh__refit_node(j, g.open[k]); /* interior: cannot fail */
-    for (i = 0; i < g.nslot; i++) bvh__node8_box(n, i, t->nodes[g.slot[i]].min, t->nodes[g.slot[i]].max);
+    {                          /* the slot boxes in one streamed write of the node's three box lines, which nothing here
+                                  reads (an ordinary store would read them from memory first); empty slots as built */
+        float box[6 * BVH__W]; /* bvh_node8's min[3][8] and max[3][8], in that order */
+        for (i = 0; i < BVH__W; i++) {
+            const bvh_node *x = i < g.nslot ? &t->nodes[g.slot[i]] : NULL;
+            box[i] = x ? x->min.x : BVH_INF;
+            box[BVH__W + i] = x ? x->min.y : BVH_INF;
+            box[2 * BVH__W + i] = x ? x->min.z : BVH_INF;
+            box[3 * BVH__W + i] = x ? x->max.x : -BVH_INF;
+            box[4 * BVH__W + i] = x ? x->max.y : -BVH_INF;
+            box[5 * BVH__W + i] = x ? x->max.z : -BVH_INF;
+        }
+        bvh__stream_floats(&n->min[0][0], box, 3 * BVH__W);
+        bvh__stream_floats(&n->max[0][0], box + 3 * BVH__W, 3 * BVH__W);
+    }
     return 1;
 }
 /* Asks for what wide node w will read, `ahead` nodes before it is taken (out of range: nothing),

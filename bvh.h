@@ -9301,8 +9301,9 @@ static int bvh__refit_wnode(const bvh__refit *j, uint32_t w, bvh__wnode_scratch 
         bvh__refit_tris_out(t->tris, refs, m, sc->tri);
     }
     for (k = g.nopen; k-- > 0;) bvh__refit_node(j, g.open[k]); /* interior: cannot fail */
-    {                          /* the slot boxes in one streamed write of the node's three box lines, which nothing here
-                                  reads (an ordinary store would read them from memory first); empty slots as built */
+    /* the slot boxes in one streamed write of the node's three box lines, which nothing here reads
+       (an ordinary store would read them from memory first); empty slots as built */
+    {
         float box[6 * BVH__W]; /* bvh_node8's min[3][8] and max[3][8], in that order */
         for (i = 0; i < BVH__W; i++) {
             const bvh_node *x = i < g.nslot ? &t->nodes[g.slot[i]] : NULL;

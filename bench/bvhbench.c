@@ -76,6 +76,9 @@
    pair then R timed ones as the builds have them (medians: save_ms, load_ms; the warm-up's:
    save_first_ms, load_first_ms: a process's first touch of fresh huge pages can cost several
    times more, docs/bench 0.9.14); the 8-wide nodes are read and their packets remade on load.
+   Each round also loads the same buffer with bvh_load_desc.borrow (the binary nodes, references
+   and triangles read in place; load_borrow_ms), the two loads in turns (which goes first
+   alternates).
    With --layout-cost, each timed build of a row is paired with one of the same desc but
    trace_width = 2, the two in turns (which goes first alternates), so that what the 8-wide
    layout adds to the build is measured in the same rounds: layout_ms, the median of the pairs'
@@ -199,6 +202,7 @@ typedef struct row {
                                                     this builder's tree rebuilt on it */
     double refit_mrays, rebuild_mrays;           /* camera rays of the last frame on N threads */
     double save_ms, load_ms;                     /* --save-load: to and from memory (median of R) */
+    double load_borrow_ms;                       /* the same loads with bvh_load_desc.borrow */
     double build2_ms, layout_ms;                 /* --layout-cost: median build with trace_width 2, and
                                                     median of the paired differences */
     double save_first_ms, load_first_ms;         /* the warm-up pair's */
@@ -283,7 +287,7 @@ static void row_init(row *r, row_kind kind, const char *name) {
     r->x_pcl = r->x_pcl_min = r->x_pcl_max = r->p_mrays = NAN;
     r->refit_ms = r->rebuild_ms = r->emb_refit_ms = r->refit_sah = r->rebuild_sah = r->refit_mrays = r->rebuild_mrays =
         NAN;
-    r->save_ms = r->load_ms = r->save_first_ms = r->load_first_ms = NAN;
+    r->save_ms = r->load_ms = r->save_first_ms = r->load_first_ms = r->load_borrow_ms = NAN;
     r->build2_ms = r->layout_ms = NAN;
     for (k = 0; k < SET_COUNT; k++) {
         set_figs *f = &r->set[k];
@@ -953,8 +957,8 @@ fail:
 }
 
 /* --save-load: bvh_save into a buffer of bvh_save_size bytes and bvh_load from it (on N threads:
-   the 8-wide packets remade from the saved groupings), 3 times each; the median times. The loaded tree must be the
-   saved one. */
+   the 8-wide packets remade from the saved groupings), copied and borrowed in turns, R times
+   each after a warm-up; the median times. The loaded trees must be the saved one. */
 typedef struct mem_writer {
     unsigned char *p;
 } mem_writer;
@@ -967,8 +971,8 @@ static size_t mem_write(void *user, const void *data, size_t size) {
 static void save_load(run_ctx *c, row *r, const bvh_tree *tree) {
     size_t size = bvh_save_size(tree);
     unsigned char *buf = (unsigned char *)malloc(size);
-    double save[BENCH_MAX_REPEAT + 1], load[BENCH_MAX_REPEAT + 1];
-    uint32_t k, n = c->o->repeat;
+    double save[BENCH_MAX_REPEAT + 1], load[BENCH_MAX_REPEAT + 1], borrow[BENCH_MAX_REPEAT + 1];
+    uint32_t k, b, n = c->o->repeat;
     bvh_result res = buf ? BVH_SUCCESS : BVH_ERROR_OUT_OF_MEMORY;
     for (k = 0; k <= n && res == BVH_SUCCESS; k++) { /* k = 0: the warm-up, as build_repeated's */
         mem_writer w = {buf};
@@ -984,13 +988,18 @@ static void save_load(run_ctx *c, row *r, const bvh_tree *tree) {
         ld.data = buf;
         ld.size = size;
         ld.threads = c->o->threads;
-        t0 = scene_now_ms();
-        res = bvh_load(&t, &ld);
-        load[k] = scene_now_ms() - t0;
-        if (res == BVH_SUCCESS && (t.node_count != tree->node_count || t.node8_count != tree->node8_count ||
-                                   memcmp(t.nodes, tree->nodes, (size_t)t.node_count * sizeof(bvh_node))))
-            flag(c, r, "the loaded tree differs from the saved one");
-        bvh_free(&t);
+        for (b = 0; b < 2 && res == BVH_SUCCESS; b++) { /* copied, borrowed; every other round the other way */
+            ld.borrow = (uint32_t)(b ^ (k & 1u));
+            t0 = scene_now_ms();
+            res = bvh_load(&t, &ld);
+            (ld.borrow ? borrow : load)[k] = scene_now_ms() - t0;
+            if (res == BVH_SUCCESS &&
+                (t.node_count != tree->node_count || t.node8_count != tree->node8_count || t.borrowed != ld.borrow ||
+                 memcmp(t.nodes, tree->nodes, (size_t)t.node_count * sizeof(bvh_node)) ||
+                 (t.nodes8 && memcmp(t.nodes8, tree->nodes8, (size_t)t.node8_count * sizeof(bvh_node8)))))
+                flag(c, r, "the loaded tree differs from the saved one");
+            bvh_free(&t);
+        }
     }
     free(buf);
     if (res != BVH_SUCCESS) {
@@ -1002,6 +1011,7 @@ static void save_load(run_ctx *c, row *r, const bvh_tree *tree) {
     r->load_first_ms = load[0];
     r->save_ms = scene_median(save + 1, n);
     r->load_ms = scene_median(load + 1, n);
+    r->load_borrow_ms = scene_median(borrow + 1, n);
 }
 
 /* --refit N: the scene twisted about its vertical axis through the centre, a little more each
@@ -2282,15 +2292,18 @@ static void anim_lines(FILE *f, const options *o, const bench_scene *s, const ch
     }
     if (o->save_load)
         fprintf(f,
-                "%ssave and load (--save-load, memory, 8-wide packets remade on load): ms, medians after a "
-                "warm-up pair (its times last)\n",
+                "%ssave and load (--save-load, memory, 8-wide packets remade on load; borrowed: "
+                "bvh_load_desc.borrow, the arrays read in place): ms, medians after a warm-up pair (its times "
+                "last), the build over each\n",
                 prefix);
     for (i = 0; o->save_load && i < s->nrows; i++) {
         const row *r = &s->rows[i];
         if (r->kind != ROW_BVH || r->state != ROW_OK) continue;
-        fprintf(f, "%s  %-14s save %8.2f  load %8.2f  (build %8.2f: %4.1fx)  warm-up save %8.2f  load %8.2f\n", prefix,
-                r->name, r->save_ms, r->load_ms, r->build_ms, r->build_ms / r->load_ms, r->save_first_ms,
-                r->load_first_ms);
+        fprintf(f,
+                "%s  %-14s save %8.2f  load %8.2f  borrowed %8.2f  (build %8.2f: %4.1fx | %4.1fx)  warm-up save "
+                "%8.2f  load %8.2f\n",
+                prefix, r->name, r->save_ms, r->load_ms, r->load_borrow_ms, r->build_ms, r->build_ms / r->load_ms,
+                r->build_ms / r->load_borrow_ms, r->save_first_ms, r->load_first_ms);
     }
     if (o->layout_cost)
         fprintf(f,
@@ -2622,6 +2635,7 @@ static void json_rows(FILE *f, const options *o, const bench_scene *s) {
         json_num(f, "rebuild_mrays", r->rebuild_mrays, 4);
         json_num(f, "save_ms", r->save_ms, 4);
         json_num(f, "load_ms", r->load_ms, 4);
+        json_num(f, "load_borrow_ms", r->load_borrow_ms, 4);
         json_num(f, "save_first_ms", r->save_first_ms, 4);
         json_num(f, "load_first_ms", r->load_first_ms, 4);
         json_num(f, "build_ms_binary", r->build2_ms, 4);

@@ -11,7 +11,8 @@
    Input: byte 0 is a mode, the rest a file for bvh_load. Mode bit 0 reseals the file (rewrites
    its header and payload checksums where the header's counts fit the bytes), so that mutations
    reach the size and structure checks behind the checksums; bit 1 loads through a read callback
-   (in pieces of 1 to 8 bytes, by bits 2-4) instead of from memory; bit 5 asks for the 8-wide
+   (in pieces of 1 to 8 bytes, by bits 2-4) instead of from memory, where bit 2 borrows the
+   memory instead (bvh_load_desc.borrow: read in place, never written); bit 5 asks for the 8-wide
    layout, bit 6 for none (else: as saved); bit 7 limits the allocator to 4 times the file's size.
    Checked, any disagreement traps:
    - the result is SUCCESS or one of TRUNCATED, CORRUPT, UNSUPPORTED_FORMAT, OUT_OF_MEMORY, and
@@ -20,7 +21,9 @@
      8-wide layout), whatever the header says;
    - after a success: bvh_validate passes (triangle trees; box trees have no boxes to check
      against), bvh_sah works, rays trace without fault, a refit to the tree's own triangles
-     succeeds and stays valid, and bvh_save writes bytes that load to the same tree. */
+     succeeds and stays valid (a borrowed tree: is refused, the tree unchanged), and bvh_save
+     writes bytes that load to the same tree;
+   - a borrowed buffer's bytes are the same after the load and after bvh_free. */
 #define BVH_IMPLEMENTATION
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
@@ -166,7 +169,10 @@ static void fz_after_success(bvh_tree *t) {
         rd.threads = 2;
         r = bvh_refit(t, &rd);
         free(v);
-        FZ_CHECK(r == BVH_SUCCESS, "refit of a loaded tree: %s", bvh_result_string(r));
+        if (t->borrowed)
+            FZ_CHECK(r == BVH_ERROR_INVALID_ARGUMENT, "refit of a borrowed tree: %s", bvh_result_string(r));
+        else
+            FZ_CHECK(r == BVH_SUCCESS, "refit of a loaded tree: %s", bvh_result_string(r));
         FZ_CHECK(bvh_validate(t, NULL, &rep) == BVH_SUCCESS, "refitted tree invalid: %s", rep.message);
     }
     memset(&out, 0, sizeof out);
@@ -184,7 +190,7 @@ static void fz_after_success(bvh_tree *t) {
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
-    uint8_t mode, *file;
+    uint8_t mode, *file, *before = NULL;
     fz_alloc a;
     fz_stream st;
     bvh_load_desc ld;
@@ -216,6 +222,12 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     } else {
         ld.data = file;
         ld.size = size;
+        ld.borrow = (mode >> 2) & 1u;
+        if (ld.borrow) {
+            before = (uint8_t *)malloc(size ? size : 1);
+            FZ_CHECK(before != NULL, "out of memory");
+            memcpy(before, file, size);
+        }
     }
     r = bvh_load(&t, &ld);
     FZ_CHECK(r == BVH_SUCCESS || r == BVH_ERROR_TRUNCATED || r == BVH_ERROR_CORRUPT ||
@@ -229,6 +241,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     }
     bvh_free(&t);
     FZ_CHECK(a.live == 0, "%ld blocks live after bvh_free", a.live);
+    FZ_CHECK(!before || memcmp(before, file, size) == 0, "a borrowed buffer was written");
+    free(before);
     free(file);
     return 0;
 }
@@ -287,6 +301,8 @@ int main(int argc, char **argv) {
             if (n > 1) {
                 snprintf(name, sizeof name, "%s-%u-streamed-resealed", bvh_builder_name(d.builder), n);
                 seed_write(argv[1], name, 1 | 2 | (3 << 2) | 32, &t);
+                snprintf(name, sizeof name, "%s-%u-borrowed-resealed", bvh_builder_name(d.builder), n);
+                seed_write(argv[1], name, 1 | 4, &t);
             }
             bvh_free(&t);
             d.triangles.triangle_count = 0;

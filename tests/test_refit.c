@@ -429,11 +429,12 @@ static rf_buf rf_save(const bvh_tree *t) {
     assert_int_equal(b.size, bvh_save_size(t));
     return b;
 }
-/* Loads from memory and through the read callback: both must give the same result (and tree). */
+/* Loads from memory, through the read callback and borrowing the memory (desc.borrow): all three
+   must give the same result (and tree). */
 static bvh_result rf_load(bvh_tree *t, const unsigned char *data, size_t size, bvh_load_desc d) {
-    bvh_tree t2;
+    bvh_tree t2, t3;
     rf_buf b;
-    bvh_result r, r2;
+    bvh_result r, r2, r3;
     memset(&b, 0, sizeof b);
     b.data = (unsigned char *)(uintptr_t)data;
     b.size = size;
@@ -449,8 +450,18 @@ static bvh_result rf_load(bvh_tree *t, const unsigned char *data, size_t size, b
     if (r != r2)
         fail_msg("bvh_load from memory: %s, through a callback: %s", bvh_result_string(r), bvh_result_string(r2));
     if (r == BVH_SUCCESS && tree_diff(t, &t2)) fail_msg("memory and callback loads differ: %s", tree_diff(t, &t2));
+    d.data = data;
+    d.size = size;
+    d.read = NULL;
+    d.borrow = 1;
+    r3 = bvh_load(&t3, &d);
+    if (r != r3) fail_msg("bvh_load from memory: %s, borrowing it: %s", bvh_result_string(r), bvh_result_string(r3));
+    if (r == BVH_SUCCESS && tree_diff(t, &t3)) fail_msg("copied and borrowed loads differ: %s", tree_diff(t, &t3));
+    if (r3 == BVH_SUCCESS) assert_int_equal(t3.borrowed, t3.node_count != 0);
     if (r != BVH_SUCCESS) assert_null(t->nodes);
+    if (r3 != BVH_SUCCESS) assert_null(t3.nodes);
     bvh_free(&t2);
+    bvh_free(&t3); /* leaves the buffer: freeing it would fail under ASan, or abort */
     return r;
 }
 
@@ -846,18 +857,121 @@ static void load_damaged(void **state) {
         assert_int_equal(bvh_load(&u, &ld), BVH_SUCCESS);
         bvh_free(&u);
         total = a.calls;
-        for (k = 0; k < total; k++) {
+        for (k = 0; k < 2 * total; k++) { /* copying, then borrowing (fewer allocations) */
             bvh_result r;
-            ld.allocator = rf_allocator(&a, k);
+            ld.borrow = k >= total;
+            ld.allocator = rf_allocator(&a, k % total);
             r = bvh_load(&u, &ld);
             if (r != BVH_SUCCESS && r != BVH_ERROR_OUT_OF_MEMORY)
-                fail_msg("allocation %ld failed: %s", k, bvh_result_string(r));
+                fail_msg("allocation %ld failed%s: %s", k % total, ld.borrow ? " (borrowed)" : "",
+                         bvh_result_string(r));
             bvh_free(&u);
             assert_int_equal(a.live, 0);
         }
     }
     free(copy);
     free(buf.data);
+    bvh_free(&t);
+    tu_scene_free(&s);
+}
+
+/* desc.borrow: the tree reads the caller's buffer where it lies (4-byte aligned is enough), never
+   writes it, and leaves it to the caller at bvh_free; only the 8-wide layout and the checks'
+   scratch are allocated; bvh_refit refuses such a tree; a stream, a misaligned buffer or another
+   value of borrow are refused. Every damaged and truncated file of load_damaged is also loaded
+   borrowed (rf_load). */
+static void load_borrowed(void **state) {
+    tu_scene s;
+    bvh_tree t, u, v;
+    bvh_load_desc ld;
+    bvh_refit_desc rd;
+    rf_buf buf, again;
+    rf_alloc a, a2;
+    unsigned char *copy, *shifted;
+    bvh_ray *rays = (bvh_ray *)malloc(RF_RAYS * sizeof *rays);
+    bvh_hit *want = (bvh_hit *)malloc(RF_RAYS * sizeof *want);
+    float *tris;
+    long calls, live;
+    int off;
+    (void)state;
+    assert_true(rays && want);
+    tu_scene_grid(&s);
+    tu_build(&s, BVH_BUILDER_PLOC_PARALLEL, &t);
+    tris = tu_scene_tris(&s);
+    tu_make_rays(tris, s.tri_count, 0x626f72726f77ULL, rays, RF_RAYS);
+    tu_oracle_run(tris, s.tri_count, rays, RF_RAYS, want);
+    buf = rf_save(&t);
+    copy = (unsigned char *)malloc(buf.size);
+    shifted = (unsigned char *)malloc(buf.size + 16);
+    assert_true(copy && shifted);
+    memcpy(copy, buf.data, buf.size);
+    for (off = 0; off <= 12; off += 4) { /* the arrays at every 4-byte offset of a 16-byte line */
+        memcpy(shifted + off, buf.data, buf.size);
+        memset(&ld, 0, sizeof ld);
+        ld.data = shifted + off;
+        ld.size = buf.size;
+        ld.borrow = 1;
+        ld.allocator = rf_allocator(&a, -1);
+        assert_int_equal(bvh_load(&u, &ld), BVH_SUCCESS);
+        calls = a.calls;
+        live = a.live;
+        assert_int_equal(u.borrowed, 1);
+        assert_ptr_equal(u.nodes, shifted + off + 64);
+        assert_null(tree_diff(&t, &u));
+        rf_valid(&u, NULL, "borrowed");
+        assert_int_equal(rf_compare(&s, &u, rays, want, RF_RAYS, "borrowed"), 0);
+        /* a copying load allocates the three arrays more, and holds them */
+        ld.borrow = 0;
+        ld.allocator = rf_allocator(&a2, -1);
+        assert_int_equal(bvh_load(&v, &ld), BVH_SUCCESS);
+        assert_int_equal(v.borrowed, 0);
+        assert_int_equal(a2.calls, calls + 3);
+        assert_int_equal(a2.live, live + 3);
+        bvh_free(&v);
+        assert_int_equal(a2.live, 0);
+        /* saved again: the same bytes */
+        again = rf_save(&u);
+        assert_int_equal(again.size, buf.size);
+        assert_memory_equal(again.data, buf.data, buf.size);
+        free(again.data);
+        /* refit refused, the tree as it was */
+        rd = rf_desc(&s, 2);
+        assert_int_equal(bvh_refit(&u, &rd), BVH_ERROR_INVALID_ARGUMENT);
+        assert_null(tree_diff(&t, &u));
+        bvh_free(&u);
+        assert_int_equal(a.live, 0);
+        assert_memory_equal(shifted + off, copy, buf.size); /* never written */
+    }
+    /* refused: a misaligned buffer, a stream, borrow 2; the tree zeroed, nothing allocated */
+    memset(&ld, 0, sizeof ld);
+    ld.allocator = rf_allocator(&a, -1);
+    memcpy(shifted + 1, buf.data, buf.size);
+    ld.data = shifted + 1;
+    ld.size = buf.size;
+    ld.borrow = 1;
+    assert_int_equal(bvh_load(&u, &ld), BVH_ERROR_INVALID_ARGUMENT);
+    assert_null(u.nodes);
+    ld.data = buf.data;
+    ld.borrow = 2;
+    assert_int_equal(bvh_load(&u, &ld), BVH_ERROR_INVALID_ARGUMENT);
+    {
+        rf_buf b = buf;
+        b.pos = 0;
+        ld.borrow = 1;
+        ld.data = NULL;
+        ld.size = 0;
+        ld.read = rf_read;
+        ld.user = &b;
+        assert_int_equal(bvh_load(&u, &ld), BVH_ERROR_INVALID_ARGUMENT);
+        assert_null(u.nodes);
+    }
+    assert_int_equal(a.calls, 0);
+    free(copy);
+    free(shifted);
+    free(buf.data);
+    free(tris);
+    free(rays);
+    free(want);
     bvh_free(&t);
     tu_scene_free(&s);
 }
@@ -947,6 +1061,7 @@ int main(void) {
         cmocka_unit_test(save_load_kinds),
         cmocka_unit_test(load_damaged),
         cmocka_unit_test(load_sparse_primitives),
+        cmocka_unit_test(load_borrowed),
         TU_SCENE_TEST(legacy_slot_order, TU_SCENE_RANDOM, "random"),
         TU_SCENE_TEST(legacy_slot_order, TU_SCENE_BUNNY, "bunny"),
     };

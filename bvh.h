@@ -10010,9 +10010,26 @@ static int bvh__leaf_tris_ok(const float *tris, const bvh_node *n, int splits) {
 static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_scratch *sc) {
     bvh_node8 *n = &t->nodes8[w];
     bvh__group g;
-    uint32_t i, a, npre = 0, nref = 0;
+    uint32_t i, a, k, npre = 0, nref = 0;
     if (!bvh__group_read(t->nodes, t->node_count, n, &g)) return 0;
     if (g.nslot == 1 && (w || !n->count[0])) return 0; /* only a root that is a leaf slot */
+    for (i = 0; i < g.nslot; i++) { /* the leaf slots' walks first, their leaves' triangles asked for */
+        if (n->count[i]) {
+            const uint32_t r0 = nref, p0 = npre;
+            if (!bvh__slot_walk(t, g.slot[i], sc->pre, &npre, sc->refs, &nref)) return 0;
+            if (n->count[i] != (nref - r0 + BVH__PACKET - 1) / BVH__PACKET) return 0;
+            for (k = p0; k < npre; k++) {
+                const bvh_node *x = &t->nodes[sc->pre[k]]; /* a leaf's range: checked by the walk */
+                const char *f = BVH__CAST(const char *, BVH__CAST(const void *, t->tris + 9 * (size_t)x->index));
+                const char *e = f + 36 * (size_t)x->count;
+                if (!x->count) continue;
+                for (; f < e; f += 64) BVH__PREFETCH(f);
+                BVH__PREFETCH(e - 1);
+            }
+        }
+        sc->pre_end[i] = npre;
+        sc->ref_end[i] = nref;
+    }
     for (i = 0; i < BVH__W; i++) {
         if (i >= g.nslot) {
             if (n->count[i] || n->child[i]) return 0;
@@ -10023,12 +10040,10 @@ static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_s
             continue;
         }
         if (n->count[i]) {
-            uint32_t r0 = nref, p0 = npre, k;
-            if (!bvh__slot_walk(t, g.slot[i], sc->pre, &npre, sc->refs, &nref)) return 0;
-            if (n->count[i] != (nref - r0 + BVH__PACKET - 1) / BVH__PACKET) return 0;
-            for (k = p0; k < npre; k++) /* bvh__validate_linear leaves them to this pass */
+            const uint32_t r0 = i ? sc->ref_end[i - 1] : 0;
+            for (k = i ? sc->pre_end[i - 1] : 0; k < sc->pre_end[i]; k++) /* bvh__validate_linear leaves them here */
                 if (t->nodes[sc->pre[k]].count && !bvh__leaf_tris_ok(t->tris, &t->nodes[sc->pre[k]], splits)) return 0;
-            bvh__packets_write(sc->refs + r0, nref - r0, t->prims, t->tris, t->tri4 + n->child[i]);
+            bvh__packets_write(sc->refs + r0, sc->ref_end[i] - r0, t->prims, t->tris, t->tri4 + n->child[i]);
         } else if (t->nodes8[n->child[i]].head != g.slot[i]) {
             return 0;
         }

@@ -58,5 +58,8 @@ int AB_FN(load)(bvh_tree *tree, const void *bytes, size_t size, uint32_t threads
     d.data = bytes;
     d.size = size;
     d.threads = threads;
+#ifdef AB_BORROW /* both versions loading in place (bvh_load_desc.borrow, 0.9.18 and later) */
+    d.borrow = 1;
+#endif
     return (int)bvh_load(tree, &d);
 }

@@ -6497,6 +6497,32 @@ static int bvh__wide_cuttable(uint32_t sub, uint32_t subl, uint32_t subr) {
 static void bvh__team_run_always(const bvh_allocator *al, uint32_t want, bvh__team_fn fn, void *arg) {
     if (bvh__team_run(al, want, fn, arg) != BVH_SUCCESS) (void)bvh__team_run(al, 1, fn, arg);
 }
+/* The first touch of a fresh block the library will fill, one byte a page, each thread of a team
+   its own contiguous part: the kernel then clears the pages (a huge page's 2 MiB at a time) on
+   every thread at once, rather than under a pass whose threads fill the block in interleaved
+   pieces and wait on each other's faults there (bvh_load's 8-wide pass; docs/bench, 0.9.18). */
+typedef struct bvh__touch_job {
+    unsigned char *p;
+    size_t size;
+} bvh__touch_job;
+static void bvh__touch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__touch_job *j = BVH__CAST(bvh__touch_job *, arg);
+    size_t b, e;
+    (void)team;
+    bvh__range(j->size, tid, nt, &b, &e);
+    for (; b < e; b += 4096) j->p[b] = 0;
+}
+static void bvh__touch_pages(const bvh_allocator *al, const bvh_thread_pool *pool, uint32_t threads, void *p,
+                             size_t size) {
+    bvh__touch_job j;
+    if (threads < 2 || !p) return;
+    j.p = BVH__CAST(unsigned char *, p);
+    j.size = size;
+    if (pool && pool->run)
+        (void)bvh__team_run_on(pool, al, threads, 0, bvh__touch_fn, &j);
+    else
+        bvh__team_run_always(al, threads, bvh__touch_fn, &j);
+}
 /* The wide layout is made on the build's team: the top of the tree on one thread until there are
    BVH__WIDE_SUBTREES subtrees (bvh__wide_prep's binary subtrees, none split below
    BVH__WIDE_PREP_MIN nodes; bvh__wide_plan_make's wide subtrees), then those in parallel. */
@@ -9807,7 +9833,8 @@ static int bvh__leaves_small(const bvh_node *n, size_t count) {
 static int bvh__floats_finite(const float *t, size_t n) { return !bvh__any_nonfinite(t, n); }
 /* A payload array read in pieces (BVH__PIECE), each hashed (bvh__payload_check) and checked as
    `kind` says (1 nodes, 2 triangles) while it is still in cache: one pass over the memory. From a
-   memory buffer, the pieces are spread over the load's team; from a stream, read in order. */
+   memory buffer, the pieces are shared out over the load's team in contiguous runs (each thread
+   first touches its own fresh pages: bvh__touch_pages says why); from a stream, read in order. */
 typedef struct bvh__load_array {
     const unsigned char *src; /* the memory buffer's bytes; NULL: a stream */
     unsigned char *out;
@@ -9829,9 +9856,10 @@ static void bvh__load_piece(bvh__load_array *a, size_t i, uint32_t tid) {
 }
 static void bvh__load_array_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__load_array *a = BVH__CAST(bvh__load_array *, arg);
-    size_t i;
+    size_t i, b, e;
     (void)team;
-    for (i = tid; i * BVH__PIECE < a->size; i += nt) bvh__load_piece(a, i, tid);
+    bvh__range((a->size + BVH__PIECE - 1) / BVH__PIECE, tid, nt, &b, &e); /* each thread its own pages */
+    for (i = b; i < e; i++) bvh__load_piece(a, i, tid);
 }
 static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int kind, uint32_t array, uint32_t threads,
                                   uint64_t *check, int *bad) {
@@ -10138,6 +10166,7 @@ static bvh_result bvh__load_checks(bvh_tree *t, uint32_t threads) {
     job.chunk = t->nodes8 ? BVH__LOAD_CHUNK : 64 * BVH__LOAD_CHUNK;
     nt = t->ref_count / BVH__MIN_PRIMS_PER_THREAD;
     nt = threads < nt ? threads : nt ? nt : 1;
+    bvh__touch_pages(&t->allocator, NULL, nt, t->tri4, (size_t)t->tri4_count * sizeof(bvh_tri4));
     bvh__team_run_always(&t->allocator, nt, bvh__load_fn, &job);
     if ((r = job.checked) != BVH_SUCCESS) goto done; /* INVALID_TREE: the caller says CORRUPT */
     for (i = 0; i < BVH__MAX_THREADS; i++)

@@ -943,10 +943,10 @@ typedef struct bvh_refit_desc {
      whole triangle's box (the clipping is not redone): valid and exact, with more overlap.
    - skip_invalid trees: the excluded primitives stay out (their new positions are not read).
    - Errors leave the tree unchanged: BVH_ERROR_INVALID_ARGUMENT (a NULL pointer, a count or kind
-     that differs from the tree's, stride < 12, a tree bvh_load borrowed from a buffer), BVH_ERROR_INDEX_OUT_OF_RANGE,
-     BVH_ERROR_INVALID_GEOMETRY (NaN or Inf in a vertex of a primitive the tree holds, or an
-     inverted box: the build's policy). A tree that fails bvh_validate may be refused with
-     BVH_ERROR_INVALID_TREE after part of it was updated.
+     that differs from the tree's, stride < 12, a tree bvh_load borrowed from a buffer),
+     BVH_ERROR_INDEX_OUT_OF_RANGE, BVH_ERROR_INVALID_GEOMETRY (NaN or Inf in a vertex of a
+     primitive the tree holds, or an inverted box: the build's policy). A tree that fails
+     bvh_validate may be refused with BVH_ERROR_INVALID_TREE after part of it was updated.
    - Memory: nothing is allocated but the thread team's bookkeeping (a few bytes per thread, from
      the tree's allocator; without it the refit runs on one thread), so it cannot run out of
      memory; 20 KiB of stack per thread. Each 8-wide node keeps, from its build, its grouping
@@ -6522,16 +6522,12 @@ static void bvh__touch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     bvh__range(j->size, tid, nt, &b, &e);
     for (; b < e; b += 4096) j->p[b] = 0;
 }
-static void bvh__touch_pages(const bvh_allocator *al, const bvh_thread_pool *pool, uint32_t threads, void *p,
-                             size_t size) {
+static void bvh__touch_pages(const bvh_allocator *al, uint32_t threads, void *p, size_t size) {
     bvh__touch_job j;
     if (threads < 2 || !p) return;
     j.p = BVH__CAST(unsigned char *, p);
     j.size = size;
-    if (pool && pool->run)
-        (void)bvh__team_run_on(pool, al, threads, 0, bvh__touch_fn, &j);
-    else
-        bvh__team_run_always(al, threads, bvh__touch_fn, &j);
+    bvh__team_run_always(al, threads, bvh__touch_fn, &j);
 }
 /* The wide layout is made on the build's team: the top of the tree on one thread until there are
    BVH__WIDE_SUBTREES subtrees (bvh__wide_prep's binary subtrees, none split below
@@ -10176,7 +10172,7 @@ static bvh_result bvh__load_checks(bvh_tree *t, uint32_t threads) {
     job.chunk = t->nodes8 ? BVH__LOAD_CHUNK : 64 * BVH__LOAD_CHUNK;
     nt = t->ref_count / BVH__MIN_PRIMS_PER_THREAD;
     nt = threads < nt ? threads : nt ? nt : 1;
-    bvh__touch_pages(&t->allocator, NULL, nt, t->tri4, (size_t)t->tri4_count * sizeof(bvh_tri4));
+    bvh__touch_pages(&t->allocator, nt, t->tri4, (size_t)t->tri4_count * sizeof(bvh_tri4));
     bvh__team_run_always(&t->allocator, nt, bvh__load_fn, &job);
     if ((r = job.checked) != BVH_SUCCESS) goto done; /* INVALID_TREE: the caller says CORRUPT */
     for (i = 0; i < BVH__MAX_THREADS; i++)

@@ -11,9 +11,10 @@
    Input: byte 0 is a mode, the rest a file for bvh_load. Mode bit 0 reseals the file (rewrites
    its header and payload checksums where the header's counts fit the bytes), so that mutations
    reach the size and structure checks behind the checksums; bit 1 loads through a read callback
-   (in pieces of 1 to 8 bytes, by bits 2-4) instead of from memory, where bit 2 borrows the
-   memory instead (bvh_load_desc.borrow: read in place, never written); bit 5 asks for the 8-wide
-   layout, bit 6 for none (else: as saved); bit 7 limits the allocator to 4 times the file's size.
+   (in pieces of 1 to 8 bytes, by bits 2-4) instead of from memory; a memory load borrows the
+   buffer when bit 2 is set (bvh_load_desc.borrow: read in place, never written); bit 5 asks for
+   the 8-wide layout, bit 6 for none (else: as saved); bit 7 limits the allocator to 4 times the
+   file's size.
    Checked, any disagreement traps:
    - the result is SUCCESS or one of TRUNCATED, CORRUPT, UNSUPPORTED_FORMAT, OUT_OF_MEMORY, and
      after a failure the tree is empty and nothing allocated is live;
@@ -21,7 +22,7 @@
      8-wide layout), whatever the header says;
    - after a success: bvh_validate passes (triangle trees; box trees have no boxes to check
      against), bvh_sah works, rays trace without fault, a refit to the tree's own triangles
-     succeeds and stays valid (a borrowed tree: is refused, the tree unchanged), and bvh_save
+     succeeds and stays valid (a borrowed tree's is refused and the tree stays valid), and bvh_save
      writes bytes that load to the same tree;
    - a borrowed buffer's bytes are the same after the load and after bvh_free. */
 #define BVH_IMPLEMENTATION

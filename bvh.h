@@ -9650,7 +9650,8 @@ BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
    fewer bytes. A reader checks the byte-order marker, the header's checksum, then every size
    against the others and against caps before it allocates, then the payload's checksum, then the
    tree's structure (bvh__load_checks, with the packets), so that no input makes it read or
-   allocate out of bounds. Version 1 (0.6.0,
+   allocate out of bounds (a borrowed load hashes the nodes during the structure check, which is
+   safe on any bytes, and compares the checksum after it). Version 1 (0.6.0,
    no 8-wide nodes) is refused with BVH_ERROR_UNSUPPORTED_FORMAT: save such a tree again. */
 /* ============================================================================================ */
 #define BVH__FILE_VERSION 2u
@@ -9729,6 +9730,7 @@ static int bvh__saves_wide(const bvh_tree *t) { return t->nodes8 && t->tris && t
    hashes summed. A sum, so that a loader can check pieces on several threads in any order; the
    seeds keep it sensitive to where a piece lies. */
 #define BVH__PIECE ((size_t)1 << 18) /* a multiple of 32 bytes, of a node, a wide node and a float */
+#define BVH__PIECE_NODES ((uint32_t)(BVH__PIECE / sizeof(bvh_node)))
 static uint64_t bvh__piece_check(const void *p, size_t n, uint32_t array, size_t piece) {
     return bvh__hash(p, n, ((uint64_t)array << 48) ^ (uint64_t)piece);
 }
@@ -9942,15 +9944,21 @@ static bvh_result bvh__check_header(const bvh__file_header *h, const bvh_load_de
    every builder stores children after their parent, so when node i is met its parent, if it has
    one, was met before. Each node but the root must be reached exactly once and no deeper than
    BVH_MAX_DEPTH (depth + 1 per node, a byte, 0 = not reached: then never), its box valid and
-   inside its parent's, a leaf's references inside the array, their primitives in range (once each
-   unless the builder splits). The primitives are counted in a byte per primitive, or, where they
-   far outnumber the references (a build that left most of them out, whose file is small), in a
-   sorted copy of the references: what load allocates stays in proportion to the file. */
+   (with `boxes`) inside its parent's, a leaf's references inside the array, their primitives in
+   range (once each unless the builder splits). Without `boxes` the 8-wide pass checks each
+   interior node's children boxes (bvh__children_inside), where it reads them anyway: here a child
+   lies far from its parent in a depth-first tree, and its box is a cache miss. With `node_check`
+   (a borrowed load, whose read pass leaves the nodes to this one) each piece of the nodes is
+   hashed into it as the pass reaches it (bvh__payload_check's terms) and the leaves' sizes are
+   checked: the nodes are read from memory once, not twice. The primitives are counted in a byte
+   per primitive, or, where they far outnumber the references (a build that left most of them
+   out, whose file is small), in a sorted copy of the references: what load allocates stays in
+   proportion to the file. */
 static int bvh__cmp_u32(const void *a, const void *b) {
     const uint32_t x = *(const uint32_t *)a, y = *(const uint32_t *)b;
     return (x > y) - (x < y);
 }
-static bvh_result bvh__validate_linear(const bvh_tree *t) {
+static bvh_result bvh__validate_linear(const bvh_tree *t, int boxes, uint64_t *node_check) {
     bvh_allocator al = t->allocator;
     const int dense = t->prim_count <= 4 * (uint64_t)t->ref_count + 65536;
     uint8_t *depth = BVH__ALLOC(&al, uint8_t, t->node_count);
@@ -9972,10 +9980,15 @@ static bvh_result bvh__validate_linear(const bvh_tree *t) {
     depth[0] = 1;
     for (i = 0; i < t->node_count; i++) {
         const bvh_node *n = &t->nodes[i];
-        bvh_aabb box = bvh__node_box(n);
+        bvh_aabb box;
+        if (node_check && i % BVH__PIECE_NODES == 0) {
+            const uint32_t m = t->node_count - i < BVH__PIECE_NODES ? t->node_count - i : BVH__PIECE_NODES;
+            *node_check += bvh__piece_check(n, (size_t)m * sizeof(bvh_node), 0, i / BVH__PIECE_NODES);
+        }
+        box = bvh__node_box(n);
         if (!depth[i] || !(box.min.x <= box.max.x && box.min.y <= box.max.y && box.min.z <= box.max.z)) goto done;
         if (n->count) {
-            if (n->index > t->ref_count || n->count > t->ref_count - n->index) goto done;
+            if (n->index > t->ref_count || n->count > t->ref_count - n->index || n->count > BVH__MAX_LEAF) goto done;
             refs += n->count;
             for (k = n->index; k < n->index + n->count; k++) {
                 uint32_t p = t->prims[k];
@@ -9990,7 +10003,7 @@ static bvh_result bvh__validate_linear(const bvh_tree *t) {
         }
         if (n->index <= i || n->index >= t->node_count - 1 || depth[i] > BVH_MAX_DEPTH) goto done;
         for (k = n->index; k < n->index + 2; k++) {
-            if (depth[k] || !bvh_aabb_contains(box, bvh__node_box(&t->nodes[k]))) goto done;
+            if (depth[k] || (boxes && !bvh_aabb_contains(box, bvh__node_box(&t->nodes[k])))) goto done;
             depth[k] = (uint8_t)(depth[i] + 1);
         }
     }
@@ -10041,12 +10054,20 @@ static int bvh__leaf_tris_ok(const float *tris, const bvh_node *n, int splits) {
    they are read for the packets. Each step checks the binary nodes it follows (indices in range,
    children after their parent), so that this pass may run while bvh__validate_linear checks the
    binary tree on another thread: the tree is accepted only if both pass. */
+/* Interior node x's two children inside its box (x's index checked in range). */
+static int bvh__children_inside(const bvh_node *nodes, uint32_t x) {
+    const bvh_aabb box = bvh__node_box(&nodes[x]);
+    return bvh_aabb_contains(box, bvh__node_box(&nodes[nodes[x].index])) &&
+           bvh_aabb_contains(box, bvh__node_box(&nodes[nodes[x].index + 1]));
+}
 static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_scratch *sc) {
     bvh_node8 *n = &t->nodes8[w];
     bvh__group g;
     uint32_t i, a, k, npre = 0, nref = 0;
     if (!bvh__group_read(t->nodes, t->node_count, n, &g)) return 0;
     if (g.nslot == 1 && (w || !n->count[0])) return 0; /* only a root that is a leaf slot */
+    for (i = 0; i < g.nopen; i++)
+        if (!bvh__children_inside(t->nodes, g.open[i])) return 0;
     for (i = 0; i < g.nslot; i++) { /* the leaf slots' walks first, their leaves' triangles asked for */
         if (n->count[i]) {
             const uint32_t r0 = nref, p0 = npre;
@@ -10075,8 +10096,11 @@ static int bvh__wide_load_node(bvh_tree *t, uint32_t w, int splits, bvh__wnode_s
         }
         if (n->count[i]) {
             const uint32_t r0 = i ? sc->ref_end[i - 1] : 0;
-            for (k = i ? sc->pre_end[i - 1] : 0; k < sc->pre_end[i]; k++) /* bvh__validate_linear leaves them here */
-                if (t->nodes[sc->pre[k]].count && !bvh__leaf_tris_ok(t->tris, &t->nodes[sc->pre[k]], splits)) return 0;
+            for (k = i ? sc->pre_end[i - 1] : 0; k < sc->pre_end[i]; k++) { /* bvh__validate_linear leaves them here */
+                const bvh_node *x = &t->nodes[sc->pre[k]];
+                if (x->count ? !bvh__leaf_tris_ok(t->tris, x, splits) : !bvh__children_inside(t->nodes, sc->pre[k]))
+                    return 0;
+            }
             bvh__packets_write(sc->refs + r0, sc->ref_end[i] - r0, t->prims, t->tris, t->tri4 + n->child[i]);
         } else if (t->nodes8[n->child[i]].head != g.slot[i]) {
             return 0;
@@ -10118,7 +10142,8 @@ typedef struct bvh__load_job {
     size_t next, count; /* the next chunk; the items (8-wide nodes, else binary nodes) */
     uint32_t chunk;
     int splits;
-    bvh_result checked; /* bvh__validate_linear's */
+    bvh_result checked;   /* bvh__validate_linear's */
+    uint64_t *node_check; /* a borrowed load's: the nodes' checksum terms, added by that pass */
     uint32_t bad[BVH__MAX_THREADS];
 } bvh__load_job;
 static int bvh__load_items(bvh__load_job *j, size_t b, size_t e, bvh__wnode_scratch *sc) {
@@ -10142,7 +10167,7 @@ static void bvh__load_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) 
     bvh__wnode_scratch sc; /* 20 KiB of this thread's stack */
     size_t b, e;
     (void)team;
-    if (tid == 0) j->checked = bvh__validate_linear(j->tree);
+    if (tid == 0) j->checked = bvh__validate_linear(j->tree, j->tree->nodes8 == NULL, j->node_check);
 #if defined(__GNUC__) || defined(__clang__)
     (void)nt;
     while (!j->bad[tid] && (b = __atomic_fetch_add(&j->next, (size_t)j->chunk, __ATOMIC_RELAXED)) < j->count) {
@@ -10154,7 +10179,7 @@ static void bvh__load_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) 
     j->bad[tid] = !bvh__load_items(j, b, e, &sc);
 #endif
 }
-static bvh_result bvh__load_checks(bvh_tree *t, uint32_t threads) {
+static bvh_result bvh__load_checks(bvh_tree *t, uint32_t threads, uint64_t *node_check) {
     size_t marks = t->nodes8 ? t->node8_count : 1, covers = t->nodes8 && t->tri4_count ? t->tri4_count : 1;
     uint8_t *parent = BVH__ALLOC(&t->allocator, uint8_t, marks), *cover = BVH__ALLOC(&t->allocator, uint8_t, covers);
     bvh__load_job job;
@@ -10167,6 +10192,7 @@ static bvh_result bvh__load_checks(bvh_tree *t, uint32_t threads) {
     }
     if (t->nodes8 && !bvh__wide_links(t, parent, cover)) goto done;
     job.tree = t;
+    job.node_check = node_check;
     job.splits = t->ref_count != t->prim_count - t->excluded;
     job.count = t->nodes8 ? t->node8_count : t->tris ? t->node_count : 0;
     job.chunk = t->nodes8 ? BVH__LOAD_CHUNK : 64 * BVH__LOAD_CHUNK;
@@ -10241,10 +10267,13 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         r = BVH_ERROR_OUT_OF_MEMORY;
         goto fail;
     }
-    check = 0; /* bvh__payload_check's sum */
-    if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, 0, nt, &check, &bad)) !=
-            BVH_SUCCESS ||
-        (r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 0, 1, nt, &check, &bad)) !=
+    check = 0;        /* bvh__payload_check's sum */
+    if (desc->borrow) /* the nodes: hashed and sized by the ordered check (bvh__validate_linear) */
+        rd.pos += (size_t)h.node_count * sizeof(bvh_node);
+    else if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, 0, nt, &check, &bad)) !=
+             BVH_SUCCESS)
+        goto fail;
+    if ((r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 0, 1, nt, &check, &bad)) !=
             BVH_SUCCESS ||
         (tree->tris && (r = bvh__read_array(&rd, tree->tris, (size_t)h.ref_count * 9 * sizeof(float), 2, 2, nt, &check,
                                             &bad)) != BVH_SUCCESS))
@@ -10272,7 +10301,7 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
     }
     tree->node_count = h.node_count;
     tree->ref_count = h.ref_count;
-    if (check != h.payload_check || bad) {
+    if ((check != h.payload_check && !desc->borrow) || bad) {
         r = BVH_ERROR_CORRUPT;
         goto fail;
     }
@@ -10284,7 +10313,9 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         if ((r = bvh__wide_alloc(tree, &tree->allocator, nodes8, packets)) != BVH_SUCCESS) goto fail;
         memcpy(tree->nodes8, wide, (size_t)nodes8 * sizeof(bvh_node8));
     }
-    if ((r = bvh__load_checks(tree, nt)) != BVH_SUCCESS) { /* and the 8-wide layout remade */
+    r = bvh__load_checks(tree, nt, desc->borrow ? &check : NULL);            /* and the 8-wide layout remade */
+    if (r == BVH_SUCCESS && check != h.payload_check) r = BVH_ERROR_CORRUPT; /* borrowed: now whole */
+    if (r != BVH_SUCCESS) {
         if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT;
         goto fail;
     }

@@ -766,8 +766,9 @@ static void load_damaged(void **state) {
         assert_int_equal(rf_load(&u, copy, buf.size, ld), BVH_ERROR_CORRUPT);
         ld.max_bytes = 0;
     }
-    /* damaged structures behind valid checksums */
-    for (i = 0; i < 16; i++) {
+    /* damaged structures behind valid checksums; the binary tree's damage also with trace_width 2,
+       where no 8-wide pass checks the boxes */
+    for (i = 0; i < 18; i++) {
         bvh_node *nodes;
         uint32_t *prims;
         float *tris;
@@ -839,6 +840,18 @@ static void load_damaged(void **state) {
             nodes[0].count = 300;
             nodes[0].index = 0;
             break; /* a leaf too large */
+        case 16:
+            for (k = 0; k < h.node_count; k++)
+                if (!nodes[k].count && nodes[k].index + 1 == h.node_count - 1) {
+                    nodes[h.node_count - 1].max.x = nodes[k].max.x + 1.0f;
+                    break;
+                }
+            assert_true(k < h.node_count);
+            break; /* the last node (deep, in a leaf slot) outside its parent */
+        case 17:
+            assert_true(nodes[1].count == 0);
+            nodes[nodes[1].index + 1].min.z = nodes[1].min.z - 1.0f;
+            break; /* a grandchild of the root (inside the root's grouping) outside its parent */
         default:
             nodes[h.node_count - 1].min.y = NAN;
             break; /* a NaN box */
@@ -846,6 +859,12 @@ static void load_damaged(void **state) {
         rf_reseal(copy, 1);
         r = rf_load(&u, copy, buf.size, ld);
         if (r != BVH_ERROR_CORRUPT) fail_msg("damaged structure %zu: %s", i, bvh_result_string(r));
+        assert_int_equal(a.live, 0);
+        if (i >= 6 && i < 16) continue;
+        ld.trace_width = 2;
+        r = rf_load(&u, copy, buf.size, ld);
+        ld.trace_width = 0;
+        if (r != BVH_ERROR_CORRUPT) fail_msg("damaged structure %zu, trace_width 2: %s", i, bvh_result_string(r));
         assert_int_equal(a.live, 0);
     }
     /* allocation failures at every point */

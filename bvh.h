@@ -969,9 +969,9 @@ BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc);
 /* A tree as bytes: a 64-byte header (magic "BVH.TREE", format version 2, byte-order marker,
    builder, counts, payload size, a header and a payload checksum) then the binary nodes, the
    references and, for triangle trees, tree.tris and the 8-wide nodes (with their groupings), in
-   the saving machine's byte order: about 58 to 65 bytes per triangle for a default build. The 8-wide
-   packets are not stored: bvh_load remakes them from tree.tris and the groupings, checking each
-   against the binary tree. Version 1 files (bvh.h 0.6.0) are refused with
+   the saving machine's byte order: about 58 to 65 bytes per triangle for a default build. The
+   8-wide packets are not stored: bvh_load remakes them from tree.tris and the groupings,
+   checking each against the binary tree. Version 1 files (bvh.h 0.6.0) are refused with
    BVH_ERROR_UNSUPPORTED_FORMAT: load them with 0.6.0's bvh.h or rebuild, and save again.
    The callbacks return the number of bytes they moved; fewer than asked ends the call. */
 typedef size_t (*bvh_write_fn)(void *user, const void *data, size_t size);

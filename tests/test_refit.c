@@ -633,6 +633,67 @@ static void rf_reseal(unsigned char *data, int payload) {
     memcpy(data, &h, sizeof h);
 }
 
+/* The leaf cap (BVH__MAX_LEAF references, as no builder exceeds): a hand-made binary-only file,
+   a root over two leaves of all 301 triangles, loads with a leaf of 255 and is refused with one of
+   256, whose structure is otherwise sound. The ordered check is the only one to find it. */
+static void load_leaf_cap(void **state) {
+    enum { N = 301 };
+    tu_scene s;
+    bvh_build_desc d;
+    bvh_tree t;
+    bvh_load_desc ld;
+    bvh__file_header h;
+    rf_buf buf;
+    uint32_t left;
+    (void)state;
+    tu_scene_random(&s, N, 0x4c454146ULL);
+    d = tu_scene_desc(&s, BVH_BUILDER_BOTTOM_UP);
+    d.trace_width = 2;
+    tu_build_valid(&s, &d, &t);
+    assert_int_equal(t.ref_count, N);
+    buf = rf_save(&t);
+    memcpy(&h, buf.data, sizeof h);
+    memset(&ld, 0, sizeof ld);
+    for (left = 255; left <= 256; left++) {
+        const size_t tail = (size_t)N * (sizeof(uint32_t) + 9 * sizeof(float)); /* references, triangles */
+        const size_t size = 64 + 3 * sizeof(bvh_node) + tail;
+        unsigned char *file = (unsigned char *)malloc(size);
+        bvh_node nodes[3];
+        bvh__file_header g = h;
+        bvh_tree u;
+        bvh_result r;
+        uint32_t k;
+        assert_non_null(file);
+        for (k = 0; k < 3; k++) { /* every box the root's: each holds its leaves' triangles */
+            nodes[k] = t.nodes[0];
+            nodes[k].count = 0;
+            nodes[k].index = 1;
+        }
+        nodes[1].index = 0;
+        nodes[1].count = left;
+        nodes[2].index = left;
+        nodes[2].count = N - left;
+        g.node_count = 3;
+        g.payload_bytes = bvh__payload_bytes(3, N, 1, 0);
+        memcpy(file, &g, sizeof g);
+        memcpy(file + 64, nodes, sizeof nodes);
+        memcpy(file + 64 + sizeof nodes, buf.data + 64 + (size_t)t.node_count * sizeof(bvh_node), tail);
+        rf_reseal(file, 1);
+        r = rf_load(&u, file, size, ld);
+        if (left <= 255) {
+            if (r != BVH_SUCCESS) fail_msg("a leaf of %u: %s", left, bvh_result_string(r));
+            assert_int_equal(bvh_validate(&u, NULL, NULL), BVH_SUCCESS);
+            bvh_free(&u);
+        } else if (r != BVH_ERROR_CORRUPT) {
+            fail_msg("a leaf of %u: %s", left, bvh_result_string(r));
+        }
+        free(file);
+    }
+    free(buf.data);
+    bvh_free(&t);
+    tu_scene_free(&s);
+}
+
 /* A build that left nearly all of its primitives out (skip_invalid): a small file with a large
    primitive count. It loads, the same tree, and load allocates in proportion to the file, not to
    the primitive count (found by fuzz_load: a byte per primitive; tests/fuzz/load/
@@ -1079,6 +1140,7 @@ int main(void) {
         TU_SCENE_TEST(save_load_round_trip, TU_SCENE_BUNNY, "bunny"),
         cmocka_unit_test(save_load_kinds),
         cmocka_unit_test(load_damaged),
+        cmocka_unit_test(load_leaf_cap),
         cmocka_unit_test(load_sparse_primitives),
         cmocka_unit_test(load_borrowed),
         TU_SCENE_TEST(legacy_slot_order, TU_SCENE_RANDOM, "random"),

@@ -9838,19 +9838,13 @@ static bvh_result bvh__read_all(bvh__reader *rd, void *out, size_t size) {
     }
     return BVH_SUCCESS;
 }
-/* The payload's values a valid tree cannot hold and the validator does not look at: leaves of more
-   than BVH__MAX_LEAF references, as no builder makes (the 8-wide layout's leaf slots are gathered
-   in buffers of that size), and non-finite triangle coordinates (bvh_build refuses them,
-   traversal assumes none). Checked by bits, without branches. */
-static int bvh__leaves_small(const bvh_node *n, size_t count) {
-    size_t i;
-    uint32_t bad = 0;
-    for (i = 0; i < count; i++) bad |= n[i].count > BVH__MAX_LEAF;
-    return !bad;
-}
+/* The payload's values a valid tree cannot hold and the validator does not look at: non-finite
+   triangle coordinates (bvh_build refuses them, traversal assumes none). Checked by bits, without
+   branches. (Leaves of more than BVH__MAX_LEAF references, which no builder makes, are refused by
+   the ordered check, bvh__validate_linear, which reaches every node.) */
 static int bvh__floats_finite(const float *t, size_t n) { return !bvh__any_nonfinite(t, n); }
 /* A payload array read in pieces (BVH__PIECE), each hashed (bvh__payload_check) and checked as
-   `kind` says (1 nodes, 2 triangles) while it is still in cache: one pass over the memory. From a
+   `kind` says (2: triangles, finite) while it is still in cache: one pass over the memory. From a
    memory buffer, the pieces are shared out over the load's team in contiguous runs (each thread
    first touches its own fresh pages: bvh__touch_pages says why); from a stream, read in order. */
 typedef struct bvh__load_array {
@@ -9867,8 +9861,6 @@ static void bvh__load_piece(bvh__load_array *a, size_t i, uint32_t tid) {
     size_t n = a->size - i * BVH__PIECE < BVH__PIECE ? a->size - i * BVH__PIECE : BVH__PIECE;
     if (a->src && a->src != a->out) memcpy(p, a->src + i * BVH__PIECE, n); /* a borrowed array: in place */
     a->check[tid] += bvh__piece_check(p, n, a->array, i);
-    if (a->kind == 1)
-        a->bad[tid] |= !bvh__leaves_small(BVH__CAST(const bvh_node *, BVH__CAST(void *, p)), n / sizeof(bvh_node));
     if (a->kind == 2)
         a->bad[tid] |= !bvh__floats_finite(BVH__CAST(const float *, BVH__CAST(void *, p)), n / sizeof(float));
 }
@@ -9959,8 +9951,9 @@ static bvh_result bvh__check_header(const bvh__file_header *h, const bvh_load_de
    interior node's children boxes (bvh__children_inside), where it reads them anyway: here a child
    lies far from its parent in a depth-first tree, and its box is a cache miss. With `node_check`
    (a borrowed load, whose read pass leaves the nodes to this one) each piece of the nodes is
-   hashed into it as the pass reaches it (bvh__payload_check's terms) and the leaves' sizes are
-   checked: the nodes are read from memory once, not twice. The primitives are counted in a byte
+   hashed into it as the pass reaches it (bvh__payload_check's terms): the nodes are read from
+   memory once, not twice. Leaves of more than BVH__MAX_LEAF references are refused here, for
+   every load. The primitives are counted in a byte
    per primitive, or, where they far outnumber the references (a build that left most of them
    out, whose file is small), in a sorted copy of the references: what load allocates stays in
    proportion to the file. */
@@ -10278,9 +10271,9 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         goto fail;
     }
     check = 0;        /* bvh__payload_check's sum */
-    if (desc->borrow) /* the nodes: hashed and sized by the ordered check (bvh__validate_linear) */
+    if (desc->borrow) /* the nodes: hashed by the ordered check (bvh__validate_linear) */
         rd.pos += (size_t)h.node_count * sizeof(bvh_node);
-    else if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 1, 0, nt, &check, &bad)) !=
+    else if ((r = bvh__read_array(&rd, tree->nodes, (size_t)h.node_count * sizeof(bvh_node), 0, 0, nt, &check, &bad)) !=
              BVH_SUCCESS)
         goto fail;
     if ((r = bvh__read_array(&rd, tree->prims, (size_t)h.ref_count * sizeof(uint32_t), 0, 1, nt, &check, &bad)) !=

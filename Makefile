@@ -76,6 +76,7 @@ CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
          $(if $(HAVE_CLANG),$(BUILD)/check/clang/fast-math-refused) \
          $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 \
          $(BUILD)/check/traversal-slab-int $(BUILD)/check/traversal-slab-float \
+         $(BUILD)/check/traversal-pair-int $(BUILD)/check/traversal-pair-float \
          $(BUILD)/check/scene-no-simd $(BUILD)/check/scene-no-avx2 \
          $(BUILD)/check/builders-no-avx2 \
          $(addprefix $(BUILD)/check/,$(addsuffix -fast-math,traversal robust builders refit scene custom pool)) \
@@ -102,6 +103,12 @@ $(BUILD)/check/traversal-no-avx2: tests/test_traversal.c $(HEADERS)
 $(BUILD)/check/traversal-slab-%: tests/test_traversal.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH__SLAB_FLOAT=$(if $(filter float,$*),1,0) -I. $< -o $@ -lcmocka $(LDLIBS)
+# Again with a batch's closest-hit rays always two in turns (BVH__PAIR=1; by default only on large
+# trees), in each form of the fast slab test.
+$(BUILD)/check/traversal-pair-%: tests/test_traversal.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH__PAIR=1 -DBVH__SLAB_FLOAT=$(if $(filter float,$*),1,0) -I. $< \
+	    -o $@ -lcmocka $(LDLIBS)
 # The scene test likewise: its top level runs the same 8-wide loop with the instance step.
 $(BUILD)/check/scene-no-simd: tests/test_scene.c $(HEADERS)
 	@mkdir -p $(dir $@)

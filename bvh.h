@@ -8052,8 +8052,8 @@ bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bv
 #define BVH__PAIR (-1)
 #endif
 /* The 8-wide layout's size from which rays go in turns: far past a core's L2 (1-2 MiB). In turns,
-   bounce rays traced 7-12% faster on trees of 45-52 MB (the dragon, gen:field:15) and no faster
-   on one of 3.5 MB (the bunny), where their nodes come from L2 (docs/bench, 0.9.20). */
+   bounce rays traced 9-14% faster on trees of 45-52 MB (the dragon, gen:field:15) and no faster
+   on one of 3.5 MB (the bunny), whose nodes come from L2 (docs/bench, 0.9.20). */
 #define BVH__PAIR_BYTES ((size_t)16 << 20)
 typedef struct bvh__pair_ray {
     bvh__rayx rx;

@@ -108,11 +108,12 @@
      MIT, see the end of this file.
 
    CHANGELOG
-     0.9.20 bvh_intersect_batch traces two rays in turns on a large tree (an 8-wide layout of 16 MiB
-            or more, rays from different origins: a renderer's bounce rays), a step of one and a
-            step of the other, so that one ray's wait for its nodes overlaps the other's work:
-            bounce rays 12-16% faster on the dragon and gen:field:15, the same hits. Camera rays
-            (one origin) and small trees keep the one-ray loop; any-hit batches too.
+     0.9.20 The batch calls trace two rays in turns on a large tree (an 8-wide layout of 16 MiB or
+            more, rays from different origins: a renderer's bounce and shadow rays), a step of
+            one and a step of the other, so that one ray's wait for its nodes overlaps the
+            other's work: bounce rays 9-14% and shadow rays 5-14% faster on the dragon and
+            gen:field:15 (one thread), the same hits. Camera rays (one origin) and small trees
+            keep the one-ray loop.
      0.9.19 PLOC's collapse (the default builder) prices an interior node at 2.5 triangle tests
             (was 1.2): subtrees of a few triangles become leaves, which the 8-wide layout tests
             as one packet anyway. The binary tree has 44-46% fewer nodes (the dragon 903,487 ->
@@ -8039,21 +8040,23 @@ __attribute__((target("avx2,fma,popcnt"), flatten)) static int
 bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bvh__ray8 *q, float tmax) {
     return bvh__trace8(tree, ray, rx, q, tmax, NULL, NULL, 1, 1);
 }
-/* == two closest-hit rays in turns ==
+/* == two rays in turns ==
    A ray that descends a tree much larger than the caches waits at every level for its node's
    lines; the core cannot start the next ray's loads meanwhile, as a mispredicted branch of this
-   one flushes whatever it ran ahead. A batch's closest-hit rays are therefore taken two at a
+   one flushes whatever it ran ahead. A batch's rays are therefore taken two at a
    time where that pays (bvh__pair_wanted): a step of one (a node or a leaf, then the next entry
    from its stack) and a step of the other in turns, each ray's loop state in registers, the rest
    of it (set-up, stack, best hit) in a bvh__pair_ray. Each ray takes exactly the steps of
-   bvh__traverse8_body with the fast slab test, so the hits are the same bytes. The rays the
-   fast test does not take (tmin < 0, a zero direction component) go through bvh__trace8 alone. */
+   bvh__traverse8_body with the fast slab test, so the hits are the same bytes; any-hit rays
+   likewise. The rays the fast test does not take (tmin < 0, a zero direction component) go
+   through bvh__trace8 alone. */
 #ifndef BVH__PAIR /* private; the tests set 1 (always in turns) or 0 (never) */
 #define BVH__PAIR (-1)
 #endif
 /* The 8-wide layout's size from which rays go in turns: far past a core's L2 (1-2 MiB). In turns,
-   bounce rays traced 9-14% faster on trees of 45-52 MB (the dragon, gen:field:15) and no faster
-   on one of 3.5 MB (the bunny), whose nodes come from L2 (docs/bench, 0.9.20). */
+   bounce rays traced 9-14% faster and shadow rays 5-14% on trees of 45-52 MB (the dragon,
+   gen:field:15), bounce rays no faster on one of 3.5 MB (the bunny), whose nodes come from L2
+   (docs/bench, 0.9.20). */
 #define BVH__PAIR_BYTES ((size_t)16 << 20)
 typedef struct bvh__pair_ray {
     bvh__rayx rx;
@@ -8075,18 +8078,24 @@ static int bvh__pair_wanted(const bvh_tree *t, const bvh_ray *rays, size_t i, si
            memcmp(&rays[i].origin, &rays[i + 1].origin, sizeof(bvh_vec3)) != 0;
 }
 /* A ray the fast slab test does not take, traced alone: a call, not inlined (the one-ray loop's
-   own stack is not then added to the pair's at every place that starts a ray). */
-__attribute__((target("avx2,fma,popcnt"), noinline)) static void bvh__pair_alone(const bvh_tree *tree,
-                                                                                 const bvh_ray *ray, bvh_hit *hit) {
-    bvh__trace8(tree, ray, NULL, NULL, 0.0f, hit, NULL, 0, 1);
+   own stack is not then added to the pair's at every place that starts a ray). Closest hit into
+   *hit, or (hit NULL) any hit into *occluded. */
+__attribute__((target("avx2,fma,popcnt"), noinline)) static void
+bvh__pair_alone(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, uint8_t *occluded) {
+    if (hit)
+        bvh__trace8(tree, ray, NULL, NULL, 0.0f, hit, NULL, 0, 1);
+    else
+        *occluded = (uint8_t)bvh__trace8(tree, ray, NULL, NULL, 0.0f, NULL, NULL, 1, 1);
 }
-/* Ray k of rays into s, its state into *cur, *lc, *sp and *tbest: 1, or 0 when the fast slab
-   test does not take it (then traced alone here: its hit record written) or it takes no box. */
-__attribute__((target("avx2,fma,popcnt"))) BVH__INLINE int
-bvh__pair_start(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t k, bvh__pair_ray *s, float *tbest) {
+/* Ray k of rays into s, its state into *tbest (the caller zeroes cur, lc and sp): 1, or 0 when the
+   fast slab test does not take it (then traced alone here, its result written) or it takes no
+   box. hits for closest hit, occluded for any hit (any). */
+__attribute__((target("avx2,fma,popcnt"))) BVH__INLINE int bvh__pair_start(const bvh_tree *tree, const bvh_ray *rays,
+                                                                           bvh_hit *hits, uint8_t *occluded, size_t k,
+                                                                           bvh__pair_ray *s, float *tbest, int any) {
     const bvh_ray *ray = &rays[k];
     if (!bvh__ray8_start(ray, &s->rx, &s->q, 0) || !s->q.fast) {
-        bvh__pair_alone(tree, ray, &hits[k]);
+        bvh__pair_alone(tree, ray, any ? NULL : &hits[k], any ? &occluded[k] : NULL);
         return 0;
     }
     s->reach = bvh__trace8_reach(tree, &s->rx);
@@ -8099,12 +8108,12 @@ bvh__pair_start(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t
     s->idx = k;
     return 1;
 }
-/* One step of ray s (bvh__traverse8_body's loop once round, fast the slab test's form): 0 when the
-   ray is done, its hit record written (as bvh__trace8 writes it). */
-__attribute__((target("avx2,fma,popcnt"))) BVH__INLINE int bvh__pair_step(const bvh_node8 *nodes, const bvh_tri4 *tri4,
-                                                                          bvh__pair_ray *s, bvh_hit *hits,
-                                                                          uint32_t *cur, uint32_t *lc, uint32_t *sp,
-                                                                          float *tbest, int fast) {
+/* One step of ray s (bvh__traverse8_body's loop once round; fast, the slab test's form, and any,
+   constants where inlined): 0 when the ray is done, its result written (as bvh__trace8 and the
+   batch write it). */
+__attribute__((target("avx2,fma,popcnt"))) BVH__INLINE int
+bvh__pair_step(const bvh_node8 *nodes, const bvh_tri4 *tri4, bvh__pair_ray *s, bvh_hit *hits, uint8_t *occluded,
+               uint32_t *cur, uint32_t *lc, uint32_t *sp, float *tbest, int fast, int any) {
     if (!*lc) {
         const bvh_node8 *n = &nodes[*cur];
         float tn[BVH__W];
@@ -8118,7 +8127,14 @@ __attribute__((target("avx2,fma,popcnt"))) BVH__INLINE int bvh__pair_step(const 
                 if (*sp + BVH__W > sizeof s->stack / sizeof s->stack[0]) goto done; /* deeper than builders make */
                 i1 = BVH__CTZ(m);
                 m &= m - 1;
-                if (!m) { /* two: the farther one waits */
+                if (any) { /* in slot order (leaf slots first), the last pushed first */
+                    m |= 1u << i1;
+                    while (m) {
+                        i1 = BVH__TOP_BIT(m);
+                        m &= ~(1u << i1);
+                        bvh__push8(nodes, tri4, n, i1, tn, s->stack, sp, 1, 1);
+                    }
+                } else if (!m) { /* two: the farther one waits */
                     if (tn[i1] < tn[i0]) {
                         unsigned x = i0;
                         i0 = i1;
@@ -8142,63 +8158,77 @@ __attribute__((target("avx2,fma,popcnt"))) BVH__INLINE int bvh__pair_step(const 
             bvh__tri8_setup(&s->rx, &s->tr8);
             s->sheared = 1;
         }
-        if (bvh__packets_avx2(&s->rx, &s->tr8, tri4 + *cur, *lc, &s->best, 0)) *tbest = s->best.t;
+        if (bvh__packets_avx2(&s->rx, &s->tr8, tri4 + *cur, *lc, &s->best, any)) {
+            if (any) goto done;
+            *tbest = s->best.t;
+        }
     }
-    while (*sp) { /* the next entry still in reach of the best */
+    while (*sp) { /* the next entry still in reach of the best (any hit: every one) */
         --*sp;
-        if (s->stack[*sp].t <= *tbest) {
+        if (any || s->stack[*sp].t <= *tbest) {
             *cur = s->stack[*sp].child;
             *lc = s->stack[*sp].count;
             return 1;
         }
     }
-done : {
-    bvh_hit *h = &hits[s->idx];
-    if (s->best.prim == BVH_INVALID) {
-        h->t = *tbest;
-        h->u = h->v = 0.0f;
-        h->prim = BVH_INVALID;
+done:
+    if (any) {
+        occluded[s->idx] = (uint8_t)(s->best.prim != BVH_INVALID);
     } else {
-        h->t = s->best.t;
-        h->u = s->best.u;
-        h->v = s->best.v;
-        h->prim = s->best.prim;
+        bvh_hit *h = &hits[s->idx];
+        if (s->best.prim == BVH_INVALID) {
+            h->t = *tbest;
+            h->u = h->v = 0.0f;
+            h->prim = BVH_INVALID;
+        } else {
+            h->t = s->best.t;
+            h->u = s->best.u;
+            h->v = s->best.v;
+            h->prim = s->best.prim;
+        }
     }
-}
     return 0;
 }
-/* Rays i..e in turns, two at a time (fast: the slab test's form, a constant where inlined). */
-__attribute__((target("avx2,fma,popcnt"))) BVH__INLINE void
-bvh__pair_range(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t i, size_t e, int fast) {
+/* Rays i..e in turns, two at a time (fast and any: constants where inlined). */
+__attribute__((target("avx2,fma,popcnt"))) BVH__INLINE void bvh__pair_range(const bvh_tree *tree, const bvh_ray *rays,
+                                                                            bvh_hit *hits, uint8_t *occluded, size_t i,
+                                                                            size_t e, int fast, int any) {
     bvh__pair_ray a, b;
     const bvh_node8 *nodes = tree->nodes8;
     const bvh_tri4 *tri4 = tree->tri4;
     uint32_t cur_a = 0, lc_a = 0, sp_a = 0, cur_b = 0, lc_b = 0, sp_b = 0;
     float tb_a = 0.0f, tb_b = 0.0f;
     int live_a = 0, live_b = 0;
-    while (i < e && !live_a) live_a = bvh__pair_start(tree, rays, hits, i++, &a, &tb_a);
-    while (i < e && !live_b) live_b = bvh__pair_start(tree, rays, hits, i++, &b, &tb_b);
+    while (i < e && !live_a) live_a = bvh__pair_start(tree, rays, hits, occluded, i++, &a, &tb_a, any);
+    while (i < e && !live_b) live_b = bvh__pair_start(tree, rays, hits, occluded, i++, &b, &tb_b, any);
     while (live_a | live_b) {
-        if (live_a && !bvh__pair_step(nodes, tri4, &a, hits, &cur_a, &lc_a, &sp_a, &tb_a, fast)) {
+        if (live_a && !bvh__pair_step(nodes, tri4, &a, hits, occluded, &cur_a, &lc_a, &sp_a, &tb_a, fast, any)) {
             cur_a = lc_a = sp_a = 0;
             live_a = 0;
-            while (i < e && !live_a) live_a = bvh__pair_start(tree, rays, hits, i++, &a, &tb_a);
+            while (i < e && !live_a) live_a = bvh__pair_start(tree, rays, hits, occluded, i++, &a, &tb_a, any);
         }
-        if (live_b && !bvh__pair_step(nodes, tri4, &b, hits, &cur_b, &lc_b, &sp_b, &tb_b, fast)) {
+        if (live_b && !bvh__pair_step(nodes, tri4, &b, hits, occluded, &cur_b, &lc_b, &sp_b, &tb_b, fast, any)) {
             cur_b = lc_b = sp_b = 0;
             live_b = 0;
-            while (i < e && !live_b) live_b = bvh__pair_start(tree, rays, hits, i++, &b, &tb_b);
+            while (i < e && !live_b) live_b = bvh__pair_start(tree, rays, hits, occluded, i++, &b, &tb_b, any);
         }
     }
 }
-/* bvh__pair_range for the CPU's form of the fast slab test; a function of its own, beside the
-   one-ray loop below, which stays as it was. */
+/* bvh__pair_range for the CPU's form of the fast slab test, closest hit and any hit; functions of
+   their own, beside the one-ray loops, which stay as they were. */
 __attribute__((target("avx2,fma,popcnt"), flatten)) static void
 bvh__closest8_pairs_avx2(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t i, size_t e) {
     if (bvh__slab_float())
-        bvh__pair_range(tree, rays, hits, i, e, 2);
+        bvh__pair_range(tree, rays, hits, NULL, i, e, 2, 0);
     else
-        bvh__pair_range(tree, rays, hits, i, e, 1);
+        bvh__pair_range(tree, rays, hits, NULL, i, e, 1, 0);
+}
+__attribute__((target("avx2,fma,popcnt"), flatten)) static void
+bvh__any8_pairs_avx2(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t i, size_t e) {
+    if (bvh__slab_float())
+        bvh__pair_range(tree, rays, NULL, occluded, i, e, 2, 1);
+    else
+        bvh__pair_range(tree, rays, NULL, occluded, i, e, 1, 1);
 }
 /* A batch's range of closest-hit rays in one call, each ray's set-up and loop inlined: short rays
    (a scene seen from outside, camera rays) no longer pay a call and its saved registers each.
@@ -8432,11 +8462,15 @@ static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e) {
             for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__scene_trace(b->scene, &b->rays[i], b->mask, NULL, isa);
     } else if (tree->nodes8) {
 #ifdef BVH__AVX2
-        if (isa && b->hits) {
-            if (bvh__pair_wanted(tree, b->rays, i, e))
+        if (isa && bvh__pair_wanted(tree, b->rays, i, e)) {
+            if (b->hits)
                 bvh__closest8_pairs_avx2(tree, b->rays, b->hits, i, e);
             else
-                bvh__closest8_range_avx2(tree, b->rays, b->hits, i, e);
+                bvh__any8_pairs_avx2(tree, b->rays, b->occluded, i, e);
+            return;
+        }
+        if (isa && b->hits) {
+            bvh__closest8_range_avx2(tree, b->rays, b->hits, i, e);
             return;
         }
 #endif

@@ -108,12 +108,12 @@
      MIT, see the end of this file.
 
    CHANGELOG
-     0.9.20 The batch calls trace two rays in turns on a large tree (an 8-wide layout of 16 MiB or
-            more, rays from different origins: a renderer's bounce and shadow rays), a step of
-            one and a step of the other, so that one ray's wait for its nodes overlaps the
-            other's work: bounce rays 9-14% and shadow rays 5-14% faster on the dragon and
-            gen:field:15 (one thread), the same hits. Camera rays (one origin) and small trees
-            keep the one-ray loop.
+     0.9.20 The batch calls trace two rays in turns (rays from different origins: a renderer's
+            bounce and shadow rays; closest hit on an 8-wide layout of 16 MiB or more, any hit
+            from 512 KiB), a step of one and a step of the other, so that one ray's wait for its
+            nodes overlaps the other's work: bounce rays 9-19% faster on the dragon and
+            gen:field:15, shadow rays 5-16% there and up to 33% on smaller trees (one thread),
+            the same hits. Camera rays (one origin) keep the one-ray loop.
      0.9.19 PLOC's collapse (the default builder) prices an interior node at 2.5 triangle tests
             (was 1.2): subtrees of a few triangles become leaves, which the 8-wide layout tests
             as one packet anyway. The binary tree has 44-46% fewer nodes (the dragon 903,487 ->
@@ -8053,11 +8053,13 @@ bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bv
 #ifndef BVH__PAIR /* private; the tests set 1 (always in turns) or 0 (never) */
 #define BVH__PAIR (-1)
 #endif
-/* The 8-wide layout's size from which rays go in turns: far past a core's L2 (1-2 MiB). In turns,
-   bounce rays traced 9-14% faster and shadow rays 5-14% on trees of 45-52 MB (the dragon,
-   gen:field:15), bounce rays no faster on one of 3.5 MB (the bunny), whose nodes come from L2
-   (docs/bench, 0.9.20). */
+/* The 8-wide layout's size from which rays go in turns. Closest hit: far past a core's L2 (1-2
+   MiB), where bounce rays traced 11-19% faster (the dragon, gen:field:15); on trees of a few MB
+   they gained on some scenes and lost 6% on a room's (Sponza from inside). Any hit: shadow rays
+   gained 1-33% on every tree from 0.9 MB up (and 7-16% on the large ones), and lost on a tiny
+   one (docs/bench, 0.9.20). */
 #define BVH__PAIR_BYTES ((size_t)16 << 20)
+#define BVH__PAIR_ANY_BYTES ((size_t)512 << 10)
 typedef struct bvh__pair_ray {
     bvh__rayx rx;
     bvh__ray8 q;
@@ -8068,13 +8070,13 @@ typedef struct bvh__pair_ray {
     size_t idx;
     bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
 } bvh__pair_ray;
-/* 1 to take rays i..e in turns: two or more rays, a large layout, and the first two from
-   different origins (a camera's rays share theirs, and most stop after a node or two: in turns
-   they ran 4-8% slower, what a ray's state in memory costs). */
-static int bvh__pair_wanted(const bvh_tree *t, const bvh_ray *rays, size_t i, size_t e) {
+/* 1 to take rays i..e in turns (any: any-hit rays): two or more rays, a layout of the kind's size,
+   and the first two from different origins (a camera's rays share theirs, and most stop after a
+   node or two: in turns they ran 4-8% slower, what a ray's state in memory costs). */
+static int bvh__pair_wanted(const bvh_tree *t, const bvh_ray *rays, size_t i, size_t e, int any) {
+    const size_t bytes = (size_t)t->node8_count * sizeof(bvh_node8) + (size_t)t->tri4_count * sizeof(bvh_tri4);
     if (BVH__PAIR >= 0) return BVH__PAIR && e - i >= 2;
-    return e - i >= 2 &&
-           (size_t)t->node8_count * sizeof(bvh_node8) + (size_t)t->tri4_count * sizeof(bvh_tri4) >= BVH__PAIR_BYTES &&
+    return e - i >= 2 && bytes >= (any ? BVH__PAIR_ANY_BYTES : BVH__PAIR_BYTES) &&
            memcmp(&rays[i].origin, &rays[i + 1].origin, sizeof(bvh_vec3)) != 0;
 }
 /* A ray the fast slab test does not take, traced alone: a call, not inlined (the one-ray loop's
@@ -8462,7 +8464,7 @@ static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e) {
             for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__scene_trace(b->scene, &b->rays[i], b->mask, NULL, isa);
     } else if (tree->nodes8) {
 #ifdef BVH__AVX2
-        if (isa && bvh__pair_wanted(tree, b->rays, i, e)) {
+        if (isa && bvh__pair_wanted(tree, b->rays, i, e, !b->hits)) {
             if (b->hits)
                 bvh__closest8_pairs_avx2(tree, b->rays, b->hits, i, e);
             else

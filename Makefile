@@ -76,7 +76,7 @@ CHECKS = $(foreach c,cc $(if $(HAVE_CLANG),clang),\
          $(if $(HAVE_CLANG),$(BUILD)/check/clang/fast-math-refused) \
          $(BUILD)/check/traversal-no-simd $(BUILD)/check/traversal-no-avx2 \
          $(BUILD)/check/traversal-slab-int $(BUILD)/check/traversal-slab-float \
-         $(BUILD)/check/traversal-pair-int $(BUILD)/check/traversal-pair-float \
+         $(BUILD)/check/traversal-pair-int $(BUILD)/check/traversal-pair-float $(BUILD)/check/traversal-tune \
          $(BUILD)/check/scene-no-simd $(BUILD)/check/scene-no-avx2 \
          $(BUILD)/check/builders-no-avx2 \
          $(addprefix $(BUILD)/check/,$(addsuffix -fast-math,traversal robust builders refit scene custom pool)) \
@@ -109,6 +109,12 @@ $(BUILD)/check/traversal-pair-%: tests/test_traversal.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH__PAIR=1 -DBVH__SLAB_FLOAT=$(if $(filter float,$*),1,0) -I. $< \
 	    -o $@ -lcmocka $(LDLIBS)
+# Again with every batch timing both ways where the rule leaves it open (BVH__TUNE_MIN=1; by
+# default only batches of 16,384 rays a thread): each sample's rays are traced twice, once each
+# way, and the rest by the faster.
+$(BUILD)/check/traversal-tune: tests/test_traversal.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH__TUNE_MIN=1 -I. $< -o $@ -lcmocka $(LDLIBS)
 # The scene test likewise: its top level runs the same 8-wide loop with the instance step.
 $(BUILD)/check/scene-no-simd: tests/test_scene.c $(HEADERS)
 	@mkdir -p $(dir $@)

@@ -1,4 +1,4 @@
-/* bvh.h - v0.9.20 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.9.21 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -108,6 +108,14 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.21 On an 8-wide layout between 512 KiB and 16 MiB, a batch of a renderer's closest-hit
+            rays of 16,384 or more a thread times its first ranges both ways, one ray at a time
+            and two in turns (eight samples of 64 rays, each traced twice), and traces the rest
+            the faster way: an object's bounce rays go in turns (the bunny 9-11% faster), a
+            room's stay one at a time (Sponza from inside, which turns slowed 3-5%). The same hits
+            either way. A closest-hit push asks for its child's lines by an address made of masks
+            (gcc had turned the select into a branch, mispredicted on long rays): bounce rays in
+            turns 1-5% faster.
      0.9.20 The batch calls trace two rays in turns (rays from different origins: a renderer's
             bounce and shadow rays; closest hit on an 8-wide layout of 16 MiB or more, any hit
             from 512 KiB), a step of one and a step of the other, so that one ray's wait for its
@@ -430,7 +438,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 9
-#define BVH_VERSION_PATCH 20
+#define BVH_VERSION_PATCH 21
 
 #include <math.h>
 #include <stddef.h>
@@ -1099,6 +1107,12 @@ extern int madvise(void *addr, size_t length, int advice);
 #define BVH__PREFETCH(p) _mm_prefetch((const char *)(p), _MM_HINT_T0)
 #else
 #define BVH__PREFETCH(p) ((void)0)
+#endif
+/* Hides an integer's value from the optimizer, so that a select made of masks stays masks. */
+#if defined(__GNUC__) || defined(__clang__)
+#define BVH__OPAQUE(x) __asm__("" : "+r"(x))
+#else
+#define BVH__OPAQUE(x) ((void)0)
 #endif
 #ifndef BVH_NO_THREADS
 #include <pthread.h>
@@ -7807,8 +7821,17 @@ BVH__INLINE void bvh__push8(const bvh_node8 *nodes, const bvh_tri4 *tri4, const 
                             const float *tn, bvh__entry8 *stack, uint32_t *sp, int packets, int any) {
     const uint32_t c = n->child[i], k = n->count[i];
     if (packets) { /* a constant where inlined; 0: leaves of instances, whose lines are elsewhere */
-        /* a select (a conditional move), not a branch: leaves and nodes alternate at random */
-        const char *a = k ? (const char *)(tri4 + c) : (const char *)(nodes + c);
+        /* leaves and nodes alternate at random, so the address is a select, not a branch; for
+           closest hit by masks that the compiler cannot turn back into a branch (gcc made one of
+           the plain ?:, a misprediction a ray or more on long rays: docs/bench 0.9.21). Any hit
+           keeps the ?:, the faster of the two there. */
+        const char *a;
+        if (!any) {
+            uintptr_t leaf = (uintptr_t)0 - (uintptr_t)(k != 0);
+            BVH__OPAQUE(leaf);
+            a = (const char *)(((uintptr_t)(nodes + c) & ~leaf) | ((uintptr_t)(tri4 + c) & leaf));
+        } else
+            a = k ? (const char *)(tri4 + c) : (const char *)(nodes + c);
         BVH__PREFETCH(a);
         BVH__PREFETCH(a + 64);
         BVH__PREFETCH(a + 128);
@@ -8053,11 +8076,13 @@ bvh__any8_avx2(const bvh_tree *tree, const bvh_ray *ray, bvh__rayx *rx, const bv
 #ifndef BVH__PAIR /* private; the tests set 1 (always in turns) or 0 (never) */
 #define BVH__PAIR (-1)
 #endif
-/* The 8-wide layout's size from which rays go in turns. Closest hit: far past a core's L2 (1-2
-   MiB), where bounce rays traced 11-19% faster (the dragon, gen:field:15); on trees of a few MB
-   they gained on some scenes and lost 6% on a room's (Sponza from inside). Any hit: shadow rays
-   gained 1-33% on every tree from 0.9 MB up (and 7-16% on the large ones), and lost on a tiny
-   one (docs/bench, 0.9.20). */
+/* The 8-wide layout's sizes from which rays go in turns. Any hit: shadow rays gained 1-33% on
+   every tree from 0.9 MB up (and 7-16% on the large ones), and lost on a tiny one. Closest hit:
+   from BVH__PAIR_BYTES, far past a core's L2 (1-2 MiB), bounce rays traced 11-19% faster (the
+   dragon, gen:field:15); between the two sizes it depends on the rays: 9-11% faster on an
+   object's bounce rays (the bunny), 3-5% slower on a room's (Sponza from inside), so there a
+   thread times both ways on the batch's own rays (bvh__pair_tune). Below BVH__PAIR_ANY_BYTES,
+   one ray at a time (docs/bench, 0.9.20 and 0.9.21). */
 #define BVH__PAIR_BYTES ((size_t)16 << 20)
 #define BVH__PAIR_ANY_BYTES ((size_t)512 << 10)
 typedef struct bvh__pair_ray {
@@ -8070,14 +8095,16 @@ typedef struct bvh__pair_ray {
     size_t idx;
     bvh__entry8 stack[(BVH__W - 1) * BVH_MAX_DEPTH + 8];
 } bvh__pair_ray;
-/* 1 to take rays i..e in turns (any: any-hit rays): two or more rays, a layout of the kind's size,
+/* 1 to take rays i..e in turns (any: any-hit rays), 2 where timing both ways should decide (closest
+   hit between the two sizes), 0 for one at a time: two or more rays, a layout of the kind's size,
    and the first two from different origins (a camera's rays share theirs, and most stop after a
    node or two: in turns they ran 4-8% slower, what a ray's state in memory costs). */
 static int bvh__pair_wanted(const bvh_tree *t, const bvh_ray *rays, size_t i, size_t e, int any) {
     const size_t bytes = (size_t)t->node8_count * sizeof(bvh_node8) + (size_t)t->tri4_count * sizeof(bvh_tri4);
     if (BVH__PAIR >= 0) return BVH__PAIR && e - i >= 2;
-    return e - i >= 2 && bytes >= (any ? BVH__PAIR_ANY_BYTES : BVH__PAIR_BYTES) &&
-           memcmp(&rays[i].origin, &rays[i + 1].origin, sizeof(bvh_vec3)) != 0;
+    if (e - i < 2 || bytes < BVH__PAIR_ANY_BYTES || !memcmp(&rays[i].origin, &rays[i + 1].origin, sizeof(bvh_vec3)))
+        return 0;
+    return any || bytes >= BVH__PAIR_BYTES ? 1 : 2;
 }
 /* A ray the fast slab test does not take, traced alone: a call, not inlined (the one-ray loop's
    own stack is not then added to the pair's at every place that starts a ray). Closest hit into
@@ -8454,9 +8481,65 @@ static int bvh__batch_take(bvh__batch *b, bvh__team *team, size_t *first, size_t
    goes straight to the wide loop, as bvh_intersect does: bvh__traverse's checks and frame (it
    holds the binary path too) cost a camera ray that misses about as much as its own set-up. */
 static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int isa);
-static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e) {
+/* A thread's choice for a batch's closest-hit rays where bvh__pair_wanted leaves it open (2):
+   its first BVH__TUNE_SAMPLES such ranges begin with BVH__TUNE_RAYS rays traced both ways, in
+   turns first and alone first by turns (the second pass finds the first one's nodes in cache),
+   and the rest of the batch goes in turns when the geometric mean of the samples' time ratios
+   (in turns over alone) is below BVH__TUNE_GAIN, else one ray at a time. Both ways write the
+   same hits (the tests hold the two loops equal), so only the speed depends on the clock. Only
+   batches of BVH__TUNE_MIN rays a thread or more time themselves (the samples cost at most about
+   3%, 1% on a frame's bounce rays); smaller ones, and batches on a caller's pool (no thread of
+   the library's keeps the state), trace one ray at a time there. */
+#define BVH__TUNE_SAMPLES 8
+#define BVH__TUNE_RAYS 64u
+#define BVH__TUNE_GAIN 0.97
+#ifndef BVH__TUNE_MIN /* private; a test build sets 1, so that its small batches time themselves */
+#define BVH__TUNE_MIN 16384u
+#endif
+typedef struct bvh__pair_tune {
+    int state;   /* samples taken (0 .. BVH__TUNE_SAMPLES - 1), or -1 (decided: alone), -2 (in turns) */
+    double prod; /* the samples' ratios multiplied */
+} bvh__pair_tune;
+#ifdef BVH__AVX2
+/* For the range [*i, e) of closest-hit rays on a tree where bvh__pair_wanted gives 2: takes a
+   sample off its start (*i moves past it) while tune is still sampling; returns 1 to trace the
+   rest in turns. tune NULL: one at a time. */
+static int bvh__pair_tuned(const bvh__batch *b, size_t *i, size_t e, bvh__pair_tune *tune) {
+    const bvh_tree *tree = b->tree;
+    if (!tune || tune->state == -1) return 0;
+    if (tune->state >= 0) {
+        const size_t f = *i, c = e - f < BVH__TUNE_RAYS ? e - f : BVH__TUNE_RAYS;
+        const int turns_first = tune->state & 1;
+        unsigned long long t0, t1, t2;
+        double r, g = 1.0;
+        int k;
+        t0 = __builtin_ia32_rdtsc();
+        if (turns_first)
+            bvh__closest8_pairs_avx2(tree, b->rays, b->hits, f, f + c);
+        else
+            bvh__closest8_range_avx2(tree, b->rays, b->hits, f, f + c);
+        t1 = __builtin_ia32_rdtsc();
+        if (turns_first)
+            bvh__closest8_range_avx2(tree, b->rays, b->hits, f, f + c);
+        else
+            bvh__closest8_pairs_avx2(tree, b->rays, b->hits, f, f + c);
+        t2 = __builtin_ia32_rdtsc();
+        r = turns_first ? (double)(t1 - t0) / (double)(t2 - t1 + 1) : (double)(t2 - t1) / (double)(t1 - t0 + 1);
+        /* an interrupt or a move to another core in one pass moves one sample at most this far */
+        r = r < 0.5 ? 0.5 : r > 2.0 ? 2.0 : r;
+        tune->prod *= r;
+        *i = f + c;
+        if (++tune->state < BVH__TUNE_SAMPLES) return 0;
+        for (k = 0; k < BVH__TUNE_SAMPLES; k++) g *= BVH__TUNE_GAIN;
+        tune->state = tune->prod < g ? -2 : -1;
+    }
+    return tune->state == -2;
+}
+#endif
+static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e, bvh__pair_tune *tune) {
     const bvh_tree *tree = b->tree;
     const int isa = bvh__have_avx2(); /* the CPU's ISA asked once a range, not once a ray */
+    (void)tune;
     if (b->scene) {
         if (b->scene_hits)
             for (; i < e; i++) bvh__scene_trace(b->scene, &b->rays[i], b->mask, &b->scene_hits[i], isa);
@@ -8464,7 +8547,12 @@ static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e) {
             for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__scene_trace(b->scene, &b->rays[i], b->mask, NULL, isa);
     } else if (tree->nodes8) {
 #ifdef BVH__AVX2
-        if (isa && bvh__pair_wanted(tree, b->rays, i, e, !b->hits)) {
+        int turns = isa ? bvh__pair_wanted(tree, b->rays, i, e, !b->hits) : 0;
+        if (turns == 2) { /* closest hit (any hit never gets 2) */
+            turns = bvh__pair_tuned(b, &i, e, tune);
+            if (i == e) return;
+        }
+        if (turns) {
             if (b->hits)
                 bvh__closest8_pairs_avx2(tree, b->rays, b->hits, i, e);
             else
@@ -8490,16 +8578,18 @@ static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e) {
 }
 static void bvh__batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__batch *b = BVH__CAST(bvh__batch *, arg);
+    bvh__pair_tune tune;
     size_t i, e;
     (void)tid;
-    (void)nt;
-    while (bvh__batch_take(b, team, &i, &e)) bvh__batch_range(b, i, e);
+    tune.state = b->count / nt >= BVH__TUNE_MIN ? 0 : -1;
+    tune.prod = 1.0;
+    while (bvh__batch_take(b, team, &i, &e)) bvh__batch_range(b, i, e, &tune);
 }
 /* Under a caller's pool each chunk is a task: the pool balances them. */
 static void bvh__batch_task(void *arg, uint32_t index) {
     const bvh__batch *b = BVH__CAST(const bvh__batch *, arg);
     size_t i = (size_t)index * BVH__BATCH_CHUNK, e = i + BVH__BATCH_CHUNK < b->count ? i + BVH__BATCH_CHUNK : b->count;
-    bvh__batch_range(b, i, e);
+    bvh__batch_range(b, i, e, NULL);
 }
 /* Batch b (its rays, outputs and count set) on the caller's pool, or on threads of the library's
    own (allocator: their bookkeeping). */

@@ -221,8 +221,8 @@ static void exact_renderer_hits(void **state) {
 /* bvh_intersect_batch and bvh_occluded_batch on 1, 2, 3, 8 and all threads equal single calls. */
 static void batch_equals_single(void **state) {
     static const uint32_t threads[] = {1, 2, 3, 8, 0};
-    /* on 2 threads 4 chunks of 1,024 rays, then 78 of 64, the last one short; on 3, 2 long ones;
-       on 8, short ones only */
+    /* on 1 thread 6 chunks of 1,024 rays, then 33 of 64, the last one short; on 2, 4 long ones
+       and 78 short ones; on 3, 2 long ones; on 8, short ones only */
     const size_t count = 9000 + 77;
     int id = tu_state_id(state), b;
     size_t i, k;

@@ -8270,7 +8270,7 @@ bvh__any8_pairs_avx2(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occlude
    Each ray asks for the lines of the ray and the hit BVH__RAY_AHEAD places on: a camera ray
    takes 25-40 ns, and on that slow a stream, among the nodes' random lines, the cores' own
    prefetchers did not keep up (camera rays 8-15% faster; without it a range's length moved them
-   by up to 17%: docs/bench 0.9.21). Longer rays neither gain nor lose by it. */
+   by up to 17%: docs/bench 0.9.22). Longer rays neither gain nor lose by it. */
 #define BVH__RAY_AHEAD 32u
 __attribute__((target("avx2,fma,popcnt"), flatten)) static void
 bvh__closest8_range_avx2(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t i, size_t e) {

@@ -915,7 +915,7 @@ static bvh_result trace_median(run_ctx *c, const bvh_tree *tree, uint32_t thread
 static void trace_tree(run_ctx *c, row *r, const bvh_tree *tree) {
     const options *o = c->o;
     bvh_camera cam;
-    double ms, kms;
+    double ms = NAN, kms = NAN;
     char tag[32], msg[400];
     bvh_result res;
     make_rays(c, bvh_tree_bounds(tree), &cam);
@@ -2013,7 +2013,7 @@ static void fmt_ms(char *b, size_t n, double v) { /* 3 significant digits, at le
 /* The text of one cell (without markers); returns the value used to rank it (NAN: none). */
 static double cell(const bench_scene *s, const row *r, int col, char *b, size_t n) {
     double tris = s->triangles ? (double)s->triangles : NAN;
-    char lo[32], hi[32];
+    char lo[16], hi[16];
     switch (col) {
     case C_BUILDER:
         snprintf(b, n, "%s", r->name);

@@ -8275,8 +8275,8 @@ bvh__any8_pairs_avx2(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occlude
    Any-hit rays keep the call a ray: in this form their loop lost 1-3% on long rays (docs/bench).
    Each ray asks for the lines of the ray and the hit BVH__RAY_AHEAD places on: a camera ray
    takes 25-40 ns, and on that slow a stream, among the nodes' random lines, the cores' own
-   prefetchers did not keep up (camera rays 8-15% faster; without it a range's length moved them
-   by up to 17%: docs/bench 0.9.22). Longer rays neither gain nor lose by it. */
+   prefetchers did not keep up (camera rays 1.04-1.21x as fast; without it a range's length moved
+   them by up to 17%: docs/bench 0.9.22). Longer rays neither gain nor lose by it. */
 #define BVH__RAY_AHEAD 32u
 __attribute__((target("avx2,fma,popcnt"), flatten)) static void
 bvh__closest8_range_avx2(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t i, size_t e) {
@@ -8507,11 +8507,11 @@ static int bvh__batch_take(bvh__batch *b, bvh__team *team, size_t *first, size_t
 static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int isa);
 /* A thread's choice for a batch's closest-hit rays where bvh__pair_wanted leaves it open (2):
    its first such range (or ranges, when short) takes BVH__TUNE_SAMPLES samples spread over it,
-   BVH__TUNE_RAYS rays each traced both ways, in turns first and alone first by turns (the second
-   pass finds the first one's nodes in cache), and the rest of the batch goes in turns when the
-   geometric mean of the samples' time ratios
-   (in turns over alone) is below BVH__TUNE_GAIN, else one ray at a time. Both ways write the
-   same hits (the tests hold the two loops equal), so only the speed depends on the clock. Only
+   BVH__TUNE_RAYS rays each traced both ways, which way first alternating (the second pass finds
+   the first one's nodes in cache), and the rest of the batch goes in turns when the geometric
+   mean of the samples' time ratios (in turns over alone) is below BVH__TUNE_GAIN, else one ray
+   at a time. Both ways write the same hits (the tests hold the two loops equal), so only the
+   speed depends on the clock. Only
    batches of BVH__TUNE_MIN rays a thread or more time themselves (the samples cost at most about
    3%, 1% on a frame's bounce rays); smaller ones, and batches on a caller's pool (no thread of
    the library's keeps the state), trace one ray at a time there. */

@@ -8511,10 +8511,10 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
    the first one's nodes in cache), and the rest of the batch goes in turns when the geometric
    mean of the samples' time ratios (in turns over alone) is below BVH__TUNE_GAIN, else one ray
    at a time. Both ways write the same hits (the tests hold the two loops equal), so only the
-   speed depends on the clock. Only
-   batches of BVH__TUNE_MIN rays a thread or more time themselves (the samples cost at most about
-   3%, 1% on a frame's bounce rays); smaller ones, and batches on a caller's pool (no thread of
-   the library's keeps the state), trace one ray at a time there. */
+   speed depends on the clock. Only batches of BVH__TUNE_MIN rays a thread or more time
+   themselves (the samples cost at most about 3%, 1% on a frame's bounce rays); smaller ones,
+   and batches on a caller's pool (no thread of the library's keeps the state), trace one ray at
+   a time there. */
 #define BVH__TUNE_SAMPLES 8
 #define BVH__TUNE_RAYS 64u
 #define BVH__TUNE_GAIN 0.97

@@ -8556,13 +8556,14 @@ static void bvh__pair_sample(const bvh__batch *b, size_t f, size_t c, bvh__pair_
    While tune still samples, the range first takes the samples it holds room for, spread over
    it, then traces the rest the way they chose (one at a time until the last is taken). */
 static void bvh__closest8_tuned(const bvh__batch *b, size_t i, size_t e, bvh__pair_tune *tune) {
-    size_t at[BVH__TUNE_SAMPLES], len = e - i, ns = 0, k, pos = i;
+    size_t at[BVH__TUNE_SAMPLES], to[BVH__TUNE_SAMPLES], len = e - i, ns = 0, k, pos = i;
     if (tune && tune->state >= 0) {
         const size_t want = (size_t)(BVH__TUNE_SAMPLES - tune->state), fit = len / BVH__TUNE_RAYS;
         ns = fit < want ? (fit ? fit : 1) : want;
-        for (k = 0; k < ns; k++) {
+        for (k = 0; k < ns; k++) { /* sample k: rays [at[k], to[k]) */
             at[k] = i + k * (len / ns);
-            bvh__pair_sample(b, at[k], e - at[k] < BVH__TUNE_RAYS ? e - at[k] : BVH__TUNE_RAYS, tune);
+            to[k] = e - at[k] < BVH__TUNE_RAYS ? e : at[k] + BVH__TUNE_RAYS;
+            bvh__pair_sample(b, at[k], to[k] - at[k], tune);
         }
     }
     for (k = 0; k <= ns; k++) { /* the stretches between the samples */
@@ -8573,7 +8574,7 @@ static void bvh__closest8_tuned(const bvh__batch *b, size_t i, size_t e, bvh__pa
             else
                 bvh__closest8_range_avx2(b->tree, b->rays, b->hits, pos, end);
         }
-        if (k < ns) pos = at[k] + (e - at[k] < BVH__TUNE_RAYS ? e - at[k] : BVH__TUNE_RAYS);
+        if (k < ns) pos = to[k];
     }
 }
 #endif

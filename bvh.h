@@ -579,7 +579,9 @@ typedef struct bvh_hit {
 /* ---- build description -------------------------------------------------------------------- */
 /* Both functions or neither: both NULL = BVH_MALLOC / BVH_FREE; one without the other is refused
    (BVH_ERROR_INVALID_ARGUMENT) by every call that takes an allocator. Blocks must be aligned as
-   malloc's are. */
+   malloc's are. Called only on the thread that called the library, never on its workers: an
+   allocator used by one such thread at a time needs no lock (docs/GUIDE.md: a block cache for
+   builds every frame). */
 typedef struct bvh_allocator {
     void *(*alloc)(size_t size, void *user);
     void (*free)(void *ptr, void *user);

@@ -106,6 +106,116 @@ static void ca_free(void *p, void *user) {
     free(p);
 }
 
+/* == the allocator is called on the calling thread only ======================================= */
+/* docs/GUIDE.md promises it (a caller's allocator need not be thread-safe: a block cache for
+   builds every frame): every builder, the optimizer, the layout, validate, refit, save and load
+   (copied and borrowed), the batch calls and a scene, each on 4 threads and small inputs that
+   take the threaded paths (BVH__MIN_PRIMS_PER_THREAD 1). */
+typedef struct thread_alloc {
+    pthread_t owner;
+    long calls, elsewhere;
+} thread_alloc;
+static void *ta_alloc(size_t size, void *user) {
+    thread_alloc *a = (thread_alloc *)user;
+    a->calls++; /* a data race, which `make tsan` would report, if it were not the owner */
+    if (!pthread_equal(a->owner, pthread_self())) a->elsewhere++;
+    return malloc(size);
+}
+static void ta_free(void *p, void *user) {
+    thread_alloc *a = (thread_alloc *)user;
+    a->calls++;
+    if (!pthread_equal(a->owner, pthread_self())) a->elsewhere++;
+    free(p);
+}
+typedef struct ta_buf {
+    unsigned char *data;
+    size_t size, cap;
+} ta_buf;
+static size_t ta_write(void *user, const void *p, size_t n) {
+    ta_buf *b = (ta_buf *)user;
+    if (n > b->cap - b->size) return 0;
+    memcpy(b->data + b->size, p, n);
+    b->size += n;
+    return n;
+}
+static void allocator_on_calling_thread(void **state) {
+    tu_scene s;
+    thread_alloc ta;
+    int b;
+    (void)state;
+    tu_scene_random(&s, 20000, 0x414c4c4fULL);
+    memset(&ta, 0, sizeof ta);
+    ta.owner = pthread_self();
+    for (b = 0; b <= TU_BUILDER_COUNT; b++) {
+        bvh_build_desc d = tu_scene_desc(&s, tu_builder(b < TU_BUILDER_COUNT ? b : 0));
+        bvh_refit_desc rd;
+        bvh_load_desc ld;
+        bvh_batch_desc bd;
+        bvh_tree t, u;
+        bvh_validation rep;
+        ta_buf buf;
+        bvh_ray rays[256];
+        bvh_hit hits[256];
+        uint8_t occ[256];
+        d.allocator.alloc = ta_alloc;
+        d.allocator.free = ta_free;
+        d.allocator.user = &ta;
+        d.threads = 4;
+        if (b == TU_BUILDER_COUNT) d.optimize.rounds = 2; /* the optimizer's threads */
+        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+        assert_int_equal(bvh_validate(&t, NULL, &rep), BVH_SUCCESS);
+        memset(&rd, 0, sizeof rd);
+        rd.triangles = d.triangles;
+        rd.threads = 4;
+        assert_int_equal(bvh_refit(&t, &rd), BVH_SUCCESS);
+        tu_make_rays(s.data, s.tri_count, 5 + (uint64_t)b, rays, 256);
+        memset(&bd, 0, sizeof bd);
+        bd.threads = 4;
+        assert_int_equal(bvh_intersect_batch_ex(&t, rays, hits, 256, &bd), BVH_SUCCESS);
+        assert_int_equal(bvh_occluded_batch_ex(&t, rays, occ, 256, &bd), BVH_SUCCESS);
+        buf.size = 0;
+        buf.cap = bvh_save_size(&t);
+        buf.data = (unsigned char *)malloc(buf.cap);
+        assert_non_null(buf.data);
+        assert_int_equal(bvh_save(&t, ta_write, &buf), BVH_SUCCESS);
+        for (int borrow = 0; borrow < 2; borrow++) {
+            memset(&ld, 0, sizeof ld);
+            ld.data = buf.data;
+            ld.size = buf.size;
+            ld.borrow = (uint32_t)borrow;
+            ld.threads = 4;
+            ld.allocator = d.allocator;
+            assert_int_equal(bvh_load(&u, &ld), BVH_SUCCESS);
+            bvh_free(&u);
+        }
+        if (b == 0) { /* a scene of two instances of the tree */
+            bvh_instance in[2];
+            bvh_scene_desc sd;
+            bvh_scene sc;
+            int k;
+            memset(in, 0, sizeof in);
+            for (k = 0; k < 2; k++) {
+                in[k].tree = &t;
+                in[k].transform[0] = in[k].transform[5] = in[k].transform[10] = 1.0f;
+                in[k].transform[3] = 30.0f * (float)k;
+                in[k].mask = ~0u;
+            }
+            memset(&sd, 0, sizeof sd);
+            sd.instances = in;
+            sd.instance_count = 2;
+            sd.threads = 4;
+            sd.allocator = d.allocator;
+            assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+            bvh_scene_free(&sc);
+        }
+        free(buf.data);
+        bvh_free(&t);
+    }
+    assert_true(ta.calls > 0);
+    if (ta.elsewhere) fail_msg("%ld of %ld allocator calls came from another thread", ta.elsewhere, ta.calls);
+    tu_scene_free(&s);
+}
+
 /* == the pool gives the internal pool's tree ================================================= */
 static void pool_same_tree(void **state) {
     static const uint32_t tasks[] = {1, 2, 3, 7};
@@ -536,6 +646,7 @@ int main(void) {
     const struct CMUnitTest tests[] = {
         TU_EVERY_SCENE(pool_same_tree),
         cmocka_unit_test(pool_same_tree_options),
+        cmocka_unit_test(allocator_on_calling_thread),
         cmocka_unit_test(sah_midpoint_threads_same_tree),
         cmocka_unit_test(pool_batch_same_hits),
         cmocka_unit_test(progress_small_builds),

@@ -1,4 +1,4 @@
-/* bvh.h - v0.9.23 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.9.24 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -108,6 +108,13 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.24 A timed batch (0.9.21) decides from samples whose halves are neighbouring rays, one
+            half in turns and one alone, and from the median of their ratios: it traced the same
+            rays both ways, and in a renderer's cold caches the second pass ran up to twice as fast
+            as the first, so that a third of the bunny's one-thread bounce batches went the slower
+            way (now 1 in 66, and 1 in 66 inside Sponza the other way); every ray is now traced
+            once. The allocator is called only on the calling thread (tested), so a block cache for
+            rebuilds every frame needs no lock (docs/GUIDE.md).
      0.9.23 The batch calls' threads take guided chunks, each a quarter of a thread's share of the
             rays left (at least 64), where they took chunks of 1,024 rays in turn: a thread walks
             long stretches of neighbouring rays, whose nodes its core's caches then hold. Two
@@ -449,7 +456,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 9
-#define BVH_VERSION_PATCH 23
+#define BVH_VERSION_PATCH 24
 
 #include <math.h>
 #include <stddef.h>
@@ -8509,50 +8516,60 @@ static int bvh__batch_take(bvh__batch *b, bvh__team *team, size_t *first, size_t
 static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t mask, bvh_scene_hit *hit, int isa);
 /* A thread's choice for a batch's closest-hit rays where bvh__pair_wanted leaves it open (2):
    its first such range (or ranges, when short) takes BVH__TUNE_SAMPLES samples spread over it,
-   BVH__TUNE_RAYS rays each traced both ways, which way first alternating (the second pass finds
-   the first one's nodes in cache), and the rest of the batch goes in turns when the geometric
-   mean of the samples' time ratios (in turns over alone) is below BVH__TUNE_GAIN, else one ray
-   at a time. Both ways write the same hits (the tests hold the two loops equal), so only the
-   speed depends on the clock. Only batches of BVH__TUNE_MIN rays a thread or more time
-   themselves (the samples cost at most about 3%, 1% on a frame's bounce rays); smaller ones,
-   and batches on a caller's pool (no thread of the library's keeps the state), trace one ray at
-   a time there. */
+   BVH__TUNE_RAYS rays each, one half traced in turns and the other one at a time (neighbouring
+   pixels' rays, so much the same work; which way first alternating, as the second half finds
+   some of the first one's nodes in cache), and the rest of the batch goes in turns when the
+   median of the samples' time ratios a ray (in turns over alone) is below BVH__TUNE_GAIN, else
+   one ray at a time. Every ray is traced once, and both ways write the same
+   hits (the tests hold the two loops equal), so only the speed depends on the clock. (The same
+   rays traced both ways measured mostly the cache: the second pass ran up to twice as fast as
+   the first in a renderer's cold caches, which swamped a 10% difference; docs/bench, 0.9.24.)
+   Only batches of BVH__TUNE_MIN rays a thread or more time themselves; smaller ones, and batches
+   on a caller's pool (no thread of the library's keeps the state), trace one ray at a time
+   there. */
 #define BVH__TUNE_SAMPLES 8
-#define BVH__TUNE_RAYS 64u
+#define BVH__TUNE_RAYS 512u
 #define BVH__TUNE_GAIN 0.97
 #ifndef BVH__TUNE_MIN /* private; a test build sets 1, so that its small batches time themselves */
 #define BVH__TUNE_MIN 16384u
 #endif
 typedef struct bvh__pair_tune {
-    int state;   /* samples taken (0 .. BVH__TUNE_SAMPLES - 1), or -1 (decided: alone), -2 (in turns) */
-    double prod; /* the samples' ratios multiplied */
+    int state;                       /* samples taken (0 .. BVH__TUNE_SAMPLES - 1), or -1 (decided:
+                                        alone), -2 (in turns) */
+    double ratio[BVH__TUNE_SAMPLES]; /* the samples' time ratios */
 } bvh__pair_tune;
 #ifdef BVH__AVX2
-/* One sample: rays [f, f + c) traced both ways, timed, into tune (which decides at the last). */
+/* One sample: rays [f, f + c), half in turns and half one at a time, timed, into tune (which
+   decides at the last). */
 static void bvh__pair_sample(const bvh__batch *b, size_t f, size_t c, bvh__pair_tune *tune) {
     const bvh_tree *tree = b->tree;
     const int turns_first = tune->state & 1;
+    const size_t h = c / 2, m = f + h, e = f + c;
     unsigned long long t0, t1, t2;
-    double r, g = 1.0;
-    int k;
+    double r = 1.0;
+    int k, j;
     t0 = __builtin_ia32_rdtsc();
     if (turns_first)
-        bvh__closest8_pairs_avx2(tree, b->rays, b->hits, f, f + c);
+        bvh__closest8_pairs_avx2(tree, b->rays, b->hits, f, m);
     else
-        bvh__closest8_range_avx2(tree, b->rays, b->hits, f, f + c);
+        bvh__closest8_range_avx2(tree, b->rays, b->hits, f, m);
     t1 = __builtin_ia32_rdtsc();
     if (turns_first)
-        bvh__closest8_range_avx2(tree, b->rays, b->hits, f, f + c);
+        bvh__closest8_range_avx2(tree, b->rays, b->hits, m, e);
     else
-        bvh__closest8_pairs_avx2(tree, b->rays, b->hits, f, f + c);
+        bvh__closest8_pairs_avx2(tree, b->rays, b->hits, m, e);
     t2 = __builtin_ia32_rdtsc();
-    r = turns_first ? (double)(t1 - t0) / (double)(t2 - t1 + 1) : (double)(t2 - t1) / (double)(t1 - t0 + 1);
-    /* an interrupt or a move to another core in one pass moves one sample at most this far */
+    if (h) { /* time a ray each way (a one-ray sample: no answer, 1) */
+        const double first = (double)(t1 - t0) / (double)h, second = (double)(t2 - t1) / (double)(c - h);
+        r = turns_first ? first / (second + 1.0) : second / (first + 1.0);
+    }
+    /* an interrupt or a move to another core in one half moves one sample at most this far */
     r = r < 0.5 ? 0.5 : r > 2.0 ? 2.0 : r;
-    tune->prod *= r;
+    for (k = tune->state; k > 0 && tune->ratio[k - 1] > r; k--) tune->ratio[k] = tune->ratio[k - 1]; /* sorted */
+    tune->ratio[k] = r;
     if (++tune->state < BVH__TUNE_SAMPLES) return;
-    for (k = 0; k < BVH__TUNE_SAMPLES; k++) g *= BVH__TUNE_GAIN;
-    tune->state = tune->prod < g ? -2 : -1;
+    j = BVH__TUNE_SAMPLES / 2; /* the median: a sample an interrupt stretched does not move it */
+    tune->state = tune->ratio[j - 1] + tune->ratio[j] < 2.0 * BVH__TUNE_GAIN ? -2 : -1;
 }
 /* Closest-hit rays [i, e) on a tree where bvh__pair_wanted gives 2 (tune NULL: one at a time).
    While tune still samples, the range first takes the samples it holds room for, spread over
@@ -8626,7 +8643,6 @@ static void bvh__batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     size_t i, e;
     (void)tid;
     tune.state = b->count / nt >= BVH__TUNE_MIN ? 0 : -1;
-    tune.prod = 1.0;
     while (bvh__batch_take(b, team, &i, &e)) bvh__batch_range(b, i, e, &tune);
 }
 /* Under a caller's pool each chunk is a task: the pool balances them. */

@@ -47,7 +47,7 @@ def main(out, builder, paths):
         flags = "default flags" if flags == ["default"] else "robust flag" if flags == ["robust"] else "mixed flags"
         top = max([1.2] + [r.get(k + "_max") or 0 for r in rows for _, k in KINDS]) * 1.1
         script = f"""
-set terminal pngcairo size 900,420 font "sans,11" noenhanced
+set terminal pngcairo size {max(900, 160 * len(rows))},420 font "sans,11" noenhanced
 set output "{out}"
 set title "bvh.h ({builder} tree) against Embree 3 medium ({flags}): Mrays/s on one thread, same rays"
 set ylabel "bvh.h / Embree  (1 = as fast)"

@@ -284,6 +284,63 @@ static void batch_equals_single(void **state) {
     tu_scene_free(&s);
 }
 
+/* A camera's batch (every ray from one origin: timed on a layout from 512 KiB, then traced one at
+   a time or in turns) gives the single calls' hits, seen from outside (most rays stop early) and
+   from inside the model (every ray goes deep), on one thread and on two. */
+static void camera_batch_equals_single(void **state) {
+    static const uint32_t threads[] = {1, 2};
+    const uint32_t w = 128, h = 128;
+    const size_t count = (size_t)w * h;
+    int id = tu_state_id(state), b, c;
+    size_t i, k;
+    tu_scene s;
+    bvh_ray *rays;
+    bvh_hit *single, *batch;
+    if (!tu_scene_make(id, &s)) {
+        skip();
+        return;
+    }
+    rays = (bvh_ray *)malloc(count * sizeof *rays);
+    single = (bvh_hit *)malloc(count * sizeof *single);
+    batch = (bvh_hit *)malloc(count * sizeof *batch);
+    assert_true(rays && single && batch);
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_tree t;
+        tu_build(&s, tu_builder(b), &t);
+        for (c = 0; c < 2; c++) {
+            bvh_aabb box = bvh_tree_bounds(&t);
+            bvh_camera cam;
+            uint32_t x, y;
+            if (c) { /* inside: the standard camera of a box a tenth of the model's, at its centre */
+                const bvh_vec3 m = bvh_aabb_centroid(box);
+                box.min.x = m.x - 0.05f * (box.max.x - box.min.x);
+                box.min.y = m.y - 0.05f * (box.max.y - box.min.y);
+                box.min.z = m.z - 0.05f * (box.max.z - box.min.z);
+                box.max.x = 2.0f * m.x - box.min.x;
+                box.max.y = 2.0f * m.y - box.min.y;
+                box.max.z = 2.0f * m.z - box.min.z;
+            }
+            cam = bvh_camera_standard(box, w, h);
+            for (y = 0; y < h; y++)
+                for (x = 0; x < w; x++) rays[(size_t)y * w + x] = bvh_camera_ray(&cam, x, y);
+            for (i = 0; i < count; i++) bvh_intersect(&t, &rays[i], &single[i]);
+            for (k = 0; k < sizeof threads / sizeof threads[0]; k++) {
+                memset(batch, 0xab, count * sizeof *batch);
+                assert_int_equal(bvh_intersect_batch(&t, rays, batch, count, threads[k]), BVH_SUCCESS);
+                for (i = 0; i < count; i++)
+                    if (!tu_hit_equal(&batch[i], &single[i]))
+                        fail_msg("%s/%s: camera %s, batch on %u threads differs from single calls at ray %zu", s.name,
+                                 bvh_builder_name(tu_builder(b)), c ? "inside" : "outside", threads[k], i);
+            }
+        }
+        bvh_free(&t);
+    }
+    free(rays);
+    free(single);
+    free(batch);
+    tu_scene_free(&s);
+}
+
 /* Rays with NaN, Inf, a zero direction or tmin > tmax hit nothing, in every call. */
 static void invalid_rays_miss(void **state) {
     tu_scene s;
@@ -626,6 +683,8 @@ int main(void) {
         TU_SCENE_TEST(batch_equals_single, TU_SCENE_RANDOM, "random"),
         TU_SCENE_TEST(batch_equals_single, TU_SCENE_GRID, "grid"),
         TU_SCENE_TEST(batch_equals_single, TU_SCENE_BUNNY, "bunny"),
+        TU_SCENE_TEST(camera_batch_equals_single, TU_SCENE_GRID, "grid"),
+        TU_SCENE_TEST(camera_batch_equals_single, TU_SCENE_BUNNY, "bunny"),
         cmocka_unit_test(invalid_rays_miss),
         cmocka_unit_test(max_depth_tree_traces),
         cmocka_unit_test(box_behind_origin_skipped),

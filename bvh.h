@@ -8127,7 +8127,7 @@ typedef struct bvh__pair_ray {
    sizes; a camera's closest-hit rays, which share their origin, timed at every size: seen from
    outside, most stop after a node or two and ran 13-20% slower in turns (a ray's state in
    memory), seen from inside a model or a room every one goes deep and ran up to 1.37x as fast
-   (docs/bench, 0.9.24). */
+   (docs/bench, 0.9.25). */
 static int bvh__pair_wanted(const bvh_tree *t, const bvh_ray *rays, size_t i, size_t e, int any) {
     const size_t bytes = (size_t)t->node8_count * sizeof(bvh_node8) + (size_t)t->tri4_count * sizeof(bvh_tri4);
     if (BVH__PAIR >= 0) return BVH__PAIR && e - i >= 2;
@@ -8529,13 +8529,12 @@ static int bvh__scene_trace(const bvh_scene *scene, const bvh_ray *ray, uint32_t
    pixels' rays, so much the same work; which way first alternating, as the second half finds
    some of the first one's nodes in cache), and the rest of the batch goes in turns when the
    median of the samples' time ratios a ray (in turns over alone) is below BVH__TUNE_GAIN, else
-   one ray at a time. Every ray is traced once, and both ways write the same
-   hits (the tests hold the two loops equal), so only the speed depends on the clock. (The same
-   rays traced both ways measured mostly the cache: the second pass ran up to twice as fast as
-   the first in a renderer's cold caches, which swamped a 10% difference; docs/bench, 0.9.24.)
-   Only batches of BVH__TUNE_MIN rays a thread or more time themselves; smaller ones, and batches
-   on a caller's pool (no thread of the library's keeps the state), trace one ray at a time
-   there. */
+   one ray at a time. Every ray is traced once, and both ways write the same hits (the tests hold
+   the two loops equal), so only the speed depends on the clock. (The same rays traced both ways
+   measured mostly the cache: the second pass ran up to twice as fast as the first in a
+   renderer's cold caches, which swamped a 10% difference; docs/bench, 0.9.24.) Only batches of
+   BVH__TUNE_MIN rays a thread or more time themselves; smaller ones, and batches on a caller's
+   pool (no thread of the library's keeps the state), trace one ray at a time there. */
 #define BVH__TUNE_SAMPLES 8
 #define BVH__TUNE_RAYS 512u
 #define BVH__TUNE_GAIN 0.97

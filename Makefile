@@ -122,6 +122,12 @@ $(BUILD)/check/scene-no-simd: tests/test_scene.c $(HEADERS)
 $(BUILD)/check/scene-no-avx2: tests/test_scene.c $(HEADERS)
 	@mkdir -p $(dir $@)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -DBVH_NO_AVX2 -I. $< -o $@ -lcmocka $(LDLIBS)
+# Every example and tool again without the optional packages (no BVH_HAVE_*), as a machine
+# without Embree, Assimp, stb or OpenCL builds them: objects only, built by `make test`.
+BARE = $(patsubst %.c,$(BUILD)/check/bare/%.o,$(wildcard examples/*.c) $(wildcard bench/*.c))
+$(BUILD)/check/bare/%.o: %.c $(HEADERS)
+	@mkdir -p $(dir $@)
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. -c $< -o $@
 # cl/bvh_cl.h holds the current cl/trace.cl (`make kernel` copies it in after an edit).
 $(BUILD)/check/kernel-embedded: cl/trace.cl cl/bvh_cl.h scripts/embed-kernel.sh
 	@mkdir -p $(dir $@)
@@ -217,7 +223,7 @@ deps-bench:
 # scripts/run-tests.sh prints a line per program and keeps every output in $(BUILD)/test-logs/.
 test: deps-test
 	@$(MAKE) --no-print-directory -j$(JOBS) $(TESTS) $(CHECKS) $(BUILD)/render $(BUILD)/cl_info $(BUILD)/bvhbench $(COPYABLE) \
-		$(BUILD)/pathtrace
+		$(BUILD)/pathtrace $(BARE)
 	@BUILD=$(BUILD) scripts/run-tests.sh $(TESTS) $(CHECKS) tests/exit_codes.sh tests/examples.sh tests/install.sh
 
 demo: deps-demo

@@ -971,7 +971,7 @@ int main(int argc, char **argv) {
     worker *wk;
     uint64_t rays = 0, embree_rays = 0, triangles = 0, instanced = 0;
     double t0, t1, t2, t3, kernel_ms = 0.0, embree_build_ms = 0.0, embree_ms = 0.0, diff = 0.0;
-    double band_ratio[PAIR_BANDS], ratio_median = 0.0, ratio_min = 0.0, ratio_max = 0.0; /* --embree on the CPU */
+    double ratio_median = 0.0, ratio_min = 0.0, ratio_max = 0.0; /* --embree on the CPU */
     uint32_t bands = 0;
     bvh_result r;
     int ok = 1, inside = 0, trace = 0, embree = 0, embree_high = 0, json = 0; /* trace: 0 cpu, 1 opencl, 2 auto */
@@ -1080,6 +1080,7 @@ int main(int argc, char **argv) {
 #ifdef BVH_HAVE_EMBREE
     if (embree && ok) { /* the same job, the rays traced by Embree: only the tracer differs */
         embree_world e;
+        double band_ratio[PAIR_BANDS];
         double e0 = scene_now_ms(), e1;
         uint8_t *rgb = j[1].rgb;
         size_t k, bytes = 3 * (size_t)width * height;

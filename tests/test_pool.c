@@ -8,7 +8,9 @@
    fractions rise from 0 to a single 1 on a completed build; cancelling at the k-th call, for every k a build makes,
    returns BVH_ERROR_CANCELLED with the tree empty and every block given back (a counting allocator; `make asan` checks
    the rest); on 200K random triangles the callback comes at least once per BVH__PROGRESS_WORK-ish slice of work and
-   never leaves a long gap. */
+   never leaves a long gap. Persistent workers (examples/workers.h): every builder's tree and
+   hundreds of batch calls in a row, small and large, the same as the internal pool's (make tsan
+   runs this file too: the workers' hand-over between runs). */
 #define BVH_IMPLEMENTATION
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 /* sah-midpoint's rare paths, counted (on the calling thread): a subtree built again with its
@@ -18,6 +20,7 @@ static struct { unsigned rebuilt, serial; } sm_events;
 #include "bvh.h"
 #include "test_util.h"
 #include "tree_diff.h"
+#include "examples/workers.h"
 
 #include <pthread.h>
 #include <time.h>
@@ -373,6 +376,73 @@ static void pool_batch_same_hits(void **state) {
     free(occ);
 }
 
+/* == examples/workers.h: one set of workers for many runs ======================================= */
+/* Every builder on the workers gives the internal pool's tree; then 300 batch calls in a row
+   (closest and any hit, 1 to 5000 rays, so that runs of one task and of many follow each other
+   with the workers asleep or still leaving) give the internal pool's hits and flags. */
+static void workers_same_results(void **state) {
+    const size_t count = 5000;
+    tu_scene s;
+    bvh_tree t;
+    workers w;
+    bvh_ray *rays = (bvh_ray *)malloc(count * sizeof *rays);
+    bvh_hit *ref = (bvh_hit *)malloc(count * sizeof *ref), *hits = (bvh_hit *)malloc(count * sizeof *hits);
+    uint8_t *oref = (uint8_t *)malloc(count), *occ = (uint8_t *)malloc(count);
+    float *tris;
+    int b, k;
+    (void)state;
+    assert_true(rays && ref && hits && oref && occ);
+    assert_int_equal(workers_start(&w, 4), 0);
+    assert_int_equal(w.threads, 3);
+    tu_scene_random(&s, 5000, 0x574f524bULL);
+    for (b = 0; b < TU_BUILDER_COUNT; b++) {
+        bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
+        bvh_tree r2;
+        const char *diff;
+        d.threads = 3;
+        assert_int_equal(bvh_build(&r2, &d), BVH_SUCCESS);
+        d.pool = workers_pool(&w);
+        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+        diff = tree_diff(&r2, &t);
+        if (diff) fail_msg("%s on the workers: %s differs from the internal pool's", bvh_builder_name(d.builder), diff);
+        bvh_free(&t);
+        bvh_free(&r2);
+    }
+    tris = tu_scene_tris(&s);
+    tu_make_rays(tris, s.tri_count, 13, rays, count);
+    {
+        bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC_PARALLEL);
+        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+    }
+    assert_int_equal(bvh_intersect_batch(&t, rays, ref, count, 2), BVH_SUCCESS);
+    assert_int_equal(bvh_occluded_batch(&t, rays, oref, count, 2), BVH_SUCCESS);
+    for (k = 0; k < 300; k++) {
+        bvh_batch_desc bd;
+        const size_t n = k % 3 == 0 ? count : (size_t)(1 + (k * 37) % 700), first = (size_t)(k * 11) % (count - n + 1);
+        memset(&bd, 0, sizeof bd);
+        bd.pool = workers_pool(&w);
+        bd.threads = 1 + (uint32_t)k % 4;
+        memset(hits, 0xab, n * sizeof *hits);
+        memset(occ, 0xab, n);
+        if (k % 2) {
+            assert_int_equal(bvh_intersect_batch_ex(&t, rays + first, hits, n, &bd), BVH_SUCCESS);
+            if (memcmp(hits, ref + first, n * sizeof *hits) != 0) fail_msg("call %d (%zu rays): other hits", k, n);
+        } else {
+            assert_int_equal(bvh_occluded_batch_ex(&t, rays + first, occ, n, &bd), BVH_SUCCESS);
+            if (memcmp(occ, oref + first, n) != 0) fail_msg("call %d (%zu rays): other occlusion flags", k, n);
+        }
+    }
+    workers_stop(&w);
+    bvh_free(&t);
+    free(tris);
+    tu_scene_free(&s);
+    free(rays);
+    free(ref);
+    free(hits);
+    free(oref);
+    free(occ);
+}
+
 /* == progress and cancel ===================================================================== */
 typedef struct prog_state {
     uint32_t calls, cancel_at; /* cancel_at: return nonzero at that call (1-based), 0 never */
@@ -649,6 +719,7 @@ int main(void) {
         cmocka_unit_test(allocator_on_calling_thread),
         cmocka_unit_test(sah_midpoint_threads_same_tree),
         cmocka_unit_test(pool_batch_same_hits),
+        cmocka_unit_test(workers_same_results),
         cmocka_unit_test(progress_small_builds),
         cmocka_unit_test(progress_cancel_every_call),
         cmocka_unit_test(progress_cadence),

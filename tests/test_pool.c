@@ -293,41 +293,75 @@ static void pool_same_tree_options(void **state) {
 }
 
 /* == batch tracing through the pool ========================================================== */
-static void pool_batch_same_hits(void **state) {
-    const size_t count = 5000;
+/* A batch test's rays over a random scene's tree, with the library's own threads' hits and flags
+   (ref, oref) and room for a pool's (hits, occ). */
+typedef struct batch_fixture {
     tu_scene s;
     bvh_tree t;
-    bvh_ray *rays = (bvh_ray *)malloc(count * sizeof *rays);
-    bvh_hit *ref = (bvh_hit *)malloc(count * sizeof *ref), *hits = (bvh_hit *)malloc(count * sizeof *hits);
-    uint8_t *oref = (uint8_t *)malloc(count), *occ = (uint8_t *)malloc(count);
     float *tris;
+    bvh_ray *rays;
+    bvh_hit *ref, *hits;
+    uint8_t *oref, *occ;
+    size_t count;
+} batch_fixture;
+static void batch_fixture_make(batch_fixture *f, size_t count, uint64_t scene_seed, uint64_t ray_seed, bvh_builder b) {
+    bvh_build_desc d;
+    f->count = count;
+    f->rays = (bvh_ray *)malloc(count * sizeof *f->rays);
+    f->ref = (bvh_hit *)malloc(count * sizeof *f->ref);
+    f->hits = (bvh_hit *)malloc(count * sizeof *f->hits);
+    f->oref = (uint8_t *)malloc(count);
+    f->occ = (uint8_t *)malloc(count);
+    assert_true(f->rays && f->ref && f->hits && f->oref && f->occ);
+    tu_scene_random(&f->s, 5000, scene_seed);
+    f->tris = tu_scene_tris(&f->s);
+    tu_make_rays(f->tris, f->s.tri_count, ray_seed, f->rays, count);
+    d = tu_scene_desc(&f->s, b);
+    assert_int_equal(bvh_build(&f->t, &d), BVH_SUCCESS);
+    assert_int_equal(bvh_intersect_batch(&f->t, f->rays, f->ref, count, 2), BVH_SUCCESS);
+    assert_int_equal(bvh_occluded_batch(&f->t, f->rays, f->oref, count, 2), BVH_SUCCESS);
+}
+static void batch_fixture_free(batch_fixture *f) {
+    bvh_free(&f->t);
+    free(f->tris);
+    tu_scene_free(&f->s);
+    free(f->rays);
+    free(f->ref);
+    free(f->hits);
+    free(f->oref);
+    free(f->occ);
+}
+static void pool_batch_same_hits(void **state) {
+    batch_fixture f;
+    const size_t count = 5000;
+    const bvh_tree *t;
+    bvh_ray *rays;
+    bvh_hit *ref, *hits;
+    uint8_t *oref, *occ;
     int h;
     (void)state;
-    assert_true(rays && ref && hits && oref && occ);
-    tu_scene_random(&s, 5000, 0x42415443ULL);
-    tris = tu_scene_tris(&s);
-    tu_make_rays(tris, s.tri_count, 11, rays, count);
-    {
-        bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC);
-        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
-    }
-    assert_int_equal(bvh_intersect_batch(&t, rays, ref, count, 2), BVH_SUCCESS);
-    assert_int_equal(bvh_occluded_batch(&t, rays, oref, count, 2), BVH_SUCCESS);
+    batch_fixture_make(&f, count, 0x42415443ULL, 11, BVH_BUILDER_PLOC);
+    t = &f.t;
+    rays = f.rays;
+    ref = f.ref;
+    hits = f.hits;
+    oref = f.oref;
+    occ = f.occ;
     for (h = 0; h < 3; h++) {
         pool_state ps;
         const bvh_batch_desc bd = pool_batch_desc(&ps, h, 5);
         memset(hits, 0xab, count * sizeof *hits);
         memset(occ, 0xab, count);
-        assert_int_equal(bvh_intersect_batch_ex(&t, rays, hits, count, &bd), BVH_SUCCESS);
-        assert_int_equal(bvh_occluded_batch_ex(&t, rays, occ, count, &bd), BVH_SUCCESS);
+        assert_int_equal(bvh_intersect_batch_ex(t, rays, hits, count, &bd), BVH_SUCCESS);
+        assert_int_equal(bvh_occluded_batch_ex(t, rays, occ, count, &bd), BVH_SUCCESS);
         assert_true(ps.runs >= 2);
         if (memcmp(hits, ref, count * sizeof *hits) != 0) fail_msg("pool %s: other hits", pool_names[h]);
         if (memcmp(occ, oref, count) != 0) fail_msg("pool %s: other occlusion flags", pool_names[h]);
     }
     /* desc NULL: the internal threads */
-    assert_int_equal(bvh_intersect_batch_ex(&t, rays, hits, count, NULL), BVH_SUCCESS);
+    assert_int_equal(bvh_intersect_batch_ex(t, rays, hits, count, NULL), BVH_SUCCESS);
     assert_memory_equal(hits, ref, count * sizeof *hits);
-    assert_int_equal(bvh_intersect_batch_ex(&t, rays, NULL, count, NULL), BVH_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_intersect_batch_ex(t, rays, NULL, count, NULL), BVH_ERROR_INVALID_ARGUMENT);
     { /* a scene's batches: two instances of the tree, one moved */
         bvh_instance in[2];
         bvh_scene sc;
@@ -338,7 +372,7 @@ static void pool_batch_same_hits(void **state) {
         assert_true(sref && shits);
         memset(in, 0, sizeof in);
         memset(&sd, 0, sizeof sd);
-        in[0].tree = in[1].tree = &t;
+        in[0].tree = in[1].tree = t;
         in[0].mask = in[1].mask = ~0u;
         in[0].transform[0] = in[0].transform[5] = in[0].transform[10] = 1.0f;
         in[1].transform[0] = in[1].transform[5] = in[1].transform[10] = 1.0f;
@@ -366,14 +400,7 @@ static void pool_batch_same_hits(void **state) {
         free(sref);
         free(shits);
     }
-    bvh_free(&t);
-    free(tris);
-    tu_scene_free(&s);
-    free(rays);
-    free(ref);
-    free(hits);
-    free(oref);
-    free(occ);
+    batch_fixture_free(&f);
 }
 
 /* == examples/workers.h: one set of workers for many runs ======================================= */
@@ -382,22 +409,16 @@ static void pool_batch_same_hits(void **state) {
    with the workers asleep or still leaving) give the internal pool's hits and flags. */
 static void workers_same_results(void **state) {
     const size_t count = 5000;
-    tu_scene s;
-    bvh_tree t;
+    batch_fixture f;
     workers w;
-    bvh_ray *rays = (bvh_ray *)malloc(count * sizeof *rays);
-    bvh_hit *ref = (bvh_hit *)malloc(count * sizeof *ref), *hits = (bvh_hit *)malloc(count * sizeof *hits);
-    uint8_t *oref = (uint8_t *)malloc(count), *occ = (uint8_t *)malloc(count);
-    float *tris;
     int b, k;
     (void)state;
-    assert_true(rays && ref && hits && oref && occ);
     assert_int_equal(workers_start(&w, 4), 0);
     assert_int_equal(w.threads, 3);
-    tu_scene_random(&s, 5000, 0x574f524bULL);
+    batch_fixture_make(&f, count, 0x574f524bULL, 13, BVH_BUILDER_PLOC_PARALLEL);
     for (b = 0; b < TU_BUILDER_COUNT; b++) {
-        bvh_build_desc d = tu_scene_desc(&s, tu_builder(b));
-        bvh_tree r2;
+        bvh_build_desc d = tu_scene_desc(&f.s, tu_builder(b));
+        bvh_tree r2, t;
         const char *diff;
         d.threads = 3;
         assert_int_equal(bvh_build(&r2, &d), BVH_SUCCESS);
@@ -408,39 +429,25 @@ static void workers_same_results(void **state) {
         bvh_free(&t);
         bvh_free(&r2);
     }
-    tris = tu_scene_tris(&s);
-    tu_make_rays(tris, s.tri_count, 13, rays, count);
-    {
-        bvh_build_desc d = tu_scene_desc(&s, BVH_BUILDER_PLOC_PARALLEL);
-        assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
-    }
-    assert_int_equal(bvh_intersect_batch(&t, rays, ref, count, 2), BVH_SUCCESS);
-    assert_int_equal(bvh_occluded_batch(&t, rays, oref, count, 2), BVH_SUCCESS);
     for (k = 0; k < 300; k++) {
         bvh_batch_desc bd;
         const size_t n = k % 3 == 0 ? count : (size_t)(1 + (k * 37) % 700), first = (size_t)(k * 11) % (count - n + 1);
         memset(&bd, 0, sizeof bd);
         bd.pool = workers_pool(&w);
         bd.threads = 1 + (uint32_t)k % 4;
-        memset(hits, 0xab, n * sizeof *hits);
-        memset(occ, 0xab, n);
+        memset(f.hits, 0xab, n * sizeof *f.hits);
+        memset(f.occ, 0xab, n);
         if (k % 2) {
-            assert_int_equal(bvh_intersect_batch_ex(&t, rays + first, hits, n, &bd), BVH_SUCCESS);
-            if (memcmp(hits, ref + first, n * sizeof *hits) != 0) fail_msg("call %d (%zu rays): other hits", k, n);
+            assert_int_equal(bvh_intersect_batch_ex(&f.t, f.rays + first, f.hits, n, &bd), BVH_SUCCESS);
+            if (memcmp(f.hits, f.ref + first, n * sizeof *f.hits) != 0)
+                fail_msg("call %d (%zu rays): other hits", k, n);
         } else {
-            assert_int_equal(bvh_occluded_batch_ex(&t, rays + first, occ, n, &bd), BVH_SUCCESS);
-            if (memcmp(occ, oref + first, n) != 0) fail_msg("call %d (%zu rays): other occlusion flags", k, n);
+            assert_int_equal(bvh_occluded_batch_ex(&f.t, f.rays + first, f.occ, n, &bd), BVH_SUCCESS);
+            if (memcmp(f.occ, f.oref + first, n) != 0) fail_msg("call %d (%zu rays): other occlusion flags", k, n);
         }
     }
     workers_stop(&w);
-    bvh_free(&t);
-    free(tris);
-    tu_scene_free(&s);
-    free(rays);
-    free(ref);
-    free(hits);
-    free(oref);
-    free(occ);
+    batch_fixture_free(&f);
 }
 
 /* == progress and cancel ===================================================================== */

@@ -8665,8 +8665,8 @@ static void bvh__batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
 /* Under a caller's pool: task `index` of `tasks` is a thread of bvh__batch_fn, taking guided
    chunks from the shared counter with a tuning of its own, so that it walks long runs of
    neighbouring rays and times its closest-hit rays as the library's threads do (a task per
-   64-ray chunk traced a bunny's or Sponza's bounce and shadow rays 10-25% slower). A task that
-   finds no chunk left returns: a pool that runs the tasks one after another is still right. */
+   64-ray chunk did neither: docs/bench, 0.9.26). A task that finds no chunk left returns, so a
+   pool that runs the tasks one after another is still right. */
 typedef struct bvh__batch_pooled {
     bvh__batch *b;
     uint32_t tasks;

@@ -115,7 +115,8 @@
             tuning of their own, where each 64-ray chunk was a task: a persistent pool (the new
             examples/workers.h) traced a frame's bounce and shadow rays 0.74-0.82x as fast as
             the library's own threads on Sponza and 0.91-0.92x on the bunny; now 1.02-1.09x and
-            1.00-1.02x (2 threads).
+            1.00-1.02x (2 threads). So bvh_batch_desc.threads now counts under a pool too (it
+            was ignored there): with BVH_NO_THREADS set it to the pool's worker count.
      0.9.25 A camera's closest-hit batches (rays from one origin) on layouts from 512 KiB are timed
             too, where they always went one ray at a time: from inside a model or a room every
             ray goes deep and two in turns run up to 1.37x as fast (camera rays from inside, one
@@ -826,7 +827,8 @@ BVH_API bvh_result bvh_occluded_batch(const bvh_tree *tree, const bvh_ray *rays,
                                       uint32_t threads);
 /* The batch calls with options (desc NULL = all zero): the same hits and flags on any pool. */
 typedef struct bvh_batch_desc {
-    uint32_t threads;     /* threads, or tasks with a pool: 0 = online CPUs */
+    uint32_t threads;     /* threads, or tasks with a pool: 0 = online CPUs (one under
+                             BVH_NO_THREADS, which cannot count them: set your pool's size) */
     bvh_thread_pool pool; /* run NULL: the library's threads (see bvh_thread_pool) */
 } bvh_batch_desc;
 BVH_API bvh_result bvh_intersect_batch_ex(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,

@@ -218,6 +218,17 @@ static void exact_renderer_hits(void **state) {
     assert_int_equal(bad, 0);
 }
 
+/* The scene of the test's state and room for count rays and two hit arrays (single calls and
+   a batch); 0 when the scene is not available here (the test skips). */
+static int batch_setup(void **state, tu_scene *s, size_t count, bvh_ray **rays, bvh_hit **single, bvh_hit **batch) {
+    if (!tu_scene_make(tu_state_id(state), s)) return 0;
+    *rays = (bvh_ray *)malloc(count * sizeof **rays);
+    *single = (bvh_hit *)malloc(count * sizeof **single);
+    *batch = (bvh_hit *)malloc(count * sizeof **batch);
+    assert_true(*rays && *single && *batch);
+    return 1;
+}
+
 /* bvh_intersect_batch and bvh_occluded_batch on 1, 2, 3, 8 and all threads equal single calls. */
 static void batch_equals_single(void **state) {
     static const uint32_t threads[] = {1, 2, 3, 8, 0};
@@ -231,16 +242,13 @@ static void batch_equals_single(void **state) {
     bvh_ray *rays;
     bvh_hit *single, *batch;
     uint8_t *occ, *occ_single;
-    if (!tu_scene_make(id, &s)) {
+    if (!batch_setup(state, &s, count, &rays, &single, &batch)) {
         skip();
         return;
     }
-    rays = (bvh_ray *)malloc(count * sizeof *rays);
-    single = (bvh_hit *)malloc(count * sizeof *single);
-    batch = (bvh_hit *)malloc(count * sizeof *batch);
     occ = (uint8_t *)malloc(count);
     occ_single = (uint8_t *)malloc(count);
-    assert_true(rays && single && batch && occ && occ_single);
+    assert_true(occ && occ_single);
     tris = tu_scene_tris(&s);
     /* the test's mix of rays, then a renderer's from the surfaces (each from its own origin: the
        batches take such rays two at a time in turns on a large tree, and always in the build with
@@ -291,19 +299,15 @@ static void camera_batch_equals_single(void **state) {
     static const uint32_t threads[] = {1, 2};
     const uint32_t w = 128, h = 128;
     const size_t count = (size_t)w * h;
-    int id = tu_state_id(state), b, c;
+    int b, c;
     size_t i, k;
     tu_scene s;
     bvh_ray *rays;
     bvh_hit *single, *batch;
-    if (!tu_scene_make(id, &s)) {
+    if (!batch_setup(state, &s, count, &rays, &single, &batch)) {
         skip();
         return;
     }
-    rays = (bvh_ray *)malloc(count * sizeof *rays);
-    single = (bvh_hit *)malloc(count * sizeof *single);
-    batch = (bvh_hit *)malloc(count * sizeof *batch);
-    assert_true(rays && single && batch);
     for (b = 0; b < TU_BUILDER_COUNT; b++) {
         bvh_tree t;
         tu_build(&s, tu_builder(b), &t);

@@ -1,4 +1,4 @@
-/* bvh.h - v0.9.26 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
+/* bvh.h - v0.9.27 - MIT-licensed single-header BVH builder and ray tracer for C11/C++
 
    WHAT
      Builds bounding volume hierarchies over triangles (or any primitive given by its bounding box)
@@ -77,7 +77,8 @@
      with it the library creates no thread, splits each parallel phase into desc.threads tasks
      and builds the very tree its own threads would. Its tasks never wait for one another, so
      phases whose threads meet at barriers are cut into one run per step (PLOC's clustering
-     loop), or run on the calling thread (the Morton sort, the emission passes, PLOC's SAH top).
+     loop, the Morton sort, the emission passes; their steps of under 4096 items run on the
+     calling thread); PLOC's SAH top is a task queue whose tasks wait only for running ones.
      On a platform without pthreads (MSVC without winpthreads, consoles, WebAssembly), define
      BVH_NO_THREADS and pass a pool with desc.threads (and bvh_batch_desc.threads) set to its
      worker count: parallel builds and batches with no pthread anywhere (see bvh_thread_pool). A
@@ -110,6 +111,12 @@
      MIT, see the end of this file.
 
    CHANGELOG
+     0.9.27 Builds on a caller's pool (desc.pool) run every phase on its tasks: the Morton sort,
+            the emission passes and PLOC's SAH top ran on the calling thread there (their
+            threads met at barriers), and a default build on two workers took 1.27-1.33x the
+            library's own threads' time; now 1.05-1.06x (the bunny, Sponza, the dragon). The
+            sort and the passes are cut at their barriers into runs as PLOC's loop is; the top's
+            queue needs none (its tasks wait only for running ones). The same trees.
      0.9.26 The batch calls on a caller's pool (bvh_batch_desc.pool, the scenes' batches) run
             `threads` tasks that each take guided chunks as the library's threads do, with a
             tuning of their own, where each 64-ray chunk was a task: a persistent pool (the new
@@ -471,7 +478,7 @@
 
 #define BVH_VERSION_MAJOR 0
 #define BVH_VERSION_MINOR 9
-#define BVH_VERSION_PATCH 26
+#define BVH_VERSION_PATCH 27
 
 #include <math.h>
 #include <stddef.h>
@@ -1565,8 +1572,8 @@ static bvh_result bvh__team_run(const bvh_allocator *al, uint32_t want, bvh__tea
    tasks may run one after another on one thread, so they must not meet: only phases without
    barriers (and without the team's mutex) run this way; `sync` marks a phase with barriers,
    which then runs on the calling thread alone, as a team of one (every phase gives the same
-   result for any thread count). Phases that matter are cut at their barriers into steps, each
-   its own run (bvh__ploc_steps). */
+   result for any thread count). The phases that matter are cut at their barriers into steps,
+   each its own run (bvh__ploc_steps, bvh__ploc_init_steps, bvh__run_runs). */
 static void bvh__pool_task(void *arg, uint32_t index) {
     bvh__team *team = BVH__CAST(bvh__team *, arg);
     bvh__team_fn_run(team, index);
@@ -1651,13 +1658,42 @@ typedef struct bvh__sort {
     size_t n;
     uint32_t *hist; /* nthreads * BVH__RADIX_SIZE */
 } bvh__sort;
-/* One stable scatter of this thread's pairs [b, e) from keys/vals to keys_tmp/vals_tmp by the
-   digit at `shift`, from the team's histograms: the offset of (digit d, thread tid) is the count
-   of keys with a smaller digit plus those with digit d in earlier threads. */
-static void bvh__radix_scatter(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team, int shift, size_t b,
-                               size_t e) {
-    uint32_t local[BVH__RADIX_SIZE], d, t;
-    size_t sum = 0, i;
+/* The sort's steps, between which a team meets at barriers and a caller's pool ends a run
+   (bvh__ploc_init_steps): each reads only what the steps before it wrote. */
+/* Thread tid's histogram of the digit at `shift` over its pairs [b, e). */
+static void bvh__radix_hist(bvh__sort *s, uint32_t tid, size_t b, size_t e, int shift) {
+    uint32_t *h = s->hist + (size_t)tid * BVH__RADIX_SIZE;
+    size_t i;
+    memset(h, 0, BVH__RADIX_SIZE * sizeof(uint32_t));
+    for (i = b; i < e; i++) h[(s->keys[i] >> shift) & (BVH__RADIX_SIZE - 1)]++;
+}
+/* From the histograms: whether one digit holds every key (the pass can be skipped). */
+static int bvh__radix_one_digit(const bvh__sort *s, uint32_t nt) {
+    uint32_t d, t;
+    for (d = 0; d < BVH__RADIX_SIZE; d++) {
+        size_t tot = 0;
+        for (t = 0; t < nt; t++) tot += s->hist[(size_t)t * BVH__RADIX_SIZE + d];
+        if (tot == s->n) return 1;
+        if (tot != 0) return 0;
+    }
+    return 0;
+}
+/* From the histograms: whether a digit holds over a quarter of the keys (bvh__radix_sort_team). */
+static int bvh__radix_big(const bvh__sort *s, uint32_t nt) {
+    uint32_t d, t, big = 0;
+    for (d = 0; d < BVH__RADIX_SIZE; d++) {
+        size_t tot = 0;
+        for (t = 0; t < nt; t++) tot += s->hist[(size_t)t * BVH__RADIX_SIZE + d];
+        if (tot > s->n / 4) big = 1;
+    }
+    return (int)big;
+}
+/* The offsets of thread tid's pairs by digit, from the histograms: the offset of (digit d,
+   thread tid) is the count of keys with a smaller digit plus those with digit d in earlier
+   threads. */
+static void bvh__radix_offsets(const bvh__sort *s, uint32_t tid, uint32_t nt, uint32_t local[BVH__RADIX_SIZE]) {
+    uint32_t d, t;
+    size_t sum = 0;
     for (d = 0; d < BVH__RADIX_SIZE; d++) {
         for (t = 0; t < nt; t++) {
             uint32_t c = s->hist[(size_t)t * BVH__RADIX_SIZE + d];
@@ -1665,7 +1701,10 @@ static void bvh__radix_scatter(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__tea
             sum += c;
         }
     }
-    bvh__team_sync(team); /* everyone has read the histograms */
+}
+/* One stable scatter of pairs [b, e) from keys/vals to keys_tmp/vals_tmp by the digit at shift. */
+static void bvh__radix_move(bvh__sort *s, uint32_t local[BVH__RADIX_SIZE], int shift, size_t b, size_t e) {
+    size_t i;
     for (i = b; i < e; i++) {
         uint64_t k = s->keys[i];
         uint32_t pos = local[(k >> shift) & (BVH__RADIX_SIZE - 1)]++;
@@ -1673,38 +1712,54 @@ static void bvh__radix_scatter(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__tea
         s->vals_tmp[pos] = s->vals[i];
     }
 }
+static void bvh__radix_swap(bvh__sort *s) {
+    uint64_t *tk = s->keys;
+    uint32_t *tv = s->vals;
+    s->keys = s->keys_tmp;
+    s->vals = s->vals_tmp;
+    s->keys_tmp = tk;
+    s->vals_tmp = tv;
+}
+static void bvh__msd_local(uint64_t *ck, uint32_t *cv, uint64_t *ok, uint32_t *ov, size_t lo, size_t hi, int bits,
+                           int into_other);
+/* After the scatter by the top digit: the ranges of equal top digit that start in thread tid's
+   [b, e), each sorted on its own in cache, from the scratch arrays back to keys/vals. */
+static void bvh__radix_ranges(bvh__sort *s, uint32_t nt, size_t b, size_t e) {
+    const int top = 64 - BVH__RADIX_BITS;
+    uint32_t d, t;
+    size_t sum = 0;
+    for (d = 0; d < BVH__RADIX_SIZE; d++) {
+        size_t start = sum;
+        for (t = 0; t < nt; t++) sum += s->hist[(size_t)t * BVH__RADIX_SIZE + d];
+        if (sum > start && start >= b && start < e)
+            bvh__msd_local(s->keys_tmp, s->vals_tmp, s->keys, s->vals, start, sum, top, 1);
+    }
+}
+/* One stable scatter of this thread's pairs [b, e) by the digit at `shift`, from the team's
+   histograms (bvh__radix_offsets). */
+static void bvh__radix_scatter(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team, int shift, size_t b,
+                               size_t e) {
+    uint32_t local[BVH__RADIX_SIZE];
+    bvh__radix_offsets(s, tid, nt, local);
+    bvh__team_sync(team); /* everyone has read the histograms */
+    bvh__radix_move(s, local, shift, b, e);
+}
 /* LSD passes over all 64 bits (see bvh__radix_sort_team). */
 static void bvh__radix_lsd_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team) {
     int shift;
-    size_t b, e, i;
+    size_t b, e;
     bvh__range(s->n, tid, nt, &b, &e);
     for (shift = 0; shift < 64; shift += BVH__RADIX_BITS) {
-        uint32_t *h = s->hist + (size_t)tid * BVH__RADIX_SIZE;
-        uint32_t d, t, all_same = 0;
-        memset(h, 0, BVH__RADIX_SIZE * sizeof(uint32_t));
-        for (i = b; i < e; i++) h[(s->keys[i] >> shift) & (BVH__RADIX_SIZE - 1)]++;
+        bvh__radix_hist(s, tid, b, e, shift);
         bvh__team_sync(team);
         /* every thread computes the same offsets; skip the pass if one digit holds everything */
-        for (d = 0; d < BVH__RADIX_SIZE && !all_same; d++) {
-            size_t tot = 0;
-            for (t = 0; t < nt; t++) tot += s->hist[(size_t)t * BVH__RADIX_SIZE + d];
-            if (tot == s->n) all_same = 1;
-            if (tot != 0) break;
-        }
-        if (all_same) {
+        if (bvh__radix_one_digit(s, nt)) {
             bvh__team_sync(team);
             continue;
         }
         bvh__radix_scatter(s, tid, nt, team, shift, b, e);
         bvh__team_sync(team);
-        if (tid == 0) {
-            uint64_t *tk = s->keys;
-            uint32_t *tv = s->vals;
-            s->keys = s->keys_tmp;
-            s->vals = s->vals_tmp;
-            s->keys_tmp = tk;
-            s->vals_tmp = tv;
-        }
+        if (tid == 0) bvh__radix_swap(s);
         bvh__team_sync(team);
     }
 }
@@ -1767,32 +1822,18 @@ static void bvh__msd_local(uint64_t *ck, uint32_t *cv, uint64_t *ok, uint32_t *o
    way the result is the one stable order, for any thread count. */
 static void bvh__radix_sort_team(bvh__sort *s, uint32_t tid, uint32_t nt, bvh__team *team) {
     const int top = 64 - BVH__RADIX_BITS;
-    uint32_t *h = s->hist + (size_t)tid * BVH__RADIX_SIZE, d, t, big = 0;
-    size_t b, e, i, sum = 0;
+    size_t b, e;
     bvh__range(s->n, tid, nt, &b, &e);
-    memset(h, 0, BVH__RADIX_SIZE * sizeof(uint32_t));
-    for (i = b; i < e; i++) h[s->keys[i] >> top]++;
+    bvh__radix_hist(s, tid, b, e, top);
     bvh__team_sync(team);
-    for (d = 0; d < BVH__RADIX_SIZE; d++) {
-        size_t tot = 0;
-        for (t = 0; t < nt; t++) tot += s->hist[(size_t)t * BVH__RADIX_SIZE + d];
-        if (tot > s->n / 4) big = 1;
-    }
-    if (big && nt > 1) {
+    if (bvh__radix_big(s, nt) && nt > 1) {
         bvh__team_sync(team); /* everyone has read the histograms */
         bvh__radix_lsd_team(s, tid, nt, team);
         return;
     }
     bvh__radix_scatter(s, tid, nt, team, top, b, e);
     bvh__team_sync(team);
-    /* digit d's range: [start, end) from the summed histograms; this thread takes those that
-       start in [b, e) */
-    for (d = 0, sum = 0; d < BVH__RADIX_SIZE; d++) {
-        size_t start = sum;
-        for (t = 0; t < nt; t++) sum += s->hist[(size_t)t * BVH__RADIX_SIZE + d];
-        if (sum > start && start >= b && start < e)
-            bvh__msd_local(s->keys_tmp, s->vals_tmp, s->keys, s->vals, start, sum, top, 1);
-    }
+    bvh__radix_ranges(s, nt, b, e);
     bvh__team_sync(team);
 }
 
@@ -1924,7 +1965,8 @@ typedef struct bvh__morton_job {
     bvh__sort sort;
     bvh__mscale ms;
 } bvh__morton_job;
-static void bvh__morton_codes_team(bvh__morton_job *j, uint32_t tid, uint32_t nt, bvh__team *team) {
+/* The Morton codes of thread tid's share of the primitives, their indices beside them. */
+static void bvh__morton_codes_part(bvh__morton_job *j, uint32_t tid, uint32_t nt) {
     size_t b, e, i;
     bvh__range(j->c->n, tid, nt, &b, &e);
     for (i = b; i < e; i++) {
@@ -1937,6 +1979,9 @@ static void bvh__morton_codes_team(bvh__morton_job *j, uint32_t tid, uint32_t nt
         j->sort.keys[i] = bvh__morton(p, &j->ms);
         j->sort.vals[i] = (uint32_t)i;
     }
+}
+static void bvh__morton_codes_team(bvh__morton_job *j, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__morton_codes_part(j, tid, nt);
     bvh__team_sync(team);
     bvh__radix_sort_team(&j->sort, tid, nt, team);
 }
@@ -2250,29 +2295,76 @@ static void bvh__sizes_node(const bvh__sizes *q, uint32_t i) {
 #define BVH__SIZES_AHEAD 16
 #define BVH__PLACE_AHEAD 8
 #define BVH__GATHER_AHEAD 24
-static void bvh__sizes_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
-    const bvh__sizes *q = BVH__CAST(const bvh__sizes *, arg);
-    uint32_t k, start = 0;
-    size_t b, e, i;
-    for (k = 0; k < q->block_count; k++) {
-        uint32_t end = q->blocks[k];
-        bvh__range(end - start, tid, nt, &b, &e);
-        for (i = b; i < e; i++) {
-            /* a node's children lie anywhere in earlier runs: ask for theirs a few nodes ahead */
-            if (i + BVH__SIZES_AHEAD < e) {
-                const bvh_node *s = &q->src[start + i + BVH__SIZES_AHEAD];
-                if (!s->count) {
-                    BVH__PREFETCH(&q->cnt[s->index]);
-                    BVH__PREFETCH(&q->size[s->index]);
-                    BVH__PREFETCH(&q->height[s->index]);
-                    if (q->cost) BVH__PREFETCH(&q->cost[s->index]);
-                }
-            }
-            bvh__sizes_node(q, start + (uint32_t)i);
-        }
+/* Phases made of runs that are done in order, the items of a run independent of each other and
+   split over the threads (bvh__sizes, bvh__place): a team meets at a barrier after each run; a
+   caller's pool, whose tasks must not meet, gets a run of its own for each run of at least
+   BVH__POOL_RUN_MIN items, and the calling thread does the smaller ones alone (a pool run costs
+   about as much as such a run's work). The split never changes a result. */
+#define BVH__POOL_RUN_MIN 4096u
+typedef struct bvh__runs {
+    void (*run)(const void *arg, uint32_t k, uint32_t tid, uint32_t nt); /* thread tid's share of run k */
+    uint32_t (*items)(const void *arg, uint32_t k);                      /* run k's item count */
+    const void *arg;
+    uint32_t count, k; /* runs 0 .. count - 1; k: the one a pool's tasks do */
+} bvh__runs;
+static void bvh__runs_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    const bvh__runs *x = BVH__CAST(const bvh__runs *, arg);
+    uint32_t k;
+    for (k = 0; k < x->count; k++) {
+        x->run(x->arg, k, tid, nt);
         bvh__team_sync(team);
-        start = end;
     }
+}
+static void bvh__runs_task_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    const bvh__runs *x = BVH__CAST(const bvh__runs *, arg);
+    (void)team;
+    x->run(x->arg, x->k, tid, nt);
+}
+static bvh_result bvh__run_runs(const bvh__ctx *c, uint32_t nt, bvh__runs *x) {
+    bvh_result r;
+    if (!c->pool || nt <= 1) return bvh__run(c, nt, 1, bvh__runs_team_fn, x);
+    for (x->k = 0; x->k < x->count; x->k++) {
+        if (x->items(x->arg, x->k) < BVH__POOL_RUN_MIN)
+            x->run(x->arg, x->k, 0, 1);
+        else if ((r = bvh__run(c, nt, 0, bvh__runs_task_fn, x)) != BVH_SUCCESS)
+            return r;
+    }
+    return BVH_SUCCESS;
+}
+
+/* Pass 1's run k (src[blocks[k - 1] .. blocks[k])), thread tid's share. */
+static void bvh__sizes_run(const void *arg, uint32_t k, uint32_t tid, uint32_t nt) {
+    const bvh__sizes *q = BVH__CAST(const bvh__sizes *, arg);
+    const uint32_t start = k ? q->blocks[k - 1] : 0;
+    size_t b, e, i;
+    bvh__range(q->blocks[k] - start, tid, nt, &b, &e);
+    for (i = b; i < e; i++) {
+        /* a node's children lie anywhere in earlier runs: ask for theirs a few nodes ahead */
+        if (i + BVH__SIZES_AHEAD < e) {
+            const bvh_node *s = &q->src[start + i + BVH__SIZES_AHEAD];
+            if (!s->count) {
+                BVH__PREFETCH(&q->cnt[s->index]);
+                BVH__PREFETCH(&q->size[s->index]);
+                BVH__PREFETCH(&q->height[s->index]);
+                if (q->cost) BVH__PREFETCH(&q->cost[s->index]);
+            }
+        }
+        bvh__sizes_node(q, start + (uint32_t)i);
+    }
+}
+static uint32_t bvh__sizes_items(const void *arg, uint32_t k) {
+    const bvh__sizes *q = BVH__CAST(const bvh__sizes *, arg);
+    return q->blocks[k] - (k ? q->blocks[k - 1] : 0);
+}
+/* Pass 1 over every run, on nt threads. */
+static bvh_result bvh__sizes_go(const bvh__ctx *c, uint32_t nt, const bvh__sizes *q) {
+    bvh__runs x;
+    x.run = bvh__sizes_run;
+    x.items = bvh__sizes_items;
+    x.arg = q;
+    x.count = q->block_count;
+    x.k = 0;
+    return bvh__run_runs(c, nt, &x);
 }
 
 /* The memory budget (desc.ploc.max_bytes_per_prim) as output nodes, for a tree of `prims` references. */
@@ -2299,13 +2391,13 @@ static bvh_result bvh__fit_budget(const bvh__ctx *c, bvh__sizes *q, uint32_t nth
     q->c = &cc;
     for (;;) { /* double until it fits */
         cc.ci = (float)hi;
-        if ((r = bvh__run(c, nthreads, 1, bvh__sizes_fn, q)) != BVH_SUCCESS) return r;
+        if ((r = bvh__sizes_go(c, nthreads, q)) != BVH_SUCCESS) return r;
         if (bvh__report(c->prog, 0.0)) return BVH_ERROR_CANCELLED;
         nhi = q->size[root];
         if (nhi <= (double)limit) break;
         if (hi > top) {      /* the smallest tree the leaf size allows */
             cc.ci = 3.0e38f; /* finite: a zero area times it stays zero */
-            return bvh__run(c, nthreads, 1, bvh__sizes_fn, q);
+            return bvh__sizes_go(c, nthreads, q);
         }
         lo = hi;
         nlo = nhi;
@@ -2315,7 +2407,7 @@ static bvh_result bvh__fit_budget(const bvh__ctx *c, bvh__sizes *q, uint32_t nth
         double aim = 0.995 * (double)limit, f = (log(nlo) - log(aim)) / (log(nlo) - log(nhi > 1.0 ? nhi : 1.0));
         double mid = lo * pow(hi / lo, f < 0.1 ? 0.1 : f > 0.9 ? 0.9 : f), n;
         cc.ci = (float)mid;
-        if ((r = bvh__run(c, nthreads, 1, bvh__sizes_fn, q)) != BVH_SUCCESS) return r;
+        if ((r = bvh__sizes_go(c, nthreads, q)) != BVH_SUCCESS) return r;
         if (bvh__report(c->prog, 0.0)) return BVH_ERROR_CANCELLED;
         n = q->size[root];
         if (n > (double)limit) {
@@ -2330,7 +2422,7 @@ static bvh_result bvh__fit_budget(const bvh__ctx *c, bvh__sizes *q, uint32_t nth
     }
     if (held) return BVH_SUCCESS;
     cc.ci = (float)hi;
-    return bvh__run(c, nthreads, 1, bvh__sizes_fn, q);
+    return bvh__sizes_go(c, nthreads, q);
 }
 
 /* Pass 2 of bvh__emit with `blocks`, when no subtree is rebuilt: src is walked from the root down,
@@ -2370,12 +2462,13 @@ static void bvh__place_node(const bvh__place *q, uint32_t x, uint32_t di, uint32
         d->count = 0;
     }
 }
-static void bvh__place_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+/* Pass 2's run r: src's run k = block_count - 2 - r (from the last below the root's, down to
+   the first), thread tid's share of its pairs. */
+static void bvh__place_run(const void *arg, uint32_t r, uint32_t tid, uint32_t nt) {
     const bvh__place *q = BVH__CAST(const bvh__place *, arg);
-    uint32_t k = q->block_count - 1; /* the last run is the root's */
+    const uint32_t k = q->block_count - 2 - r, start = k ? q->blocks[k - 1] : 0;
     size_t b, e, i;
-    while (k-- > 0) {
-        uint32_t start = k ? q->blocks[k - 1] : 0;
+    {
         bvh__range((q->blocks[k] - start) / 2, tid, nt, &b, &e);
         for (i = b; i < e; i++) {
             uint32_t l = start + 2 * (uint32_t)i, di = q->pos[l].u, ref = q->pos[l + 1].u;
@@ -2389,8 +2482,12 @@ static void bvh__place_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
             bvh__place_node(q, l, di, di + 2, ref);
             bvh__place_node(q, l + 1, di ? di + 1 : 0, di + 1 + q->size[l], ref + lcnt);
         }
-        bvh__team_sync(team);
     }
+}
+static uint32_t bvh__place_items(const void *arg, uint32_t r) {
+    const bvh__place *q = BVH__CAST(const bvh__place *, arg);
+    const uint32_t k = q->block_count - 2 - r;
+    return (q->blocks[k] - (k ? q->blocks[k - 1] : 0)) / 2;
 }
 
 /* Pass 2 with PLOC's runs (bvh__place): the root is written here, the runs below it by the team. */
@@ -2413,7 +2510,15 @@ static bvh_result bvh__emit_placed(const bvh__ctx *c, const bvh__sizes *q, const
     pl.pos = q->cost;
     pl.o = o;
     pl.block_count = q->block_count;
-    return bvh__run(c, nthreads, 1, bvh__place_fn, &pl);
+    {
+        bvh__runs x;
+        x.run = bvh__place_run;
+        x.items = bvh__place_items;
+        x.arg = &pl;
+        x.count = q->block_count - 1; /* the runs below the root's (block_count >= 1) */
+        x.k = 0;
+        return bvh__run_runs(c, nthreads, &x);
+    }
 }
 
 /* Pass 2 when no subtree is rebuilt: positions follow from the sizes, so the subtrees can be
@@ -2545,7 +2650,7 @@ static bvh_result bvh__emit_rebuild(const bvh__ctx *c, const bvh__sizes *q, cons
     return r;
 }
 
-/* Writes the source tree to o: pass 1 (bvh__sizes_fn, and bvh__fit_budget over the memory
+/* Writes the source tree to o: pass 1 (bvh__sizes_go, and bvh__fit_budget over the memory
    budget) sizes every subtree and makes the collapse decisions; pass 2 writes the nodes, by the
    first of these that applies: PLOC's runs from the root down (bvh__emit_placed), subtrees in
    parallel where no subtree crosses the depth bound (bvh__emit_tasks), else one walk that
@@ -2575,7 +2680,7 @@ static bvh_result bvh__emit(const bvh__ctx *c, const bvh_node *src, uint32_t src
     q.cost = collapse ? cost : NULL;
     q.blocks = blocks ? blocks : &src_count;
     q.block_count = blocks ? block_count : 1;
-    r = bvh__run(c, blocks ? nthreads : 1, 1, bvh__sizes_fn, &q);
+    r = bvh__sizes_go(c, blocks ? nthreads : 1, &q);
     if (r == BVH_SUCCESS && bvh__report(c->prog, 0.0)) r = BVH_ERROR_CANCELLED;
     if (r == BVH_SUCCESS && collapse && c->budget && size[root] > bvh__budget_nodes(c, cnt[root] & ~BVH__COLLAPSE_BIT))
         r = bvh__fit_budget(c, &q, blocks ? nthreads : 1);
@@ -3228,11 +3333,10 @@ static void bvh__ploc_search(bvh__nn *w, const bvh_node *cin, uint32_t count, ui
 }
 
 /* First team run: Morton codes, radix sort, one leaf cluster per primitive in Morton order. */
-static void bvh__ploc_init_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
-    bvh__ploc *p = BVH__CAST(bvh__ploc *, arg);
+/* The clusters of thread tid's share of the sorted primitives. */
+static void bvh__ploc_cin_part(bvh__ploc *p, uint32_t tid, uint32_t nt) {
     const bvh__ctx *c = p->c;
     size_t b, e, i;
-    bvh__morton_codes_team(&p->mj, tid, nt, team);
     bvh__range(c->n, tid, nt, &b, &e);
     for (i = b; i < e; i++) {
         if (i + BVH__GATHER_AHEAD < e) { /* the boxes are read in Morton order, at random: ask ahead */
@@ -3244,6 +3348,64 @@ static void bvh__ploc_init_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *t
         p->cin[i].index = (uint32_t)i;
         p->cin[i].count = 1;
     }
+}
+static void bvh__ploc_init_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    bvh__ploc *p = BVH__CAST(bvh__ploc *, arg);
+    bvh__morton_codes_team(&p->mj, tid, nt, team);
+    bvh__ploc_cin_part(p, tid, nt);
+}
+/* bvh__ploc_init_fn on a caller's pool, whose tasks must not meet: cut at its barriers into
+   steps, a run each, the decisions between them (which pass, whether to skip it) taken by the
+   calling thread from the same histograms as a team's threads take them, so the same order. */
+typedef struct bvh__ploc_init_run {
+    bvh__ploc *p;
+    int step, shift;
+} bvh__ploc_init_run;
+static void bvh__ploc_init_task(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
+    const bvh__ploc_init_run *x = BVH__CAST(const bvh__ploc_init_run *, arg);
+    bvh__sort *s = &x->p->mj.sort;
+    uint32_t local[BVH__RADIX_SIZE];
+    size_t b, e;
+    (void)team;
+    bvh__range(s->n, tid, nt, &b, &e);
+    if (x->step == 0) { /* codes, and the histogram of their top digits */
+        bvh__morton_codes_part(&x->p->mj, tid, nt);
+        bvh__radix_hist(s, tid, b, e, x->shift);
+    } else if (x->step == 1) { /* an LSD pass's histogram */
+        bvh__radix_hist(s, tid, b, e, x->shift);
+    } else if (x->step == 2) {
+        bvh__radix_offsets(s, tid, nt, local);
+        bvh__radix_move(s, local, x->shift, b, e);
+    } else if (x->step == 3) {
+        bvh__radix_ranges(s, nt, b, e);
+    } else {
+        bvh__ploc_cin_part(x->p, tid, nt);
+    }
+}
+static bvh_result bvh__ploc_init_step(bvh__ploc_init_run *x, int step, uint32_t nt) {
+    x->step = step;
+    return bvh__run(x->p->c, nt, 0, bvh__ploc_init_task, x);
+}
+static bvh_result bvh__ploc_init_steps(bvh__ploc *p, uint32_t nt) {
+    const int top = 64 - BVH__RADIX_BITS;
+    bvh__ploc_init_run x;
+    bvh__sort *s = &p->mj.sort;
+    bvh_result r;
+    x.p = p;
+    x.shift = top;
+    if ((r = bvh__ploc_init_step(&x, 0, nt)) != BVH_SUCCESS) return r;
+    if (bvh__radix_big(s, nt) && nt > 1) { /* bvh__radix_lsd_team */
+        for (x.shift = 0; x.shift < 64; x.shift += BVH__RADIX_BITS) {
+            if ((r = bvh__ploc_init_step(&x, 1, nt)) != BVH_SUCCESS) return r;
+            if (bvh__radix_one_digit(s, nt)) continue;
+            if ((r = bvh__ploc_init_step(&x, 2, nt)) != BVH_SUCCESS) return r;
+            bvh__radix_swap(s);
+        }
+    } else {
+        if ((r = bvh__ploc_init_step(&x, 2, nt)) != BVH_SUCCESS) return r;
+        if ((r = bvh__ploc_init_step(&x, 3, nt)) != BVH_SUCCESS) return r;
+    }
+    return bvh__ploc_init_step(&x, 4, nt);
 }
 
 /* The clustering loop, cut at its four barriers into steps, so that a team runs it with barriers
@@ -3523,6 +3685,10 @@ typedef struct bvh__top_job {
        left child's clusters; leaf[k]: the x of cluster k */
     const uint32_t *par, *first, *cc, *lcc, *leaf;
     uint32_t task_count, busy, grain;
+#ifndef BVH_NO_THREADS
+    pthread_mutex_t mutex; /* the queue's (not the team's: a caller's pool runs it too) */
+    pthread_cond_t cond;
+#endif
 } bvh__top_job;
 BVH__INLINE bvh__f4 bvh__top_centre(const bvh_node *x) {
     return bvh__f4_add(bvh__f4_at3(&x->min), bvh__f4_at3(&x->max));
@@ -3790,50 +3956,54 @@ static void bvh__top_subtree(const bvh__top_job *j, const bvh__top_task *t) {
     }
 }
 #define BVH__TOP_TASKS 128
-/* The team takes tasks from a queue, largest first: one larger than grain is split and its
+/* The threads take tasks from a queue, largest first: one larger than grain is split and its
    children queued, a smaller one is built whole. Which thread builds what varies; the tree does
-   not (every task writes only its own nodes and clusters). */
+   not (every task writes only its own nodes and clusters). A thread waits only while the queue
+   is empty and another is busy with a task, which it ends without waiting: so a caller's pool
+   may run these threads as tasks one after another (the first does all), and they need no
+   barrier. Without pthreads, thread 0 does all. */
 static void bvh__top_team_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
     bvh__top_job *j = BVH__CAST(bvh__top_job *, arg);
-    (void)tid;
+    (void)team;
+#ifdef BVH_NO_THREADS
+    nt = 1;
+#endif
     if (nt == 1) {
         uint32_t i;
-        for (i = 0; i < j->task_count; i++) bvh__top_subtree(j, &j->tasks[i]);
+        for (i = 0; tid == 0 && i < j->task_count; i++) bvh__top_subtree(j, &j->tasks[i]);
         return;
     }
 #ifndef BVH_NO_THREADS
-    pthread_mutex_lock(&team->mutex);
+    pthread_mutex_lock(&j->mutex);
     for (;;) {
         bvh__top_task t, kids[2];
         uint32_t k = 0, i, big = 0;
-        while (!j->task_count && j->busy) pthread_cond_wait(&team->cond, &team->mutex);
+        while (!j->task_count && j->busy) pthread_cond_wait(&j->cond, &j->mutex);
         if (!j->task_count) break;
         for (i = 1; i < j->task_count; i++)
             if (j->tasks[i].e - j->tasks[i].b > j->tasks[big].e - j->tasks[big].b) big = i;
         t = j->tasks[big];
         j->tasks[big] = j->tasks[--j->task_count];
         j->busy++;
-        pthread_mutex_unlock(&team->mutex);
+        pthread_mutex_unlock(&j->mutex);
         if (t.e - t.b > j->grain)
             k = bvh__top_split(j, &t, kids);
         else
             bvh__top_subtree(j, &t);
-        pthread_mutex_lock(&team->mutex);
+        pthread_mutex_lock(&j->mutex);
         for (i = 0; i < k; i++) {
             if (j->task_count < BVH__TOP_TASKS) {
                 j->tasks[j->task_count++] = kids[i];
                 continue;
             }
-            pthread_mutex_unlock(&team->mutex); /* full (not expected): build it here */
+            pthread_mutex_unlock(&j->mutex); /* full (not expected): build it here */
             bvh__top_subtree(j, &kids[i]);
-            pthread_mutex_lock(&team->mutex);
+            pthread_mutex_lock(&j->mutex);
         }
         j->busy--;
-        pthread_cond_broadcast(&team->cond);
+        pthread_cond_broadcast(&j->cond);
     }
-    pthread_mutex_unlock(&team->mutex);
-#else
-    (void)team;
+    pthread_mutex_unlock(&j->mutex);
 #endif
 }
 /* After the clustering, when the clusters once numbered top_m <= top_cut: builds a binned-SAH
@@ -3926,7 +4096,15 @@ static bvh_result bvh__ploc_top(bvh__ploc *p, uint32_t nthreads) {
     tasks[0].id = 0;
     tasks[0].buf = 0;
     bvh__top_bounds(job->v[0], 0, m, &tasks[0]);
-    r = bvh__run(c, nthreads, 1, bvh__top_team_fn, job);
+#ifndef BVH_NO_THREADS
+    pthread_mutex_init(&job->mutex, NULL);
+    pthread_cond_init(&job->cond, NULL);
+#endif
+    r = bvh__run(c, nthreads, 0, bvh__top_team_fn, job);
+#ifndef BVH_NO_THREADS
+    pthread_cond_destroy(&job->cond);
+    pthread_mutex_destroy(&job->mutex);
+#endif
     if (r != BVH_SUCCESS) goto done;
     for (i = m - 1; i-- > 0;) { /* children have larger ids: summed areas and heights from the last */
         uint32_t hh = 0;
@@ -3999,7 +4177,9 @@ static bvh_result bvh__build_ploc(bvh__ctx *c, bvh__out *o, uint32_t nthreads) {
     p.cin = BVH__ALLOC(&c->al, bvh_node, n);
     if (r == BVH_SUCCESS && !p.cin) r = BVH_ERROR_OUT_OF_MEMORY;
     bvh__stage_in(c->prog, 0.0f, 0.15f);
-    if (r == BVH_SUCCESS) r = bvh__run(c, nthreads, 1, bvh__ploc_init_fn, &p);
+    if (r == BVH_SUCCESS)
+        r = c->pool && nthreads > 1 ? bvh__ploc_init_steps(&p, nthreads)
+                                    : bvh__run(c, nthreads, 1, bvh__ploc_init_fn, &p);
     bvh__stage_in(c->prog, 0.15f, 0.75f);
     /* the clusters now hold the boxes; the sorted keys' array becomes the offers' */
     bvh__free(&c->al, c->boxes);

@@ -260,17 +260,28 @@ static void pool_same_tree(void **state) {
 }
 
 /* PLOC over its memory budget (a soup: bvh__fit_budget), with the SAH top off, and the optimizer
-   on PLOC and sah-midpoint trees, on a pool. */
+   on PLOC and sah-midpoint trees, on a pool; and PLOC on clustered input (3/5 of the vertices
+   shrunk to the origin: one top Morton digit holds over a quarter of the keys, so the sort takes its
+   LSD passes, each a step of its own on a pool). */
 static void pool_same_tree_options(void **state) {
     tu_scene s;
     int v;
+    uint32_t i;
     (void)state;
     tu_scene_random(&s, 30000, 0x504f4f4cULL);
-    for (v = 0; v < 5; v++) {
-        bvh_build_desc d = tu_scene_desc(&s, v == 4 ? BVH_BUILDER_SAH_MIDPOINT : BVH_BUILDER_PLOC_PARALLEL);
+    for (v = 0; v < 6; v++) {
+        bvh_build_desc d;
         bvh_tree ref, t;
         pool_state ps;
         const char *diff;
+        if (v == 5)
+            for (i = 0; i < s.vertex_count / 5 * 3; i++) {
+                float *p = tu_vertex(&s, i);
+                p[0] *= 1e-3f;
+                p[1] *= 1e-3f;
+                p[2] *= 1e-3f;
+            }
+        d = tu_scene_desc(&s, v == 4 ? BVH_BUILDER_SAH_MIDPOINT : BVH_BUILDER_PLOC_PARALLEL);
         if (v == 1) d.ploc.top = BVH_OFF;
         if (v == 2) d.ploc.max_bytes_per_prim = 24;
         if (v >= 3) d.optimize.rounds = 3; /* the optimizer's searches run on the pool */

@@ -73,15 +73,15 @@
      Tracing only reads the tree (every call that takes a const bvh_tree *): any number of
      threads may trace one tree at once, batch calls included, while none builds into or frees it.
      Your own pool: desc.pool (and bvh_batch_desc.pool for the _ex batch calls and the scene
-     batch calls) is a parallel-for over the application's workers (a job system, TBB, OpenMP);
-     with it the library creates no thread, splits each parallel phase into desc.threads tasks
-     and builds the very tree its own threads would. Its tasks never wait for one another, so
-     phases whose threads meet at barriers are cut into one run per step (PLOC's clustering
-     loop, the Morton sort, the emission passes; their steps of under 4096 items run on the
-     calling thread); PLOC's SAH top is a task queue whose tasks wait only for running ones.
+     batch calls, bvh_refit_desc.pool, bvh_load_desc.pool) is a parallel-for over the application's workers (a job
+   system, TBB, OpenMP); with it the library creates no thread, splits each parallel phase into desc.threads tasks and
+   builds the very tree its own threads would. Its tasks never wait for one another, so phases whose threads meet at
+   barriers are cut into one run per step (PLOC's clustering loop, the Morton sort, the emission passes; their steps of
+   under 4096 items run on the calling thread); PLOC's SAH top is a task queue whose tasks wait only for running ones.
      On a platform without pthreads (MSVC without winpthreads, consoles, WebAssembly), define
-     BVH_NO_THREADS and pass a pool with desc.threads (and bvh_batch_desc.threads) set to its
-     worker count: parallel builds and batches with no pthread anywhere (see bvh_thread_pool). A
+     BVH_NO_THREADS and pass a pool with desc.threads (and the batch, refit and load
+     descriptions' threads) set to its worker count: parallel builds, batches, refits and loads
+     with no pthread anywhere (see bvh_thread_pool). A
      batch call on a pool runs `threads` tasks that take chunks of rays from a shared counter; an
      application without a job system can start a pool once with examples/workers.h.
 
@@ -117,6 +117,9 @@
             library's own threads' time; now 1.05-1.06x (the bunny, Sponza, the dragon). The
             sort and the passes are cut at their barriers into runs as PLOC's loop is; the top's
             queue needs none (its tasks wait only for running ones). The same trees.
+            bvh_refit_desc.pool and bvh_load_desc.pool: refits and loads on a caller's pool too
+            (they started the library's threads every call: a refit every frame, say), the same
+            bytes as its threads give.
      0.9.26 The batch calls on a caller's pool (bvh_batch_desc.pool, the scenes' batches) run
             `threads` tasks that each take guided chunks as the library's threads do, with a
             tuning of their own, where each 64-ray chunk was a task: a persistent pool (the new
@@ -675,8 +678,9 @@ typedef struct bvh_optimize_options {
 /* An application's own workers (a job system, TBB, OpenMP...) in place of the library's
    pthreads. run must call task(task_arg, i) exactly once for every i in [0, count), on any of
    its threads, in any order, concurrently or one after another, and return when all have
-   returned. A task never waits for another task, so a pool that runs them serially, or on the
-   calling thread, is correct (only slower). run is only ever called from the thread that called
+   returned. A task never waits for one that has not started (at most, briefly, for one that is
+   running), so a pool that runs them serially, or on the calling thread, is correct (only
+   slower). run is only ever called from the thread that called
    the library, one call at a time per build or batch; it may be called many times per build.
    Zero (run NULL): the library's own pthreads (one thread without them, BVH_NO_THREADS). */
 typedef void (*bvh_task_fn)(void *task_arg, uint32_t index);
@@ -1000,7 +1004,8 @@ typedef struct bvh_refit_desc {
     bvh_triangles triangles; /* a triangle tree's new triangles ... */
     const bvh_aabb *boxes;   /* ... or a box tree's new boxes (then set box_count) */
     uint32_t box_count;
-    uint32_t threads; /* 0 = all online CPUs; at most one per 8192 references */
+    uint32_t threads;     /* 0 = all online CPUs; at most one per 8192 references */
+    bvh_thread_pool pool; /* zero = the library's threads; else `threads` tasks on yours */
 } bvh_refit_desc;
 /* Refits a built (or loaded) tree to moved primitives, keeping its topology: every binary node
    box bottom-up, tree.tris, and the 8-wide layout's boxes and packets updated in place with the
@@ -1054,6 +1059,7 @@ typedef struct bvh_load_desc {
     uint32_t threads;        /* a memory buffer's copy and checks, and the 8-wide layout: 0 = all
                                 online CPUs */
     bvh_allocator allocator; /* becomes the tree's, as bvh_build_desc.allocator */
+    bvh_thread_pool pool;    /* zero = the library's threads; else `threads` tasks on yours */
 } bvh_load_desc;
 /* Reads a tree saved by bvh_save. Sizes are checked before anything is allocated; the checksums,
    then the structure (bvh_validate's checks in linear passes, and the 8-wide groupings against
@@ -6754,6 +6760,15 @@ static int bvh__wide_cuttable(uint32_t sub, uint32_t subl, uint32_t subr) {
 static void bvh__team_run_always(const bvh_allocator *al, uint32_t want, bvh__team_fn fn, void *arg) {
     if (bvh__team_run(al, want, fn, arg) != BVH_SUCCESS) (void)bvh__team_run(al, 1, fn, arg);
 }
+/* The same on a caller's pool when there is one (it cannot fail): for the passes without
+   barriers of bvh_refit and bvh_load. */
+static void bvh__team_run_always_on(const bvh_thread_pool *pool, const bvh_allocator *al, uint32_t want,
+                                    bvh__team_fn fn, void *arg) {
+    if (pool && pool->run)
+        (void)bvh__team_run_on(pool, al, want, 0, fn, arg);
+    else
+        bvh__team_run_always(al, want, fn, arg);
+}
 /* The first touch of a fresh block the library will fill, one byte a page, each thread of a team
    its own contiguous part: the kernel then clears the pages (a huge page's 2 MiB at a time) on
    every thread at once, rather than under a pass whose threads fill the block in interleaved
@@ -6769,12 +6784,13 @@ static void bvh__touch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team)
     bvh__range(j->size, tid, nt, &b, &e);
     for (; b < e; b += 4096) j->p[b] = 0;
 }
-static void bvh__touch_pages(const bvh_allocator *al, uint32_t threads, void *p, size_t size) {
+static void bvh__touch_pages(const bvh_thread_pool *pool, const bvh_allocator *al, uint32_t threads, void *p,
+                             size_t size) {
     bvh__touch_job j;
     if (threads < 2 || !p) return;
     j.p = BVH__CAST(unsigned char *, p);
     j.size = size;
-    bvh__team_run_always(al, threads, bvh__touch_fn, &j);
+    bvh__team_run_always_on(pool, al, threads, bvh__touch_fn, &j);
 }
 /* The wide layout is made on the build's team: the top of the tree on one thread until there are
    BVH__WIDE_SUBTREES subtrees (bvh__wide_prep's binary subtrees, none split below
@@ -10160,7 +10176,7 @@ static bvh_result bvh__refit_precheck(const bvh_tree *tree, const bvh_refit_desc
     memset(&c, 0, sizeof c);
     c.d = d;
     c.vertices = d->triangles.indices ? d->triangles.vertex_count : 3 * d->triangles.triangle_count;
-    bvh__team_run_always(&tree->allocator, nt, bvh__refit_check_fn, &c);
+    bvh__team_run_always_on(&d->pool, &tree->allocator, nt, bvh__refit_check_fn, &c);
     for (i = 0; i < nt; i++) {
         bad_index += c.bad_index[i];
         bad_value += c.bad_value[i];
@@ -10216,15 +10232,15 @@ BVH_API bvh_result bvh_refit(bvh_tree *tree, const bvh_refit_desc *desc) {
         bvh__wnode_scratch sc;
         sc.ahead = sc.ahead_ix = 0;
         if (!tree->tri4 || !bvh__refit_wheads(j)) return BVH_ERROR_INVALID_TREE;
-        bvh__team_run_always(&al, nt < j->nheads ? nt : j->nheads, bvh__refit_wide_fn, j);
+        bvh__team_run_always_on(&desc->pool, &al, nt < j->nheads ? nt : j->nheads, bvh__refit_wide_fn, j);
         for (i = 0; i < BVH__MAX_THREADS; i++) bad += j->bad[i];
         for (i = j->ntop; !bad && i-- > 0;) bad += !bvh__refit_wnode(j, j->top[i], &sc);
         bvh__stream_fence(); /* the top's packets */
         return bad ? BVH_ERROR_INVALID_TREE : BVH_SUCCESS;
     }
     if (!bvh__refit_heads(j)) return BVH_ERROR_INVALID_TREE;
-    if (j->tris) bvh__team_run_always(&al, nt, bvh__refit_tris_fn, j);
-    bvh__team_run_always(&al, nt < j->nheads ? nt : j->nheads, bvh__refit_fn, j);
+    if (j->tris) bvh__team_run_always_on(&desc->pool, &al, nt, bvh__refit_tris_fn, j);
+    bvh__team_run_always_on(&desc->pool, &al, nt < j->nheads ? nt : j->nheads, bvh__refit_fn, j);
     for (i = 0; i < BVH__MAX_THREADS; i++) bad += j->bad[i];
     for (i = j->ntop; !bad && i-- > 0;) bad += !bvh__refit_node(j, j->top[i]);
     return bad ? BVH_ERROR_INVALID_TREE : BVH_SUCCESS;
@@ -10467,7 +10483,7 @@ static bvh_result bvh__read_array(bvh__reader *rd, void *out, size_t size, int k
         if (size > rd->d->size - rd->pos) return BVH_ERROR_TRUNCATED;
         a.src = BVH__CAST(const unsigned char *, rd->d->data) + rd->pos;
         rd->pos += size;
-        bvh__team_run_always(&rd->tree->allocator, nt ? nt : 1, bvh__load_array_fn, &a);
+        bvh__team_run_always_on(&rd->d->pool, &rd->tree->allocator, nt ? nt : 1, bvh__load_array_fn, &a);
     } else {
         for (i = 0; i * BVH__PIECE < size; i++) {
             size_t n = size - i * BVH__PIECE < BVH__PIECE ? size - i * BVH__PIECE : BVH__PIECE;
@@ -10763,7 +10779,7 @@ static void bvh__load_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) 
     j->bad[tid] = !bvh__load_items(j, b, e, &sc);
 #endif
 }
-static bvh_result bvh__load_checks(bvh_tree *t, uint32_t threads, uint64_t *node_check) {
+static bvh_result bvh__load_checks(bvh_tree *t, const bvh_thread_pool *pool, uint32_t threads, uint64_t *node_check) {
     size_t marks = t->nodes8 ? t->node8_count : 1, covers = t->nodes8 && t->tri4_count ? t->tri4_count : 1;
     uint8_t *parent = BVH__ALLOC(&t->allocator, uint8_t, marks), *cover = BVH__ALLOC(&t->allocator, uint8_t, covers);
     bvh__load_job job;
@@ -10782,8 +10798,8 @@ static bvh_result bvh__load_checks(bvh_tree *t, uint32_t threads, uint64_t *node
     job.chunk = t->nodes8 ? BVH__LOAD_CHUNK : 64 * BVH__LOAD_CHUNK;
     nt = t->ref_count / BVH__MIN_PRIMS_PER_THREAD;
     nt = threads < nt ? threads : nt ? nt : 1;
-    bvh__touch_pages(&t->allocator, nt, t->tri4, (size_t)t->tri4_count * sizeof(bvh_tri4));
-    bvh__team_run_always(&t->allocator, nt, bvh__load_fn, &job);
+    bvh__touch_pages(pool, &t->allocator, nt, t->tri4, (size_t)t->tri4_count * sizeof(bvh_tri4));
+    bvh__team_run_always_on(pool, &t->allocator, nt, bvh__load_fn, &job);
     if ((r = job.checked) != BVH_SUCCESS) goto done; /* INVALID_TREE: the caller says CORRUPT */
     for (i = 0; i < BVH__MAX_THREADS; i++)
         if (job.bad[i]) r = BVH_ERROR_CORRUPT;
@@ -10897,14 +10913,14 @@ BVH_API bvh_result bvh_load(bvh_tree *tree, const bvh_load_desc *desc) {
         if ((r = bvh__wide_alloc(tree, &tree->allocator, nodes8, packets)) != BVH_SUCCESS) goto fail;
         memcpy(tree->nodes8, wide, (size_t)nodes8 * sizeof(bvh_node8));
     }
-    r = bvh__load_checks(tree, nt, desc->borrow ? &check : NULL);            /* and the 8-wide layout remade */
-    if (r == BVH_SUCCESS && check != h.payload_check) r = BVH_ERROR_CORRUPT; /* borrowed: now whole */
+    r = bvh__load_checks(tree, &desc->pool, nt, desc->borrow ? &check : NULL); /* and the 8-wide layout remade */
+    if (r == BVH_SUCCESS && check != h.payload_check) r = BVH_ERROR_CORRUPT;   /* borrowed: now whole */
     if (r != BVH_SUCCESS) {
         if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT;
         goto fail;
     }
     if (!tree->nodes8 && tree->tris && desc->trace_width == 8) { /* saved without: made as bvh_build does */
-        if ((r = bvh__make_wide(tree, &tree->allocator, NULL, nt)) != BVH_SUCCESS) {
+        if ((r = bvh__make_wide(tree, &tree->allocator, &desc->pool, nt)) != BVH_SUCCESS) {
             if (r == BVH_ERROR_INVALID_TREE) r = BVH_ERROR_CORRUPT; /* children before their parent */
             goto fail;
         }

@@ -1,9 +1,11 @@
-/* tests/test_pool.c - a caller's thread pool (bvh_build_desc.pool, bvh_batch_desc.pool) and the
-   build's progress callback (bvh_build_desc.progress).
+/* tests/test_pool.c - a caller's thread pool (bvh_build_desc.pool, bvh_batch_desc.pool,
+   bvh_refit_desc.pool, bvh_load_desc.pool) and the build's progress callback
+   (bvh_build_desc.progress).
 
    Pool: three hooks, one that runs the tasks one after another on the calling thread, one that
    runs them on its own pthreads in reversed order and one in a shuffled order; for every scene,
-   builder and task count, the tree is byte for byte the internal pool's (tree_diff.h), and the
+   builder and task count, the tree is byte for byte the internal pool's (tree_diff.h), and so
+   are a refitted and a loaded one; the
    batch calls (a tree's and a scene's) give the internal pool's hits and flags. Progress:
    fractions rise from 0 to a single 1 on a completed build; cancelling at the k-th call, for every k a build makes,
    returns BVH_ERROR_CANCELLED with the tree empty and every block given back (a counting allocator; `make asan` checks
@@ -300,6 +302,89 @@ static void pool_same_tree_options(void **state) {
         bvh_free(&t);
         bvh_free(&ref);
     }
+    tu_scene_free(&s);
+}
+
+/* == refit and load through the pool ========================================================= */
+/* bvh_refit_desc.pool and bvh_load_desc.pool: the same bytes as the library's threads give, on
+   each test pool, for a PLOC tree and a sah-midpoint one (split references): refitted to moved
+   vertices; loaded as a copy and borrowed; and loaded with the 8-wide layout made from a file
+   saved without it. The pool must have been asked to run something each time. */
+static void pool_refit_load_same_tree(void **state) {
+    tu_scene s;
+    float *moved;
+    int b, h, v;
+    uint32_t i;
+    (void)state;
+    tu_scene_random(&s, 20000, 0x52454649ULL);
+    moved = (float *)malloc((size_t)s.vertex_count * tu_stride(&s));
+    assert_non_null(moved);
+    memcpy(moved, s.data, (size_t)s.vertex_count * tu_stride(&s));
+    for (i = 0; i < s.vertex_count; i++) { /* a wave along x */
+        float *p = (float *)(void *)((char *)(void *)moved + (size_t)i * tu_stride(&s));
+        p[1] += 0.05f * sinf(4.0f * p[0]);
+    }
+    for (b = 0; b < 2; b++)
+        for (v = 0; v < 2; v++) {
+            bvh_build_desc d = tu_scene_desc(&s, b ? BVH_BUILDER_SAH_MIDPOINT : BVH_BUILDER_PLOC_PARALLEL);
+            bvh_refit_desc rd;
+            bvh_load_desc ld;
+            bvh_tree ref, t, lref, l;
+            ta_buf buf;
+            const char *diff;
+            d.threads = 2;
+            d.trace_width = v ? 2 : 0; /* v = 1: saved without the 8-wide layout, made on load */
+            assert_int_equal(bvh_build(&ref, &d), BVH_SUCCESS);
+            memset(&rd, 0, sizeof rd);
+            rd.triangles = d.triangles;
+            rd.triangles.positions = moved;
+            rd.threads = 3;
+            assert_int_equal(bvh_refit(&ref, &rd), BVH_SUCCESS);
+            buf.size = 0;
+            buf.cap = bvh_save_size(&ref);
+            buf.data = (unsigned char *)malloc(buf.cap);
+            assert_non_null(buf.data);
+            assert_int_equal(bvh_save(&ref, ta_write, &buf), BVH_SUCCESS);
+            memset(&ld, 0, sizeof ld);
+            ld.data = buf.data;
+            ld.size = buf.size;
+            ld.threads = 3;
+            ld.trace_width = 8;
+            assert_int_equal(bvh_load(&lref, &ld), BVH_SUCCESS);
+            for (h = 0; h < 3; h++) {
+                pool_state ps;
+                memset(&ps, 0, sizeof ps);
+                ps.order = h;
+                ps.workers = 3;
+                ps.seed = 11 + (uint64_t)h;
+                assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+                rd.pool.run = pool_run;
+                rd.pool.user = &ps;
+                assert_int_equal(bvh_refit(&t, &rd), BVH_SUCCESS);
+                rd.pool.run = NULL;
+                if ((diff = tree_diff(&ref, &t)) != NULL || ps.runs == 0)
+                    fail_msg("%s refit on pool %s: %s", bvh_builder_name(d.builder), pool_names[h],
+                             diff ? diff : "the pool ran nothing");
+                bvh_free(&t);
+                ld.pool.run = pool_run;
+                ld.pool.user = &ps;
+                for (ld.borrow = 0; ld.borrow < 2; ld.borrow++) {
+                    ps.runs = 0;
+                    assert_int_equal(bvh_load(&l, &ld), BVH_SUCCESS);
+                    if ((diff = tree_diff(&lref, &l)) != NULL || ps.runs == 0)
+                        fail_msg("%s (trace_width %u) loaded %s on pool %s: %s", bvh_builder_name(d.builder),
+                                 d.trace_width, ld.borrow ? "borrowed" : "as a copy", pool_names[h],
+                                 diff ? diff : "the pool ran nothing");
+                    bvh_free(&l);
+                }
+                ld.borrow = 0;
+                ld.pool.run = NULL;
+            }
+            bvh_free(&lref);
+            bvh_free(&ref);
+            free(buf.data);
+        }
+    free(moved);
     tu_scene_free(&s);
 }
 
@@ -734,6 +819,7 @@ int main(void) {
     const struct CMUnitTest tests[] = {
         TU_EVERY_SCENE(pool_same_tree),
         cmocka_unit_test(pool_same_tree_options),
+        cmocka_unit_test(pool_refit_load_same_tree),
         cmocka_unit_test(allocator_on_calling_thread),
         cmocka_unit_test(sah_midpoint_threads_same_tree),
         cmocka_unit_test(pool_batch_same_hits),

@@ -196,7 +196,8 @@ $(BUILD)/check/%/cxx11-links-c: tests/compile_cpp.cpp tests/two_tu_a.c bvh.h
 
 # build/abtrace: bvh.h at AB_REF (a git revision; default HEAD) against the working tree's, in one
 # process on the same rays (bench/ab/abtrace.c says why); build/abrefit: the same two versions on
-# bvh_refit and bvh_load (bench/ab/abrefit.c). Not part of `make`: it needs git.
+# bvh_refit and bvh_load (bench/ab/abrefit.c); build/abbuild: on bvh_build, on the library's
+# threads and on a caller's pool (bench/ab/abbuild.c). Not part of `make`: it needs git.
 AB_REF ?= HEAD
 abtrace:
 	@mkdir -p $(BUILD)/ab/a
@@ -208,7 +209,9 @@ abtrace:
 	    -o $(BUILD)/abtrace $(EX_LIBS) $(LDLIBS)
 	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) bench/ab/abrefit.c $(BUILD)/ab/a.o $(BUILD)/ab/b.o \
 	    -o $(BUILD)/abrefit $(EX_LIBS) $(LDLIBS)
-	@echo "build/abtrace, build/abrefit: A = bvh.h at $(AB_REF), B = the working tree's"
+	$(CC) $(STD) $(WARN) $(CFLAGS) -D_GNU_SOURCE -I. $(EX_DEFS) bench/ab/abbuild.c $(BUILD)/ab/a.o $(BUILD)/ab/b.o \
+	    -o $(BUILD)/abbuild $(EX_LIBS) $(LDLIBS)
+	@echo "build/abtrace, build/abrefit, build/abbuild: A = bvh.h at $(AB_REF), B = the working tree's"
 
 deps-test:
 	@scripts/deps.sh test

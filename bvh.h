@@ -73,13 +73,13 @@
      Tracing only reads the tree (every call that takes a const bvh_tree *): any number of
      threads may trace one tree at once, batch calls included, while none builds into or frees it.
      Your own pool: desc.pool (and bvh_batch_desc.pool for the _ex batch calls and the scene
-     batch calls, bvh_refit_desc.pool, bvh_load_desc.pool) is a parallel-for over the application's workers (a job
-   system, TBB, OpenMP); with it the library creates no thread, splits each parallel phase into desc.threads tasks and
-   builds the very tree its own threads would. Its tasks never wait for one another, so phases whose threads meet at
-   barriers are cut into one run per step (PLOC's clustering loop, the Morton sort, the emission passes; their steps of
-   under 4096 items run on the calling thread); PLOC's SAH top is a task queue whose tasks wait only for running ones.
-     On a platform without pthreads (MSVC without winpthreads, consoles, WebAssembly), define
-     BVH_NO_THREADS and pass a pool with desc.threads (and the batch, refit and load
+     batch calls, bvh_scene_desc.pool, bvh_refit_desc.pool, bvh_load_desc.pool) is a parallel-for over the application's
+   workers (a job system, TBB, OpenMP); with it the library creates no thread, splits each parallel phase into
+   desc.threads tasks and builds the very tree its own threads would. Its tasks never wait for one another, so phases
+   whose threads meet at barriers are cut into one run per step (PLOC's clustering loop, the Morton sort, the emission
+   passes; their steps of under 4096 items run on the calling thread); PLOC's SAH top is a task queue whose tasks wait
+   only for running ones. On a platform without pthreads (MSVC without winpthreads, consoles, WebAssembly), define
+     BVH_NO_THREADS and pass a pool with desc.threads (and the batch, scene, refit and load
      descriptions' threads) set to its worker count: parallel builds, batches, refits and loads
      with no pthread anywhere (see bvh_thread_pool). A
      batch call on a pool runs `threads` tasks that take chunks of rays from a shared counter; an
@@ -117,9 +117,9 @@
             library's own threads' time; now 1.05-1.06x (the bunny, Sponza, the dragon). The
             sort and the passes are cut at their barriers into runs as PLOC's loop is; the top's
             queue needs none (its tasks wait only for running ones). The same trees.
-            bvh_refit_desc.pool and bvh_load_desc.pool: refits and loads on a caller's pool too
-            (they started the library's threads every call: a refit every frame, say), the same
-            bytes as its threads give.
+            bvh_refit_desc.pool, bvh_load_desc.pool and bvh_scene_desc.pool: refits, loads and
+            a scene's top level on a caller's pool too (they started the library's threads every
+            call: a refit or a scene rebuilt every frame, say), the same bytes as its threads give.
      0.9.26 The batch calls on a caller's pool (bvh_batch_desc.pool, the scenes' batches) run
             `threads` tasks that each take guided chunks as the library's threads do, with a
             tuning of their own, where each 64-ray chunk was a task: a persistent pool (the new
@@ -928,6 +928,7 @@ typedef struct bvh_scene_desc {
     bvh_builder builder;     /* top level (0 = the default builder) */
     uint32_t threads;        /* as bvh_build_desc.threads */
     bvh_allocator allocator; /* both functions or neither; kept by the scene */
+    bvh_thread_pool pool;    /* as bvh_build_desc.pool (the top level's build) */
 } bvh_scene_desc;
 typedef struct bvh_scene {
     bvh_tree top;            /* over the instances' world boxes; prims = instance indices */
@@ -9411,6 +9412,7 @@ BVH_API bvh_result bvh_scene_build(bvh_scene *scene, const bvh_scene_desc *desc)
         td.boxes = boxes;
         td.box_count = n;
         td.threads = desc->threads;
+        td.pool = desc->pool;
         td.allocator = desc->allocator;
         td.skip_invalid = 1; /* the empty box of an instance of an empty tree: left out */
         r = bvh_build(&scene->top, &td);

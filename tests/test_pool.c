@@ -1,11 +1,11 @@
 /* tests/test_pool.c - a caller's thread pool (bvh_build_desc.pool, bvh_batch_desc.pool,
-   bvh_refit_desc.pool, bvh_load_desc.pool) and the build's progress callback
+   bvh_refit_desc.pool, bvh_load_desc.pool, bvh_scene_desc.pool) and the build's progress callback
    (bvh_build_desc.progress).
 
    Pool: three hooks, one that runs the tasks one after another on the calling thread, one that
    runs them on its own pthreads in reversed order and one in a shuffled order; for every scene,
    builder and task count, the tree is byte for byte the internal pool's (tree_diff.h), and so
-   are a refitted and a loaded one; the
+   are a refitted and a loaded one and a scene's top level; the
    batch calls (a tree's and a scene's) give the internal pool's hits and flags. Progress:
    fractions rise from 0 to a single 1 on a completed build; cancelling at the k-th call, for every k a build makes,
    returns BVH_ERROR_CANCELLED with the tree empty and every block given back (a counting allocator; `make asan` checks
@@ -386,6 +386,61 @@ static void pool_refit_load_same_tree(void **state) {
         }
     free(moved);
     tu_scene_free(&s);
+}
+
+/* bvh_scene_desc.pool: a scene of 3000 instances (a grid of scaled copies of one tree) builds
+   the same top level, binary and 8-wide, on each test pool as on the library's threads. */
+static void pool_scene_same_top(void **state) {
+    enum { N = 3000 };
+    tu_scene s;
+    bvh_tree t;
+    bvh_build_desc d;
+    bvh_instance *in = (bvh_instance *)calloc(N, sizeof *in);
+    bvh_scene ref, sc;
+    bvh_scene_desc sd;
+    int h;
+    uint32_t i;
+    (void)state;
+    assert_non_null(in);
+    tu_scene_random(&s, 500, 0x5343454eULL);
+    d = tu_scene_desc(&s, BVH_BUILDER_PLOC_PARALLEL);
+    assert_int_equal(bvh_build(&t, &d), BVH_SUCCESS);
+    for (i = 0; i < N; i++) {
+        const float k = 0.5f + 0.01f * (float)(i % 7);
+        in[i].tree = &t;
+        in[i].mask = ~0u;
+        in[i].id = i;
+        in[i].transform[0] = in[i].transform[5] = in[i].transform[10] = k;
+        in[i].transform[3] = 3.0f * (float)(i % 15);
+        in[i].transform[7] = 3.0f * (float)(i / 15 % 20);
+        in[i].transform[11] = 3.0f * (float)(i / 300);
+    }
+    memset(&sd, 0, sizeof sd);
+    sd.instances = in;
+    sd.instance_count = N;
+    sd.threads = 3;
+    assert_int_equal(bvh_scene_build(&ref, &sd), BVH_SUCCESS);
+    for (h = 0; h < 3; h++) {
+        pool_state ps;
+        const char *diff;
+        memset(&ps, 0, sizeof ps);
+        ps.order = h;
+        ps.workers = 3;
+        ps.seed = 21 + (uint64_t)h;
+        sd.pool.run = pool_run;
+        sd.pool.user = &ps;
+        assert_int_equal(bvh_scene_build(&sc, &sd), BVH_SUCCESS);
+        diff = tree_diff(&ref.top, &sc.top);
+        if (!diff && (sc.top8_count != ref.top8_count ||
+                      memcmp(sc.top8, ref.top8, (size_t)ref.top8_count * sizeof(bvh_node8)) != 0))
+            diff = "top8";
+        if (diff || ps.runs == 0) fail_msg("scene on pool %s: %s", pool_names[h], diff ? diff : "the pool ran nothing");
+        bvh_scene_free(&sc);
+    }
+    bvh_scene_free(&ref);
+    bvh_free(&t);
+    tu_scene_free(&s);
+    free(in);
 }
 
 /* == batch tracing through the pool ========================================================== */
@@ -820,6 +875,7 @@ int main(void) {
         TU_EVERY_SCENE(pool_same_tree),
         cmocka_unit_test(pool_same_tree_options),
         cmocka_unit_test(pool_refit_load_same_tree),
+        cmocka_unit_test(pool_scene_same_top),
         cmocka_unit_test(allocator_on_calling_thread),
         cmocka_unit_test(sah_midpoint_threads_same_tree),
         cmocka_unit_test(pool_batch_same_hits),

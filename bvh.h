@@ -120,6 +120,8 @@
             bvh_refit_desc.pool, bvh_load_desc.pool and bvh_scene_desc.pool: refits, loads and
             a scene's top level on a caller's pool too (they started the library's threads every
             call: a refit or a scene rebuilt every frame, say), the same bytes as its threads give.
+            A refit's check that every vertex is finite takes 32 floats a step with AVX2 (16 with
+            SSE2): refits 2-3.5% faster (the dragon, gen:field:15; both trees).
      0.9.26 The batch calls on a caller's pool (bvh_batch_desc.pool, the scenes' batches) run
             `threads` tasks that each take guided chunks as the library's threads do, with a
             tuning of their own, where each 64-ray chunk was a task: a persistent pool (the new
@@ -10109,22 +10111,46 @@ static int bvh__refit_wheads(bvh__refit *j) {
 }
 
 /* Whether any of n floats at p (any alignment) is Inf or NaN, by their bits without branches:
-   without its sign, such a float's bits are above 0x7f7fffff (SSE2: 16 floats a step). */
+   without its sign, such a float's bits are above 0x7f7fffff (SSE2: 16 floats a step; AVX2: 32,
+   the largest such bits kept per lane, one compare at the end). */
+#ifdef BVH__AVX2
+__attribute__((target("avx2"))) static int bvh__any_nonfinite32(const char *p, size_t steps) {
+    const __m256i sign = _mm256_set1_epi32(0x7fffffff);
+    __m256i a = _mm256_setzero_si256(), b = _mm256_setzero_si256();
+    size_t i;
+    for (i = 0; i < steps; i++, p += 32 * sizeof(float)) {
+        const __m256i *q = BVH__CAST(const __m256i *, BVH__CAST(const void *, p));
+        a = _mm256_max_epu32(a, _mm256_max_epu32(_mm256_and_si256(_mm256_loadu_si256(q), sign),
+                                                 _mm256_and_si256(_mm256_loadu_si256(q + 1), sign)));
+        b = _mm256_max_epu32(b, _mm256_max_epu32(_mm256_and_si256(_mm256_loadu_si256(q + 2), sign),
+                                                 _mm256_and_si256(_mm256_loadu_si256(q + 3), sign)));
+    }
+    return _mm256_movemask_epi8(_mm256_cmpgt_epi32(_mm256_max_epu32(a, b), _mm256_set1_epi32(0x7f7fffff))) != 0;
+}
+#endif
 static int bvh__any_nonfinite(const void *data, size_t n) {
     const char *p = BVH__CAST(const char *, data);
     size_t f = 0;
     uint32_t w, bad = 0;
-#ifdef BVH__SSE
-    const __m128i sign = _mm_set1_epi32(0x7fffffff), big = _mm_set1_epi32(0x7f7fffff);
-    __m128i acc = _mm_setzero_si128();
-    for (; f + 16 <= n; f += 16) {
-        const __m128i *q = BVH__CAST(const __m128i *, BVH__CAST(const void *, p + f * sizeof(float)));
-        __m128i a = _mm_and_si128(_mm_loadu_si128(q), sign), b = _mm_and_si128(_mm_loadu_si128(q + 1), sign);
-        __m128i c = _mm_and_si128(_mm_loadu_si128(q + 2), sign), d = _mm_and_si128(_mm_loadu_si128(q + 3), sign);
-        acc = _mm_or_si128(acc, _mm_or_si128(_mm_or_si128(_mm_cmpgt_epi32(a, big), _mm_cmpgt_epi32(b, big)),
-                                             _mm_or_si128(_mm_cmpgt_epi32(c, big), _mm_cmpgt_epi32(d, big))));
+#ifdef BVH__AVX2
+    if (n >= 64 && bvh__have_avx2()) {
+        bad = (uint32_t)bvh__any_nonfinite32(p, n / 32);
+        f = n / 32 * 32;
     }
-    bad = _mm_movemask_epi8(acc) != 0;
+#endif
+#ifdef BVH__SSE
+    {
+        const __m128i sign = _mm_set1_epi32(0x7fffffff), big = _mm_set1_epi32(0x7f7fffff);
+        __m128i acc = _mm_setzero_si128();
+        for (; f + 16 <= n; f += 16) {
+            const __m128i *q = BVH__CAST(const __m128i *, BVH__CAST(const void *, p + f * sizeof(float)));
+            __m128i a = _mm_and_si128(_mm_loadu_si128(q), sign), b = _mm_and_si128(_mm_loadu_si128(q + 1), sign);
+            __m128i c = _mm_and_si128(_mm_loadu_si128(q + 2), sign), d = _mm_and_si128(_mm_loadu_si128(q + 3), sign);
+            acc = _mm_or_si128(acc, _mm_or_si128(_mm_or_si128(_mm_cmpgt_epi32(a, big), _mm_cmpgt_epi32(b, big)),
+                                                 _mm_or_si128(_mm_cmpgt_epi32(c, big), _mm_cmpgt_epi32(d, big))));
+        }
+        bad |= _mm_movemask_epi8(acc) != 0;
+    }
 #endif
     for (; f < n; f++) {
         memcpy(&w, p + f * sizeof(float), sizeof w);

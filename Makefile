@@ -139,7 +139,7 @@ kernel:
 	scripts/embed-kernel.sh
 # The repository's .clang-format on every C source (the kernel is formatted in cl/trace.cl and
 # copied into cl/bvh_cl.h as it is). `make format` applies it; .ci/run checks it.
-FORMAT_FILES = bvh.h cl/bvh_cl.h cl/trace.cl $(wildcard examples/*.c examples/*.h bench/*.c bench/*.h bench/ab/*.c \
+FORMAT_FILES = bvh.h cl/bvh_cl.h cl/trace.cl $(wildcard examples/*.c examples/*.h bench/*.c bench/*.h bench/ab/*.c bench/ab/*.h \
                tests/*.c tests/*.h tests/*.cpp tests/install/*.c)
 format:
 	clang-format -i $(FORMAT_FILES)

@@ -22,6 +22,7 @@
 #include <string.h>
 
 #include "bench/ab/ab.h"
+#include "bench/ab/ab_args.h"
 
 #define AB_MAX_ROUNDS 99
 
@@ -42,7 +43,10 @@ static double ab_build_one(int k, const bvh_build_desc *base, workers *w, void *
     return ms;
 }
 
-static int ab_scene(const char *spec, bvh_builder builder, int rounds, uint32_t threads) {
+static int ab_scene(const char *spec, const ab_opts *o) {
+    const bvh_builder builder = o->builder;
+    const int rounds = o->rounds;
+    const uint32_t threads = o->threads;
     static const char *const names[4] = {"A threads", "B threads", "A pool", "B pool"};
     scene sc;
     char err[256];
@@ -104,42 +108,12 @@ done:
 }
 
 int main(int argc, char **argv) {
-    bvh_builder builder = BVH_BUILDER_DEFAULT;
-    uint32_t threads = 2;
-    int rounds = 15, i, scenes = 0, rc = 0;
-    for (i = 1; i < argc; i++) {
-        if (!strcmp(argv[i], "--builder") && i + 1 < argc) {
-            const char *name = argv[++i];
-            int k;
-            for (k = 1; k < BVH_BUILDER_COUNT && strcmp(name, bvh_builder_name((bvh_builder)k)); k++) {
-            }
-            if (k == BVH_BUILDER_COUNT) {
-                fprintf(stderr, "abbuild: --builder takes a builder's name (e.g. ploc-parallel, sah-midpoint)\n");
-                return 2;
-            }
-            builder = (bvh_builder)k;
-        } else if (!strcmp(argv[i], "--rounds") && i + 1 < argc) {
-            rounds = atoi(argv[++i]);
-            if (rounds < 1 || rounds > AB_MAX_ROUNDS) {
-                fprintf(stderr, "abbuild: --rounds takes 1 to %d\n", AB_MAX_ROUNDS);
-                return 2;
-            }
-        } else if (!strcmp(argv[i], "--threads") && i + 1 < argc) {
-            if (scene_parse_u32(argv[++i], 1, 64, &threads, NULL)) {
-                fprintf(stderr, "abbuild: --threads takes 1 to 64\n");
-                return 2;
-            }
-        } else if (argv[i][0] == '-') {
-            fprintf(stderr, "usage: build/abbuild [--builder NAME] [--rounds N] [--threads T] SCENE...\n");
-            return 2;
-        } else {
-            rc |= ab_scene(argv[i], builder, rounds, threads);
-            scenes++;
-        }
-    }
-    if (!scenes) {
-        fprintf(stderr, "usage: build/abbuild [--builder NAME] [--rounds N] [--threads T] SCENE...\n");
-        return 2;
-    }
-    return rc;
+    ab_opts o;
+    o.builder = BVH_BUILDER_DEFAULT;
+    o.rounds = 15;
+    o.max_rounds = AB_MAX_ROUNDS;
+    o.threads = 2;
+    o.threads_lo = 1;
+    o.threads_hi = 64;
+    return ab_run(argc, argv, "abbuild", &o, ab_scene);
 }

@@ -2,7 +2,7 @@
    faster, and by how much, on a machine whose speed drifts.
 
    make abtrace AB_REF=<git revision>        (A: bvh.h at that revision; B: the working tree's)
-   build/abrefit [--builder NAME] [--rounds N] [--threads T] SCENE...
+   build/abrefit [--builder NAME] [--rounds N] [--threads T] SCENE...        (0: all CPUs)
 
    Why: as build/abtrace's (bench/ab/abtrace.c), for bvh_refit and bvh_load, whose times this VM's
    spells move by 20% between runs (docs/bench, 0.9.13). Both versions (bench/ab/version.c)
@@ -22,6 +22,7 @@
 #include <string.h>
 
 #include "bench/ab/ab.h"
+#include "bench/ab/ab_args.h"
 
 #define AB_MAX_ROUNDS 99
 
@@ -47,7 +48,10 @@ static void ab_line(const char *what, double *a, double *b, double *ba, int roun
     printf("  %-5s A %8.2f ms  B %8.2f ms  B/A %.3f (%.3f-%.3f)\n", what, ma, mb, med, ba[0], ba[rounds - 1]);
 }
 
-static int ab_scene(const char *spec, bvh_builder builder, int rounds, uint32_t threads) {
+static int ab_scene(const char *spec, const ab_opts *o) {
+    const bvh_builder builder = o->builder;
+    const int rounds = o->rounds;
+    const uint32_t threads = o->threads;
     scene sc;
     char err[256];
     bvh_build_desc d;
@@ -131,42 +135,12 @@ done:
 }
 
 int main(int argc, char **argv) {
-    bvh_builder builder = BVH_BUILDER_PLOC_PARALLEL;
-    uint32_t threads = 0;
-    int rounds = 15, i, scenes = 0, rc = 0;
-    for (i = 1; i < argc; i++) {
-        if (!strcmp(argv[i], "--builder") && i + 1 < argc) {
-            const char *name = argv[++i];
-            int k;
-            for (k = 1; k < BVH_BUILDER_COUNT && strcmp(name, bvh_builder_name((bvh_builder)k)); k++) {
-            }
-            if (k == BVH_BUILDER_COUNT) {
-                fprintf(stderr, "abrefit: --builder takes a builder's name (e.g. ploc-parallel, bottom-up)\n");
-                return 2;
-            }
-            builder = (bvh_builder)k;
-        } else if (!strcmp(argv[i], "--rounds") && i + 1 < argc) {
-            rounds = atoi(argv[++i]);
-            if (rounds < 1 || rounds > AB_MAX_ROUNDS) {
-                fprintf(stderr, "abrefit: --rounds takes 1 to %d\n", AB_MAX_ROUNDS);
-                return 2;
-            }
-        } else if (!strcmp(argv[i], "--threads") && i + 1 < argc) {
-            if (scene_parse_u32(argv[++i], 0, 256, &threads, NULL)) {
-                fprintf(stderr, "abrefit: --threads takes 0 (all) to 256\n");
-                return 2;
-            }
-        } else if (argv[i][0] == '-') {
-            fprintf(stderr, "usage: build/abrefit [--builder NAME] [--rounds N] [--threads T] SCENE...\n");
-            return 2;
-        } else {
-            rc |= ab_scene(argv[i], builder, rounds, threads);
-            scenes++;
-        }
-    }
-    if (!scenes) {
-        fprintf(stderr, "usage: build/abrefit [--builder NAME] [--rounds N] [--threads T] SCENE...\n");
-        return 2;
-    }
-    return rc;
+    ab_opts o;
+    o.builder = BVH_BUILDER_PLOC_PARALLEL;
+    o.rounds = 15;
+    o.max_rounds = AB_MAX_ROUNDS;
+    o.threads = 0;
+    o.threads_lo = 0;
+    o.threads_hi = 256;
+    return ab_run(argc, argv, "abrefit", &o, ab_scene);
 }

@@ -24,8 +24,6 @@
 #include "bench/ab/ab.h"
 #include "bench/ab/ab_args.h"
 
-#define AB_MAX_ROUNDS 99
-
 /* Build k of a round: bit 0 the version (0: A, 1: B), bit 1 the pool. Milliseconds, or -1; the
    tree's saved bytes into *file when file is not NULL. */
 static double ab_build_one(int k, const bvh_build_desc *base, workers *w, void **file, size_t *size) {
@@ -65,12 +63,7 @@ static int ab_scene(const char *spec, const ab_opts *o) {
         scene_free(&sc);
         return 1;
     }
-    memset(&d, 0, sizeof d);
-    d.builder = builder;
-    d.threads = threads;
-    d.triangles.positions = sc.v;
-    d.triangles.vertex_count = 3 * sc.triangles;
-    d.triangles.triangle_count = sc.triangles;
+    d = ab_desc(&sc, o);
     printf("%s (%u triangles), %s, A = bvh.h %d.%d.%d, B = bvh.h %d.%d.%d: %d rounds, %u thread(s) or tasks\n", sc.name,
            sc.triangles, bvh_builder_name(builder), va / 10000, va / 100 % 100, va % 100, vb / 10000, vb / 100 % 100,
            vb % 100, rounds, threads);
@@ -107,13 +100,4 @@ done:
     return rc;
 }
 
-int main(int argc, char **argv) {
-    ab_opts o;
-    o.builder = BVH_BUILDER_DEFAULT;
-    o.rounds = 15;
-    o.max_rounds = AB_MAX_ROUNDS;
-    o.threads = 2;
-    o.threads_lo = 1;
-    o.threads_hi = 64;
-    return ab_run(argc, argv, "abbuild", &o, ab_scene);
-}
+int main(int argc, char **argv) { return ab_run(argc, argv, "abbuild", BVH_BUILDER_DEFAULT, 2, 1, 64, ab_scene); }

@@ -24,8 +24,6 @@
 #include "bench/ab/ab.h"
 #include "bench/ab/ab_args.h"
 
-#define AB_MAX_ROUNDS 99
-
 /* One refit (what 0) or load (what 1) with version b (0: A, 1: B): milliseconds, or -1. */
 static double ab_step(int b, int what, bvh_tree *tree, const float *v, uint32_t n, const void *file, size_t size,
                       uint32_t threads) {
@@ -81,12 +79,7 @@ static int ab_scene(const char *spec, const ab_opts *o) {
         twisted[3 * i + 1] = p[1];
         twisted[3 * i + 2] = p[0] * sinf(ang) + p[2] * cosf(ang);
     }
-    memset(&d, 0, sizeof d);
-    d.builder = builder;
-    d.threads = threads;
-    d.triangles.positions = sc.v;
-    d.triangles.vertex_count = 3 * sc.triangles;
-    d.triangles.triangle_count = sc.triangles;
+    d = ab_desc(&sc, o);
     if (ab_a_build(&ta, &d) != BVH_SUCCESS || ab_b_build(&tb, &d) != BVH_SUCCESS) {
         fprintf(stderr, "abrefit: %s: a build failed\n", spec);
         goto done;
@@ -135,12 +128,5 @@ done:
 }
 
 int main(int argc, char **argv) {
-    ab_opts o;
-    o.builder = BVH_BUILDER_PLOC_PARALLEL;
-    o.rounds = 15;
-    o.max_rounds = AB_MAX_ROUNDS;
-    o.threads = 0;
-    o.threads_lo = 0;
-    o.threads_hi = 256;
-    return ab_run(argc, argv, "abrefit", &o, ab_scene);
+    return ab_run(argc, argv, "abrefit", BVH_BUILDER_PLOC_PARALLEL, 0, 0, 256, ab_scene);
 }

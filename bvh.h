@@ -73,17 +73,19 @@
      Tracing only reads the tree (every call that takes a const bvh_tree *): any number of
      threads may trace one tree at once, batch calls included, while none builds into or frees it.
      Your own pool: desc.pool (and bvh_batch_desc.pool for the _ex batch calls and the scene
-     batch calls, bvh_scene_desc.pool, bvh_refit_desc.pool, bvh_load_desc.pool) is a parallel-for over the application's
-   workers (a job system, TBB, OpenMP); with it the library creates no thread, splits each parallel phase into
-   desc.threads tasks and builds the very tree its own threads would. Its tasks never wait for one another, so phases
-   whose threads meet at barriers are cut into one run per step (PLOC's clustering loop, the Morton sort, the emission
-   passes; their steps of under 4096 items run on the calling thread); PLOC's SAH top is a task queue whose tasks wait
-   only for running ones. On a platform without pthreads (MSVC without winpthreads, consoles, WebAssembly), define
-     BVH_NO_THREADS and pass a pool with desc.threads (and the batch, scene, refit and load
-     descriptions' threads) set to its worker count: parallel builds, batches, refits and loads
-     with no pthread anywhere (see bvh_thread_pool). A
-     batch call on a pool runs `threads` tasks that take chunks of rays from a shared counter; an
-     application without a job system can start a pool once with examples/workers.h.
+     batch calls, bvh_scene_desc.pool, bvh_refit_desc.pool, bvh_load_desc.pool) is a
+     parallel-for over the application's workers (a job system, TBB, OpenMP); with it the
+     library creates no thread, splits each parallel phase into `threads` tasks and builds the
+     very tree its own threads would. A task never waits for one that has not started, so phases
+     whose threads meet at barriers are cut into one run per step (PLOC's clustering loop, the
+     Morton sort, the emission passes; steps of under 4096 items run on the calling thread), and
+     PLOC's SAH top is a task queue whose tasks wait only for running ones. On a platform
+     without pthreads (MSVC without winpthreads, consoles, WebAssembly), define BVH_NO_THREADS
+     and pass a pool with desc.threads (and the batch, scene, refit and load descriptions'
+     threads) set to its worker count: parallel builds, batches, refits and loads with no
+     pthread anywhere (see bvh_thread_pool). A batch call on a pool runs `threads` tasks that
+     take chunks of rays from a shared counter; an application without a job system can start a
+     pool once with examples/workers.h.
 
    PROGRESS AND CANCEL
      desc.progress(user, fraction) is called on the thread that called bvh_build, one call at a

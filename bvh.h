@@ -72,11 +72,11 @@
      CPUs.
      Tracing only reads the tree (every call that takes a const bvh_tree *): any number of
      threads may trace one tree at once, batch calls included, while none builds into or frees it.
-     Your own pool: desc.pool (and bvh_batch_desc.pool for the _ex batch calls and the scene
-     batch calls, bvh_scene_desc.pool, bvh_refit_desc.pool, bvh_load_desc.pool) is a
-     parallel-for over the application's workers (a job system, TBB, OpenMP); with it the
-     library creates no thread, splits each parallel phase into `threads` tasks and builds the
-     very tree its own threads would. A task never waits for one that has not started, so phases
+     Your own pool: desc.pool (and bvh_batch_desc.pool for the _ex batch calls, custom ones
+     included, and the scene batch calls; bvh_scene_desc.pool, bvh_refit_desc.pool and
+     bvh_load_desc.pool) is a parallel-for over the application's workers (a job system, TBB,
+     OpenMP); with it the library creates no thread, splits each parallel phase into `threads`
+     tasks and builds the very tree its own threads would. A task never waits for one that has not started, so phases
      whose threads meet at barriers are cut into one run per step (PLOC's clustering loop, the
      Morton sort, the emission passes; steps of under 4096 items run on the calling thread), and
      PLOC's SAH top is a task queue whose tasks wait only for running ones. On a platform
@@ -122,6 +122,9 @@
             bvh_refit_desc.pool, bvh_load_desc.pool and bvh_scene_desc.pool: refits, loads and
             a scene's top level on a caller's pool too (they started the library's threads every
             call: a refit or a scene rebuilt every frame, say), the same bytes as its threads give.
+            bvh_intersect_custom_batch_ex and bvh_occluded_custom_batch_ex: the custom
+            primitives' batches with a bvh_batch_desc (threads, pool), on the tree batches'
+            runner (they had a runner of their own).
             A refit's check that every vertex is finite takes 32 floats a step with AVX2 (16 with
             SSE2): refits 2-3.5% faster (the dragon, gen:field:15; both trees).
      0.9.26 The batch calls on a caller's pool (bvh_batch_desc.pool, the scenes' batches) run
@@ -887,6 +890,12 @@ BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ra
                                               uint32_t threads, const bvh_custom_desc *custom);
 BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
                                              uint32_t threads, const bvh_custom_desc *custom);
+/* The same with options (desc NULL = all zero): threads, or your pool (bvh_batch_desc). */
+BVH_API bvh_result bvh_intersect_custom_batch_ex(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
+                                                 const bvh_custom_desc *custom, const bvh_batch_desc *desc);
+BVH_API bvh_result bvh_occluded_custom_batch_ex(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded,
+                                                size_t count, const bvh_custom_desc *custom,
+                                                const bvh_batch_desc *desc);
 
 /* ---- secondary rays ------------------------------------------------------------------------ */
 /* A ray that leaves a surface from its computed hit point may hit that surface again (shadow
@@ -8676,8 +8685,9 @@ BVH_API int bvh_occluded(const bvh_tree *tree, const bvh_ray *ray) {
 }
 
 typedef struct bvh__batch {
-    const bvh_tree *tree;   /* a tree's rays, or */
-    const bvh_scene *scene; /* a scene's, with one mask */
+    const bvh_tree *tree;          /* a tree's rays (by custom->intersect where custom is set), or */
+    const bvh_custom_desc *custom; /* (bvh_intersect_custom_batch) */
+    const bvh_scene *scene;        /* a scene's, with one mask */
     uint32_t mask;
     const bvh_ray *rays;
     bvh_hit *hits;
@@ -8816,11 +8826,18 @@ static void bvh__closest8_tuned(const bvh__batch *b, size_t i, size_t e, bvh__pa
     }
 }
 #endif
+static int bvh__trace_custom(const bvh_tree *tree, const bvh_ray *ray, bvh_hit *hit, int any,
+                             const bvh_custom_desc *custom);
 static void bvh__batch_range(const bvh__batch *b, size_t i, size_t e, bvh__pair_tune *tune) {
     const bvh_tree *tree = b->tree;
     const int isa = bvh__have_avx2(); /* the CPU's ISA asked once a range, not once a ray */
     (void)tune;
-    if (b->scene) {
+    if (b->custom) {
+        if (b->hits)
+            for (; i < e; i++) bvh__trace_custom(tree, &b->rays[i], &b->hits[i], 0, b->custom);
+        else
+            for (; i < e; i++) b->occluded[i] = (uint8_t)bvh__trace_custom(tree, &b->rays[i], NULL, 1, b->custom);
+    } else if (b->scene) {
         if (b->scene_hits)
             for (; i < e; i++) bvh__scene_trace(b->scene, &b->rays[i], b->mask, &b->scene_hits[i], isa);
         else
@@ -9021,54 +9038,45 @@ BVH_API int bvh_occluded_custom(const bvh_tree *tree, const bvh_ray *ray, const 
     return bvh__trace_custom(tree, ray, NULL, 1, custom);
 }
 
-/* The batch calls share bvh__batch's chunking (bvh__batch_take). */
-typedef struct bvh__custom_batch {
-    bvh__batch b;
-    const bvh_custom_desc *custom;
-} bvh__custom_batch;
-static void bvh__custom_batch_fn(void *arg, uint32_t tid, uint32_t nt, bvh__team *team) {
-    bvh__custom_batch *cb = BVH__CAST(bvh__custom_batch *, arg);
-    bvh__batch *b = &cb->b;
-    size_t i, e;
-    (void)tid;
-    (void)nt;
-    while (bvh__batch_take(b, team, &i, &e)) {
-        for (; i < e; i++) {
-            if (b->hits)
-                bvh__trace_custom(b->tree, &b->rays[i], &b->hits[i], 0, cb->custom);
-            else
-                b->occluded[i] = (uint8_t)bvh__trace_custom(b->tree, &b->rays[i], NULL, 1, cb->custom);
-        }
-    }
-}
+/* The batch calls: bvh__batch_go with the custom test (see bvh__batch_range). */
 static bvh_result bvh__custom_batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ,
-                                        size_t count, uint32_t threads, const bvh_custom_desc *custom) {
-    bvh__custom_batch cb;
-    uint32_t nt;
+                                        size_t count, const bvh_custom_desc *custom, uint32_t threads,
+                                        const bvh_thread_pool *pool) {
+    bvh__batch b;
     if (!tree || !custom || !custom->intersect || (count && (!rays || (!hits && !occ))))
         return BVH_ERROR_INVALID_ARGUMENT;
     if (!bvh__allocator_paired(&tree->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
-    cb.b.tree = tree;
-    cb.b.rays = rays;
-    cb.b.hits = hits;
-    cb.b.occluded = occ;
-    cb.b.count = count;
-    cb.custom = custom;
-    nt = bvh__resolve_threads(threads);
-    if ((size_t)nt * 256 > count) nt = (uint32_t)((count + 255) / 256);
-    if (nt < 1) nt = 1;
-    cb.b.next = 0;
-    return bvh__team_run(&tree->allocator, nt, bvh__custom_batch_fn, &cb);
+    memset(&b, 0, sizeof b);
+    b.tree = tree;
+    b.custom = custom;
+    b.rays = rays;
+    b.hits = hits;
+    b.occluded = occ;
+    b.count = count;
+    return bvh__batch_go(&b, &tree->allocator, threads, pool);
 }
 BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
                                               uint32_t threads, const bvh_custom_desc *custom) {
     if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__custom_batch_run(tree, rays, hits, NULL, count, threads, custom);
+    return bvh__custom_batch_run(tree, rays, hits, NULL, count, custom, threads, NULL);
 }
 BVH_API bvh_result bvh_occluded_custom_batch(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded, size_t count,
                                              uint32_t threads, const bvh_custom_desc *custom) {
     if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
-    return bvh__custom_batch_run(tree, rays, NULL, occluded, count, threads, custom);
+    return bvh__custom_batch_run(tree, rays, NULL, occluded, count, custom, threads, NULL);
+}
+BVH_API bvh_result bvh_intersect_custom_batch_ex(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
+                                                 const bvh_custom_desc *custom, const bvh_batch_desc *desc) {
+    if (!hits && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__custom_batch_run(tree, rays, hits, NULL, count, custom, desc ? desc->threads : 0,
+                                 desc ? &desc->pool : NULL);
+}
+BVH_API bvh_result bvh_occluded_custom_batch_ex(const bvh_tree *tree, const bvh_ray *rays, uint8_t *occluded,
+                                                size_t count, const bvh_custom_desc *custom,
+                                                const bvh_batch_desc *desc) {
+    if (!occluded && count) return BVH_ERROR_INVALID_ARGUMENT;
+    return bvh__custom_batch_run(tree, rays, NULL, occluded, count, custom, desc ? desc->threads : 0,
+                                 desc ? &desc->pool : NULL);
 }
 
 /* ============================================================================================ */

@@ -1,7 +1,8 @@
 /* tests/test_custom.c - custom primitives and secondary rays.
 
    Custom primitives: spheres built as boxes by every builder and traced with a callback
-   (bvh_intersect_custom, bvh_occluded_custom, the batch calls on 1, 2 and 3 threads) give exactly
+   (bvh_intersect_custom, bvh_occluded_custom, the batch calls on 1, 2 and 3 threads and on two
+   pools of the _ex calls) give exactly
    the hits of a brute-force loop over all spheres with the same callback (the same sphere, the
    same bits of t), exact ties (duplicated spheres) to the lowest index; a callback's t outside
    [tmin, tmax], NaN or infinite is ignored; a triangle tree traced with a callback that runs the
@@ -14,6 +15,8 @@
 #define BVH__MIN_PRIMS_PER_THREAD 1u /* small test inputs still take the threaded paths */
 #include "bvh.h"
 #include "test_util.h"
+
+#include <pthread.h>
 
 #define SPHERES 3000
 #define DUPLICATES 300 /* spheres SPHERES - DUPLICATES .. SPHERES - 1 repeat the first ones */
@@ -122,6 +125,37 @@ static void make_sphere_rays(const sphere *s, uint32_t n, bvh_ray *rays, size_t 
 
 static int same_hit(const bvh_hit *a, const bvh_hit *b) { return tu_hit_equal(a, b); }
 
+/* Pools for the _ex batch calls: 0 runs the tasks last to first on the calling thread, 1 on two
+   pthreads of its own (even tasks on one, odd on the other); runs counts its calls. */
+typedef struct cpool {
+    int kind, runs;
+    bvh_task_fn task;
+    void *arg;
+    uint32_t count;
+} cpool;
+static void *cpool_odd(void *p) {
+    cpool *c = (cpool *)p;
+    uint32_t i;
+    for (i = 1; i < c->count; i += 2) c->task(c->arg, i);
+    return NULL;
+}
+static void cpool_run(void *user, uint32_t count, bvh_task_fn task, void *arg) {
+    cpool *c = (cpool *)user;
+    uint32_t i;
+    pthread_t th;
+    c->runs++;
+    if (c->kind == 0) {
+        for (i = count; i-- > 0;) task(arg, i);
+        return;
+    }
+    c->task = task;
+    c->arg = arg;
+    c->count = count;
+    assert_int_equal(pthread_create(&th, NULL, cpool_odd, c), 0);
+    for (i = 0; i < count; i += 2) task(arg, i);
+    pthread_join(th, NULL);
+}
+
 /* Every builder: closest hit, any hit and the batch calls equal the brute force. */
 static void spheres_exact(void **state) {
     static sphere s[SPHERES];
@@ -171,9 +205,25 @@ static void spheres_exact(void **state) {
                 tu_print_hit("brute force", &want[i]);
             }
         }
-        for (threads = 1; threads <= 3; threads++) {
-            assert_int_equal(bvh_intersect_custom_batch(&tree, rays, got, SPHERE_RAYS, threads, &cd), BVH_SUCCESS);
-            assert_int_equal(bvh_occluded_custom_batch(&tree, rays, occ, SPHERE_RAYS, threads, &cd), BVH_SUCCESS);
+        for (threads = 1; threads <= 5; threads++) { /* 4, 5: on a pool (bvh_batch_desc) */
+            if (threads <= 3) {
+                assert_int_equal(bvh_intersect_custom_batch(&tree, rays, got, SPHERE_RAYS, threads, &cd), BVH_SUCCESS);
+                assert_int_equal(bvh_occluded_custom_batch(&tree, rays, occ, SPHERE_RAYS, threads, &cd), BVH_SUCCESS);
+            } else {
+                cpool cp;
+                bvh_batch_desc bd;
+                memset(&cp, 0, sizeof cp);
+                memset(&bd, 0, sizeof bd);
+                cp.kind = (int)threads - 4;
+                bd.threads = 3;
+                bd.pool.run = cpool_run;
+                bd.pool.user = &cp;
+                memset(got, 0xab, SPHERE_RAYS * sizeof *got);
+                memset(occ, 0xab, SPHERE_RAYS);
+                assert_int_equal(bvh_intersect_custom_batch_ex(&tree, rays, got, SPHERE_RAYS, &cd, &bd), BVH_SUCCESS);
+                assert_int_equal(bvh_occluded_custom_batch_ex(&tree, rays, occ, SPHERE_RAYS, &cd, &bd), BVH_SUCCESS);
+                assert_int_equal(cp.runs, 2);
+            }
             for (i = 0; i < SPHERE_RAYS; i++)
                 bad += !same_hit(&got[i], &want[i]) + (occ[i] != (want[i].prim != BVH_INVALID));
         }
@@ -320,6 +370,9 @@ static void custom_arguments(void **state) {
     assert_int_equal(bvh_occluded_custom_batch(&tree, &ray, occ, 1, 1, &none), BVH_ERROR_INVALID_ARGUMENT);
     assert_int_equal(bvh_occluded_custom_batch(&tree, &ray, NULL, 1, 1, &cd), BVH_ERROR_INVALID_ARGUMENT);
     assert_int_equal(bvh_intersect_custom_batch(&tree, NULL, NULL, 0, 1, &cd), BVH_SUCCESS);
+    assert_int_equal(bvh_intersect_custom_batch_ex(&tree, &ray, hits, 1, NULL, NULL), BVH_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_occluded_custom_batch_ex(&tree, &ray, NULL, 1, &cd, NULL), BVH_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(bvh_occluded_custom_batch_ex(&tree, &ray, occ, 1, &cd, NULL), BVH_SUCCESS);
     assert_int_equal(bvh_intersect_custom_batch(&empty, &ray, hits, 1, 0, &cd), BVH_SUCCESS);
     assert_int_equal(hits[0].prim, BVH_INVALID);
     bvh_free(&tree);

@@ -8944,9 +8944,23 @@ static bvh_result bvh__batch_go(bvh__batch *b, const bvh_allocator *allocator, u
 #endif
     return bvh__team_run(allocator, nt, bvh__batch_fn, b);
 }
+/* A tree's batch (by the custom test where custom is set) through bvh__batch_go; the caller has
+   checked the arguments. */
+static bvh_result bvh__tree_batch_go(const bvh_tree *tree, const bvh_custom_desc *custom, const bvh_ray *rays,
+                                     bvh_hit *hits, uint8_t *occ, size_t count, uint32_t threads,
+                                     const bvh_thread_pool *pool) {
+    bvh__batch b;
+    memset(&b, 0, sizeof b);
+    b.tree = tree;
+    b.custom = custom;
+    b.rays = rays;
+    b.hits = hits;
+    b.occluded = occ;
+    b.count = count;
+    return bvh__batch_go(&b, &tree->allocator, threads, pool);
+}
 static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ, size_t count,
                                  uint32_t threads, const bvh_thread_pool *pool) {
-    bvh__batch b;
     if (!tree || (count && (!rays || (!hits && !occ)))) return BVH_ERROR_INVALID_ARGUMENT;
     if (!bvh__allocator_paired(&tree->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
     if (tree->node_count && !tree->tris) { /* as the single-ray calls: every ray misses */
@@ -8959,13 +8973,7 @@ static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_
         }
         return BVH_ERROR_NO_TRIANGLES;
     }
-    memset(&b, 0, sizeof b);
-    b.tree = tree;
-    b.rays = rays;
-    b.hits = hits;
-    b.occluded = occ;
-    b.count = count;
-    return bvh__batch_go(&b, &tree->allocator, threads, pool);
+    return bvh__tree_batch_go(tree, NULL, rays, hits, occ, count, threads, pool);
 }
 /* The four batch calls: the output the call writes (hits or occluded) must be given when there
    are rays; desc NULL = threads 0 (all CPUs) and no pool. */
@@ -9042,18 +9050,10 @@ BVH_API int bvh_occluded_custom(const bvh_tree *tree, const bvh_ray *ray, const 
 static bvh_result bvh__custom_batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ,
                                         size_t count, const bvh_custom_desc *custom, uint32_t threads,
                                         const bvh_thread_pool *pool) {
-    bvh__batch b;
     if (!tree || !custom || !custom->intersect || (count && (!rays || (!hits && !occ))))
         return BVH_ERROR_INVALID_ARGUMENT;
     if (!bvh__allocator_paired(&tree->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
-    memset(&b, 0, sizeof b);
-    b.tree = tree;
-    b.custom = custom;
-    b.rays = rays;
-    b.hits = hits;
-    b.occluded = occ;
-    b.count = count;
-    return bvh__batch_go(&b, &tree->allocator, threads, pool);
+    return bvh__tree_batch_go(tree, custom, rays, hits, occ, count, threads, pool);
 }
 BVH_API bvh_result bvh_intersect_custom_batch(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, size_t count,
                                               uint32_t threads, const bvh_custom_desc *custom) {

@@ -8944,19 +8944,24 @@ static bvh_result bvh__batch_go(bvh__batch *b, const bvh_allocator *allocator, u
 #endif
     return bvh__team_run(allocator, nt, bvh__batch_fn, b);
 }
+/* A batch of count rays, any-hit flags to occ (or NULL): the fields every batch has, the rest
+   zero for the caller to set (a tree or a scene, and where closest hits go). */
+static void bvh__batch_init(bvh__batch *b, const bvh_ray *rays, uint8_t *occ, size_t count) {
+    memset(b, 0, sizeof *b);
+    b->rays = rays;
+    b->occluded = occ;
+    b->count = count;
+}
 /* A tree's batch (by the custom test where custom is set) through bvh__batch_go; the caller has
    checked the arguments. */
 static bvh_result bvh__tree_batch_go(const bvh_tree *tree, const bvh_custom_desc *custom, const bvh_ray *rays,
                                      bvh_hit *hits, uint8_t *occ, size_t count, uint32_t threads,
                                      const bvh_thread_pool *pool) {
     bvh__batch b;
-    memset(&b, 0, sizeof b);
+    bvh__batch_init(&b, rays, occ, count);
     b.tree = tree;
     b.custom = custom;
-    b.rays = rays;
     b.hits = hits;
-    b.occluded = occ;
-    b.count = count;
     return bvh__batch_go(&b, &tree->allocator, threads, pool);
 }
 static bvh_result bvh__batch_run(const bvh_tree *tree, const bvh_ray *rays, bvh_hit *hits, uint8_t *occ, size_t count,
@@ -9619,13 +9624,10 @@ static bvh_result bvh__scene_batch(const bvh_scene *scene, const bvh_ray *rays, 
     bvh__batch b;
     if (!scene || (count && (!rays || (!hits && !occluded)))) return BVH_ERROR_INVALID_ARGUMENT;
     if (!bvh__allocator_paired(&scene->allocator)) return BVH_ERROR_INVALID_ARGUMENT;
-    memset(&b, 0, sizeof b);
+    bvh__batch_init(&b, rays, occluded, count);
     b.scene = scene;
     b.mask = mask;
-    b.rays = rays;
     b.scene_hits = hits;
-    b.occluded = occluded;
-    b.count = count;
     return bvh__batch_go(&b, &scene->allocator, desc ? desc->threads : 0, desc ? &desc->pool : NULL);
 }
 BVH_API bvh_result bvh_scene_intersect_batch(const bvh_scene *scene, const bvh_ray *rays, uint32_t mask,
